@@ -1,0 +1,5 @@
+import sys
+
+from fenics_adaptive.cli import main
+
+sys.exit(main())

@@ -1,0 +1,64 @@
+#!/usr/bin/env bash
+# Creates (or refreshes) the virtualenv .venv at the repository root with DOLFINx 0.11 (real PETSc,
+# mpich), numba, gmsh, matplotlib, pytest and ruff at the versions pinned in requirements/, and
+# installs fenics-adaptive into it in editable mode. Idempotent: when nothing it depends on has
+# changed since the last successful install, it does nothing and exits in well under a second.
+set -euo pipefail
+
+root=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
+venv="$root/.venv"
+stamp="$venv/.fenics-adaptive-install"
+
+fingerprint() {
+    cat "$root/requirements/native.txt" "$root/requirements/common.txt" "$root/pyproject.toml" \
+        | sha256sum | cut -d' ' -f1
+}
+
+if [[ -x "$venv/bin/python" && -f "$stamp" && "$(cat "$stamp")" == "$(fingerprint)" ]]; then
+    exit 0
+fi
+
+# DOLFINx's binary wheel exists for CPython >= 3.12 only.
+suitable() {
+    "$1" -c 'import sys; sys.exit(0 if sys.version_info >= (3, 12) else 1)' >/dev/null 2>&1
+}
+
+find_python() {
+    local candidate
+    for candidate in python3.14 python3.13 python3.12 python3; do
+        if command -v "$candidate" >/dev/null 2>&1 && suitable "$candidate"; then
+            command -v "$candidate"
+            return 0
+        fi
+    done
+    # pyenv keeps interpreters that are installed but not selected in its versions folder.
+    for candidate in "${PYENV_ROOT:-$HOME/.pyenv}"/versions/3.1[2-9]*/bin/python3; do
+        if [[ -x "$candidate" ]] && suitable "$candidate"; then
+            echo "$candidate"
+            return 0
+        fi
+    done
+    return 1
+}
+
+if [[ ! -x "$venv/bin/python" ]] || ! suitable "$venv/bin/python"; then
+    if ! python=$(find_python); then
+        echo "install: no Python >= 3.12 found (tried python3.14 .. python3.12 and python3 on PATH," \
+             "and ${PYENV_ROOT:-$HOME/.pyenv}/versions). DOLFINx's wheel needs CPython >= 3.12:" \
+             "install one and run this script again." >&2
+        exit 1
+    fi
+    echo "install: creating $venv with $python ($("$python" --version 2>&1))"
+    rm -rf "$venv"
+    "$python" -m venv "$venv"
+fi
+
+echo "install: installing pinned dependencies into $venv"
+"$venv/bin/python" -m pip install --quiet --upgrade pip
+"$venv/bin/python" -m pip install --quiet -r "$root/requirements/native.txt"
+"$venv/bin/python" -m pip install --quiet --no-deps -e "$root"
+# Fail here, not in the first test, if the stack does not import.
+"$venv/bin/python" -c 'from mpi4py import MPI; import dolfinx, numba, gmsh, matplotlib' \
+    || { echo "install: the installed stack does not import; see the error above." >&2; exit 1; }
+fingerprint > "$stamp"
+echo "install: done ($("$venv/bin/python" -c 'from mpi4py import MPI; import dolfinx; print("DOLFINx", dolfinx.__version__)'))"
