@@ -1,0 +1,237 @@
+"""The layered 8-node solid-shell element: its integration rule and its UFL forms.
+
+One hexahedron spans the whole laminate (or, once refined, a sublaminate). Reference coordinates
+(xi, eta, zeta) in [0, 1]^3, zeta through the thickness (the meshes guarantee it, see
+``meshes.beam``). Each ply owns ``points_per_ply`` Gauss points through the thickness inside its
+own zeta range, and carries its own stiffness there. Nothing else about a ply is stored.
+
+Transverse shear locking is removed with the selective in-plane rule that equals the
+Bathe-Dvorkin assumed natural strain (ANS) interpolation on elements with parallelogram faces:
+
+====================  ====================  =========================================
+term of the energy    in-plane points       why
+====================  ====================  =========================================
+normal + xy           2 x 2                 exact for bilinear strains
+gamma_xz^2            1 (xi) x 2 (eta)      ANS samples gamma_xz on xi = 1/2 lines
+gamma_yz^2            2 (xi) x 1 (eta)      ANS samples gamma_yz on eta = 1/2 lines
+gamma_xz * gamma_yz   1 x 1                 product of the two assumed fields
+====================  ====================  =========================================
+
+A ply rotated about the normal is monoclinic: its stiffness does not couple the transverse shears
+(yz, xz) to the other four components, so these four terms are the whole strain energy. The rule
+is expressed once (``ply_rules``) and used by both the UFL forms here and the numba subelement
+kernel, which must agree with them to round-off.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import dolfinx
+import numpy as np
+import ufl
+from dolfinx import fem
+
+from fenics_adaptive.laminate import Laminate
+
+GAUSS_2 = np.array([0.5 - 0.5 / np.sqrt(3.0), 0.5 + 0.5 / np.sqrt(3.0)])
+
+# Energy terms of the selective rule, and the Voigt indices (xx, yy, zz, yz, xz, xy) they use.
+NORMAL = (0, 1, 2, 5)
+YZ, XZ = 3, 4
+TERMS = ("normal", "shear_xz", "shear_yz", "shear_cross")
+# in-plane points (xi, eta) and weights of each term
+_IN_PLANE = {
+    "normal": (np.array([[a, b] for a in GAUSS_2 for b in GAUSS_2]), np.full(4, 0.25)),
+    "shear_xz": (np.array([[0.5, b] for b in GAUSS_2]), np.full(2, 0.5)),
+    "shear_yz": (np.array([[a, 0.5] for a in GAUSS_2]), np.full(2, 0.5)),
+    "shear_cross": (np.array([[0.5, 0.5]]), np.ones(1)),
+}
+
+
+def gauss_legendre_01(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """n-point Gauss-Legendre rule on [0, 1]."""
+    x, w = np.polynomial.legendre.leggauss(n)
+    return 0.5 * (x + 1.0), 0.5 * w
+
+
+def ply_rules(
+    zeta_lo: float, zeta_hi: float, points_per_ply: int
+) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """Reference points (n, 3) and weights (n,) of each energy term for one ply occupying
+    [zeta_lo, zeta_hi] of the element's reference thickness. Summed over the plies of an element
+    the weights of every term add up to 1 (the reference volume)."""
+    z, wz = gauss_legendre_01(points_per_ply)
+    z = zeta_lo + (zeta_hi - zeta_lo) * z
+    wz = (zeta_hi - zeta_lo) * wz
+    rules = {}
+    for term, (xy, w_xy) in _IN_PLANE.items():
+        points = np.array([[p[0], p[1], zk] for zk in z for p in xy])
+        weights = np.array([wk * w for wk in wz for w in w_xy])
+        rules[term] = (points, weights)
+    return rules
+
+
+def mass_rule(zeta_lo: float, zeta_hi: float) -> tuple[np.ndarray, np.ndarray]:
+    """2x2x2 Gauss rule inside one ply: integrates rho * N_i * det(J) of a hexahedron exactly
+    (the row sums of the consistent mass)."""
+    z, wz = gauss_legendre_01(2)
+    z = zeta_lo + (zeta_hi - zeta_lo) * z
+    wz = (zeta_hi - zeta_lo) * wz
+    points = np.array([[a, b, c] for c in z for a in GAUSS_2 for b in GAUSS_2])
+    weights = np.array([0.25 * w for w in wz for _ in range(4)])
+    return points, weights
+
+
+@dataclass(frozen=True)
+class PlyGroup:
+    """Plies of one element that share a stiffness (same material and angle): their points are
+    integrated by one custom-quadrature measure per term with one constant stiffness."""
+
+    stiffness: np.ndarray  # 6x6, shell frame
+    rho: float
+    ply_indices: tuple[int, ...]
+    rules: dict[str, tuple[np.ndarray, np.ndarray]]
+    mass_points: np.ndarray
+    mass_weights: np.ndarray
+
+
+def ply_groups(laminate: Laminate, points_per_ply: int) -> list[PlyGroup]:
+    fractions = laminate.ply_fractions
+    keys: dict[tuple, list[int]] = {}
+    for k, ply in enumerate(laminate.plies):
+        keys.setdefault((ply.material, ply.angle % 360.0), []).append(k)
+    groups = []
+    for indices in keys.values():
+        rules = {term: ([], []) for term in TERMS}
+        mass_points, mass_weights = [], []
+        for k in indices:
+            for term, (p, w) in ply_rules(fractions[k], fractions[k + 1], points_per_ply).items():
+                rules[term][0].append(p)
+                rules[term][1].append(w)
+            p, w = mass_rule(fractions[k], fractions[k + 1])
+            mass_points.append(p)
+            mass_weights.append(w)
+        ply = laminate.plies[indices[0]]
+        groups.append(
+            PlyGroup(
+                stiffness=ply.stiffness(),
+                rho=ply.material.rho,
+                ply_indices=tuple(indices),
+                rules={t: (np.vstack(p), np.concatenate(w)) for t, (p, w) in rules.items()},
+                mass_points=np.vstack(mass_points),
+                mass_weights=np.concatenate(mass_weights),
+            )
+        )
+    return groups
+
+
+def check_monoclinic(C: np.ndarray) -> None:
+    """The selective rule drops normal/shear coupling; it must be zero for the rule to be exact."""
+    coupling = np.abs(C[np.ix_(NORMAL, (YZ, XZ))]).max()
+    if coupling > 1e-12 * np.abs(C).max():
+        raise ValueError("ply stiffness couples transverse shear to in-plane strains")
+
+
+def voigt_small_strain(u: ufl.core.expr.Expr) -> ufl.core.expr.Expr:
+    """Small (linearised) strain in Voigt order (xx, yy, zz, yz, xz, xy), engineering shears."""
+    e = ufl.sym(ufl.grad(u))
+    return ufl.as_vector([e[0, 0], e[1, 1], e[2, 2], 2 * e[1, 2], 2 * e[0, 2], 2 * e[0, 1]])
+
+
+class SeparateKernels:
+    """Hands every custom-quadrature integral its own subdomain id, hence its own FFCx kernel.
+
+    Why: FFCx 0.11 hoists values that are constant within a quadrature loop (Jacobian and
+    gradient pieces) to the top of the kernel under names shared by all the loops of that
+    kernel, so two custom rules compiled into one kernel read each other's values and the
+    result is silently wrong (tests/test_solid_shell.py reproduces it). Each id may cover any
+    set of cells; ids may overlap.
+    """
+
+    def __init__(self, mesh: dolfinx.mesh.Mesh):
+        self.mesh = mesh
+        self.subdomains: list[tuple[int, np.ndarray]] = []
+
+    def measure(self, points: np.ndarray, weights: np.ndarray, cells: np.ndarray) -> ufl.Measure:
+        subdomain_id = len(self.subdomains) + 1
+        self.subdomains.append((subdomain_id, np.asarray(cells, dtype=np.int32)))
+        return ufl.Measure(
+            "dx",
+            domain=self.mesh,
+            subdomain_data=self.subdomains,  # the same list object for every integral
+            subdomain_id=subdomain_id,
+            metadata={
+                "quadrature_rule": "custom",
+                "quadrature_points": points,
+                "quadrature_weights": weights,
+            },
+        )
+
+
+def owned_cells(mesh: dolfinx.mesh.Mesh) -> np.ndarray:
+    return np.arange(mesh.topology.index_map(mesh.topology.dim).size_local, dtype=np.int32)
+
+
+def strain_energy_form(
+    u: fem.Function,
+    groups: list[PlyGroup],
+    kernels: SeparateKernels | None = None,
+    cells: np.ndarray | None = None,
+    selective: bool = True,
+) -> ufl.Form:
+    """Strain energy (N mm) of the layered solid-shell with the selective (ANS) rule over
+    ``cells`` (default: all owned cells), as a UFL form in the displacement ``u``. The internal
+    force is its derivative. ``selective=False`` integrates the transverse shear with the full
+    2x2 rule instead: the plain hexahedron, which locks in bending (kept to show what the
+    selective rule buys)."""
+    mesh = u.function_space.mesh
+    kernels = kernels if kernels is not None else SeparateKernels(mesh)
+    cells = cells if cells is not None else owned_cells(mesh)
+    energy = 0
+    eps = voigt_small_strain(u)
+    e_normal = ufl.as_vector([eps[i] for i in NORMAL])
+    for group in groups:
+        C = group.stiffness
+        check_monoclinic(C)
+        C_normal = ufl.as_matrix(C[np.ix_(NORMAL, NORMAL)].tolist())
+        rules = {term: group.rules[term if selective else "normal"] for term in TERMS}
+        energy += (
+            0.5 * ufl.dot(e_normal, C_normal * e_normal) * kernels.measure(*rules["normal"], cells)
+        )
+        energy += 0.5 * C[XZ, XZ] * eps[XZ] ** 2 * kernels.measure(*rules["shear_xz"], cells)
+        energy += 0.5 * C[YZ, YZ] * eps[YZ] ** 2 * kernels.measure(*rules["shear_yz"], cells)
+        if C[XZ, YZ] != 0.0:
+            energy += C[XZ, YZ] * eps[XZ] * eps[YZ] * kernels.measure(*rules["shear_cross"], cells)
+    return energy
+
+
+def internal_force_form(
+    u: fem.Function,
+    v: ufl.Argument,
+    groups: list[PlyGroup],
+    kernels: SeparateKernels | None = None,
+    cells: np.ndarray | None = None,
+    selective: bool = True,
+) -> ufl.Form:
+    """Internal force f_int(u) . v (N mm for a virtual displacement v)."""
+    return ufl.derivative(strain_energy_form(u, groups, kernels, cells, selective), u, v)
+
+
+def lumped_mass_form(
+    v: ufl.Argument,
+    groups: list[PlyGroup],
+    kernels: SeparateKernels | None = None,
+    cells: np.ndarray | None = None,
+) -> ufl.Form:
+    """Row-sum lumped mass as a linear form: m_i = sum_plies rho * integral(N_i) (tonne), the
+    same value in each of the three components of node i."""
+    mesh = v.ufl_function_space().mesh
+    kernels = kernels if kernels is not None else SeparateKernels(mesh)
+    cells = cells if cells is not None else owned_cells(mesh)
+    ones = ufl.as_vector([1.0, 1.0, 1.0])
+    mass = 0
+    for group in groups:
+        dx = kernels.measure(group.mass_points, group.mass_weights, cells)
+        mass += group.rho * ufl.dot(ones, v) * dx
+    return mass

@@ -1,0 +1,227 @@
+"""Gmsh generators for flat laminated beams and plates, handed to DOLFINx in memory.
+
+Units: mm. The box is [0, length] x [0, width] x [0, thickness], meshed with structured hexahedra
+(transfinite + recombine + extrude): ``nx`` x ``ny`` cells in-plane, and through the thickness
+either ONE cell (equivalent single layer, ``esl_mesh``) or one cell per layer (``layered_mesh``:
+layerwise, a layer being a ply or a group of plies).
+
+Layers separated by a *split* interface get their own nodes on that interface (two coincident node
+sets, where cohesive elements go); other layers share their interface nodes.
+
+Face groups, by name (``BeamMesh.facets(name)``):
+  x0, x1, y0, y1        the ends (x = 0, x = length) and sides (y = 0, y = width)
+  bottom, top           z = 0 and z = thickness
+  x0_layer{k}, ...      the same faces restricted to layer k (0 = bottom layer), so that one arm
+                        of a layered beam can be pulled or clamped on its own
+
+Every hexahedron comes out of DOLFINx with its reference zeta axis along +z (vertices 0-3 on its
+bottom face, 4-7 on its top face, in the order of the reference cell): the layered integration
+of ``fenics_adaptive.solid_shell`` relies on it, so the generator checks it.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import dolfinx
+import dolfinx.io.gmsh
+import gmsh
+import numpy as np
+from mpi4py import MPI
+
+SIDES = ("x0", "x1", "y0", "y1")
+
+
+@dataclass
+class BeamMesh:
+    mesh: dolfinx.mesh.Mesh
+    cell_tags: dolfinx.mesh.MeshTags  # value = layer index + 1
+    facet_tags: dolfinx.mesh.MeshTags
+    face_tags: dict[str, tuple[int, ...]]  # face-group name -> facet tag values
+    length: float
+    width: float
+    layer_z: np.ndarray  # z of the layer boundaries, bottom to top
+    split: tuple[bool, ...] = field(default=())  # per inner layer boundary: own nodes each side?
+
+    @property
+    def n_layers(self) -> int:
+        return len(self.layer_z) - 1
+
+    @property
+    def thickness(self) -> float:
+        return float(self.layer_z[-1] - self.layer_z[0])
+
+    def facets(self, name: str) -> np.ndarray:
+        """Local indices of the facets of a face group (sorted, unique)."""
+        if name not in self.face_tags:
+            raise KeyError(f"unknown face group {name!r}; known: {', '.join(self.face_names)}")
+        return np.unique(
+            np.concatenate([self.facet_tags.find(tag) for tag in self.face_tags[name]])
+        ).astype(np.int32)
+
+    @property
+    def face_names(self) -> list[str]:
+        return list(self.face_tags)
+
+
+def _facet_tag(layer: int, face: str) -> int:
+    return 100 * (layer + 1) + ("x0", "x1", "y0", "y1", "bottom", "top").index(face)
+
+
+def _rectangle(length: float, width: float, z: float, nx: int, ny: int) -> int:
+    geo = gmsh.model.geo
+    p = [
+        geo.addPoint(0.0, 0.0, z),
+        geo.addPoint(length, 0.0, z),
+        geo.addPoint(length, width, z),
+        geo.addPoint(0.0, width, z),
+    ]
+    lines = [geo.addLine(p[i], p[(i + 1) % 4]) for i in range(4)]
+    for line, n in zip(lines, (nx, ny, nx, ny), strict=True):
+        geo.mesh.setTransfiniteCurve(line, n + 1)
+    surface = geo.addPlaneSurface([geo.addCurveLoop(lines)])
+    geo.mesh.setTransfiniteSurface(surface)
+    geo.mesh.setRecombine(2, surface)
+    return surface
+
+
+def layered_mesh(
+    comm: MPI.Comm,
+    length: float,
+    width: float,
+    nx: int,
+    ny: int,
+    layer_thicknesses: Sequence[float],
+    split: Sequence[bool] | None = None,
+) -> BeamMesh:
+    """Layered hexahedral box: one cell per layer through the thickness. ``split[k]`` says whether
+    the boundary between layer k and k + 1 has its own nodes on each side."""
+    for name, value in (("length", length), ("width", width)):
+        if not value > 0:
+            raise ValueError(f"mesh.{name}: must be > 0 mm (got {value})")
+    for name, value in (("nx", nx), ("ny", ny)):
+        if int(value) != value or value < 1:
+            raise ValueError(f"mesh.{name}: must be an integer >= 1 (got {value})")
+    thicknesses = [float(t) for t in layer_thicknesses]
+    if not thicknesses or min(thicknesses) <= 0:
+        raise ValueError(f"mesh layers: thicknesses must be > 0 mm (got {thicknesses})")
+    split = tuple(
+        bool(s) for s in (split if split is not None else [False] * (len(thicknesses) - 1))
+    )
+    if len(split) != len(thicknesses) - 1:
+        raise ValueError("mesh layers: need one split flag per inner layer boundary")
+    layer_z = np.concatenate([[0.0], np.cumsum(thicknesses)])
+
+    started_gmsh = not gmsh.isInitialized()
+    if started_gmsh:
+        gmsh.initialize(interruptible=False)
+    gmsh.option.setNumber("General.Terminal", 0)
+    gmsh.model.add("fenics_adaptive_beam")
+    try:
+        if comm.rank == 0:
+            _build_layers(length, width, nx, ny, thicknesses, split, layer_z)
+        mesh_data = dolfinx.io.gmsh.model_to_mesh(gmsh.model, comm, 0, gdim=3)
+    finally:
+        gmsh.model.remove()
+        if started_gmsh:
+            gmsh.finalize()
+
+    face_tags: dict[str, tuple[int, ...]] = {}
+    n_layers = len(thicknesses)
+    for face in SIDES:
+        face_tags[face] = tuple(_facet_tag(k, face) for k in range(n_layers))
+    face_tags["bottom"] = (_facet_tag(0, "bottom"),)
+    face_tags["top"] = (_facet_tag(n_layers - 1, "top"),)
+    for k in range(n_layers):
+        for face in SIDES:
+            face_tags[f"{face}_layer{k}"] = (_facet_tag(k, face),)
+    beam = BeamMesh(
+        mesh=mesh_data.mesh,
+        cell_tags=mesh_data.cell_tags,
+        facet_tags=mesh_data.facet_tags,
+        face_tags=face_tags,
+        length=float(length),
+        width=float(width),
+        layer_z=layer_z,
+        split=split,
+    )
+    _check_orientation(beam)
+    return beam
+
+
+def esl_mesh(
+    comm: MPI.Comm, length: float, width: float, nx: int, ny: int, thickness: float
+) -> BeamMesh:
+    """Equivalent single layer: one hexahedron through the whole laminate thickness."""
+    return layered_mesh(comm, length, width, nx, ny, [thickness])
+
+
+def _build_layers(length, width, nx, ny, thicknesses, split, layer_z) -> None:
+    geo = gmsh.model.geo
+    volumes, laterals, bottoms, tops = [], [], [], []
+    # Gmsh merges coincident geometry, so a layer above a split interface starts from a copy of
+    # the interface lifted by `gap`; its nodes are put back onto the interface after meshing.
+    gap = 1e-3 * min(thicknesses)
+    lifted = []
+    top_surface = None
+    for k in range(len(thicknesses)):
+        if k == 0 or split[k - 1]:
+            z0 = layer_z[k] + (gap if k > 0 else 0.0)
+            base = _rectangle(length, width, z0, nx, ny)
+            if k > 0:
+                lifted.append((base, layer_z[k]))
+        else:
+            base = top_surface
+            z0 = layer_z[k]
+        out = geo.extrude(
+            [(2, base)], 0.0, 0.0, layer_z[k + 1] - z0, numElements=[1], recombine=True
+        )
+        top_surface = out[0][1]
+        volumes.append(out[1][1])
+        laterals.append([dim_tag[1] for dim_tag in out[2:]])
+        bottoms.append(base)
+        tops.append(top_surface)
+    geo.synchronize()
+
+    model = gmsh.model
+    tol = 1e-9 * max(length, width, layer_z[-1])
+    for k, volume in enumerate(volumes):
+        model.addPhysicalGroup(3, [volume], k + 1, name=f"layer{k}")
+        by_face = {face: [] for face in SIDES}
+        for surface in laterals[k]:
+            x0, y0, _, x1, y1, _ = model.getBoundingBox(2, surface)
+            if abs(x1 - x0) < tol:
+                by_face["x0" if abs(x0) < tol else "x1"].append(surface)
+            elif abs(y1 - y0) < tol:
+                by_face["y0" if abs(y0) < tol else "y1"].append(surface)
+        for face, surfaces in by_face.items():
+            if len(surfaces) != 1:
+                raise RuntimeError(f"gmsh: layer {k} has {len(surfaces)} surfaces on {face}")
+            model.addPhysicalGroup(2, surfaces, _facet_tag(k, face), name=f"{face}_layer{k}")
+    model.addPhysicalGroup(2, [bottoms[0]], _facet_tag(0, "bottom"), name="bottom")
+    n = len(volumes) - 1
+    model.addPhysicalGroup(2, [tops[n]], _facet_tag(n, "top"), name="top")
+    model.mesh.generate(3)
+    for surface, z in lifted:
+        tags, coords, _ = model.mesh.getNodes(2, surface, includeBoundary=True)
+        for tag, xyz in zip(tags, coords.reshape(-1, 3), strict=True):
+            model.mesh.setNode(int(tag), [xyz[0], xyz[1], z], [])
+
+
+def _check_orientation(beam: BeamMesh) -> None:
+    """Each cell's vertices 4-7 must sit straight above 0-3 (reference zeta = +z), vertex 1 must
+    follow vertex 0 in +x-ish and vertex 2 in +y-ish directions (a right-handed cell)."""
+    mesh = beam.mesh
+    x = mesh.geometry.x
+    nodes = mesh.geometry.dofmaps[0]
+    n_local = mesh.topology.index_map(3).size_local
+    X = x[nodes[:n_local]]
+    rise = X[:, 4:, :] - X[:, :4, :]
+    in_plane = np.linalg.norm(rise[:, :, :2], axis=2)
+    if np.any(rise[:, :, 2] <= 0.0) or np.any(in_plane > 1e-9 * (1.0 + rise[:, :, 2])):
+        raise RuntimeError("mesh: hexahedra are not extruded along +z (zeta must be the normal)")
+    d_xi = X[:, 1, :] - X[:, 0, :]
+    d_eta = X[:, 2, :] - X[:, 0, :]
+    if np.any(np.cross(d_xi, d_eta)[:, 2] <= 0.0):
+        raise RuntimeError("mesh: hexahedra are not right-handed in the (xi, eta) plane")
