@@ -1,0 +1,223 @@
+"""Time curves, clamps, prescribed motions and face loads, resolved to DOFs of a model.
+
+Units: N, mm, s. A face is named by its group in the mesh (``meshes.beam``: x0, x1, top,
+x1_layer3, ...). Components are "x", "y", "z".
+"""
+
+from __future__ import annotations
+
+import bisect
+import itertools
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import dolfinx
+import numpy as np
+import ufl
+from dolfinx import fem
+from mpi4py import MPI
+
+from fenics_adaptive.model import LayeredModel
+
+COMPONENTS = {"x": 0, "y": 1, "z": 2}
+
+
+@dataclass(frozen=True)
+class Amplitude:
+    """Dimensionless scale factor of time: piecewise between the points (times, values), constant
+    before the first and after the last. ``smooth`` joins the points with the C1 smoothstep
+    3 s^2 - 2 s^3 instead of straight lines (zero rate at every point: no velocity jumps)."""
+
+    times: tuple[float, ...]
+    values: tuple[float, ...]
+    smooth: bool = False
+
+    def __post_init__(self) -> None:
+        if len(self.times) != len(self.values) or len(self.times) < 1:
+            raise ValueError("amplitude: need as many values as times, at least one")
+        if any(not math.isfinite(t) for t in self.times + self.values):
+            raise ValueError("amplitude: times and values must be finite")
+        if any(b < a for a, b in itertools.pairwise(self.times)):
+            raise ValueError("amplitude: times must not decrease")
+
+    @classmethod
+    def ramp(cls, rise_time: float, smooth: bool = True) -> Amplitude:
+        """0 at t = 0 up to 1 at t = rise_time, then held."""
+        if not rise_time > 0:
+            raise ValueError(f"amplitude: rise_time must be > 0 s (got {rise_time})")
+        return cls((0.0, float(rise_time)), (0.0, 1.0), smooth)
+
+    @classmethod
+    def constant(cls, value: float = 1.0) -> Amplitude:
+        return cls((0.0,), (float(value),))
+
+    def _segment(self, t: float) -> tuple[int, float] | None:
+        i = bisect.bisect_right(self.times, t) - 1
+        if i < 0 or i >= len(self.times) - 1:
+            return None
+        t0, t1 = self.times[i], self.times[i + 1]
+        return i, (t - t0) / (t1 - t0) if t1 > t0 else 1.0
+
+    def __call__(self, t: float) -> float:
+        segment = self._segment(t)
+        if segment is None:
+            return self.values[0] if t < self.times[0] else self.values[-1]
+        i, s = segment
+        if self.smooth:
+            s = s * s * (3.0 - 2.0 * s)
+        return self.values[i] + (self.values[i + 1] - self.values[i]) * s
+
+    def integral(self, t: float) -> float:
+        """Integral of the amplitude from 0 to t (s): a velocity amplitude's displacement."""
+        total = 0.0
+        start = 0.0
+        knots = [tk for tk in self.times if tk > 0.0] + [math.inf]
+        for knot in knots:
+            end = min(knot, t)
+            if end > start:
+                total += self._integrate_piece(start, end)
+            start = end
+            if start >= t:
+                break
+        return total
+
+    def _integrate_piece(self, a: float, b: float) -> float:
+        # within one segment (or before/after the curve): the smoothstep and straight line are
+        # cubic and linear in s, so 2-point Gauss is exact
+        x, w = np.polynomial.legendre.leggauss(2)
+        mid, half = 0.5 * (a + b), 0.5 * (b - a)
+        return half * sum(wi * self(mid + half * xi) for xi, wi in zip(x, w, strict=True))
+
+
+@dataclass(frozen=True)
+class PrescribedMotion:
+    """Displacement of ``component`` of every node on ``face``: value * amplitude(t) when
+    ``kind`` is "displacement" (mm), value * integral of amplitude when it is "velocity" (mm/s).
+    A clamp is a displacement of 0 in all components."""
+
+    face: str
+    component: str
+    kind: str
+    value: float
+    amplitude: Amplitude
+
+    def displacement(self, t: float) -> float:
+        if self.kind == "displacement":
+            return self.value * self.amplitude(t)
+        return self.value * self.amplitude.integral(t)
+
+
+@dataclass(frozen=True)
+class FaceLoad:
+    """A total force (N, vector) spread over a face as a uniform traction, times amplitude(t)."""
+
+    face: str
+    force: tuple[float, float, float]
+    amplitude: Amplitude
+
+
+def clamp(face: str) -> list[PrescribedMotion]:
+    return [
+        PrescribedMotion(face, c, "displacement", 0.0, Amplitude.constant(0.0)) for c in COMPONENTS
+    ]
+
+
+@dataclass
+class ResolvedMotion:
+    motion: PrescribedMotion
+    dofs: np.ndarray  # owned DOF indices (block-unrolled) of the model's space
+
+
+@dataclass
+class ResolvedLoads:
+    """Everything the explicit solver needs from the loading, as arrays on the model's DOFs."""
+
+    motions: list[ResolvedMotion]
+    constrained: np.ndarray  # sorted owned DOFs under a prescribed motion
+    load_vectors: list[np.ndarray]  # one nodal force vector per FaceLoad (owned + ghosts), N
+    load_amplitudes: list[Amplitude]
+    _scratch: np.ndarray | None = None
+
+    def prescribed_displacements(self, t: float, u: np.ndarray) -> None:
+        """Write the prescribed displacements at time t into the full DOF array u."""
+        for resolved in self.motions:
+            u[resolved.dofs] = resolved.motion.displacement(t)
+
+    def prescribed_values(self, t: float, out: np.ndarray) -> None:
+        """The prescribed displacements at time t of the DOFs ``constrained``, in that order."""
+        for resolved, positions in zip(self.motions, self._positions, strict=True):
+            out[positions] = resolved.motion.displacement(t)
+
+    def __post_init__(self) -> None:
+        self._positions = [np.searchsorted(self.constrained, r.dofs) for r in self.motions]
+
+    def external_force(self, t: float, out: np.ndarray) -> None:
+        out.fill(0.0)
+        if self._scratch is None or self._scratch.shape != out.shape:
+            self._scratch = np.empty_like(out)
+        for vector, amplitude in zip(self.load_vectors, self.load_amplitudes, strict=True):
+            scale = amplitude(t)
+            if scale != 0.0:
+                np.multiply(vector, scale, out=self._scratch)
+                out += self._scratch
+
+
+def face_dofs(
+    model: LayeredModel, face: str, component: str, owned_only: bool = True
+) -> np.ndarray:
+    """DOFs (block-unrolled, sorted) of one component on a face group: this rank's owned ones,
+    or with ``owned_only=False`` also its ghosts."""
+    beam = model.beam
+    facets = beam.facets(face)
+    fdim = beam.mesh.topology.dim - 1
+    beam.mesh.topology.create_connectivity(fdim, beam.mesh.topology.dim)
+    dofs = fem.locate_dofs_topological(model.V.sub(COMPONENTS[component]), fdim, facets)
+    if owned_only:
+        dofs = dofs[dofs < model.n_owned_dofs]
+    return np.sort(dofs).astype(np.int32)
+
+
+def face_area(model: LayeredModel, face: str) -> float:
+    ds = ufl.Measure("ds", domain=model.mesh, subdomain_data=model.beam.facet_tags)
+    tags = model.beam.face_tags[face]
+    area = fem.assemble_scalar(fem.form(1.0 * ds(tags)))
+    return model.comm.allreduce(area, op=MPI.SUM)
+
+
+def resolve(
+    model: LayeredModel, motions: Sequence[PrescribedMotion], loads: Sequence[FaceLoad]
+) -> ResolvedLoads:
+    resolved = []
+    owner: dict[int, PrescribedMotion] = {}
+    for motion in motions:
+        dofs = face_dofs(model, motion.face, motion.component)
+        for dof in dofs:
+            previous = owner.setdefault(int(dof), motion)
+            if previous is not motion and previous != motion:
+                # the same DOF prescribed twice is fine only if both say the same thing
+                if not (_is_zero(previous) and _is_zero(motion)):
+                    raise ValueError(
+                        f"faces {previous.face!r} and {motion.face!r} both prescribe "
+                        f"component {motion.component} of the nodes they share, differently"
+                    )
+        resolved.append(ResolvedMotion(motion, dofs))
+    constrained = np.array(sorted(owner), dtype=np.int32)
+
+    vectors = []
+    ds = ufl.Measure("ds", domain=model.mesh, subdomain_data=model.beam.facet_tags)
+    v = ufl.TestFunction(model.V)
+    for load in loads:
+        area = face_area(model, load.face)
+        traction = ufl.as_vector([f / area for f in load.force])
+        vec = fem.assemble_vector(
+            fem.form(ufl.dot(traction, v) * ds(model.beam.face_tags[load.face]))
+        )
+        vec.scatter_reverse(dolfinx.la.InsertMode.add)
+        vec.scatter_forward()
+        vectors.append(vec.array.copy())
+    return ResolvedLoads(resolved, constrained, vectors, [load.amplitude for load in loads])
+
+
+def _is_zero(motion: PrescribedMotion) -> bool:
+    return motion.value == 0.0 or all(v == 0.0 for v in motion.amplitude.values)
