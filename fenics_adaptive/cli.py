@@ -1,0 +1,74 @@
+"""Command line: ``fenics-adaptive run CONFIG.toml --out DIR`` and ``fenics-adaptive check``.
+
+Exit status: 0 done, 2 bad input (one line on stderr naming the key), 1 the run failed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import traceback
+
+from mpi4py import MPI
+
+from fenics_adaptive.errors import InputError
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(
+        prog="fenics-adaptive",
+        description="Explicit dynamics of laminated beams and plates with the adaptive "
+        "thick-shell element (units: N, mm, s, tonne).",
+    )
+    commands = parser.add_subparsers(dest="command", required=True)
+    run = commands.add_parser("run", help="run a config and write its results")
+    run.add_argument("config", help="TOML run configuration")
+    run.add_argument("--out", required=True, help="output folder (created if needed)")
+    run.add_argument("--quiet", action="store_true", help="no progress and no log lines")
+    check = commands.add_parser("check", help="check a config and report the time step, no run")
+    check.add_argument("config", help="TOML run configuration")
+    args = parser.parse_args(argv)
+
+    comm = MPI.COMM_WORLD
+    # Imported here so that `--help` answers without loading DOLFINx.
+    from fenics_adaptive.config import load_config
+    from fenics_adaptive.runner import build_problem, run_config
+
+    try:
+        config = load_config(args.config)
+        if args.command == "check":
+            problem = build_problem(config, comm)
+            if comm.rank == 0:
+                steps = config.solver.end_time / problem.time_step
+                print(
+                    f"{args.config}: ok; time step {problem.time_step:.4e} s "
+                    f"(stable {problem.stable_time_step:.4e} s), {steps:.0f} steps"
+                )
+            return 0
+        run_config(
+            config,
+            args.out,
+            comm,
+            show_progress=not args.quiet,
+            log=None if args.quiet else print,
+        )
+    except InputError as error:
+        if comm.rank == 0:
+            print(f"fenics-adaptive: {args.config}: {error}", file=sys.stderr)
+        return 2
+    except Exception as error:  # the run itself failed: say why in one line
+        if comm.rank == 0:
+            if os.environ.get("FENICS_ADAPTIVE_TRACEBACK"):
+                traceback.print_exc()
+            print(
+                f"fenics-adaptive: run failed: {type(error).__name__}: {error} "
+                "(FENICS_ADAPTIVE_TRACEBACK=1 shows where)",
+                file=sys.stderr,
+            )
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

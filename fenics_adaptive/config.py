@@ -1,0 +1,389 @@
+"""Run configuration: a TOML file, checked completely before anything runs.
+
+Units: N, mm, s, tonne (stress MPa, density tonne/mm^3, energy mJ). Every config file says so in
+its header. Every problem is reported as one line naming the key, e.g.
+``mesh.nx: must be an integer >= 1 (got 0)``; unknown keys are errors, never ignored.
+
+Sections (see demos/*.toml for complete examples):
+  [model]        kind = "esl" | "layerwise"; points_per_ply (1 or 2)
+  [mesh]         length, width (mm), nx, ny (cells in-plane); layers = [plies per mesh layer]
+                 for a layerwise model (default: one layer per ply)
+  [materials.NAME]  E1, E2, G12, nu12, nu23, rho, optional G23
+  [laminate]     material + ply_thickness + angles (bottom to top), or plies = [{material,
+                 angle, thickness}, ...]
+  [[clamp]]      face                         all components held at zero
+  [[prescribed]] face, component, displacement (mm) or velocity (mm/s), time curve
+  [[load]]       face, force = [Fx, Fy, Fz] (N, total over the face), time curve
+  [solver]       end_time, safety_factor, time_step (optional, forced), mass_damping (1/s)
+  [output]       interval (s between history rows), fields_interval (s, optional),
+                 displacement_face, reaction_face, component
+Time curve (for prescribed/load): rise_time + profile ("smooth" or "linear"): 0 -> 1 over
+rise_time, then held; or curve = [[t0, s0], [t1, s1], ...] (piecewise linear, held after).
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from fenics_adaptive.errors import InputError
+from fenics_adaptive.explicit import Probe, SolverSettings
+from fenics_adaptive.laminate import Laminate, Ply, PlyMaterial
+from fenics_adaptive.loading import COMPONENTS, Amplitude, FaceLoad, PrescribedMotion, clamp
+
+MODEL_KINDS = ("esl", "layerwise")
+BASE_FACES = ("x0", "x1", "y0", "y1", "bottom", "top")
+SIDE_FACES = ("x0", "x1", "y0", "y1")
+
+
+@dataclass(frozen=True)
+class MeshConfig:
+    length: float
+    width: float
+    nx: int
+    ny: int
+    layers: tuple[int, ...]  # plies per mesh layer, bottom to top
+
+
+@dataclass(frozen=True)
+class RunConfig:
+    kind: str
+    points_per_ply: int
+    mesh: MeshConfig
+    laminate: Laminate
+    motions: tuple[PrescribedMotion, ...]
+    loads: tuple[FaceLoad, ...]
+    solver: SolverSettings
+    probe: Probe
+    source: str = "<memory>"
+
+    def layer_laminates(self) -> list[Laminate]:
+        """The laminate of each mesh layer (one for ESL)."""
+        plies = self.laminate.plies
+        out, start = [], 0
+        for count in self.mesh.layers:
+            out.append(Laminate(plies[start : start + count]))
+            start += count
+        return out
+
+    @property
+    def face_names(self) -> list[str]:
+        return face_names(len(self.mesh.layers))
+
+
+def face_names(n_layers: int) -> list[str]:
+    names = list(BASE_FACES)
+    for k in range(n_layers):
+        names += [f"{face}_layer{k}" for face in SIDE_FACES]
+    return names
+
+
+class _Table:
+    """A TOML table being read: typed getters that name the key in every error, and a final
+    check that no key was left unread (unknown keys are errors)."""
+
+    def __init__(self, path: str, data: Any):
+        if not isinstance(data, dict):
+            raise InputError(path, f"must be a table (got {type(data).__name__})")
+        self.path = path
+        self.data = data
+        self.read: set[str] = set()
+
+    def key(self, name: str) -> str:
+        return f"{self.path}.{name}" if self.path else name
+
+    def has(self, name: str) -> bool:
+        return name in self.data
+
+    def raw(self, name: str, default: Any = ..., required: bool = True) -> Any:
+        self.read.add(name)
+        if name not in self.data:
+            if default is not ...:
+                return default
+            if required:
+                raise InputError(self.key(name), "missing")
+            return None
+        return self.data[name]
+
+    def number(
+        self,
+        name: str,
+        default: Any = ...,
+        minimum: float | None = None,
+        positive: bool = False,
+        maximum: float | None = None,
+    ) -> float:
+        value = self.raw(name, default)
+        if value is None and default is None:
+            return None
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            raise InputError(self.key(name), f"must be a number (got {value!r})")
+        value = float(value)
+        if not math.isfinite(value):
+            raise InputError(self.key(name), f"must be finite (got {value})")
+        if positive and not value > 0:
+            raise InputError(self.key(name), f"must be > 0 (got {value:g})")
+        if minimum is not None and value < minimum:
+            raise InputError(self.key(name), f"must be >= {minimum:g} (got {value:g})")
+        if maximum is not None and value > maximum:
+            raise InputError(self.key(name), f"must be <= {maximum:g} (got {value:g})")
+        return value
+
+    def integer(self, name: str, default: Any = ..., minimum: int = 1) -> int:
+        value = self.raw(name, default)
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise InputError(self.key(name), f"must be an integer >= {minimum} (got {value!r})")
+        if value < minimum:
+            raise InputError(self.key(name), f"must be an integer >= {minimum} (got {value})")
+        return value
+
+    def string(self, name: str, choices: tuple[str, ...] | list[str] | None = None, default=...):
+        value = self.raw(name, default)
+        if not isinstance(value, str):
+            raise InputError(self.key(name), f"must be a string (got {value!r})")
+        if choices is not None and value not in choices:
+            raise InputError(self.key(name), f"must be one of {', '.join(choices)} (got {value!r})")
+        return value
+
+    def table(self, name: str, required: bool = True) -> _Table | None:
+        value = self.raw(name, required=required)
+        if value is None:
+            return None
+        return _Table(self.key(name), value)
+
+    def array_of_tables(self, name: str) -> list[_Table]:
+        value = self.raw(name, default=[])
+        if not isinstance(value, list):
+            raise InputError(self.key(name), "must be an array of tables ([[...]])")
+        return [_Table(f"{self.key(name)}[{i}]", item) for i, item in enumerate(value)]
+
+    def finish(self) -> None:
+        unknown = sorted(set(self.data) - self.read)
+        if unknown:
+            raise InputError(self.key(unknown[0]), "unknown key")
+
+
+def load_config(path: str | Path) -> RunConfig:
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except OSError as error:
+        raise InputError(str(path), f"cannot read the config file ({error.strerror})") from None
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as error:
+        raise InputError(str(path), f"not valid TOML ({error})") from None
+    return parse_config(data, source=str(path))
+
+
+def parse_config(data: dict, source: str = "<memory>") -> RunConfig:
+    root = _Table("", data)
+
+    model = root.table("model")
+    kind = model.string("kind", MODEL_KINDS)
+    points_per_ply = model.integer("points_per_ply", default=1)
+    if points_per_ply > 2:
+        raise InputError(model.key("points_per_ply"), f"must be 1 or 2 (got {points_per_ply})")
+    model.finish()
+
+    materials = _materials(root.table("materials"))
+    laminate = _laminate(root.table("laminate"), materials)
+    mesh = _mesh(root.table("mesh"), kind, laminate)
+    for k, count in enumerate(mesh.layers):
+        if count * points_per_ply < 2:
+            raise InputError(
+                "mesh.layers" if kind == "layerwise" else "laminate",
+                f"mesh layer {k} holds one ply with one integration point through the thickness:"
+                " its bending mode has no stiffness (group plies, or set model.points_per_ply = 2)",
+            )
+    faces = face_names(len(mesh.layers))
+
+    motions: list[PrescribedMotion] = []
+    for table in root.array_of_tables("clamp"):
+        motions += clamp(_face(table, faces))
+        table.finish()
+    for table in root.array_of_tables("prescribed"):
+        face = _face(table, faces)
+        component = table.string("component", tuple(COMPONENTS))
+        if table.has("displacement") == table.has("velocity"):
+            raise InputError(
+                table.key("displacement"), "give exactly one of displacement, velocity"
+            )
+        kind_of_motion = "displacement" if table.has("displacement") else "velocity"
+        value = table.number(kind_of_motion)
+        motions.append(PrescribedMotion(face, component, kind_of_motion, value, _amplitude(table)))
+        table.finish()
+    loads: list[FaceLoad] = []
+    for table in root.array_of_tables("load"):
+        face = _face(table, faces)
+        force = table.raw("force")
+        if (
+            not isinstance(force, list)
+            or len(force) != 3
+            or any(isinstance(f, bool) or not isinstance(f, int | float) for f in force)
+        ):
+            raise InputError(table.key("force"), f"must be [Fx, Fy, Fz] in N (got {force!r})")
+        loads.append(FaceLoad(face, tuple(float(f) for f in force), _amplitude(table)))
+        table.finish()
+    if not motions:
+        raise InputError("clamp", "the model needs at least one [[clamp]] or [[prescribed]] face")
+
+    solver_table = root.table("solver")
+    end_time = solver_table.number("end_time", positive=True)
+    safety = solver_table.number("safety_factor", default=0.9, positive=True, maximum=1.0)
+    forced = solver_table.number("time_step", default=None, positive=True)
+    damping = solver_table.number("mass_damping", default=0.0, minimum=0.0)
+    solver_table.finish()
+
+    output = root.table("output")
+    interval = output.number("interval", positive=True)
+    fields_interval = output.number("fields_interval", default=None, positive=True)
+    probe = Probe(
+        displacement_face=_face(output, faces, "displacement_face"),
+        reaction_face=_face(output, faces, "reaction_face"),
+        component=output.string("component", tuple(COMPONENTS)),
+    )
+    output.finish()
+    if interval > end_time:
+        raise InputError("output.interval", f"is longer than solver.end_time ({end_time:g} s)")
+    constrained_faces = {m.face for m in motions}
+    if probe.reaction_face not in constrained_faces:
+        raise InputError(
+            "output.reaction_face",
+            f"{probe.reaction_face!r} is neither clamped nor prescribed; a reaction force exists "
+            f"only there ({', '.join(sorted(constrained_faces))})",
+        )
+    root.finish()
+    return RunConfig(
+        kind=kind,
+        points_per_ply=points_per_ply,
+        mesh=mesh,
+        laminate=laminate,
+        motions=tuple(motions),
+        loads=tuple(loads),
+        solver=SolverSettings(
+            end_time=end_time,
+            output_interval=interval,
+            safety_factor=safety,
+            time_step=forced,
+            mass_damping=damping,
+            field_interval=fields_interval,
+        ),
+        probe=probe,
+        source=source,
+    )
+
+
+def _materials(table: _Table) -> dict[str, PlyMaterial]:
+    if not table.data:
+        raise InputError("materials", "define at least one material ([materials.NAME])")
+    materials = {}
+    for name in table.data:
+        table.read.add(name)
+        materials[name] = PlyMaterial.from_mapping(name, table.data[name])
+    return materials
+
+
+def _laminate(table: _Table, materials: dict[str, PlyMaterial]) -> Laminate:
+    def material(key: str, name: Any) -> PlyMaterial:
+        if name not in materials:
+            raise InputError(key, f"unknown material {name!r} (defined: {', '.join(materials)})")
+        return materials[name]
+
+    if table.has("plies"):
+        for name in ("material", "angles", "ply_thickness"):
+            if table.has(name):
+                raise InputError(table.key(name), "give either plies, or material + angles")
+        plies_raw = table.array_of_tables("plies")
+        if not plies_raw:
+            raise InputError(table.key("plies"), "needs at least one ply")
+        plies = []
+        for ply_table in plies_raw:
+            mat = material(ply_table.key("material"), ply_table.string("material"))
+            angle = ply_table.number("angle", minimum=-360.0, maximum=360.0)
+            thickness = ply_table.number("thickness", positive=True)
+            ply_table.finish()
+            plies.append(Ply(mat, angle, thickness))
+    else:
+        mat = material(table.key("material"), table.string("material"))
+        thickness = table.number("ply_thickness", positive=True)
+        angles = table.raw("angles")
+        if not isinstance(angles, list) or not angles:
+            raise InputError(table.key("angles"), "must be a non-empty list of ply angles (deg)")
+        for i, angle in enumerate(angles):
+            if isinstance(angle, bool) or not isinstance(angle, int | float):
+                raise InputError(f"{table.key('angles')}[{i}]", f"must be a number (got {angle!r})")
+            if not -360.0 <= angle <= 360.0:
+                raise InputError(
+                    f"{table.key('angles')}[{i}]", f"must be within [-360, 360] deg (got {angle})"
+                )
+        plies = [Ply(mat, float(a), thickness) for a in angles]
+    table.finish()
+    return Laminate(tuple(plies))
+
+
+def _mesh(table: _Table, kind: str, laminate: Laminate) -> MeshConfig:
+    length = table.number("length", positive=True)
+    width = table.number("width", positive=True)
+    nx = table.integer("nx")
+    ny = table.integer("ny")
+    if kind == "layerwise":
+        layers = table.raw("layers", default=[1] * laminate.n_plies)
+        if (
+            not isinstance(layers, list)
+            or not layers
+            or any(isinstance(c, bool) or not isinstance(c, int) or c < 1 for c in layers)
+        ):
+            raise InputError(
+                table.key("layers"), f"must be a list of ply counts >= 1 (got {layers!r})"
+            )
+        if sum(layers) != laminate.n_plies:
+            raise InputError(
+                table.key("layers"),
+                f"groups {sum(layers)} plies but the laminate has {laminate.n_plies}",
+            )
+    else:
+        if table.has("layers"):
+            raise InputError(table.key("layers"), "only a layerwise model has mesh layers")
+        layers = [laminate.n_plies]
+    table.finish()
+    return MeshConfig(length, width, nx, ny, tuple(layers))
+
+
+def _face(table: _Table, faces: list[str], name: str = "face") -> str:
+    face = table.string(name)
+    if face not in faces:
+        raise InputError(table.key(name), f"unknown face {face!r} (known: {', '.join(faces)})")
+    return face
+
+
+def _amplitude(table: _Table) -> Amplitude:
+    if table.has("curve"):
+        for name in ("rise_time", "profile"):
+            if table.has(name):
+                raise InputError(table.key(name), "give either curve, or rise_time + profile")
+        curve = table.raw("curve")
+        if (
+            not isinstance(curve, list)
+            or not curve
+            or any(
+                not isinstance(p, list)
+                or len(p) != 2
+                or any(isinstance(x, bool) or not isinstance(x, int | float) for x in p)
+                for p in curve
+            )
+        ):
+            raise InputError(table.key("curve"), "must be a list of [time (s), scale] pairs")
+        times = tuple(float(p[0]) for p in curve)
+        if times[0] < 0:
+            raise InputError(table.key("curve"), "times must start at >= 0 s")
+        try:
+            return Amplitude(times, tuple(float(p[1]) for p in curve))
+        except ValueError as error:
+            raise InputError(table.key("curve"), str(error).removeprefix("amplitude: ")) from None
+    rise_time = table.number("rise_time", positive=True)
+    profile = table.string("profile", ("smooth", "linear"), default="smooth")
+    return Amplitude.ramp(rise_time, smooth=profile == "smooth")

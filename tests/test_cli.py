@@ -1,0 +1,103 @@
+"""The command-line program end to end: what a run writes, and how bad input is refused."""
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from fenics_adaptive.output import read_history
+
+SMALL = Path(__file__).parent / "data" / "small_beam.toml"
+CLI = [sys.executable, "-m", "fenics_adaptive"]
+
+
+def run_cli(*args, cwd=None):
+    return subprocess.run(
+        [*CLI, *map(str, args)], capture_output=True, text=True, cwd=cwd, env=os.environ.copy()
+    )
+
+
+@pytest.fixture(scope="module")
+def small_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("small") / "results"
+    result = run_cli("run", SMALL, "--out", out)
+    assert result.returncode == 0, result.stderr
+    return out, result
+
+
+def test_run_writes_every_result(small_run):
+    out, result = small_run
+    for name in ("history.csv", "summary.json", "force_displacement.png", "energies.png"):
+        assert (out / name).stat().st_size > 0, name
+    assert (out / "displacement.bp").is_dir()
+    assert not (out / "history.partial.csv").exists()
+    assert "time step" in result.stdout
+
+
+def test_history_and_summary_are_consistent(small_run):
+    out, _ = small_run
+    history = read_history(out / "history.csv")
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["status"] == "completed"
+    assert summary["units"].startswith("N, mm, s, tonne")
+    assert set(history) >= {
+        "time",
+        "displacement",
+        "reaction_force",
+        "kinetic_energy",
+        "internal_energy",
+        "external_work",
+        "dissipated_energy",
+        "time_step",
+    }
+    assert history["time"][0] == 0.0
+    assert history["time"][-1] == pytest.approx(2.0e-4, rel=1e-3)
+    assert history["displacement"][-1] == pytest.approx(0.05, rel=1e-12)
+    assert summary["peak_reaction_force_N"] == pytest.approx(
+        max(history["reaction_force"], key=abs)
+    )
+    # the work of the actuator is all accounted for
+    assert summary["max_energy_balance_error_relative"] < 1e-4  # O(dt^2) of the scheme
+    assert summary["model"]["total_mass_tonne"] == pytest.approx(20 * 2 * 2 * 1.6e-9, rel=1e-12)
+
+
+def test_check_reports_the_time_step():
+    result = run_cli("check", SMALL)
+    assert result.returncode == 0, result.stderr
+    assert "time step" in result.stdout
+
+
+def write_config(tmp_path, replace: tuple[str, str]) -> Path:
+    text = SMALL.read_text()
+    assert replace[0] in text
+    path = tmp_path / "config.toml"
+    path.write_text(text.replace(*replace))
+    return path
+
+
+def test_bad_config_stops_before_the_run_with_one_line(tmp_path):
+    config = write_config(tmp_path, ("nx = 8", "nx = -8"))
+    out = tmp_path / "out"
+    result = run_cli("run", config, "--out", out)
+    assert result.returncode == 2
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and "mesh.nx" in lines[0]
+    assert not out.exists()
+
+
+def test_time_step_above_the_stable_one_is_refused(tmp_path):
+    config = write_config(tmp_path, ("mass_damping = 0.0", "mass_damping = 0.0\ntime_step = 1e-6"))
+    result = run_cli("run", config, "--out", tmp_path / "out")
+    assert result.returncode == 2
+    assert "solver.time_step" in result.stderr and "stable" in result.stderr
+    assert not (tmp_path / "out").exists()
+
+
+def test_forced_time_step_below_the_stable_one_is_used(tmp_path):
+    config = write_config(tmp_path, ("mass_damping = 0.0", "mass_damping = 0.0\ntime_step = 5e-8"))
+    out = tmp_path / "out"
+    assert run_cli("run", config, "--out", out, "--quiet").returncode == 0
+    assert set(read_history(out / "history.csv")["time_step"]) == {5e-8}
