@@ -1,0 +1,306 @@
+"""Bilinear mixed-mode cohesive law and the 8-node cohesive element (LS-DYNA *MAT_138 style).
+
+Units: N, mm, s, tonne. Penalty stiffnesses K_n, K_s in N/mm^3 (traction per opening), strengths
+N, S in MPa, fracture energies GIc, GIIc in N/mm (= mJ/mm^2), openings in mm, energy densities
+in N/mm, element energies in mJ (N mm).
+
+The law (Camanho & Davila 2002, as in LS-DYNA *MAT_COHESIVE_MIXED_MODE, with separate normal and
+shear penalties). The local opening is delta = (d1, d2, d3): d1, d2 tangential, d3 normal.
+
+    delta_I  = <d3> = max(d3, 0)            delta_II = sqrt(d1^2 + d2^2)
+    delta_m  = sqrt(delta_I^2 + delta_II^2)  beta     = delta_II / delta_I
+
+Onset (quadratic traction criterion (t_n/N)^2 + (t_s/S)^2 = 1 reached along the current path):
+
+    dI0 = N / K_n,   dII0 = S / K_s
+    d0  = dI0 dII0 sqrt((1 + beta^2) / (dII0^2 + (beta dI0)^2)),   d0 = dII0 if delta_I = 0
+
+Along a proportional path the effective stiffness and the mode mixity are
+
+    K_m = (K_n + beta^2 K_s) / (1 + beta^2)
+    B   = G_II / (G_I + G_II) = beta^2 K_s / (K_n + beta^2 K_s)
+
+and the final opening follows from the critical energy release rate G_c(B):
+
+    Benzeggagh-Kenane ("bk", exponent eta):  G_c = GIc + (GIIc - GIc) B^eta
+    power law ("power", exponent alpha):     G_c = [((1-B)/GIc)^alpha + (B/GIIc)^alpha]^(-1/alpha)
+    dF = 2 G_c / (K_m d0)
+
+For "power" this is LS-DYNA's form
+    dF = 2 (1+beta^2)/d0 [(K_n/GIc)^alpha + (K_s beta^2/GIIc)^alpha]^(-1/alpha).
+With K_n = K_s = K, B = beta^2/(1+beta^2) and these reduce to DESIGN.md's formulas. Pure shear
+(or shear under compression) gives dF = 2 GIIc / (K_s dII0) for both laws. The kernel evaluates
+everything in terms of delta_I^2 and delta_II^2 rather than beta, so that delta_I -> 0 needs no
+special case and beta^2 cannot overflow. G_c(B) is ``critical_energy``: the energy per unit area
+dissipated to full separation on a proportional path, 1/2 K_m d0 dF.
+
+Damage (one scalar per integration point, never decreasing):
+
+    d = clip(dF (delta_m - d0) / (delta_m (dF - d0)), 0, 1),   d = max(d_old, d)
+
+Tractions: t_i = (1 - d) K_s d_i (i = 1, 2); t_3 = (1 - d) K_n d3 if d3 > 0, else K_n d3
+(compression is never damaged). On a proportional path the effective traction K_m delta_m (1 - d)
+rises linearly to K_m d0 and falls linearly to zero at dF: the area under it is G_c. Unloading
+goes back to the origin along the damaged secant (1 - d) K. The recoverable (stored) energy
+density is
+
+    psi = 1/2 (1 - d) (K_s (d1^2 + d2^2) + K_n <d3>^2) + 1/2 K_n <-d3>^2
+
+so that the dissipated energy is the external work minus psi.
+
+The element. Eight nodes: 0-3 the lower face, 4-7 the upper face, coincident in the reference
+configuration. Within a face, node a sits at face coordinates (a & 1, (a >> 1) & 1) on [0, 1]^2
+(tensor order: 0=(0,0), 1=(1,0), 2=(0,1), 3=(1,1)), with bilinear shape functions. 2 x 2 Gauss
+points (0.5 -+ 0.5/sqrt(3), weight 1/4 each), numbered the same way as the nodes; ``damage[k]``
+is the history of point k. At each point the local frame follows the current mid-surface
+x_mid = X + (u_lower + u_upper)/2: t1 = dx_mid/dxi normalised, n = t1' x t2' normalised
+(t1', t2' the two tangents), t2 = n x t1. The jump u_upper - u_lower is projected on (t1, t2, n)
+to give delta. Tractions are nominal: they are integrated over the REFERENCE mid-surface area.
+
+Force sign (paper Eq. 3, f_int = f_lam - f_coh): ``f_coh`` is the force the tractions apply to the
+nodes, -N_a T dA on upper node a + 4 and +N_a T dA on lower node a (T the traction in global
+coordinates). An opened interface thus pulls the upper face down and the lower face up.
+"""
+
+from __future__ import annotations
+
+import math
+import numbers
+from collections.abc import Mapping
+from dataclasses import dataclass, fields
+
+import numpy as np
+from numba import njit
+
+from fenics_adaptive.errors import InputError
+
+# Slots of the parameter array given to the numba kernels (see CohesiveLaw.as_array).
+P_KN, P_KS, P_N, P_S, P_GIC, P_GIIC, P_LAW, P_EXPONENT = range(8)
+N_PARAMS = 8
+# Codes of the law in slot P_LAW.
+LAW_BK = 0.0
+LAW_POWER = 1.0
+LAW_CODES = {"bk": LAW_BK, "power": LAW_POWER}
+
+
+@dataclass(frozen=True)
+class CohesiveLaw:
+    """Parameters of the bilinear mixed-mode law; see the module docstring for the formulas.
+
+    ``exponent`` is eta for ``law="bk"`` (Benzeggagh-Kenane) and alpha for ``law="power"``."""
+
+    K_n: float
+    K_s: float
+    N: float
+    S: float
+    GIc: float
+    GIIc: float
+    law: str
+    exponent: float
+
+    NUMBERS = ("K_n", "K_s", "N", "S", "GIc", "GIIc", "exponent")
+
+    def __post_init__(self) -> None:
+        for name in self.NUMBERS:
+            value = getattr(self, name)
+            if (
+                isinstance(value, bool)
+                or not isinstance(value, numbers.Real)
+                or not math.isfinite(value)
+                or value <= 0
+            ):
+                raise InputError(f"cohesive.{name}", f"must be a finite number > 0 (got {value!r})")
+        if self.law not in LAW_CODES:
+            raise InputError(
+                "cohesive.law", f"must be one of {', '.join(LAW_CODES)} (got {self.law!r})"
+            )
+        for mode, G, strength, K, G_name, S_name, K_name in (
+            ("I", self.GIc, self.N, self.K_n, "GIc", "N", "K_n"),
+            ("II", self.GIIc, self.S, self.K_s, "GIIc", "S", "K_s"),
+        ):
+            onset_energy = strength**2 / (2.0 * K)
+            if G <= onset_energy:
+                raise InputError(
+                    f"cohesive.{G_name}",
+                    f"softening impossible in pure mode {mode}: {G_name} = {G} must exceed the "
+                    f"elastic energy at onset {S_name}^2/(2 {K_name}) = {onset_energy:.6g}, "
+                    f"else the final opening {2.0 * G / strength:.6g} mm is not beyond the onset "
+                    f"opening {strength / K:.6g} mm",
+                )
+
+    @classmethod
+    def from_mapping(cls, values: Mapping[str, object]) -> CohesiveLaw:
+        """Build from a config table with exactly the keys K_n, K_s, N, S, GIc, GIIc, law,
+        exponent."""
+        if not isinstance(values, Mapping):
+            raise InputError("cohesive", "must be a table of cohesive-law parameters")
+        names = [f.name for f in fields(cls)]
+        unknown = sorted(set(values) - set(names))
+        if unknown:
+            raise InputError(f"cohesive.{unknown[0]}", f"unknown key (allowed: {', '.join(names)})")
+        for name in names:
+            if name not in values:
+                raise InputError(f"cohesive.{name}", "missing")
+        return cls(**{name: values[name] for name in names})
+
+    def as_array(self) -> np.ndarray:
+        """The parameters as a float64 array for the kernels, slots P_KN ... P_EXPONENT."""
+        params = np.empty(N_PARAMS, dtype=np.float64)
+        params[P_KN], params[P_KS] = self.K_n, self.K_s
+        params[P_N], params[P_S] = self.N, self.S
+        params[P_GIC], params[P_GIIC] = self.GIc, self.GIIc
+        params[P_LAW] = LAW_CODES[self.law]
+        params[P_EXPONENT] = self.exponent
+        return params
+
+
+def critical_energy(law: CohesiveLaw, mixity: float) -> float:
+    """Energy per unit area (N/mm) dissipated to full separation along a proportional path of
+    mode mixity B = G_II / (G_I + G_II) in [0, 1]; equals 1/2 K_m d0 dF."""
+    if not 0.0 <= mixity <= 1.0:
+        raise ValueError(f"mixity must lie in [0, 1] (got {mixity})")
+    if law.law == "bk":
+        return law.GIc + (law.GIIc - law.GIc) * mixity**law.exponent
+    a = law.exponent
+    return (((1.0 - mixity) / law.GIc) ** a + (mixity / law.GIIc) ** a) ** (-1.0 / a)
+
+
+@njit(cache=True)
+def _law(d1, d2, d3, params, damage_old):
+    """Scalar kernel: returns (t1, t2, t3, damage_new, stored_energy_density)."""
+    K_n, K_s = params[P_KN], params[P_KS]
+    sI2 = d3 * d3 if d3 > 0.0 else 0.0  # delta_I^2
+    sII2 = d1 * d1 + d2 * d2  # delta_II^2
+    dm2 = sI2 + sII2
+    damage = damage_old
+    if dm2 > 0.0:
+        dm = math.sqrt(dm2)
+        dI0 = params[P_N] / K_n
+        dII0 = params[P_S] / K_s
+        # d0 with beta^2 = sII2/sI2 multiplied through by sI2 (valid for sI2 = 0 too).
+        d0 = dI0 * dII0 * math.sqrt(dm2 / (dII0 * dII0 * sI2 + dI0 * dI0 * sII2))
+        if dm > d0:
+            gI = K_n * sI2  # proportional to G_I on this path
+            gII = K_s * sII2  # proportional to G_II
+            B = gII / (gI + gII)
+            K_m = (gI + gII) / dm2
+            GIc, GIIc, p = params[P_GIC], params[P_GIIC], params[P_EXPONENT]
+            if params[P_LAW] == LAW_BK:
+                Gc = GIc + (GIIc - GIc) * B**p
+            else:
+                Gc = ((gI / (gI + gII) / GIc) ** p + (B / GIIc) ** p) ** (-1.0 / p)
+            dF = 2.0 * Gc / (K_m * d0)
+            if dm >= dF:  # also covers dF <= d0 (instant failure)
+                d_new = 1.0
+            else:
+                d_new = dF * (dm - d0) / (dm * (dF - d0))
+            if d_new > damage:
+                damage = d_new
+    s = 1.0 - damage
+    t1 = s * K_s * d1
+    t2 = s * K_s * d2
+    psi = 0.5 * s * (K_s * sII2 + K_n * sI2)
+    if d3 > 0.0:
+        t3 = s * K_n * d3
+    else:
+        t3 = K_n * d3
+        psi += 0.5 * K_n * d3 * d3
+    return t1, t2, t3, damage, psi
+
+
+@njit(cache=True)
+def cohesive_traction(
+    delta: np.ndarray, params: np.ndarray, damage_old: float
+) -> tuple[np.ndarray, float, float]:
+    """Traction (3,) in the local frame, new damage and stored energy density for the local
+    opening ``delta`` = (d1, d2, d3) and the point's previous damage."""
+    t1, t2, t3, damage, psi = _law(delta[0], delta[1], delta[2], params, damage_old)
+    traction = np.empty(3)
+    traction[0] = t1
+    traction[1] = t2
+    traction[2] = t3
+    return traction, damage, psi
+
+
+@njit(cache=True)
+def _cross(a, b, out):
+    out[0] = a[1] * b[2] - a[2] * b[1]
+    out[1] = a[2] * b[0] - a[0] * b[2]
+    out[2] = a[0] * b[1] - a[1] * b[0]
+
+
+@njit(cache=True)
+def cohesive_element_force(
+    X: np.ndarray, u: np.ndarray, params: np.ndarray, damage: np.ndarray, f_coh: np.ndarray
+) -> tuple[float, float]:
+    """Force of one 8-node cohesive element; see the module docstring for node order and sign.
+
+    X, u: (8, 3) reference coordinates and displacements. damage: (4,) per Gauss point, updated
+    in place. f_coh: (8, 3), overwritten. Returns (stored energy in mJ, reference area in mm^2).
+    """
+    g = 0.5 / math.sqrt(3.0)
+    shape = np.empty(4)
+    dshape_xi = np.empty(4)
+    dshape_eta = np.empty(4)
+    G1, G2, g1, g2 = np.empty(3), np.empty(3), np.empty(3), np.empty(3)
+    jump, normal_ref, t1, t2, n = np.empty(3), np.empty(3), np.empty(3), np.empty(3), np.empty(3)
+    f_coh[:, :] = 0.0
+    energy = 0.0
+    area = 0.0
+    for k in range(4):
+        xi = 0.5 + g if k & 1 else 0.5 - g
+        eta = 0.5 + g if (k >> 1) & 1 else 0.5 - g
+        for a in range(4):
+            nx, dnx = (xi, 1.0) if a & 1 else (1.0 - xi, -1.0)
+            ny, dny = (eta, 1.0) if (a >> 1) & 1 else (1.0 - eta, -1.0)
+            shape[a] = nx * ny
+            dshape_xi[a] = dnx * ny
+            dshape_eta[a] = nx * dny
+        for i in range(3):
+            G1[i] = G2[i] = g1[i] = g2[i] = jump[i] = 0.0
+            for a in range(4):
+                X_mid = 0.5 * (X[a, i] + X[a + 4, i])
+                x_mid = X_mid + 0.5 * (u[a, i] + u[a + 4, i])
+                G1[i] += dshape_xi[a] * X_mid
+                G2[i] += dshape_eta[a] * X_mid
+                g1[i] += dshape_xi[a] * x_mid
+                g2[i] += dshape_eta[a] * x_mid
+                jump[i] += shape[a] * (u[a + 4, i] - u[a, i])
+        _cross(G1, G2, normal_ref)
+        dA = math.sqrt(normal_ref[0] ** 2 + normal_ref[1] ** 2 + normal_ref[2] ** 2)
+        _cross(g1, g2, n)
+        n_norm = math.sqrt(n[0] ** 2 + n[1] ** 2 + n[2] ** 2)
+        g1_norm = math.sqrt(g1[0] ** 2 + g1[1] ** 2 + g1[2] ** 2)
+        for i in range(3):
+            n[i] /= n_norm
+            t1[i] = g1[i] / g1_norm
+        _cross(n, t1, t2)
+        d1 = jump[0] * t1[0] + jump[1] * t1[1] + jump[2] * t1[2]
+        d2 = jump[0] * t2[0] + jump[1] * t2[1] + jump[2] * t2[2]
+        d3 = jump[0] * n[0] + jump[1] * n[1] + jump[2] * n[2]
+        tau1, tau2, tau3, damage[k], psi = _law(d1, d2, d3, params, damage[k])
+        c = 0.25 * dA
+        for i in range(3):
+            T = tau1 * t1[i] + tau2 * t2[i] + tau3 * n[i]
+            for a in range(4):
+                f_coh[a, i] += shape[a] * T * c
+                f_coh[a + 4, i] -= shape[a] * T * c
+        energy += psi * c
+        area += c
+    return energy, area
+
+
+def traction_separation_curve(
+    law: CohesiveLaw, path: np.ndarray, damage: float = 0.0
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Run the law along ``path`` (n, 3) of local openings from the initial ``damage``; returns
+    tractions (n, 3), damage (n,) and stored energy density (n,) after each point."""
+    path = np.asarray(path, dtype=np.float64).reshape(-1, 3)
+    params = law.as_array()
+    tractions = np.empty_like(path)
+    damages = np.empty(len(path))
+    stored = np.empty(len(path))
+    for j, delta in enumerate(path):
+        tractions[j], damage, stored[j] = cohesive_traction(delta, params, damage)
+        damages[j] = damage
+    return tractions, damages, stored

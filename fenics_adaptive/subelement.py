@@ -1,0 +1,585 @@
+"""Numba kernels of the layered 8-node solid-shell (sub)element: internal force and lumped mass.
+
+Units: N, mm, s, tonne. Coordinates and displacements in mm, stiffness in MPa, density in
+tonne/mm^3, forces in N, strain energy in mJ (N mm), masses in tonne.
+
+What is computed. One (sub)element is an 8-node hexahedron spanning a contiguous range of plies
+of the laminate. An unrefined (ESL) element spans all of them; after refinement at some ply
+interfaces each subelement spans the plies between two active interfaces (paper, Figure 2).
+Integration points never move: a ply keeps the points ``solid_shell.ply_rules`` gives it inside
+its own zeta range, expressed in the reference thickness [0, 1] of the (sub)element that holds it.
+The force here must be, to round-off, the derivative of ``solid_shell.strain_energy_form`` for a
+hexahedron carrying those plies; ``tests/test_subelement.py`` checks that against DOLFINx.
+
+Conventions (the same as ``solid_shell`` and ``model.reference_gradients``):
+
+- reference cell [0, 1]^3; vertex k sits at (k & 1, (k >> 1) & 1, (k >> 2) & 1) (DOLFINx
+  order); zeta, the third reference coordinate, runs through the laminate thickness;
+- ``X``, ``u`` are (8, 3) arrays of vertex coordinates / displacements in that vertex order;
+- small strain, Voigt order (xx, yy, zz, yz, xz, xy) with engineering shears;
+- strain energy of the selective (ANS-equivalent) rule, per integration point of weight w:
+
+    term 0 "normal"       2x2 in-plane   1/2 e_N . C[N, N] e_N, N = (xx, yy, zz, xy) = (0, 1, 2, 5)
+    term 1 "shear_xz"     1x2            1/2 C[4, 4] g_xz^2
+    term 2 "shear_yz"     2x1            1/2 C[3, 3] g_yz^2
+    term 3 "shear_cross"  1x1            C[3, 4] g_xz g_yz
+
+  times w |det J|, J = dx/d(xi, eta, zeta) (abs, as UFL does); the force is the gradient of the
+  total with respect to the nodal displacements.
+
+How the kernel is organised (for speed). The trilinear map is written in monomials,
+x = sum_m b_m xi^(m & 1) eta^((m >> 1) & 1) zeta^((m >> 2) & 1) (b = Moebius transform of the
+vertex values, 3 butterfly stages), and likewise u. At fixed (xi, eta), J = dx/d(xi, eta, zeta)
+and the reference displacement gradient are then affine in zeta. Every point of the rule sits on
+one of a few in-plane positions (the 3 x 3 grid of the selective rule), so per element the kernel
+forms intercept and slope of J and of du/d(xi, eta, zeta) on each position's vertical line once,
+evaluates them per point with one multiply-add per entry, accumulates the per-point
+P = w |det J| sigma J^-T into two moments per position (sum P, sum zeta P), turns those into the
+derivatives with respect to the monomial coefficients and transforms back to the 8 vertices
+(the transposed butterfly) at the end.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import NamedTuple
+
+import numpy as np
+from numba import njit
+
+from fenics_adaptive import solid_shell
+
+# Term codes of the packed rule, in the order of solid_shell.TERMS.
+TERM_NORMAL, TERM_SHEAR_XZ, TERM_SHEAR_YZ, TERM_SHEAR_CROSS = range(4)
+TERM_CODES = {term: code for code, term in enumerate(solid_shell.TERMS)}
+assert TERM_CODES == {
+    "normal": TERM_NORMAL,
+    "shear_xz": TERM_SHEAR_XZ,
+    "shear_yz": TERM_SHEAR_YZ,
+    "shear_cross": TERM_SHEAR_CROSS,
+}
+
+# Reference coordinates of the 8 vertices (DOLFINx order).
+CORNERS = np.array([[k & 1, (k >> 1) & 1, (k >> 2) & 1] for k in range(8)], dtype=np.float64)
+
+
+def _in_plane_positions() -> np.ndarray:
+    """The distinct in-plane (xi, eta) positions used by ``solid_shell.ply_rules`` (independent
+    of the ply's zeta range and of the points per ply), in order of first appearance."""
+    positions: list[tuple[float, float]] = []
+    for points, _ in solid_shell.ply_rules(0.0, 1.0, 1).values():
+        for xi, eta, _zeta in points:
+            if (xi, eta) not in positions:
+                positions.append((float(xi), float(eta)))
+    return np.array(positions, dtype=np.float64)
+
+
+IN_PLANE_POSITIONS = _in_plane_positions()  # (n_pos, 2); 9 for the selective rule
+
+
+def _ply_bounds(ply_zeta: np.ndarray) -> np.ndarray:
+    """(n_plies, 2) ply bounds from either (n_plies, 2) bounds or (n_plies + 1,) boundaries;
+    checked to tile the reference thickness [0, 1] bottom to top."""
+    z = np.asarray(ply_zeta, dtype=np.float64)
+    if z.ndim == 1:
+        if z.size < 2:
+            raise ValueError("ply_zeta: need at least two ply boundaries")
+        z = np.column_stack([z[:-1], z[1:]])
+    if z.ndim != 2 or z.shape[1] != 2 or z.shape[0] == 0:
+        raise ValueError(f"ply_zeta: expected shape (n_plies, 2), got {z.shape}")
+    tol = 1e-12
+    if not np.all(np.isfinite(z)) or np.any(z[:, 1] <= z[:, 0]):
+        raise ValueError("ply_zeta: every ply needs zeta_lo < zeta_hi")
+    if (
+        abs(z[0, 0]) > tol
+        or abs(z[-1, 1] - 1.0) > tol
+        or np.any(np.abs(z[1:, 0] - z[:-1, 1]) > tol)
+    ):
+        raise ValueError(
+            "ply_zeta: the plies must tile this (sub)element's reference thickness [0, 1] "
+            "bottom to top (renormalise a subelement's ply bounds to its own thickness)"
+        )
+    return z
+
+
+def sublaminate_ply_zeta(ply_fractions: np.ndarray, first: int, stop: int) -> np.ndarray:
+    """(stop - first, 2) bounds of plies ``first:stop`` (0-based, bottom to top) inside the
+    reference thickness [0, 1] of the subelement that spans exactly those plies, from the
+    laminate's ``ply_fractions`` (n_plies + 1,). The subelement's bottom vertices sit at the
+    fraction f_first, its top ones at f_stop of the parent element's vertical edges."""
+    f = np.asarray(ply_fractions, dtype=np.float64)
+    if not 0 <= first < stop <= len(f) - 1:
+        raise ValueError(f"plies {first}:{stop} are not a range of the {len(f) - 1} plies")
+    z = (f[first : stop + 1] - f[first]) / (f[stop] - f[first])
+    z[-1] = 1.0
+    return np.column_stack([z[:-1], z[1:]])
+
+
+class PackedRule(NamedTuple):
+    """Integration rule of the internal force of one (sub)element, as flat arrays; the fields are
+    the kernel's arguments in order: ``solid_shell_force(X, u, *rule, f_out)``."""
+
+    points: np.ndarray  # (n, 3) reference points (xi, eta, zeta) on [0, 1]^3
+    weights: np.ndarray  # (n,) reference weights; those of each term sum to 1
+    terms: np.ndarray  # (n,) int64 term code: 0 normal, 1 shear_xz, 2 shear_yz, 3 shear_cross
+    ply_of_point: np.ndarray  # (n,) int64 index into ``stiffness``
+    position_of_point: np.ndarray  # (n,) int64 index into ``positions``
+    positions: np.ndarray  # (n_pos, 2) in-plane (xi, eta) of the points' vertical lines
+    stiffness: np.ndarray  # (n_plies, 6, 6) shell-frame stiffness of each ply, MPa
+
+
+def pack_rule(ply_zeta: np.ndarray, ply_stiffness: np.ndarray, points_per_ply: int) -> PackedRule:
+    """Pack the selective solid-shell rule of a (sub)element.
+
+    ``ply_zeta``: the bounds of its plies inside its OWN reference thickness [0, 1], bottom to
+    top, as (n_plies, 2) or as (n_plies + 1,) boundaries (for an unrefined element:
+    ``laminate.ply_fractions``; for a subelement spanning plies i..j of the laminate:
+    (f_k - f_i) / (f_{j+1} - f_i)). ``ply_stiffness``: (n_plies, 6, 6) shell-frame stiffness
+    (MPa, Voigt xx, yy, zz, yz, xz, xy, engineering shears), symmetric and monoclinic (no
+    normal/transverse-shear coupling: the selective rule drops it). ``points_per_ply``: Gauss
+    points through the thickness of each ply. The points are those of ``solid_shell.ply_rules``,
+    ply by ply, and ply k uses ``stiffness[k]``."""
+    bounds = _ply_bounds(ply_zeta)
+    C = np.ascontiguousarray(ply_stiffness, dtype=np.float64)
+    if C.shape != (len(bounds), 6, 6):
+        raise ValueError(f"ply_stiffness: expected shape ({len(bounds)}, 6, 6), got {C.shape}")
+    for k in range(len(bounds)):
+        if np.abs(C[k] - C[k].T).max() > 1e-12 * np.abs(C[k]).max():
+            raise ValueError(f"ply_stiffness[{k}] is not symmetric")
+        solid_shell.check_monoclinic(C[k])
+    if int(points_per_ply) != points_per_ply or points_per_ply < 1:
+        raise ValueError(f"points_per_ply must be an integer >= 1 (got {points_per_ply})")
+    position_index = {(xi, eta): q for q, (xi, eta) in enumerate(IN_PLANE_POSITIONS)}
+    points, weights, terms, plies = [], [], [], []
+    for k, (lo, hi) in enumerate(bounds):
+        for term, (p, w) in solid_shell.ply_rules(lo, hi, int(points_per_ply)).items():
+            points.append(p)
+            weights.append(w)
+            terms.append(np.full(len(w), TERM_CODES[term], dtype=np.int64))
+            plies.append(np.full(len(w), k, dtype=np.int64))
+    points = np.ascontiguousarray(np.vstack(points), dtype=np.float64)
+    position_of_point = [position_index[(xi, eta)] for xi, eta in points[:, :2]]
+    return PackedRule(
+        points=points,
+        weights=np.concatenate(weights).astype(np.float64),
+        terms=np.concatenate(terms),
+        ply_of_point=np.concatenate(plies),
+        position_of_point=np.array(position_of_point, dtype=np.int64),
+        positions=IN_PLANE_POSITIONS.copy(),
+        stiffness=C,
+    )
+
+
+class PackedRules(NamedTuple):
+    """Several packed rules concatenated, CSR style: the points of rule r are
+    ``rule_offsets[r]:rule_offsets[r + 1]``; ``ply_of_point`` indexes the concatenated
+    ``stiffness``. The fields are the batched kernel's arguments in order:
+    ``solid_shell_forces(X_all, u_all, rule_of_element, *rules, f_all)``."""
+
+    rule_offsets: np.ndarray  # (n_rules + 1,) int64
+    points: np.ndarray
+    weights: np.ndarray
+    terms: np.ndarray
+    ply_of_point: np.ndarray
+    position_of_point: np.ndarray
+    positions: np.ndarray
+    stiffness: np.ndarray
+
+
+def concatenate_rules(rules: Sequence[PackedRule]) -> PackedRules:
+    """Concatenate packed rules (e.g. one per layup or one per (sub)element) for
+    ``solid_shell_forces``."""
+    if len(rules) == 0:
+        raise ValueError("concatenate_rules: no rules")
+    for rule in rules:
+        if not np.array_equal(rule.positions, rules[0].positions):
+            raise ValueError("concatenate_rules: the rules use different in-plane positions")
+    counts = [len(rule.weights) for rule in rules]
+    ply_offsets = np.cumsum([0] + [len(rule.stiffness) for rule in rules])
+    return PackedRules(
+        rule_offsets=np.concatenate([[0], np.cumsum(counts)]).astype(np.int64),
+        points=np.ascontiguousarray(np.vstack([r.points for r in rules])),
+        weights=np.concatenate([r.weights for r in rules]),
+        terms=np.concatenate([r.terms for r in rules]),
+        ply_of_point=np.concatenate(
+            [r.ply_of_point + ply_offsets[i] for i, r in enumerate(rules)]
+        ).astype(np.int64),
+        position_of_point=np.concatenate([r.position_of_point for r in rules]),
+        positions=rules[0].positions.copy(),
+        stiffness=np.ascontiguousarray(np.concatenate([r.stiffness for r in rules])),
+    )
+
+
+class PackedMassRule(NamedTuple):
+    """Lumped-mass rule of one (sub)element; the fields are the kernel's arguments in order:
+    ``solid_shell_lumped_mass(X, *mass_rule, m_out)``."""
+
+    points: np.ndarray  # (n, 3) reference points, 2x2x2 Gauss per ply (solid_shell.mass_rule)
+    weights: np.ndarray  # (n,) reference weights, summing to 1
+    ply_of_point: np.ndarray  # (n,) int64 index into ``density``
+    density: np.ndarray  # (n_plies,) tonne/mm^3
+
+
+def pack_mass_rule(ply_zeta: np.ndarray, ply_density: np.ndarray) -> PackedMassRule:
+    """Pack ``solid_shell.mass_rule`` for every ply of a (sub)element (``ply_zeta`` as in
+    ``pack_rule``), with the ply densities (tonne/mm^3)."""
+    bounds = _ply_bounds(ply_zeta)
+    rho = np.ascontiguousarray(ply_density, dtype=np.float64)
+    if rho.shape != (len(bounds),) or not np.all(np.isfinite(rho)) or np.any(rho < 0.0):
+        raise ValueError(f"ply_density: expected {len(bounds)} densities >= 0, got {rho!r}")
+    points, weights, plies = [], [], []
+    for k, (lo, hi) in enumerate(bounds):
+        p, w = solid_shell.mass_rule(lo, hi)
+        points.append(p)
+        weights.append(w)
+        plies.append(np.full(len(w), k, dtype=np.int64))
+    return PackedMassRule(
+        points=np.ascontiguousarray(np.vstack(points), dtype=np.float64),
+        weights=np.concatenate(weights).astype(np.float64),
+        ply_of_point=np.concatenate(plies),
+        density=rho,
+    )
+
+
+# ---------------------------------------------------------------------------------------------
+# kernels
+
+
+@njit(cache=True)
+def _monomials(values, out):
+    """out (8, 3) = coefficients b_m of the trilinear interpolant of ``values`` (8, 3) in the
+    monomials xi^(m & 1) eta^((m >> 1) & 1) zeta^((m >> 2) & 1): the Moebius transform
+    b_m = sum over vertices a within m of (-1)^|m - a| values_a, in three butterfly stages."""
+    for a in range(8):
+        for i in range(3):
+            out[a, i] = values[a, i]
+    for d in range(3):
+        bit = 1 << d
+        for m in range(8):
+            if m & bit:
+                for i in range(3):
+                    out[m, i] -= out[m ^ bit, i]
+
+
+# Fast-math subset without "nnan"/"ninf": a degenerate element still gives inf/nan, not garbage.
+@njit(cache=True, error_model="numpy", fastmath={"contract", "reassoc", "nsz", "arcp"})
+def _element_force(
+    X,
+    u,
+    start,
+    stop,
+    points,
+    weights,
+    terms,
+    ply_of_point,
+    position_of_point,
+    positions,
+    stiffness,
+    work,
+    lines,
+    sums,
+    f_out,
+):
+    """Force of one element from points start:stop of the packed arrays into f_out (8, 3),
+    overwritten; returns the strain energy. Work arrays: ``work`` (2, 8, 3), ``lines``
+    (n_pos, 4, 3, 3), ``sums`` (n_pos, 2, 3, 3)."""
+    n_pos = positions.shape[0]
+    bx = work[0]
+    bu = work[1]
+    _monomials(X, bx)
+    _monomials(u, bu)
+    # On the vertical line of each position: J = lines[q, 0] + zeta lines[q, 1] (dx_i/dX_r) and
+    # G = lines[q, 2] + zeta lines[q, 3] (du_i/dX_r); column r = 2 (d/dzeta) has no slope.
+    for q in range(n_pos):
+        xi = positions[q, 0]
+        eta = positions[q, 1]
+        for s in range(2):
+            b = work[s]
+            for i in range(3):
+                lines[q, 2 * s, i, 0] = b[1, i] + eta * b[3, i]
+                lines[q, 2 * s + 1, i, 0] = b[5, i] + eta * b[7, i]
+                lines[q, 2 * s, i, 1] = b[2, i] + xi * b[3, i]
+                lines[q, 2 * s + 1, i, 1] = b[6, i] + xi * b[7, i]
+                lines[q, 2 * s, i, 2] = b[4, i] + xi * b[5, i] + eta * (b[6, i] + xi * b[7, i])
+                lines[q, 2 * s + 1, i, 2] = 0.0
+        for s in range(2):
+            for i in range(3):
+                for r in range(3):
+                    sums[q, s, i, r] = 0.0
+    energy = 0.0
+    for p in range(start, stop):
+        q = position_of_point[p]
+        z = points[p, 2]
+        J00 = lines[q, 0, 0, 0] + z * lines[q, 1, 0, 0]
+        J01 = lines[q, 0, 0, 1] + z * lines[q, 1, 0, 1]
+        J02 = lines[q, 0, 0, 2]
+        J10 = lines[q, 0, 1, 0] + z * lines[q, 1, 1, 0]
+        J11 = lines[q, 0, 1, 1] + z * lines[q, 1, 1, 1]
+        J12 = lines[q, 0, 1, 2]
+        J20 = lines[q, 0, 2, 0] + z * lines[q, 1, 2, 0]
+        J21 = lines[q, 0, 2, 1] + z * lines[q, 1, 2, 1]
+        J22 = lines[q, 0, 2, 2]
+        G00 = lines[q, 2, 0, 0] + z * lines[q, 3, 0, 0]
+        G01 = lines[q, 2, 0, 1] + z * lines[q, 3, 0, 1]
+        G02 = lines[q, 2, 0, 2]
+        G10 = lines[q, 2, 1, 0] + z * lines[q, 3, 1, 0]
+        G11 = lines[q, 2, 1, 1] + z * lines[q, 3, 1, 1]
+        G12 = lines[q, 2, 1, 2]
+        G20 = lines[q, 2, 2, 0] + z * lines[q, 3, 2, 0]
+        G21 = lines[q, 2, 2, 1] + z * lines[q, 3, 2, 1]
+        G22 = lines[q, 2, 2, 2]
+        # inverse of J: K[r, j] = dX_r/dx_j = cofactor(J)[j, r] / det
+        c00 = J11 * J22 - J12 * J21
+        c01 = J12 * J20 - J10 * J22
+        c02 = J10 * J21 - J11 * J20
+        det = J00 * c00 + J01 * c01 + J02 * c02
+        inv_det = 1.0 / det
+        K00 = c00 * inv_det
+        K10 = c01 * inv_det
+        K20 = c02 * inv_det
+        K01 = (J02 * J21 - J01 * J22) * inv_det
+        K11 = (J00 * J22 - J02 * J20) * inv_det
+        K21 = (J01 * J20 - J00 * J21) * inv_det
+        K02 = (J01 * J12 - J02 * J11) * inv_det
+        K12 = (J02 * J10 - J00 * J12) * inv_det
+        K22 = (J00 * J11 - J01 * J10) * inv_det
+        wd = weights[p] * abs(det)
+        k = ply_of_point[p]
+        term = terms[p]
+        # stress of this point's energy term (times w |det J|): s_xx, s_yy, s_zz, s_yz, s_xz, s_xy
+        if term == 0:
+            exx = G00 * K00 + G01 * K10 + G02 * K20
+            eyy = G10 * K01 + G11 * K11 + G12 * K21
+            ezz = G20 * K02 + G21 * K12 + G22 * K22
+            gxy = (G00 * K01 + G01 * K11 + G02 * K21) + (G10 * K00 + G11 * K10 + G12 * K20)
+            sxx = stiffness[k, 0, 0] * exx + stiffness[k, 0, 1] * eyy
+            sxx += stiffness[k, 0, 2] * ezz + stiffness[k, 0, 5] * gxy
+            syy = stiffness[k, 1, 0] * exx + stiffness[k, 1, 1] * eyy
+            syy += stiffness[k, 1, 2] * ezz + stiffness[k, 1, 5] * gxy
+            szz = stiffness[k, 2, 0] * exx + stiffness[k, 2, 1] * eyy
+            szz += stiffness[k, 2, 2] * ezz + stiffness[k, 2, 5] * gxy
+            sxy = stiffness[k, 5, 0] * exx + stiffness[k, 5, 1] * eyy
+            sxy += stiffness[k, 5, 2] * ezz + stiffness[k, 5, 5] * gxy
+            energy += 0.5 * wd * (sxx * exx + syy * eyy + szz * ezz + sxy * gxy)
+            sxx *= wd
+            syy *= wd
+            szz *= wd
+            sxy *= wd
+            syz = 0.0
+            sxz = 0.0
+        else:
+            gxz = 0.0
+            gyz = 0.0
+            if term != 2:
+                gxz = (G00 * K02 + G01 * K12 + G02 * K22) + (G20 * K00 + G21 * K10 + G22 * K20)
+            if term != 1:
+                gyz = (G10 * K02 + G11 * K12 + G12 * K22) + (G20 * K01 + G21 * K11 + G22 * K21)
+            if term == 1:
+                sxz = stiffness[k, 4, 4] * gxz
+                syz = 0.0
+                energy += 0.5 * wd * sxz * gxz
+            elif term == 2:
+                syz = stiffness[k, 3, 3] * gyz
+                sxz = 0.0
+                energy += 0.5 * wd * syz * gyz
+            else:
+                c34 = stiffness[k, 3, 4]
+                sxz = c34 * gyz
+                syz = c34 * gxz
+                energy += wd * c34 * gxz * gyz
+            sxz *= wd
+            syz *= wd
+            sxx = 0.0
+            syy = 0.0
+            szz = 0.0
+            sxy = 0.0
+        # P[i, r] = sum_j sigma_ij K[r, j]; moments sum P and sum zeta P per line
+        P00 = sxx * K00 + sxy * K01 + sxz * K02
+        P01 = sxx * K10 + sxy * K11 + sxz * K12
+        P02 = sxx * K20 + sxy * K21 + sxz * K22
+        P10 = sxy * K00 + syy * K01 + syz * K02
+        P11 = sxy * K10 + syy * K11 + syz * K12
+        P12 = sxy * K20 + syy * K21 + syz * K22
+        P20 = sxz * K00 + syz * K01 + szz * K02
+        P21 = sxz * K10 + syz * K11 + szz * K12
+        P22 = sxz * K20 + syz * K21 + szz * K22
+        sums[q, 0, 0, 0] += P00
+        sums[q, 0, 0, 1] += P01
+        sums[q, 0, 0, 2] += P02
+        sums[q, 0, 1, 0] += P10
+        sums[q, 0, 1, 1] += P11
+        sums[q, 0, 1, 2] += P12
+        sums[q, 0, 2, 0] += P20
+        sums[q, 0, 2, 1] += P21
+        sums[q, 0, 2, 2] += P22
+        sums[q, 1, 0, 0] += z * P00
+        sums[q, 1, 0, 1] += z * P01
+        sums[q, 1, 1, 0] += z * P10
+        sums[q, 1, 1, 1] += z * P11
+        sums[q, 1, 2, 0] += z * P20
+        sums[q, 1, 2, 1] += z * P21
+    # derivatives of the energy with respect to the monomial coefficients of u:
+    # F_m = sum_points dphi_m/dX_r P[:, r], phi_m = xi^(m & 1) eta^((m >> 1) & 1) zeta^(m >> 2)
+    for a in range(8):
+        for i in range(3):
+            f_out[a, i] = 0.0
+    for q in range(n_pos):
+        xi = positions[q, 0]
+        eta = positions[q, 1]
+        for i in range(3):
+            m0x = sums[q, 0, i, 0]
+            m0y = sums[q, 0, i, 1]
+            m0z = sums[q, 0, i, 2]
+            m1x = sums[q, 1, i, 0]
+            m1y = sums[q, 1, i, 1]
+            f_out[1, i] += m0x
+            f_out[2, i] += m0y
+            f_out[3, i] += eta * m0x + xi * m0y
+            f_out[4, i] += m0z
+            f_out[5, i] += m1x + xi * m0z
+            f_out[6, i] += m1y + eta * m0z
+            f_out[7, i] += eta * m1x + xi * m1y + xi * eta * m0z
+    # back to the vertices: f_a = sum over m containing a of (-1)^|m - a| F_m (transposed
+    # butterfly)
+    for d in range(3):
+        bit = 1 << d
+        for m in range(8):
+            if m & bit:
+                for i in range(3):
+                    f_out[m ^ bit, i] -= f_out[m, i]
+    return energy
+
+
+@njit(cache=True)
+def solid_shell_force(
+    X,
+    u,
+    points,
+    weights,
+    terms,
+    ply_of_point,
+    position_of_point,
+    positions,
+    stiffness,
+    f_out,
+):
+    """Internal force (N) of one layered solid-shell (sub)element into ``f_out`` (8, 3),
+    overwritten; returns its strain energy (mJ = N mm).
+
+    ``X``, ``u``: (8, 3) vertex coordinates and displacements (mm), DOLFINx vertex order. The
+    remaining inputs are the fields of a ``PackedRule`` (``pack_rule``), so the usual call is
+    ``solid_shell_force(X, u, *rule, f_out)``. Small strain, selective (ANS-equivalent) rule;
+    see the module docstring."""
+    n_pos = positions.shape[0]
+    work = np.empty((2, 8, 3))
+    lines = np.empty((n_pos, 4, 3, 3))
+    sums = np.empty((n_pos, 2, 3, 3))
+    return _element_force(
+        X,
+        u,
+        0,
+        weights.shape[0],
+        points,
+        weights,
+        terms,
+        ply_of_point,
+        position_of_point,
+        positions,
+        stiffness,
+        work,
+        lines,
+        sums,
+        f_out,
+    )
+
+
+@njit(cache=True)
+def solid_shell_forces(
+    X_all,
+    u_all,
+    rule_of_element,
+    rule_offsets,
+    points,
+    weights,
+    terms,
+    ply_of_point,
+    position_of_point,
+    positions,
+    stiffness,
+    f_all,
+):
+    """Internal forces (N) of many (sub)elements into ``f_all`` (ne, 8, 3), overwritten; returns
+    their total strain energy (mJ).
+
+    ``X_all``, ``u_all``: (ne, 8, 3) vertex coordinates and displacements (mm), DOLFINx vertex
+    order. Element e uses the points ``rule_offsets[r]:rule_offsets[r + 1]`` with
+    ``r = rule_of_element[e]`` (elements with the same layup may share a rule; give each element
+    its own rule with ``rule_of_element = arange(ne)``). The remaining inputs are the fields of a
+    ``PackedRules`` (``concatenate_rules``): ``solid_shell_forces(X, u, rule_of_element,
+    *rules, f_all)``."""
+    n_pos = positions.shape[0]
+    work = np.empty((2, 8, 3))
+    lines = np.empty((n_pos, 4, 3, 3))
+    sums = np.empty((n_pos, 2, 3, 3))
+    energy = 0.0
+    for e in range(X_all.shape[0]):
+        r = rule_of_element[e]
+        energy += _element_force(
+            X_all[e],
+            u_all[e],
+            rule_offsets[r],
+            rule_offsets[r + 1],
+            points,
+            weights,
+            terms,
+            ply_of_point,
+            position_of_point,
+            positions,
+            stiffness,
+            work,
+            lines,
+            sums,
+            f_all[e],
+        )
+    return energy
+
+
+@njit(cache=True)
+def solid_shell_lumped_mass(X, points, weights, ply_of_point, density, m_out):
+    """Row-sum lumped nodal masses (tonne) of one (sub)element into ``m_out`` (8,), overwritten:
+    m_a = sum_points rho * N_a * |det J| * w. ``X`` (8, 3) in mm, DOLFINx vertex order; the other
+    inputs are the fields of a ``PackedMassRule`` (``pack_mass_rule``):
+    ``solid_shell_lumped_mass(X, *mass_rule, m_out)``. Their total is the (sub)element's mass.
+    Called on refinement only, so it is plain rather than fast."""
+    for a in range(8):
+        m_out[a] = 0.0
+    values = np.empty(8)
+    J = np.empty((3, 3))
+    for p in range(weights.shape[0]):
+        J[:, :] = 0.0
+        for a in range(8):
+            n = 1.0
+            g0 = 1.0
+            g1 = 1.0
+            g2 = 1.0
+            for d in range(3):
+                corner = (a >> d) & 1
+                x = points[p, d] if corner == 1 else 1.0 - points[p, d]
+                slope = 1.0 if corner == 1 else -1.0
+                n *= x
+                g0 *= slope if d == 0 else x
+                g1 *= slope if d == 1 else x
+                g2 *= slope if d == 2 else x
+            values[a] = n
+            for i in range(3):
+                J[i, 0] += X[a, i] * g0
+                J[i, 1] += X[a, i] * g1
+                J[i, 2] += X[a, i] * g2
+        det = (
+            J[0, 0] * (J[1, 1] * J[2, 2] - J[1, 2] * J[2, 1])
+            - J[0, 1] * (J[1, 0] * J[2, 2] - J[1, 2] * J[2, 0])
+            + J[0, 2] * (J[1, 0] * J[2, 1] - J[1, 1] * J[2, 0])
+        )
+        scale = density[ply_of_point[p]] * abs(det) * weights[p]
+        for a in range(8):
+            m_out[a] += scale * values[a]
