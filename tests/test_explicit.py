@@ -12,6 +12,7 @@ from conftest import CROSS_PLY, esl_model
 from dolfinx import fem
 
 from fenics_adaptive import explicit, loading
+from fenics_adaptive.errors import InputError
 from fenics_adaptive.loading import face_dofs
 from fenics_adaptive.static import solve_static
 
@@ -149,3 +150,13 @@ def test_quasi_static_explicit_matches_static_solution():
     work = max(abs(r.external_work) for r in stats.history)
     assert max(abs(r.energy_balance) for r in stats.history) < 1e-6 * work
     assert final.damping_energy > 0
+
+
+def test_forcing_one_and_a_half_times_the_stable_step_is_refused():
+    model = cantilever(CROSS_PLY, nx=10)
+    settings = explicit.SolverSettings(end_time=1e-4, output_interval=1e-5)
+    dt, stable, _ = explicit.choose_time_step(model, settings)
+    assert dt == stable
+    forced = explicit.SolverSettings(end_time=1e-4, output_interval=1e-5, time_step=1.5 * stable)
+    with pytest.raises(InputError, match=r"solver\.time_step"):
+        explicit.choose_time_step(model, forced)
