@@ -23,18 +23,22 @@ rise_time, then held; or curve = [[t0, s0], [t1, s1], ...] (piecewise linear, he
 
 from __future__ import annotations
 
+import itertools
 import math
 import tomllib
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from fenics_adaptive.cohesive import CohesiveLaw
 from fenics_adaptive.errors import InputError
 from fenics_adaptive.explicit import Probe, SolverSettings
 from fenics_adaptive.laminate import Laminate, Ply, PlyMaterial
 from fenics_adaptive.loading import COMPONENTS, Amplitude, FaceLoad, PrescribedMotion, clamp
+from fenics_adaptive.structure import Interfaces
 
-MODEL_KINDS = ("esl", "layerwise")
+MODEL_KINDS = ("esl", "adaptive", "layerwise")
+REFINEMENT_KINDS = ("weak", "strong")
 BASE_FACES = ("x0", "x1", "y0", "y1", "bottom", "top")
 SIDE_FACES = ("x0", "x1", "y0", "y1")
 
@@ -49,6 +53,18 @@ class MeshConfig:
 
 
 @dataclass(frozen=True)
+class ManualRefinement:
+    """Refine the listed interfaces of every cell whose centroid lies in [x_min, x_max] at
+    ``time`` (the paper's TCB: refinement at a chosen displacement level)."""
+
+    time: float
+    interfaces: tuple[int, ...]
+    kind: str
+    x_min: float = -math.inf
+    x_max: float = math.inf
+
+
+@dataclass(frozen=True)
 class RunConfig:
     kind: str
     points_per_ply: int
@@ -58,7 +74,15 @@ class RunConfig:
     loads: tuple[FaceLoad, ...]
     solver: SolverSettings
     probe: Probe
+    interfaces: Interfaces = field(default_factory=Interfaces)
+    refinements: tuple[ManualRefinement, ...] = ()
+    cohesive: CohesiveLaw | None = None
     source: str = "<memory>"
+
+    @property
+    def layer_boundaries(self) -> list[int]:
+        """Ply interfaces at the boundaries between mesh layers."""
+        return list(itertools.accumulate(self.mesh.layers))[:-1]
 
     def layer_laminates(self) -> list[Laminate]:
         """The laminate of each mesh layer (one for ESL)."""
@@ -77,7 +101,7 @@ class RunConfig:
 def face_names(n_layers: int) -> list[str]:
     names = list(BASE_FACES)
     for k in range(n_layers):
-        names += [f"{face}_layer{k}" for face in SIDE_FACES]
+        names += [f"{face}_layer{k}" for face in (*SIDE_FACES, "bottom", "top")]
     return names
 
 
@@ -200,6 +224,7 @@ def parse_config(data: dict, source: str = "<memory>") -> RunConfig:
                 " its bending mode has no stiffness (group plies, or set model.points_per_ply = 2)",
             )
     faces = face_names(len(mesh.layers))
+    interfaces, refinements, cohesive = _interfaces(root, kind, laminate, mesh)
 
     motions: list[PrescribedMotion] = []
     for table in root.array_of_tables("clamp"):
@@ -273,6 +298,9 @@ def parse_config(data: dict, source: str = "<memory>") -> RunConfig:
             field_interval=fields_interval,
         ),
         probe=probe,
+        interfaces=interfaces,
+        refinements=refinements,
+        cohesive=cohesive,
         source=source,
     )
 
@@ -354,10 +382,107 @@ def _mesh(table: _Table, kind: str, laminate: Laminate) -> MeshConfig:
 
 
 def _face(table: _Table, faces: list[str], name: str = "face") -> str:
+    """A face group, or several joined by & (their common nodes, e.g. x1&top: an edge)."""
     face = table.string(name)
-    if face not in faces:
-        raise InputError(table.key(name), f"unknown face {face!r} (known: {', '.join(faces)})")
+    for part in face.split("&"):
+        if part not in faces:
+            raise InputError(
+                table.key(name),
+                f"unknown face {part!r} (known: {', '.join(faces)}; join faces with & for "
+                "their common nodes)",
+            )
     return face
+
+
+def _interface_list(table: _Table, name: str, n_plies: int) -> tuple[int, ...]:
+    values = table.raw(name, default=[])
+    if not isinstance(values, list):
+        raise InputError(table.key(name), "must be a list of ply interfaces (1-based)")
+    for j, value in enumerate(values):
+        if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value < n_plies:
+            raise InputError(
+                f"{table.key(name)}[{j}]",
+                f"must be a ply interface 1 .. {n_plies - 1} (got {value!r})",
+            )
+    if len(set(values)) != len(values):
+        raise InputError(table.key(name), "lists an interface twice")
+    return tuple(sorted(values))
+
+
+def _interfaces(root: _Table, kind: str, laminate: Laminate, mesh: MeshConfig):
+    n_plies = laminate.n_plies
+    table = root.table("interfaces", required=False)
+    refinement_tables = root.array_of_tables("refinement")
+    cohesive_table = root.table("cohesive", required=False)
+    if table is None:
+        if kind == "adaptive":
+            raise InputError("interfaces", "an adaptive model needs [interfaces] (refine = ...)")
+        if refinement_tables:
+            raise InputError("refinement", "only an adaptive model refines")
+        if cohesive_table is not None:
+            raise InputError("cohesive", "no interface delaminates ([interfaces] delaminate)")
+        return Interfaces(), (), None
+    if kind == "esl":
+        raise InputError("interfaces", "an ESL model has no interfaces to refine (use adaptive)")
+    refine = _interface_list(table, "refine", n_plies)
+    delaminate = _interface_list(table, "delaminate", n_plies)
+    symmetry = _interface_list(table, "symmetry", n_plies)
+    initial = table.string("initial", ("none", "weak", "strong"), default="none")
+    table.finish()
+    if kind == "layerwise":
+        boundaries = list(itertools.accumulate(mesh.layers))[:-1]
+        if refine or initial != "none":
+            key = "interfaces.refine" if refine else "interfaces.initial"
+            raise InputError(key, "a layerwise model does not refine (its layers are fixed)")
+        for name, values in (("delaminate", delaminate), ("symmetry", symmetry)):
+            for value in values:
+                if value not in boundaries:
+                    raise InputError(
+                        f"interfaces.{name}",
+                        f"interface {value} is not a boundary between mesh layers "
+                        f"(mesh.layers puts them at {boundaries})",
+                    )
+        if refinement_tables:
+            raise InputError("refinement", "only an adaptive model refines")
+    else:
+        allowed = set(refine) | set(delaminate)
+        for value in symmetry:
+            if value not in allowed:
+                raise InputError(
+                    "interfaces.symmetry", f"interface {value} is not listed to refine"
+                )
+        if not allowed:
+            raise InputError("interfaces.refine", "an adaptive model needs interfaces to refine")
+    if set(symmetry) & set(delaminate):
+        raise InputError("interfaces.symmetry", "a symmetry interface cannot also delaminate")
+
+    refinements = []
+    for rt in refinement_tables:
+        time = rt.number("time", minimum=0.0)
+        interfaces = _interface_list(rt, "interfaces", n_plies)
+        kind_name = rt.string("kind", REFINEMENT_KINDS)
+        pool = delaminate if kind_name == "strong" else set(refine) | set(delaminate)
+        for value in interfaces:
+            if value not in pool:
+                raise InputError(
+                    rt.key("interfaces"),
+                    f"interface {value} may not refine {kind_name}ly (see [interfaces])",
+                )
+        x_min = rt.number("x_min") if rt.has("x_min") else -math.inf
+        x_max = rt.number("x_max") if rt.has("x_max") else math.inf
+        if x_max <= x_min:
+            raise InputError(rt.key("x_max"), "must be larger than x_min")
+        rt.finish()
+        refinements.append(ManualRefinement(time, interfaces, kind_name, x_min, x_max))
+
+    cohesive = None
+    if delaminate:
+        if cohesive_table is None:
+            raise InputError("cohesive", "interfaces delaminate but [cohesive] is missing")
+        cohesive = CohesiveLaw.from_mapping(cohesive_table.data)
+    elif cohesive_table is not None:
+        raise InputError("cohesive", "no interface delaminates ([interfaces] delaminate)")
+    return Interfaces(refine, delaminate, symmetry, initial), tuple(refinements), cohesive
 
 
 def _amplitude(table: _Table) -> Amplitude:

@@ -8,15 +8,18 @@ Staggered scheme (velocities at half steps, variable step allowed):
     v_{n+1/2} = v_{n-1/2} + (dt_{n-1/2} + dt_{n+1/2}) / 2 * a_n
     u_{n+1}   = u_n + dt_{n+1/2} * v_{n+1/2}
 
-with optional mass-proportional damping c (1/s, per DOF) applied implicitly to v. The state lives
-in DOLFINx vectors (the memory of the ghosted PETSc Vecs): owned entries are updated, then the
-ghost entries of u are refreshed by a forward scatter, so any number of MPI ranks gives the same
-result up to the summation order of the assembly.
+with optional mass-proportional damping c (1/s, per DOF) applied implicitly to v. The DOFs come
+in blocks (``structure.Block``: base nodes, extra nodes of the enrichment), each in DOLFINx
+vectors (the memory of the ghosted PETSc Vecs): owned entries are updated, then the ghost entries
+of u are refreshed by a forward scatter, so any number of MPI ranks gives the same result up to
+the summation order of the assembly.
 
-Energies (global, on output steps): kinetic 1/2 v.M.v at full steps, internal work
-sum 1/2 (f_n + f_{n+1}).du (elastic strain energy plus whatever the material dissipates), external
-work of loads and of prescribed motions (reaction forces), damping work. Balance:
-kinetic + internal - external + damping = 0 up to the scheme's O(dt^2) error.
+Energies (global, on output steps): kinetic 1/2 v.M.v at full steps; internal work
+sum 1/2 (f_n + f_{n+1}).du (strain energy plus what materials dissipate); external work of loads
+and of prescribed motions (reaction forces); damping work; the kinetic energy that refinement
+adds or removes when it redistributes lumped masses. Balance:
+kinetic + internal + damping - external - refinement = 0 up to the scheme's O(dt^2) error.
+Dissipated = internal work - solid strain energy - recoverable cohesive energy.
 """
 
 from __future__ import annotations
@@ -27,12 +30,11 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
-from dolfinx import fem
 from mpi4py import MPI
 
 from fenics_adaptive.errors import InputError
-from fenics_adaptive.loading import COMPONENTS, ResolvedLoads, face_dofs
-from fenics_adaptive.model import LayeredModel
+from fenics_adaptive.loading import COMPONENTS, face_dofs
+from fenics_adaptive.structure import Block, Structure
 
 
 @dataclass(frozen=True)
@@ -48,7 +50,8 @@ class SolverSettings:
 @dataclass(frozen=True)
 class Probe:
     """What the history reports: the mean displacement of a face and the reaction force on a
-    (constrained) face, both in one component, and the applied-load resultant in that component."""
+    (prescribed) face, both in one component, and the applied-load resultant in that
+    component."""
 
     displacement_face: str
     reaction_face: str
@@ -65,12 +68,19 @@ class HistoryRow:
     internal_energy: float  # mJ, work of the internal forces
     external_work: float  # mJ, work of loads and prescribed motions
     damping_energy: float  # mJ, dissipated by mass damping
-    dissipated_energy: float  # mJ, dissipated by materials (cohesive, damage)
+    dissipated_energy: float  # mJ, dissipated by materials (cohesive damage)
+    refinement_energy: float  # mJ, kinetic energy changed by refinements
     time_step: float  # s
 
     @property
     def energy_balance(self) -> float:
-        return self.kinetic_energy + self.internal_energy + self.damping_energy - self.external_work
+        return (
+            self.kinetic_energy
+            + self.internal_energy
+            + self.damping_energy
+            - self.external_work
+            - self.refinement_energy
+        )
 
 
 COLUMNS = [*HistoryRow.__dataclass_fields__, "energy_balance"]
@@ -86,132 +96,215 @@ class RunStats:
     wall_time: float = 0.0
     time_step: float = 0.0
     stable_time_step: float = 0.0
-    critical_cell: int = -1
+    critical: str = ""
+    refinements: int = 0
     history: list[HistoryRow] = field(default_factory=list)
 
 
-def choose_time_step(model: LayeredModel, settings: SolverSettings) -> tuple[float, float, int]:
-    """(step used, stable step, critical cell). The stable step is safety * min(L_e / c)."""
-    length_over_speed, cell = model.stable_time_step()
-    stable = settings.safety_factor * length_over_speed
+def choose_time_step(structure: Structure, settings: SolverSettings) -> tuple[float, float, str]:
+    """(step used, stable step, where the limit is). Stable = safety * min(L_e / c, cohesive)."""
+    limit, where = structure.stable_time_step()
+    stable = settings.safety_factor * limit
     if settings.time_step is None:
-        return stable, stable, cell
+        return stable, stable, where
     if settings.time_step > stable * (1.0 + 1e-12):
         raise InputError(
             "solver.time_step",
             f"{settings.time_step:.4g} s exceeds the stable step {stable:.4g} s (safety factor "
-            f"{settings.safety_factor}); the run would blow up",
+            f"{settings.safety_factor}, limited by {where}); the run would blow up",
         )
-    return settings.time_step, stable, cell
+    return settings.time_step, stable, where
+
+
+class _BlockState:
+    """Work arrays of one block, allocated once per layout of the block."""
+
+    def __init__(self, block: Block, damping: float, old: _BlockState | None = None):
+        n = block.n_owned
+        self.block = block
+        self.u = block.u.array[:n]
+        self.v = block.v.array[:n]
+        self.f = block.f.array[:n]
+        self.m = block.mass
+        self.acc, self.du, self.f_old, self.f_ext, self.f_ext_old = (np.zeros(n) for _ in range(5))
+        self.damping = np.full(n, damping)
+        self.damping[block.fixed] = 0.0
+        self.shrink, self.grow, self.v_mid = (np.zeros(n) for _ in range(3))
+        k = len(block.fixed)
+        self.u_now, self.u_next, self.v_fixed, self.a_fixed = (np.zeros(k) for _ in range(4))
+        self.reaction, self.reaction_old, self.du_fixed, self.scratch = (
+            np.zeros(k) for _ in range(4)
+        )
+        if old is not None:  # the block grew: carry the old DOFs' history over
+            n_old = len(old.du)
+            for name in ("du", "f_old", "f_ext_old"):
+                getattr(self, name)[:n_old] = getattr(old, name)
+            _, new_at, old_at = np.intersect1d(
+                block.fixed, old.block.fixed, assume_unique=True, return_indices=True
+            )
+            self.reaction_old[new_at] = old.reaction_old[old_at]
 
 
 def run(
-    model: LayeredModel,
-    loads: ResolvedLoads,
+    structure: Structure,
     settings: SolverSettings,
     probe: Probe,
     on_history: Callable[[HistoryRow], None] | None = None,
     on_fields: Callable[[float], None] | None = None,
     on_progress: Callable[[float], None] | None = None,
+    on_step: Callable[[float, Structure], bool] | None = None,
+    on_refined: Callable[[float, float, str], None] | None = None,
     time_step: float | None = None,
     initial_displacement: np.ndarray | None = None,
+    initial_velocity: np.ndarray | None = None,
 ) -> RunStats:
-    """Integrate from t = 0 to ``settings.end_time``, starting at rest from
-    ``initial_displacement`` (owned + ghost entries; default zero). ``time_step`` bypasses the
-    stability check (for tests that show what an unstable step does)."""
-    comm = model.comm
-    n = model.n_owned_dofs
-    dt, stable, cell = choose_time_step(model, settings)
+    """Integrate from t = 0 to ``settings.end_time``, starting from ``initial_displacement`` and
+    ``initial_velocity`` (base DOFs, owned + ghost entries; default zero; the velocity is taken
+    as v_{-1/2}).
+
+    ``on_step(t, structure)`` runs before every step and returns True if it changed the
+    structure (refinement): the blocks are then rebuilt and the stable step recomputed, and
+    ``on_refined(t, new step, what limits it)`` is told.
+    ``time_step`` bypasses the stability check (for tests that show what an unstable step
+    does)."""
+    comm = structure.comm
+    loads = structure.loads
+    dt, stable, where = choose_time_step(structure, settings)
     if time_step is not None:
         dt = time_step
-    stats = RunStats(time_step=dt, stable_time_step=stable, critical_cell=cell)
-    n_steps = max(1, math.ceil(settings.end_time / dt - 1e-9))
+    forced = settings.time_step is not None or time_step is not None
+    stats = RunStats(time_step=dt, stable_time_step=stable, critical=where)
 
-    # state and work arrays, allocated once (the loop below allocates nothing per step)
-    u_vec = model.u.x
-    u = u_vec.array[:n]
-    v = np.zeros(n)
-    f_int_vec = fem.Function(model.V).x
-    f_int = f_int_vec.array[:n]
-    f_ext_full = np.zeros_like(u_vec.array)
-    f_ext = f_ext_full[:n]
-    m = model.mass[:n]
-    acc, du, f_int_old, f_ext_old = (np.zeros(n) for _ in range(4))
-    damping = np.full(n, settings.mass_damping)
-    damping[loads.constrained] = 0.0
+    states = [_BlockState(b, settings.mass_damping) for b in structure.blocks]
+    base = states[0]
+    base.block.u.array[:] = 0.0 if initial_displacement is None else initial_displacement
+    base.block.v.array[:] = 0.0 if initial_velocity is None else initial_velocity
+    n_motions = len(structure.motions)
+    motion_now, motion_next = np.zeros(n_motions), np.zeros(n_motions)
+    f_ext_full = np.zeros_like(base.block.u.array)
     damped = settings.mass_damping > 0.0
-    shrink, grow, v_mid = (np.zeros(n) for _ in range(3))
-
-    fixed = loads.constrained
-    n_fixed = len(fixed)
-    u_now, u_next, v_fixed, a_fixed, reaction, reaction_old, du_fixed, scratch = (
-        np.zeros(n_fixed) for _ in range(8)
-    )
 
     component = COMPONENTS[probe.component]
-    probe_dofs = face_dofs(model, probe.displacement_face, probe.component)
+    probe_dofs = face_dofs(structure.base, probe.displacement_face, probe.component)
     n_probe = comm.allreduce(len(probe_dofs), op=MPI.SUM)
-    in_reaction = np.isin(fixed, face_dofs(model, probe.reaction_face, probe.component))
-    load_dofs = np.arange(component, n, 3)
+    reaction_motions = np.array(
+        [
+            m.face == probe.reaction_face and m.component == probe.component
+            for m in structure.motions
+        ],
+        dtype=bool,
+    )
+    load_dofs = np.arange(component, base.block.n_owned, 3)
+
+    def set_prescribed(t_now: float, step: float) -> None:
+        for k, motion in enumerate(structure.motions):
+            motion_now[k] = motion.displacement(t_now)
+            motion_next[k] = motion.displacement(t_now + step)
+        for state in states:
+            np.take(motion_now, state.block.fixed_motion, out=state.u_now)
+            np.take(motion_next, state.block.fixed_motion, out=state.u_next)
+
+    def forces_and_accelerations() -> None:
+        """f_int, f_ext, accelerations and reactions at t_n for the current structure."""
+        structure.internal_force()
+        loads.external_force(t, f_ext_full)
+        base.f_ext[:] = f_ext_full[: base.block.n_owned]
+        mean_dt = 0.5 * (dt_prev + dt)
+        for state in states:
+            np.subtract(state.f_ext, state.f, out=state.acc)
+            state.acc /= state.m
+            if len(state.block.fixed):
+                fixed = state.block.fixed
+                # the acceleration that takes the prescribed DOFs exactly to u(t_{n+1})
+                np.subtract(state.u_next, state.u_now, out=state.a_fixed)
+                state.a_fixed /= dt
+                np.take(state.v, fixed, out=state.v_fixed)
+                state.a_fixed -= state.v_fixed
+                state.a_fixed /= mean_dt
+                np.put(state.acc, fixed, state.a_fixed)
+                # reaction = m a + f_int - f_ext on the prescribed DOFs
+                np.take(state.m, fixed, out=state.reaction)
+                state.reaction *= state.a_fixed
+                state.reaction += np.take(state.f, fixed, out=state.scratch)
+                state.reaction -= np.take(state.f_ext, fixed, out=state.scratch)
 
     work_int = work_ext = work_damp = 0.0  # this rank's shares
     t = 0.0
     dt_prev = 0.0
     next_output = 0.0
     next_fields = 0.0 if (settings.field_interval and on_fields) else math.inf
-    loads.prescribed_values(0.0, u_now)
-    loads.prescribed_values(dt, u_next)
-    u_vec.array[:] = 0.0 if initial_displacement is None else initial_displacement
-    np.put(u, fixed, u_now)
-    u_vec.scatter_forward()
+    step = 0
+    set_prescribed(0.0, dt)
+    for state in states:
+        np.put(state.u, state.block.fixed, state.u_now)
+        state.block.u.scatter_forward()
     start = time.perf_counter()
 
     # a diverging run is reported by Diverged, not by floating-point warnings
     with np.errstate(over="ignore", invalid="ignore"):
-        for step in range(n_steps + 1):
-            # forces and acceleration at t_n
-            model.internal_force(f_int_vec)
-            loads.external_force(t, f_ext_full)
-            np.subtract(f_ext, f_int, out=acc)
-            acc /= m
-            mean_dt = 0.5 * (dt_prev + dt)
-            if n_fixed:
-                # the acceleration that takes the prescribed DOFs exactly to u(t_{n+1})
-                np.subtract(u_next, u_now, out=a_fixed)
-                a_fixed /= dt
-                np.take(v, fixed, out=v_fixed)
-                a_fixed -= v_fixed
-                a_fixed /= mean_dt
-                np.put(acc, fixed, a_fixed)
-                # reaction = m a + f_int - f_ext on the constrained DOFs
-                np.take(m, fixed, out=reaction)
-                reaction *= a_fixed
-                reaction += np.take(f_int, fixed, out=scratch)
-                reaction -= np.take(f_ext, fixed, out=scratch)
+        while True:
+            forces_and_accelerations()
 
             # work over the step just made (trapezoidal in the forces)
             if step > 0:
-                work_int += 0.5 * (np.dot(f_int_old, du) + np.dot(f_int, du))
-                work_ext += 0.5 * (np.dot(f_ext_old, du) + np.dot(f_ext, du))
-                if n_fixed:
-                    np.take(du, fixed, out=du_fixed)
-                    work_ext += 0.5 * (np.dot(reaction_old, du_fixed) + np.dot(reaction, du_fixed))
-                # the internal work sums every DOF's force and motion: a single non-finite value
-                # anywhere shows here, in the step it appears
+                for state in states:
+                    work_int += 0.5 * (np.dot(state.f_old, state.du) + np.dot(state.f, state.du))
+                    work_ext += 0.5 * (
+                        np.dot(state.f_ext_old, state.du) + np.dot(state.f_ext, state.du)
+                    )
+                    if len(state.block.fixed):
+                        np.take(state.du, state.block.fixed, out=state.du_fixed)
+                        work_ext += 0.5 * (
+                            np.dot(state.reaction_old, state.du_fixed)
+                            + np.dot(state.reaction, state.du_fixed)
+                        )
+                # the internal work sums every DOF's force and motion: a single non-finite
+                # value anywhere shows here, in the step it appears
                 if not math.isfinite(work_int):
                     raise Diverged(
-                        f"t = {t:.6g} s (step {step}): the solution is no longer finite; time step "
-                        f"{dt:.4g} s, stable step {stable:.4g} s"
+                        f"t = {t:.6g} s (step {step}): the solution is no longer finite; time "
+                        f"step {dt:.4g} s, stable step {stable:.4g} s"
                     )
 
-            if t >= next_output - 1e-9 * dt or step == n_steps:
-                v_full = v + 0.5 * dt_prev * acc  # v_n from v_{n-1/2}
+            # refinement between steps: the work of the last step was counted with the old
+            # structure's forces above; the new one starts from its own forces at t_n
+            if on_step is not None and on_step(t, structure):
+                stats.refinements += 1
+                states = [
+                    _BlockState(b, settings.mass_damping, old)
+                    for b, old in zip(structure.blocks, states, strict=True)
+                ]
+                base = states[0]
+                limit, where = structure.stable_time_step()
+                stable = settings.safety_factor * limit
+                stats.stable_time_step, stats.critical = stable, where
+                if not forced:
+                    dt = stable
+                elif dt > stable * (1.0 + 1e-12):
+                    raise Diverged(
+                        f"t = {t:.6g} s: after refinement the stable step is {stable:.4g} s "
+                        f"({where}), below the forced step {dt:.4g} s"
+                    )
+                set_prescribed(t, dt)
+                forces_and_accelerations()  # of the refined structure, at t_n
+                if on_refined is not None:
+                    on_refined(t, dt, where)
+
+            n_steps_done = step
+            if t >= next_output - 1e-9 * dt or t >= settings.end_time - 1e-9 * dt:
+                kinetic = 0.0
+                reaction = 0.0
+                for state in states:
+                    v_full = state.v + 0.5 * dt_prev * state.acc  # v_n from v_{n-1/2}
+                    kinetic += 0.5 * np.dot(state.m * v_full, v_full)
+                    on_face = reaction_motions[state.block.fixed_motion]
+                    reaction += state.reaction[on_face].sum()
                 local = np.array(
                     [
-                        u[probe_dofs].sum(),
-                        reaction[in_reaction].sum(),
-                        f_ext[load_dofs].sum(),
-                        0.5 * np.dot(m * v_full, v_full),
+                        base.u[probe_dofs].sum(),
+                        reaction,
+                        base.f_ext[load_dofs].sum(),
+                        kinetic,
                         work_int,
                         work_ext,
                         work_damp,
@@ -220,9 +313,10 @@ def run(
                 total = comm.allreduce(local, op=MPI.SUM)
                 if not np.all(np.isfinite(total)):
                     raise Diverged(
-                        f"t = {t:.6g} s (step {step}): the solution is no longer finite; time step "
-                        f"{dt:.4g} s, stable step {stable:.4g} s"
+                        f"t = {t:.6g} s (step {step}): the solution is no longer finite; time "
+                        f"step {dt:.4g} s, stable step {stable:.4g} s"
                     )
+                solid, cohesive = structure.energies()
                 row = HistoryRow(
                     time=t,
                     displacement=total[0] / max(n_probe, 1),
@@ -232,7 +326,8 @@ def run(
                     internal_energy=total[4],
                     external_work=total[5],
                     damping_energy=total[6],
-                    dissipated_energy=0.0,
+                    dissipated_energy=total[4] - solid - cohesive,
+                    refinement_energy=structure.refinement_energy,
                     time_step=dt,
                 )
                 stats.history.append(row)
@@ -244,43 +339,45 @@ def run(
                 on_fields(t)
                 while next_fields <= t + 1e-9 * dt:
                     next_fields += settings.field_interval
-            if step == n_steps:
+            if t >= settings.end_time - 1e-9 * dt:
                 break
 
-            # v_{n-1/2} -> v_{n+1/2}, with implicit mass-proportional damping where asked
-            if damped:
-                v_mid[:] = v
-                np.multiply(damping, 0.5 * mean_dt, out=shrink)
-                np.add(shrink, 1.0, out=grow)
-                np.subtract(1.0, shrink, out=shrink)
-                v *= shrink
-                acc *= mean_dt
-                v += acc
-                v /= grow
-                v_mid += v
-                v_mid *= 0.5
-                np.multiply(v_mid, v_mid, out=shrink)
-                shrink *= m
-                work_damp += mean_dt * np.dot(damping, shrink)
-            else:
-                acc *= mean_dt
-                v += acc
-            # u_n -> u_{n+1}; the prescribed DOFs land exactly on their prescribed values
-            np.multiply(v, dt, out=du)
-            u += du
-            np.put(u, fixed, u_next)
-            u_vec.scatter_forward()
+            mean_dt = 0.5 * (dt_prev + dt)
+            for state in states:
+                # v_{n-1/2} -> v_{n+1/2}, with implicit mass-proportional damping where asked
+                if damped:
+                    state.v_mid[:] = state.v
+                    np.multiply(state.damping, 0.5 * mean_dt, out=state.shrink)
+                    np.add(state.shrink, 1.0, out=state.grow)
+                    np.subtract(1.0, state.shrink, out=state.shrink)
+                    state.v *= state.shrink
+                    state.acc *= mean_dt
+                    state.v += state.acc
+                    state.v /= state.grow
+                    state.v_mid += state.v
+                    state.v_mid *= 0.5
+                    np.multiply(state.v_mid, state.v_mid, out=state.shrink)
+                    state.shrink *= state.m
+                    work_damp += mean_dt * np.dot(state.damping, state.shrink)
+                else:
+                    state.acc *= mean_dt
+                    state.v += state.acc
+                # u_n -> u_{n+1}; the prescribed DOFs land exactly on their prescribed values
+                np.multiply(state.v, dt, out=state.du)
+                state.u += state.du
+                np.put(state.u, state.block.fixed, state.u_next)
+                state.block.u.scatter_forward()
+                state.f_old[:] = state.f
+                state.f_ext_old[:] = state.f_ext
+                state.reaction_old[:] = state.reaction
 
-            f_int_old[:] = f_int
-            f_ext_old[:] = f_ext
-            reaction_old[:] = reaction
-            u_now[:] = u_next
             dt_prev = dt
-            t = (step + 1) * dt
-            loads.prescribed_values(t + dt, u_next)
+            t += dt
+            step += 1
+            set_prescribed(t, dt)
             if on_progress is not None and step % 64 == 0:
                 on_progress(t)
 
-    stats.steps = n_steps
+    stats.steps = n_steps_done
     stats.wall_time = time.perf_counter() - start
     return stats

@@ -7,6 +7,7 @@ x1_layer3, ...). Components are "x", "y", "z".
 from __future__ import annotations
 
 import bisect
+import functools
 import itertools
 import math
 from collections.abc import Sequence
@@ -69,25 +70,36 @@ class Amplitude:
         return self.values[i] + (self.values[i + 1] - self.values[i]) * s
 
     def integral(self, t: float) -> float:
-        """Integral of the amplitude from 0 to t (s): a velocity amplitude's displacement."""
-        total = 0.0
-        start = 0.0
-        knots = [tk for tk in self.times if tk > 0.0] + [math.inf]
-        for knot in knots:
-            end = min(knot, t)
-            if end > start:
-                total += self._integrate_piece(start, end)
-            start = end
-            if start >= t:
-                break
-        return total
+        """Integral of the amplitude from 0 to t (s): a velocity amplitude's displacement.
+        Exact: a straight segment integrates to its mean, a smoothstep segment from v0 to v1
+        over a fraction x of its length T to T (v0 x + (v1 - v0) (x^3 - x^4 / 2))."""
+        if t <= 0.0:
+            return 0.0
+        knots = self._knot_integrals
+        first = self.times[0]
+        if t <= first:
+            return self.values[0] * t
+        i = min(bisect.bisect_right(self.times, t) - 1, len(self.times) - 1)
+        if i == len(self.times) - 1:
+            return knots[-1] + self.values[-1] * (t - self.times[-1])
+        length = self.times[i + 1] - self.times[i]
+        x = (t - self.times[i]) / length
+        v0, v1 = self.values[i], self.values[i + 1]
+        if self.smooth:
+            piece = length * (v0 * x + (v1 - v0) * (x**3 - 0.5 * x**4))
+        else:
+            piece = length * x * (v0 + 0.5 * (v1 - v0) * x)
+        return knots[i] + piece
 
-    def _integrate_piece(self, a: float, b: float) -> float:
-        # within one segment (or before/after the curve): the smoothstep and straight line are
-        # cubic and linear in s, so 2-point Gauss is exact
-        x, w = np.polynomial.legendre.leggauss(2)
-        mid, half = 0.5 * (a + b), 0.5 * (b - a)
-        return half * sum(wi * self(mid + half * xi) for xi, wi in zip(x, w, strict=True))
+    @functools.cached_property
+    def _knot_integrals(self) -> list[float]:
+        """Integral from 0 to each knot time."""
+        first = max(self.times[0], 0.0)
+        out = [self.values[0] * first]
+        for i in range(len(self.times) - 1):
+            length = self.times[i + 1] - self.times[i]
+            out.append(out[-1] + 0.5 * length * (self.values[i] + self.values[i + 1]))
+        return out
 
 
 @dataclass(frozen=True)
@@ -124,33 +136,20 @@ def clamp(face: str) -> list[PrescribedMotion]:
 
 
 @dataclass
-class ResolvedMotion:
-    motion: PrescribedMotion
-    dofs: np.ndarray  # owned DOF indices (block-unrolled) of the model's space
-
-
-@dataclass
 class ResolvedLoads:
-    """Everything the explicit solver needs from the loading, as arrays on the model's DOFs."""
+    """The loading as arrays on the base DOFs of a model: prescribed DOFs with the index of the
+    motion that drives each, and one nodal force vector per face load."""
 
-    motions: list[ResolvedMotion]
-    constrained: np.ndarray  # sorted owned DOFs under a prescribed motion
+    motions: list[PrescribedMotion]
+    fixed: np.ndarray  # owned base DOFs under a prescribed motion (sorted, unique)
+    fixed_motion: np.ndarray  # index into ``motions`` for each fixed DOF
     load_vectors: list[np.ndarray]  # one nodal force vector per FaceLoad (owned + ghosts), N
     load_amplitudes: list[Amplitude]
     _scratch: np.ndarray | None = None
 
-    def prescribed_displacements(self, t: float, u: np.ndarray) -> None:
-        """Write the prescribed displacements at time t into the full DOF array u."""
-        for resolved in self.motions:
-            u[resolved.dofs] = resolved.motion.displacement(t)
-
-    def prescribed_values(self, t: float, out: np.ndarray) -> None:
-        """The prescribed displacements at time t of the DOFs ``constrained``, in that order."""
-        for resolved, positions in zip(self.motions, self._positions, strict=True):
-            out[positions] = resolved.motion.displacement(t)
-
-    def __post_init__(self) -> None:
-        self._positions = [np.searchsorted(self.constrained, r.dofs) for r in self.motions]
+    @property
+    def constrained(self) -> np.ndarray:
+        return self.fixed
 
     def external_force(self, t: float, out: np.ndarray) -> None:
         out.fill(0.0)
@@ -163,19 +162,30 @@ class ResolvedLoads:
                 out += self._scratch
 
 
+def face_nodes(model: LayeredModel, face: str) -> np.ndarray:
+    """Local nodes (owned and ghosts, sorted) on a face group. ``a&b`` names the nodes on both
+    face a and face b (for example ``x1&top``: the top edge of the end x1)."""
+    names = face.split("&")
+    nodes = None
+    for name in names:
+        beam = model.beam
+        facets = beam.facets(name)
+        fdim = beam.mesh.topology.dim - 1
+        beam.mesh.topology.create_connectivity(fdim, beam.mesh.topology.dim)
+        on_face = fem.locate_dofs_topological(model.V, fdim, facets)
+        nodes = on_face if nodes is None else np.intersect1d(nodes, on_face)
+    return np.sort(nodes).astype(np.int32)
+
+
 def face_dofs(
     model: LayeredModel, face: str, component: str, owned_only: bool = True
 ) -> np.ndarray:
-    """DOFs (block-unrolled, sorted) of one component on a face group: this rank's owned ones,
-    or with ``owned_only=False`` also its ghosts."""
-    beam = model.beam
-    facets = beam.facets(face)
-    fdim = beam.mesh.topology.dim - 1
-    beam.mesh.topology.create_connectivity(fdim, beam.mesh.topology.dim)
-    dofs = fem.locate_dofs_topological(model.V.sub(COMPONENTS[component]), fdim, facets)
+    """DOFs (block-unrolled, sorted) of one component on a face group (``face_nodes``): this
+    rank's owned ones, or with ``owned_only=False`` also its ghosts."""
+    dofs = 3 * face_nodes(model, face) + COMPONENTS[component]
     if owned_only:
         dofs = dofs[dofs < model.n_owned_dofs]
-    return np.sort(dofs).astype(np.int32)
+    return dofs.astype(np.int32)
 
 
 def face_area(model: LayeredModel, face: str) -> float:
@@ -188,26 +198,26 @@ def face_area(model: LayeredModel, face: str) -> float:
 def resolve(
     model: LayeredModel, motions: Sequence[PrescribedMotion], loads: Sequence[FaceLoad]
 ) -> ResolvedLoads:
-    resolved = []
-    owner: dict[int, PrescribedMotion] = {}
-    for motion in motions:
-        dofs = face_dofs(model, motion.face, motion.component)
-        for dof in dofs:
-            previous = owner.setdefault(int(dof), motion)
-            if previous is not motion and previous != motion:
-                # the same DOF prescribed twice is fine only if both say the same thing
-                if not (_is_zero(previous) and _is_zero(motion)):
+    owner: dict[int, int] = {}
+    for k, motion in enumerate(motions):
+        for dof in face_dofs(model, motion.face, motion.component):
+            previous = owner.setdefault(int(dof), k)
+            if previous != k and motions[previous] != motion:
+                # the same DOF prescribed twice is fine only if both hold it at zero
+                if not (_is_zero(motions[previous]) and _is_zero(motion)):
                     raise ValueError(
-                        f"faces {previous.face!r} and {motion.face!r} both prescribe "
+                        f"faces {motions[previous].face!r} and {motion.face!r} both prescribe "
                         f"component {motion.component} of the nodes they share, differently"
                     )
-        resolved.append(ResolvedMotion(motion, dofs))
-    constrained = np.array(sorted(owner), dtype=np.int32)
+    fixed = np.array(sorted(owner), dtype=np.int32)
+    fixed_motion = np.array([owner[int(d)] for d in fixed], dtype=np.int32)
 
     vectors = []
     ds = ufl.Measure("ds", domain=model.mesh, subdomain_data=model.beam.facet_tags)
     v = ufl.TestFunction(model.V)
     for load in loads:
+        if "&" in load.face:
+            raise ValueError(f"load on {load.face!r}: loads act on one face, not an edge")
         area = face_area(model, load.face)
         traction = ufl.as_vector([f / area for f in load.force])
         vec = fem.assemble_vector(
@@ -216,7 +226,9 @@ def resolve(
         vec.scatter_reverse(dolfinx.la.InsertMode.add)
         vec.scatter_forward()
         vectors.append(vec.array.copy())
-    return ResolvedLoads(resolved, constrained, vectors, [load.amplitude for load in loads])
+    return ResolvedLoads(
+        list(motions), fixed, fixed_motion, vectors, [load.amplitude for load in loads]
+    )
 
 
 def _is_zero(motion: PrescribedMotion) -> bool:

@@ -9,7 +9,7 @@ layer per sublaminate, each carrying its own plies. Both are the same object her
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import dolfinx
 import numpy as np
@@ -19,6 +19,7 @@ from mpi4py import MPI
 
 from fenics_adaptive import solid_shell
 from fenics_adaptive.laminate import Laminate
+from fenics_adaptive.timestep import characteristic_lengths
 from meshes.beam import BeamMesh
 
 # FFCx kernels compiled for this CPU with reassociation allowed: lets the compiler vectorise the
@@ -35,22 +36,24 @@ JIT_OPTIONS = {
     ]
 }
 
-# Local vertex lists of the six faces of a reference hexahedron (DOLFINx numbering).
-HEX_FACES = np.array(
-    [[0, 1, 3, 2], [4, 5, 7, 6], [0, 1, 5, 4], [2, 3, 7, 6], [0, 2, 6, 4], [1, 3, 7, 5]]
-)
-
 
 @dataclass
 class LayeredModel:
+    """The base discretisation. Its UFL forms integrate the cells listed in ``ufl_cells`` (per
+    mesh layer; all owned cells at first): an adaptive model takes refined cells out of them and
+    computes those with the numba subelement kernel instead."""
+
     beam: BeamMesh
     layer_laminates: list[Laminate]  # laminate of mesh layer k (cell tag k + 1)
     points_per_ply: int
+    selective: bool
     V: fem.FunctionSpace
-    u: fem.Function  # displacement, mm; the force form reads it
-    force_ufl: ufl.Form  # f_int(u) . v, kept for linearisation (static solves, stiffness)
-    force_form: fem.Form
+    u: fem.Function  # displacement, mm; the forms read it
     mass: np.ndarray  # lumped nodal mass per DOF (owned + ghosts), tonne
+    ufl_cells: list[np.ndarray] = field(default_factory=list)
+    force_ufl: ufl.Form | None = None  # f_int(u) . v, kept for linearisation (static, stiffness)
+    force_form: fem.Form | None = None
+    energy_form: fem.Form | None = None
 
     @property
     def mesh(self) -> dolfinx.mesh.Mesh:
@@ -64,31 +67,64 @@ class LayeredModel:
     def n_owned_dofs(self) -> int:
         return self.V.dofmap.index_map.size_local * self.V.dofmap.index_map_bs
 
+    @property
+    def n_owned_cells(self) -> int:
+        return self.mesh.topology.index_map(3).size_local
+
+    def layer_cells(self, layer: int) -> np.ndarray:
+        cells = self.beam.cell_tags.find(layer + 1)
+        return cells[cells < self.n_owned_cells].astype(np.int32)
+
+    def set_ufl_cells(self, cells_per_layer: list[np.ndarray]) -> None:
+        """Integrate the UFL forms over these owned cells of each layer (compiled kernels are
+        cached, so this is cheap)."""
+        self.ufl_cells = [np.asarray(c, dtype=np.int32) for c in cells_per_layer]
+        v = ufl.TestFunction(self.V)
+        kernels = solid_shell.SeparateKernels(self.mesh)
+        energy = 0
+        for laminate, cells in zip(self.layer_laminates, self.ufl_cells, strict=True):
+            groups = solid_shell.ply_groups(laminate, self.points_per_ply)
+            energy += solid_shell.strain_energy_form(self.u, groups, kernels, cells, self.selective)
+        self.force_ufl = ufl.derivative(energy, self.u, v)
+        self.force_form = fem.form(self.force_ufl, jit_options=JIT_OPTIONS)
+        self.energy_form = fem.form(energy, jit_options=JIT_OPTIONS)
+
+    def add_internal_force(self, out: np.ndarray) -> None:
+        """Add this rank's share of f_int(u) (N) over the UFL cells into ``out`` (owned + ghost
+        entries, no scatter)."""
+        fem.assemble_vector(out, self.force_form)
+
     def internal_force(self, out: dolfinx.la.Vector) -> None:
         """f_int(u) (N) into ``out``, a vector on the space's index map: owned entries complete,
         ghost entries hold this rank's partial sums."""
         out.array.fill(0.0)
-        fem.assemble_vector(out.array, self.force_form)
+        self.add_internal_force(out.array)
         out.scatter_reverse(dolfinx.la.InsertMode.add)
+
+    def strain_energy(self) -> float:
+        """Strain energy (mJ) of the UFL cells, summed over ranks."""
+        return self.comm.allreduce(fem.assemble_scalar(self.energy_form), op=MPI.SUM)
 
     def total_mass(self) -> float:
         local = self.mass[: self.n_owned_dofs : 3].sum()
         return self.comm.allreduce(local, op=MPI.SUM)
 
+    def cell_wave_speeds(self) -> np.ndarray:
+        """Fastest dilatational wave speed (mm/s) of the plies of each owned cell."""
+        speeds = np.zeros(self.n_owned_cells)
+        for k, laminate in enumerate(self.layer_laminates):
+            speeds[self.layer_cells(k)] = max(
+                p.material.dilatational_wave_speed() for p in laminate.plies
+            )
+        return speeds
+
     def stable_time_step(self) -> tuple[float, int]:
         """(min over cells of L_e / c, the cell attaining it), reduced over ranks. L_e = volume /
         largest face area; c = fastest dilatational wave speed of the cell's plies."""
-        X = cell_vertex_coordinates(self.mesh)
-        lengths = characteristic_lengths(X)
-        speeds = np.zeros(len(X))
-        for k, laminate in enumerate(self.layer_laminates):
-            cells = self.beam.cell_tags.find(k + 1)
-            cells = cells[cells < len(X)]
-            speeds[cells] = max(p.material.dilatational_wave_speed() for p in laminate.plies)
-        ratios = lengths / speeds
+        ratios = characteristic_lengths(cell_vertex_coordinates(self.mesh))
+        ratios /= self.cell_wave_speeds()
         cell = int(np.argmin(ratios))
-        local = (float(ratios[cell]), cell)
-        return self.comm.allreduce(local, op=MPI.MIN)
+        return self.comm.allreduce((float(ratios[cell]), cell), op=MPI.MIN)
 
 
 def build_model(
@@ -114,71 +150,32 @@ def build_model(
                 "bending mode would have zero energy (use points_per_ply = 2)"
             )
     V = fem.functionspace(beam.mesh, ("Lagrange", 1, (3,)))
-    u = fem.Function(V, name="displacement")
-    v = ufl.TestFunction(V)
-    force = 0
-    mass = 0
-    force_kernels = solid_shell.SeparateKernels(beam.mesh)
-    mass_kernels = solid_shell.SeparateKernels(beam.mesh)
-    n_owned = beam.mesh.topology.index_map(3).size_local
-    for k, laminate in enumerate(layer_laminates):
-        cells = beam.cell_tags.find(k + 1)
-        cells = cells[cells < n_owned]
-        groups = solid_shell.ply_groups(laminate, points_per_ply)
-        force += solid_shell.internal_force_form(u, v, groups, force_kernels, cells, selective)
-        mass += solid_shell.lumped_mass_form(v, groups, mass_kernels, cells)
-    mass_vector = fem.assemble_vector(fem.form(mass))
-    mass_vector.scatter_reverse(dolfinx.la.InsertMode.add)
-    mass_vector.scatter_forward()
-    return LayeredModel(
+    model = LayeredModel(
         beam=beam,
         layer_laminates=list(layer_laminates),
         points_per_ply=points_per_ply,
+        selective=selective,
         V=V,
-        u=u,
-        force_ufl=force,
-        force_form=fem.form(force, jit_options=JIT_OPTIONS),
-        mass=mass_vector.array.copy(),
+        u=fem.Function(V, name="displacement"),
+        mass=np.zeros(0),
     )
+    cells = [model.layer_cells(k) for k in range(len(layer_laminates))]
+    model.set_ufl_cells(cells)
+
+    v = ufl.TestFunction(V)
+    kernels = solid_shell.SeparateKernels(beam.mesh)
+    mass = 0
+    for laminate, layer_cells in zip(layer_laminates, cells, strict=True):
+        groups = solid_shell.ply_groups(laminate, points_per_ply)
+        mass += solid_shell.lumped_mass_form(v, groups, kernels, layer_cells)
+    mass_vector = fem.assemble_vector(fem.form(mass))
+    mass_vector.scatter_reverse(dolfinx.la.InsertMode.add)
+    mass_vector.scatter_forward()
+    model.mass = mass_vector.array.copy()
+    return model
 
 
 def cell_vertex_coordinates(mesh: dolfinx.mesh.Mesh) -> np.ndarray:
     """(n_local_cells, 8, 3) vertex coordinates of the locally owned cells."""
     n_local = mesh.topology.index_map(3).size_local
     return mesh.geometry.x[mesh.geometry.dofmaps[0][:n_local]]
-
-
-def characteristic_lengths(X: np.ndarray) -> np.ndarray:
-    """Volume / largest face area of hexahedra with vertex coordinates X (n, 8, 3)."""
-    faces = X[:, HEX_FACES, :]  # (n, 6, 4, 3), vertices in cyclic order
-    diag1 = faces[:, :, 2] - faces[:, :, 0]
-    diag2 = faces[:, :, 3] - faces[:, :, 1]
-    areas = 0.5 * np.linalg.norm(np.cross(diag1, diag2), axis=2)
-    return hexahedron_volumes(X) / areas.max(axis=1)
-
-
-def hexahedron_volumes(X: np.ndarray) -> np.ndarray:
-    """Exact volumes of trilinear hexahedra (2x2x2 Gauss on det J)."""
-    g = solid_shell.GAUSS_2
-    volume = np.zeros(len(X))
-    for a in g:
-        for b in g:
-            for c in g:
-                dN = reference_gradients(np.array([a, b, c]))  # (8, 3)
-                J = np.einsum("nki,kj->nij", X, dN)  # (n, 3, 3): dx_i / dX_j
-                volume += 0.125 * np.abs(np.linalg.det(J))
-    return volume
-
-
-def reference_gradients(point: np.ndarray) -> np.ndarray:
-    """Gradients (8, 3) of the trilinear shape functions on [0, 1]^3 at ``point``, DOLFINx vertex
-    order: vertex k sits at (k & 1, (k >> 1) & 1, (k >> 2) & 1)."""
-    corners = np.array([[k & 1, (k >> 1) & 1, (k >> 2) & 1] for k in range(8)], dtype=float)
-    # 1-D factors: corner coordinate 1 -> s, 0 -> 1 - s
-    values = np.where(corners == 1, point, 1.0 - point)  # (8, 3)
-    slopes = np.where(corners == 1, 1.0, -1.0)
-    grads = np.empty((8, 3))
-    grads[:, 0] = slopes[:, 0] * values[:, 1] * values[:, 2]
-    grads[:, 1] = values[:, 0] * slopes[:, 1] * values[:, 2]
-    grads[:, 2] = values[:, 0] * values[:, 1] * slopes[:, 2]
-    return grads

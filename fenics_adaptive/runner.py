@@ -14,31 +14,42 @@ from pathlib import Path
 
 import dolfinx
 import numba
+import numpy as np
 from mpi4py import MPI
 
 import fenics_adaptive
 from fenics_adaptive import explicit, output
+from fenics_adaptive.assembly import CohesiveSet
 from fenics_adaptive.config import RunConfig
-from fenics_adaptive.loading import ResolvedLoads, resolve
+from fenics_adaptive.enrichment import STRONG, WEAK
+from fenics_adaptive.layerwise import cohesive_pairs
+from fenics_adaptive.loading import Amplitude, PrescribedMotion, resolve
 from fenics_adaptive.model import LayeredModel, build_model
+from fenics_adaptive.structure import Structure, cells_in_x_range
 from meshes.beam import BeamMesh, layered_mesh
 
 
 @dataclass
 class Problem:
     config: RunConfig
-    beam: BeamMesh
-    model: LayeredModel
-    loads: ResolvedLoads
+    structure: Structure
     time_step: float
     stable_time_step: float
-    critical_cell: int
+    critical: str
+
+    @property
+    def model(self) -> LayeredModel:
+        return self.structure.base
+
+    @property
+    def beam(self) -> BeamMesh:
+        return self.structure.base.beam
 
 
-def build_problem(config: RunConfig, comm: MPI.Comm = MPI.COMM_WORLD) -> Problem:
-    """Everything up to, not including, the time loop. Raises InputError for a config that
-    cannot run (e.g. a forced time step above the stable one)."""
+def build_structure(config: RunConfig, comm: MPI.Comm = MPI.COMM_WORLD) -> Structure:
+    """Mesh, model, loads and (for adaptive) the initial refinement of a config."""
     layers = config.layer_laminates()
+    boundaries = config.layer_boundaries
     beam = layered_mesh(
         comm,
         config.mesh.length,
@@ -46,11 +57,66 @@ def build_problem(config: RunConfig, comm: MPI.Comm = MPI.COMM_WORLD) -> Problem
         config.mesh.nx,
         config.mesh.ny,
         [laminate.thickness for laminate in layers],
+        [b in config.interfaces.delaminate for b in boundaries],
     )
     model = build_model(beam, layers, config.points_per_ply)
-    loads = resolve(model, config.motions, config.loads)
-    dt, stable, cell = explicit.choose_time_step(model, config.solver)
-    return Problem(config, beam, model, loads, dt, stable, cell)
+    motions = list(config.motions)
+    cohesive = None
+    params = config.cohesive.as_array() if config.cohesive is not None else None
+    if config.kind == "layerwise":
+        for interface in config.interfaces.symmetry:
+            top = f"top_layer{boundaries.index(interface)}"
+            motions.append(PrescribedMotion(top, "z", "displacement", 0.0, Amplitude.constant(0)))
+        if config.interfaces.delaminate:
+            pairs = cohesive_pairs(beam, model.V)
+            cohesive = CohesiveSet(
+                pairs.nodes,
+                np.arange(len(pairs), dtype=np.int64),
+                np.zeros((len(pairs), 4)),
+                params,
+                np.array(boundaries, dtype=np.int32)[pairs.boundary],
+            )
+    loads = resolve(model, motions, config.loads)
+    structure = Structure(model, loads, cohesive, config.interfaces, params)
+    if config.kind == "adaptive" and config.interfaces.initial != "none":
+        structure.refine(initial_refinement(structure, config))
+    return structure
+
+
+def initial_refinement(structure: Structure, config: RunConfig) -> list[tuple[int, int, int]]:
+    """Every owned cell refined at the listed interfaces: weak at ``refine``, and at
+    ``delaminate`` weak or strong as ``initial`` says."""
+    interfaces = config.interfaces
+    strong = interfaces.initial == "strong"
+    cells = range(structure.base.n_owned_cells)
+    requests = [(c, i, WEAK) for c in cells for i in interfaces.refine]
+    requests += [(c, i, STRONG if strong else WEAK) for c in cells for i in interfaces.delaminate]
+    return requests
+
+
+def manual_refinements(config: RunConfig) -> Callable[[float, Structure], bool]:
+    """The solver's per-step hook for the config's [[refinement]] entries (collective)."""
+    pending = sorted(config.refinements, key=lambda r: r.time)
+
+    def on_step(t: float, structure: Structure) -> bool:
+        changed = False
+        while pending and pending[0].time <= t:
+            entry = pending.pop(0)
+            kind = STRONG if entry.kind == "strong" else WEAK
+            cells = cells_in_x_range(structure, entry.x_min, entry.x_max)
+            requests = [(int(c), i, kind) for c in cells for i in entry.interfaces]
+            changed |= structure.refine(requests)
+        return changed
+
+    return on_step
+
+
+def build_problem(config: RunConfig, comm: MPI.Comm = MPI.COMM_WORLD) -> Problem:
+    """Everything up to, not including, the time loop. Raises InputError for a config that
+    cannot run (e.g. a forced time step above the stable one)."""
+    structure = build_structure(config, comm)
+    dt, stable, where = explicit.choose_time_step(structure, config.solver)
+    return Problem(config, structure, dt, stable, where)
 
 
 def run_config(
@@ -64,6 +130,7 @@ def run_config(
     problem = build_problem(config, comm)
     say = log if (log is not None and comm.rank == 0) else (lambda _: None)
     model = problem.model
+    structure = problem.structure
     n_cells = comm.allreduce(model.mesh.topology.index_map(3).size_local, op=MPI.SUM)
     n_nodes = model.V.dofmap.index_map.size_global
     n_steps = math.ceil(config.solver.end_time / problem.time_step - 1e-9)
@@ -72,10 +139,14 @@ def run_config(
         f"{config.laminate.n_plies} plies, {len(problem.beam.layer_z) - 1} cell layer(s), "
         f"{comm.size} MPI rank(s)"
     )
+    n_extra = comm.allreduce(structure.extra.n_owned, op=MPI.SUM)
+    n_cohesive = comm.allreduce(len(structure.cohesive), op=MPI.SUM)
+    if n_extra or n_cohesive:
+        say(f"{n_extra} extra nodes, {n_cohesive} cohesive elements")
     say(
         f"time step {problem.time_step:.4e} s (stable {problem.stable_time_step:.4e} s with "
-        f"safety factor {config.solver.safety_factor}), {n_steps} steps to "
-        f"{config.solver.end_time:.4e} s"
+        f"safety factor {config.solver.safety_factor}, limited by {problem.critical}), "
+        f"{n_steps} steps to {config.solver.end_time:.4e} s"
     )
 
     out_dir = Path(out_dir)
@@ -98,13 +169,15 @@ def run_config(
             "plies": config.laminate.n_plies,
             "cell_layers": len(problem.beam.layer_z) - 1,
             "thickness_mm": config.laminate.thickness,
-            "total_mass_tonne": model.total_mass(),
+            "total_mass_tonne": structure.total_mass(),
+            "extra_nodes_at_start": n_extra,
+            "cohesive_elements_at_start": n_cohesive,
         },
         "time_step": {
             "used_s": problem.time_step,
             "stable_s": problem.stable_time_step,
             "safety_factor": config.solver.safety_factor,
-            "critical_cell": problem.critical_cell,
+            "limited_by": problem.critical,
         },
         "mpi_ranks": comm.size,
         "versions": {
@@ -117,13 +190,18 @@ def run_config(
     start = time.perf_counter()
     try:
         stats = explicit.run(
-            model,
-            problem.loads,
+            structure,
             config.solver,
             config.probe,
             on_history=history,
             on_fields=fields,
             on_progress=progress,
+            on_step=manual_refinements(config) if config.refinements else None,
+            on_refined=lambda t, dt, where: say(
+                f"t = {t:.4e} s: refined; now {comm.allreduce(structure.extra.n_owned)} extra "
+                f"nodes, {comm.allreduce(len(structure.cohesive))} cohesive elements; time step "
+                f"{dt:.4e} s (limited by {where})"
+            ),
         )
     except BaseException as error:
         history.close(completed=False)
@@ -160,7 +238,12 @@ def run_config(
                 "internal_energy_mJ": rows[-1].internal_energy,
                 "external_work_mJ": rows[-1].external_work,
                 "damping_energy_mJ": rows[-1].damping_energy,
+                "dissipated_energy_mJ": rows[-1].dissipated_energy,
+                "refinement_energy_mJ": rows[-1].refinement_energy,
             },
+            "refinement_events": stats.refinements,
+            "extra_nodes_at_end": comm.allreduce(structure.extra.n_owned, op=MPI.SUM),
+            "cohesive_elements_at_end": comm.allreduce(len(structure.cohesive), op=MPI.SUM),
             "max_energy_balance_error_relative": max(abs(r.energy_balance) for r in rows) / scale,
         }
     )

@@ -11,7 +11,7 @@ its own zeta range, expressed in the reference thickness [0, 1] of the (sub)elem
 The force here must be, to round-off, the derivative of ``solid_shell.strain_energy_form`` for a
 hexahedron carrying those plies; ``tests/test_subelement.py`` checks that against DOLFINx.
 
-Conventions (the same as ``solid_shell`` and ``model.reference_gradients``):
+Conventions (the same as ``solid_shell`` and ``timestep.reference_gradients``):
 
 - reference cell [0, 1]^3; vertex k sits at (k & 1, (k >> 1) & 1, (k >> 2) & 1) (DOLFINx
   order); zeta, the third reference coordinate, runs through the laminate thickness;

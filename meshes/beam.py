@@ -13,6 +13,18 @@ Face groups, by name (``BeamMesh.facets(name)``):
   bottom, top           z = 0 and z = thickness
   x0_layer{k}, ...      the same faces restricted to layer k (0 = bottom layer), so that one arm
                         of a layered beam can be pulled or clamped on its own
+  bottom_layer{k},      the bottom (z = layer_z[k]) and top (z = layer_z[k + 1]) surface of layer
+  top_layer{k}          k. bottom_layer0 is ``bottom`` and top_layer{n-1} is ``top`` (same tag).
+                        Across a split boundary k, top_layer{k} and bottom_layer{k + 1} are two
+                        coincident surfaces with their own facets and tags (both exterior facets
+                        of the DOLFINx mesh: integrate them with ``ds``). Across a non-split
+                        boundary they are ONE surface of interior facets carrying one tag, shared
+                        by both names (integrate with ``dS``): a facet has one tag in DOLFINx.
+
+Parallel: a mesh with more than one layer is distributed by columns (``columnar_partitioner``):
+all cells above one in-plane cell, i.e. every cell of one column, live on the same rank, so that
+a cohesive element (a cell and the cell right above it, which share no node across a split
+boundary) is complete on one rank. A single-layer mesh uses the DOLFINx default partitioner.
 
 Every hexahedron comes out of DOLFINx with its reference zeta axis along +z (vertices 0-3 on its
 bottom face, 4-7 on its top face, in the order of the reference cell): the layered integration
@@ -21,13 +33,14 @@ of ``fenics_adaptive.solid_shell`` relies on it, so the generator checks it.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import dolfinx
 import dolfinx.io.gmsh
 import gmsh
 import numpy as np
+from dolfinx.cpp.graph import AdjacencyList_int32
 from mpi4py import MPI
 
 SIDES = ("x0", "x1", "y0", "y1")
@@ -66,7 +79,19 @@ class BeamMesh:
 
 
 def _facet_tag(layer: int, face: str) -> int:
+    """Facet tag of the physical group of ``face`` (a side, ``bottom`` or ``top``) of ``layer``."""
     return 100 * (layer + 1) + ("x0", "x1", "y0", "y1", "bottom", "top").index(face)
+
+
+def _layer_surface_tags(split: Sequence[bool]) -> dict[str, int]:
+    """Facet tag of ``bottom_layer{k}`` and ``top_layer{k}`` for each layer k. A non-split inner
+    boundary k is one surface: ``bottom_layer{k + 1}`` takes the tag of ``top_layer{k}``."""
+    tags = {}
+    for k in range(len(split) + 1):
+        shared = k > 0 and not split[k - 1]
+        tags[f"bottom_layer{k}"] = _facet_tag(k - 1, "top") if shared else _facet_tag(k, "bottom")
+        tags[f"top_layer{k}"] = _facet_tag(k, "top")
+    return tags
 
 
 def _rectangle(length: float, width: float, z: float, nx: int, ny: int) -> int:
@@ -119,9 +144,15 @@ def layered_mesh(
     gmsh.option.setNumber("General.Terminal", 0)
     gmsh.model.add("fenics_adaptive_beam")
     try:
+        partitioner = None
         if comm.rank == 0:
             _build_layers(length, width, nx, ny, thicknesses, split, layer_z)
-        mesh_data = dolfinx.io.gmsh.model_to_mesh(gmsh.model, comm, 0, gdim=3)
+        if len(thicknesses) > 1:
+            nodes = dolfinx.io.gmsh.extract_geometry(gmsh.model) if comm.rank == 0 else None
+            partitioner = columnar_partitioner(nodes, 1e-6 * min(length / nx, width / ny))
+        mesh_data = dolfinx.io.gmsh.model_to_mesh(
+            gmsh.model, comm, 0, gdim=3, partitioner=partitioner
+        )
     finally:
         gmsh.model.remove()
         if started_gmsh:
@@ -136,6 +167,8 @@ def layered_mesh(
     for k in range(n_layers):
         for face in SIDES:
             face_tags[f"{face}_layer{k}"] = (_facet_tag(k, face),)
+    for name, tag in _layer_surface_tags(split).items():
+        face_tags[name] = (tag,)
     beam = BeamMesh(
         mesh=mesh_data.mesh,
         cell_tags=mesh_data.cell_tags,
@@ -199,14 +232,58 @@ def _build_layers(length, width, nx, ny, thicknesses, split, layer_z) -> None:
             if len(surfaces) != 1:
                 raise RuntimeError(f"gmsh: layer {k} has {len(surfaces)} surfaces on {face}")
             model.addPhysicalGroup(2, surfaces, _facet_tag(k, face), name=f"{face}_layer{k}")
-    model.addPhysicalGroup(2, [bottoms[0]], _facet_tag(0, "bottom"), name="bottom")
+    # Bottom and top of every layer, one physical group per surface (a non-split boundary is a
+    # single surface: the top of the layer below), so that no facet is in two groups.
     n = len(volumes) - 1
-    model.addPhysicalGroup(2, [tops[n]], _facet_tag(n, "top"), name="top")
+    for k in range(n + 1):
+        if k == 0 or split[k - 1]:
+            name = "bottom" if k == 0 else f"bottom_layer{k}"
+            model.addPhysicalGroup(2, [bottoms[k]], _facet_tag(k, "bottom"), name=name)
+        name = "top" if k == n else f"top_layer{k}"
+        model.addPhysicalGroup(2, [tops[k]], _facet_tag(k, "top"), name=name)
     model.mesh.generate(3)
     for surface, z in lifted:
         tags, coords, _ = model.mesh.getNodes(2, surface, includeBoundary=True)
         for tag, xyz in zip(tags, coords.reshape(-1, 3), strict=True):
             model.mesh.setNode(int(tag), [xyz[0], xyz[1], z], [])
+
+
+def columnar_partitioner(nodes: np.ndarray | None, tol: float) -> Callable:
+    """A DOLFINx cell partitioner that keeps every column of cells on one rank.
+
+    ``nodes`` (n_nodes, 3) are the coordinates the cells' node indices refer to (Gmsh's node
+    array, ``dolfinx.io.gmsh.extract_geometry``) on the rank that holds the cells, ``None``
+    elsewhere. A column is the set of cells with the same in-plane centroid (x, y), to ``tol``
+    mm; columns are ordered by x, then y, and rank r gets the r-th of ``nparts`` contiguous
+    blocks of columns, the block sizes differing by at most one column. Cells are owned by
+    their rank only: no extra ghosts (like ``GhostMode.none``).
+    """
+
+    def partition(comm, nparts: int, cell_types, cells) -> AdjacencyList_int32:
+        (cell_type,) = cell_types
+        if cell_type != dolfinx.mesh.CellType.hexahedron:
+            raise RuntimeError(f"columnar partitioner: hexahedra expected, got {cell_type}")
+        topology = np.asarray(cells[0]).reshape(-1, 8)
+        if len(topology) == 0:
+            return AdjacencyList_int32(np.zeros(0, dtype=np.int32))
+        if nodes is None:
+            raise RuntimeError("columnar partitioner: cells given on a rank without the nodes")
+        centroids = nodes[topology, :2].mean(axis=1)
+        ix, iy = (_cluster(centroids[:, i], tol) for i in range(2))
+        _, column = np.unique(np.stack([ix, iy], axis=1), axis=0, return_inverse=True)
+        n_columns = int(column.max()) + 1
+        return AdjacencyList_int32((column.ravel() * nparts // n_columns).astype(np.int32))
+
+    return partition
+
+
+def _cluster(values: np.ndarray, tol: float) -> np.ndarray:
+    """Index of each value among the distinct values (ascending), values closer than ``tol``
+    counting as one."""
+    order = np.argsort(values, kind="stable")
+    index = np.empty(len(values), dtype=np.int64)
+    index[order] = np.concatenate([[0], np.cumsum(np.diff(values[order]) > tol)])
+    return index
 
 
 def _check_orientation(beam: BeamMesh) -> None:

@@ -15,6 +15,7 @@ from fenics_adaptive import explicit, loading
 from fenics_adaptive.errors import InputError
 from fenics_adaptive.loading import face_dofs
 from fenics_adaptive.static import solve_static
+from fenics_adaptive.structure import Structure
 
 LENGTH, WIDTH = 50.0, 2.0
 
@@ -55,7 +56,7 @@ def test_free_vibration_period_and_energy():
     free = loading.resolve(model, motions, [])
     settings = explicit.SolverSettings(end_time=20.3 * period, output_interval=period / 50)
     stats = explicit.run(
-        model, free, settings, explicit.Probe("x1", "x0", "z"), initial_displacement=u0
+        Structure(model, free), settings, explicit.Probe("x1", "x0", "z"), initial_displacement=u0
     )
     t = [r.time for r in stats.history]
     up = crossing_times(t, [r.displacement for r in stats.history])
@@ -97,7 +98,7 @@ def test_stable_time_step_estimate_is_safe_and_sharp():
     motions = loading.clamp("x0")
     loads = loading.resolve(model, motions, [])
     critical = 2.0 / highest_frequency(model, loads.constrained)
-    estimate, _ = model.stable_time_step()
+    estimate, _ = Structure(model, loads).stable_time_step()
     assert 0.5 * critical < estimate <= critical
 
     u0 = np.random.default_rng(1).standard_normal(len(model.u.x.array)) * 1e-3
@@ -110,8 +111,7 @@ def test_stable_time_step_estimate_is_safe_and_sharp():
     steps = 1500
     below = explicit.SolverSettings(end_time=steps * 0.98 * critical, output_interval=1e-6)
     explicit.run(
-        model,
-        loads,
+        Structure(model, loads),
         below,
         probe,
         on_history=record,
@@ -121,7 +121,13 @@ def test_stable_time_step_estimate_is_safe_and_sharp():
     assert max(amplitude) < 10 * np.abs(u0).max()
     above = explicit.SolverSettings(end_time=steps * 1.2 * critical, output_interval=1e-6)
     with pytest.raises(explicit.Diverged):
-        explicit.run(model, loads, above, probe, time_step=1.2 * critical, initial_displacement=u0)
+        explicit.run(
+            Structure(model, loads),
+            above,
+            probe,
+            time_step=1.2 * critical,
+            initial_displacement=u0,
+        )
 
 
 def test_quasi_static_explicit_matches_static_solution():
@@ -137,7 +143,7 @@ def test_quasi_static_explicit_matches_static_solution():
     settings = explicit.SolverSettings(
         end_time=5 * period, output_interval=period / 10, mass_damping=2.0 / period
     )
-    stats = explicit.run(model, loads, settings, explicit.Probe("x1", "x1", "z"))
+    stats = explicit.run(Structure(model, loads), settings, explicit.Probe("x1", "x1", "z"))
 
     solve_static(model, motions, loads, settings.end_time)
     f = fem.Function(model.V).x
@@ -155,8 +161,9 @@ def test_quasi_static_explicit_matches_static_solution():
 def test_forcing_one_and_a_half_times_the_stable_step_is_refused():
     model = cantilever(CROSS_PLY, nx=10)
     settings = explicit.SolverSettings(end_time=1e-4, output_interval=1e-5)
-    dt, stable, _ = explicit.choose_time_step(model, settings)
+    structure = Structure(model, loading.resolve(model, loading.clamp("x0"), []))
+    dt, stable, _ = explicit.choose_time_step(structure, settings)
     assert dt == stable
     forced = explicit.SolverSettings(end_time=1e-4, output_interval=1e-5, time_step=1.5 * stable)
     with pytest.raises(InputError, match=r"solver\.time_step"):
-        explicit.choose_time_step(model, forced)
+        explicit.choose_time_step(structure, forced)

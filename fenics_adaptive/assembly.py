@@ -1,0 +1,225 @@
+"""Gather, compute, scatter: numba loops over subelements and cohesive elements.
+
+Units: N, mm, s, tonne.
+
+Node indices are *combined local* indices: i < n_base is base node i (DOLFINx local node, owned
+then ghosts), i >= n_base is extra node i - n_base (see ``enrichment``). Each element gathers
+its 8 nodes' reference coordinates and displacements (the paper's P x), calls the element
+kernel, and adds its force into the nodal force arrays (P^T f). Forces land on ghost entries
+too; the caller's reverse scatter sums them on the owners.
+
+Sign: ``add_subelement_forces`` adds f^sublam; ``add_cohesive_forces`` subtracts f^coh (paper
+Eq. 3: f = f^lam - f^coh, with f^coh the force the tractions apply to the nodes), so both build
+the internal force f_int of m a = f_ext - f_int.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit
+
+from fenics_adaptive.cohesive import cohesive_element_force
+from fenics_adaptive.subelement import PackedRules, _element_force
+
+
+@dataclass
+class SubelementSet:
+    """Layered solid-shell (sub)elements computed by numba: nodes (n, 8) combined local
+    indices; each uses rule ``rule_of_element`` of ``rules``."""
+
+    nodes: np.ndarray
+    rule_of_element: np.ndarray
+    rules: PackedRules
+
+    @classmethod
+    def empty(cls, rules: PackedRules) -> SubelementSet:
+        return cls(np.zeros((0, 8), np.int32), np.zeros(0, np.int64), rules)
+
+    def __len__(self) -> int:
+        return len(self.nodes)
+
+
+@dataclass
+class CohesiveSet:
+    """8-node cohesive elements: nodes (n, 8) combined local indices (lower face, upper face);
+    element e keeps its damage history in ``damage[damage_row[e]]`` (4 points), which persists
+    when the set is rebuilt."""
+
+    nodes: np.ndarray
+    damage_row: np.ndarray
+    damage: np.ndarray  # (rows, 4)
+    params: np.ndarray  # CohesiveLaw.as_array()
+    interface: np.ndarray  # (n,) ply interface (1-based) of each element
+
+    @classmethod
+    def empty(cls, params: np.ndarray) -> CohesiveSet:
+        return cls(
+            np.zeros((0, 8), np.int32),
+            np.zeros(0, np.int64),
+            np.zeros((0, 4)),
+            params,
+            np.zeros(0, np.int32),
+        )
+
+    def failed(self) -> np.ndarray:
+        """Elements whose four points are fully damaged (the delaminated area)."""
+        return self.damage[self.damage_row].min(axis=1) >= 1.0
+
+    def __len__(self) -> int:
+        return len(self.nodes)
+
+
+def add_subelement_forces(
+    subelements: SubelementSet,
+    X_base: np.ndarray,
+    X_extra: np.ndarray,
+    u_base: np.ndarray,
+    u_extra: np.ndarray,
+    f_base: np.ndarray,
+    f_extra: np.ndarray,
+) -> float:
+    """f += sum_i P_i^T f^sublam_i; returns the strain energy (mJ). Arrays (n, 3)."""
+    if len(subelements) == 0:
+        return 0.0
+    return _add_subelement_forces(
+        subelements.nodes,
+        subelements.rule_of_element,
+        *subelements.rules,
+        X_base,
+        X_extra,
+        u_base,
+        u_extra,
+        f_base,
+        f_extra,
+    )
+
+
+def add_cohesive_forces(
+    cohesive: CohesiveSet,
+    X_base: np.ndarray,
+    X_extra: np.ndarray,
+    u_base: np.ndarray,
+    u_extra: np.ndarray,
+    f_base: np.ndarray,
+    f_extra: np.ndarray,
+) -> float:
+    """f -= sum_i P_i^T f^coh_i, updating the damage history; returns the stored (recoverable)
+    cohesive energy (mJ). Arrays (n, 3)."""
+    if len(cohesive) == 0:
+        return 0.0
+    return _add_cohesive_forces(
+        cohesive.nodes,
+        cohesive.damage_row,
+        cohesive.damage,
+        cohesive.params,
+        X_base,
+        X_extra,
+        u_base,
+        u_extra,
+        f_base,
+        f_extra,
+    )
+
+
+@njit(cache=True)
+def _gather(nodes, n_base, base, extra, out):
+    for a in range(8):
+        node = nodes[a]
+        for i in range(3):
+            out[a, i] = base[node, i] if node < n_base else extra[node - n_base, i]
+
+
+@njit(cache=True)
+def _scatter(nodes, n_base, values, sign, base, extra):
+    for a in range(8):
+        node = nodes[a]
+        if node < n_base:
+            for i in range(3):
+                base[node, i] += sign * values[a, i]
+        else:
+            for i in range(3):
+                extra[node - n_base, i] += sign * values[a, i]
+
+
+@njit(cache=True)
+def _add_subelement_forces(
+    element_nodes,
+    rule_of_element,
+    rule_offsets,
+    points,
+    weights,
+    terms,
+    ply_of_point,
+    position_of_point,
+    positions,
+    stiffness,
+    X_base,
+    X_extra,
+    u_base,
+    u_extra,
+    f_base,
+    f_extra,
+):
+    n_base = X_base.shape[0]
+    n_pos = positions.shape[0]
+    work = np.empty((2, 8, 3))
+    lines = np.empty((n_pos, 4, 3, 3))
+    sums = np.empty((n_pos, 2, 3, 3))
+    X = np.empty((8, 3))
+    u = np.empty((8, 3))
+    f = np.empty((8, 3))
+    energy = 0.0
+    for e in range(element_nodes.shape[0]):
+        nodes = element_nodes[e]
+        _gather(nodes, n_base, X_base, X_extra, X)
+        _gather(nodes, n_base, u_base, u_extra, u)
+        r = rule_of_element[e]
+        energy += _element_force(
+            X,
+            u,
+            rule_offsets[r],
+            rule_offsets[r + 1],
+            points,
+            weights,
+            terms,
+            ply_of_point,
+            position_of_point,
+            positions,
+            stiffness,
+            work,
+            lines,
+            sums,
+            f,
+        )
+        _scatter(nodes, n_base, f, 1.0, f_base, f_extra)
+    return energy
+
+
+@njit(cache=True)
+def _add_cohesive_forces(
+    element_nodes,
+    damage_row,
+    damage,
+    params,
+    X_base,
+    X_extra,
+    u_base,
+    u_extra,
+    f_base,
+    f_extra,
+):
+    n_base = X_base.shape[0]
+    X = np.empty((8, 3))
+    u = np.empty((8, 3))
+    f = np.empty((8, 3))
+    stored = 0.0
+    for e in range(element_nodes.shape[0]):
+        nodes = element_nodes[e]
+        _gather(nodes, n_base, X_base, X_extra, X)
+        _gather(nodes, n_base, u_base, u_extra, u)
+        energy, _ = cohesive_element_force(X, u, params, damage[damage_row[e]], f)
+        stored += energy
+        _scatter(nodes, n_base, f, -1.0, f_base, f_extra)
+    return stored

@@ -1,0 +1,323 @@
+"""Through-thickness enrichment (augmented FEM): refinement state, extra nodes and the
+gather/scatter maps of refined cells. Paper: "Adaptive element kinematics", Eqs. (1)-(7),
+Figure 2.
+
+Units: mm for coordinates.
+
+Vocabulary.
+- A *cell* is an ESL hexahedron: 8 base nodes, bottom 0-3 and top 4-7, vertex a + 4 straight
+  above vertex a. Its *column* a is the pair (base node a, base node a + 4).
+- Ply interface i (1-based, 1 .. n_plies - 1) lies between ply i and ply i + 1 at the thickness
+  fraction alpha_i (``Laminate.interface_fractions``).
+- Each cell holds, per interface, ``NONE``, ``WEAK`` or ``STRONG`` (``interface_state``).
+- An *extra node* is identified by (column's bottom base node, interface, set): set A is the
+  interface surface of a weak refinement; set B the reserved copy activated by a strong one (the
+  upper side of the crack). Extra nodes share the connectivity of their base nodes, so
+  neighbouring cells refined at the same interface share them. They exist only once activated
+  (unlike the LS-DYNA user element, whose extra nodes are integrated from the start).
+- A refined cell splits into subelements, one per run of plies between active interfaces. Plies
+  keep their integration points (Figure 2): a subelement spans plies [first, stop) and its nodes
+  are: bottom = base nodes 0-3, or the extra nodes of the active interface below (set B if that
+  interface is strong, else A); top = base nodes 4-7, or the set-A extra nodes of the active
+  interface above.
+- A strong interface carries a cohesive element: lower face = its set-A nodes, upper face = its
+  set-B nodes.
+The projection matrices P^sublam,i and P^coh,i of the paper are never formed: each subelement
+and cohesive element holds 8 node indices ("which node is local node k"), that is all.
+
+Node indices in the maps are *combined local* indices: base nodes 0 .. n_base - 1 (DOLFINx local
+node index, owned then ghosts), extra nodes n_base + (local extra index, owned then ghosts).
+
+Distribution (MPI). An extra node is owned by the rank that owns its column's bottom base node.
+``ExtraNodes.activate`` is collective: ranks ask owners for the nodes their cells need, owners
+create them (first request by the lowest original cell index wins, so results do not depend on
+the partition), and a new ``dolfinx.common.IndexMap`` with ghosts is built. Owned local indices
+are append-only, so state carries over by copying.
+"""
+
+from __future__ import annotations
+
+import itertools
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import dolfinx
+import numpy as np
+from dolfinx import common, la
+from mpi4py import MPI
+
+NONE, WEAK, STRONG = 0, 1, 2
+SET_A, SET_B = 0, 1
+STATE_NAMES = {NONE: "none", WEAK: "weak", STRONG: "strong"}
+
+
+def extra_key(
+    global_bottom_node: np.ndarray | int, interface: int, node_set: int, n_interfaces: int
+):
+    """Global identity of an extra node (int64)."""
+    return (int(global_bottom_node) * n_interfaces + (interface - 1)) * 2 + node_set
+
+
+def key_parts(key: int, n_interfaces: int) -> tuple[int, int, int]:
+    """(global bottom base node, interface, set) of an extra-node key."""
+    node_set = int(key % 2)
+    rest = int(key // 2)
+    return rest // n_interfaces, rest % n_interfaces + 1, node_set
+
+
+@dataclass
+class ExtraNodes:
+    """The active extra nodes of this rank (owned, then ghosts) and their distributed vectors.
+
+    ``u``, ``v`` (displacement, velocity) and ``X`` (reference position) are DOLFINx vectors of
+    block size 3 on ``index_map``; ``index`` maps a key to its local index."""
+
+    comm: MPI.Comm
+    n_interfaces: int
+    base_map: common.IndexMap
+    owned_keys: list[int] = field(default_factory=list)
+    ghost_keys: list[int] = field(default_factory=list)
+    ghost_owner: list[int] = field(default_factory=list)
+    ghost_owner_index: list[int] = field(default_factory=list)  # local index on the owner
+    index: dict[int, int] = field(default_factory=dict)
+    index_map: common.IndexMap | None = None
+    vectors: dict[str, la.Vector] = field(default_factory=dict)
+
+    VECTOR_NAMES = ("u", "v", "X")
+
+    def __post_init__(self) -> None:
+        self._global_to_local = _global_to_local(self.base_map)
+        self._rebuild_index_map()
+        self.vectors = {name: la.vector(self.index_map, bs=3) for name in self.VECTOR_NAMES}
+
+    @property
+    def n_owned(self) -> int:
+        return len(self.owned_keys)
+
+    @property
+    def n_local(self) -> int:
+        return len(self.owned_keys) + len(self.ghost_keys)
+
+    def base_owner(self, global_node: int) -> int:
+        local = self._global_to_local[global_node]
+        size = self.base_map.size_local
+        return self.comm.rank if local < size else int(self.base_map.owners[local - size])
+
+    def local_base_node(self, global_node: int) -> int:
+        return self._global_to_local[global_node]
+
+    def activate(self, requests: dict[int, tuple[int, np.ndarray]]) -> list[int]:
+        """Collective. ``requests``: key -> (tie-break, initial values (k,) of the vectors
+        ``VECTOR_NAMES[:k]`` flattened, u then v). Keys already known locally are ignored (an
+        active node keeps its state). Returns the local indices of this rank's newly owned
+        nodes."""
+        rank, size = self.comm.rank, self.comm.size
+        outgoing: list[list] = [[] for _ in range(size)]
+        for key in sorted(requests):
+            if key in self.index:
+                continue
+            tie, values = requests[key]
+            g = key_parts(key, self.n_interfaces)[0]
+            outgoing[self.base_owner(g)].append((key, tie, values))
+        incoming = self.comm.alltoall(outgoing)
+
+        # owners create what is asked of them: the lowest tie-break wins
+        best: dict[int, tuple[int, np.ndarray]] = {}
+        for batch in incoming:
+            for key, tie, values in batch:
+                if key not in self.index and (key not in best or tie < best[key][0]):
+                    best[key] = (tie, values)
+        position = dict(self.index)
+        new_owned = []
+        for key in sorted(best):
+            position[key] = len(self.owned_keys)
+            self.owned_keys.append(key)
+            new_owned.append(key)
+        # tell each requester where its nodes live on the owner
+        answers = self.comm.alltoall(
+            [[(key, position[key]) for key, _, _ in batch] for batch in incoming]
+        )
+        new_ghosts = set()
+        for owner, batch in enumerate(answers):
+            if owner == rank:
+                continue
+            for key, owner_index in batch:
+                if key not in self.index and key not in new_ghosts:
+                    new_ghosts.add(key)
+                    self.ghost_keys.append(key)
+                    self.ghost_owner.append(owner)
+                    self.ghost_owner_index.append(owner_index)
+
+        old_owned = self.n_owned - len(new_owned)
+        old_vectors = self.vectors
+        old_ghosts = len(self.ghost_keys) - len(new_ghosts)
+        self._rebuild_index_map()
+        self.vectors = {name: la.vector(self.index_map, bs=3) for name in self.VECTOR_NAMES}
+        for name, vector in self.vectors.items():
+            new = vector.array.reshape(-1, 3)
+            old = old_vectors[name].array.reshape(-1, 3)
+            new[:old_owned] = old[:old_owned]
+            new[self.n_owned : self.n_owned + old_ghosts] = old[old_owned : old_owned + old_ghosts]
+        for key in new_owned:
+            values = np.asarray(best[key][1], dtype=np.float64).reshape(-1, 3)
+            local = self.index[key]
+            for name, row in zip(self.VECTOR_NAMES, values, strict=False):
+                self.vectors[name].array.reshape(-1, 3)[local] = row
+        for vector in self.vectors.values():
+            vector.scatter_forward()
+        return [self.index[key] for key in new_owned]
+
+    def _rebuild_index_map(self) -> None:
+        counts = self.comm.allgather(self.n_owned)
+        offsets = np.concatenate([[0], np.cumsum(counts)])
+        ghosts = np.array(
+            [offsets[o] + p for o, p in zip(self.ghost_owner, self.ghost_owner_index, strict=True)],
+            dtype=np.int64,
+        )
+        owners = np.array(self.ghost_owner, dtype=np.int32)
+        self.index_map = common.IndexMap(self.comm, self.n_owned, ghosts, owners, 4719)
+        self.index = {key: i for i, key in enumerate(self.owned_keys)}
+        self.index.update({key: self.n_owned + j for j, key in enumerate(self.ghost_keys)})
+
+
+def _global_to_local(index_map: common.IndexMap) -> dict[int, int]:
+    globals_ = index_map.local_to_global(
+        np.arange(index_map.size_local + index_map.num_ghosts, dtype=np.int32)
+    )
+    return {int(g): i for i, g in enumerate(globals_)}
+
+
+@dataclass(frozen=True)
+class Subelement:
+    """One subelement of a refined cell: plies [first, stop) (0-based). It is bounded below by
+    interface ``first`` and above by interface ``stop`` (interface 0 standing for the cell's
+    bottom face and n_plies for its top face)."""
+
+    first: int
+    stop: int
+
+    @property
+    def bottom(self) -> int:
+        return self.first
+
+    @property
+    def top(self) -> int:
+        return self.stop
+
+
+def subelements(state_row: np.ndarray) -> list[Subelement]:
+    """The subelements of a cell from its per-interface states (n_plies - 1,)."""
+    n_plies = len(state_row) + 1
+    active = [i for i in range(1, n_plies) if state_row[i - 1] != NONE]
+    bounds = [0, *active, n_plies]
+    return [Subelement(lo, hi) for lo, hi in itertools.pairwise(bounds)]
+
+
+@dataclass(frozen=True)
+class CellColumns:
+    """Base nodes of one cell's four columns: local and global indices, bottom and top."""
+
+    bottom_local: np.ndarray  # (4,)
+    top_local: np.ndarray  # (4,)
+    bottom_global: np.ndarray  # (4,) int64
+
+
+def interface_nodes(
+    columns: CellColumns, interface: int, node_set: int, n_interfaces: int
+) -> list[int]:
+    """Keys of the four extra nodes of a cell at an interface (set A or B)."""
+    return [int(extra_key(g, interface, node_set, n_interfaces)) for g in columns.bottom_global]
+
+
+def subelement_nodes(
+    state_row: np.ndarray,
+    sub: Subelement,
+    columns: CellColumns,
+    n_plies: int,
+    local_extra: dict[int, int],
+    n_base: int,
+) -> np.ndarray:
+    """Combined local indices (8,) of a subelement's nodes, DOLFINx vertex order."""
+    n_interfaces = n_plies - 1
+    nodes = np.empty(8, dtype=np.int32)
+    if sub.bottom == 0:
+        nodes[:4] = columns.bottom_local
+    else:
+        node_set = SET_B if state_row[sub.bottom - 1] == STRONG else SET_A
+        keys = interface_nodes(columns, sub.bottom, node_set, n_interfaces)
+        nodes[:4] = [n_base + local_extra[k] for k in keys]
+    if sub.top == n_plies:
+        nodes[4:] = columns.top_local
+    else:
+        keys = interface_nodes(columns, sub.top, SET_A, n_interfaces)
+        nodes[4:] = [n_base + local_extra[k] for k in keys]
+    return nodes
+
+
+def cohesive_nodes(
+    columns: CellColumns, interface: int, n_plies: int, local_extra: dict[int, int], n_base: int
+) -> np.ndarray:
+    """Combined local indices (8,) of the cohesive element of a strong interface: set A (lower
+    face) then set B (upper face), face tensor order = the cell's column order."""
+    n_interfaces = n_plies - 1
+    lower = interface_nodes(columns, interface, SET_A, n_interfaces)
+    upper = interface_nodes(columns, interface, SET_B, n_interfaces)
+    return np.array([n_base + local_extra[k] for k in lower + upper], dtype=np.int32)
+
+
+def describe_cell(
+    state_row: np.ndarray,
+    columns: CellColumns,
+    n_plies: int,
+    local_extra: dict[int, int] | None = None,
+    n_base: int | None = None,
+) -> str:
+    """Human-readable gather/scatter maps of one cell (the paper's projection matrices as index
+    lists): which plies each subelement holds and which nodes are its local nodes 0-7."""
+    n_interfaces = n_plies - 1
+    lines = [
+        "interface states: "
+        + ", ".join(f"{i}: {STATE_NAMES[int(s)]}" for i, s in enumerate(state_row, start=1))
+    ]
+
+    def name(kind: str, where: int, node_set: int | None = None) -> list[str]:
+        if kind == "bottom":
+            return [f"base {int(n)}" for n in columns.bottom_local]
+        if kind == "top":
+            return [f"base {int(n)}" for n in columns.top_local]
+        keys = interface_nodes(columns, where, node_set, n_interfaces)
+        label = "AB"[node_set]
+        if local_extra is None:
+            return [f"extra i{where}{label}@{int(g)}" for g in columns.bottom_global]
+        return [f"extra {n_base + local_extra[k]} (i{where}{label})" for k in keys]
+
+    for s, sub in enumerate(subelements(state_row)):
+        bottom_set = SET_B if sub.bottom and state_row[sub.bottom - 1] == STRONG else SET_A
+        bottom = name("bottom", 0) if sub.bottom == 0 else name("extra", sub.bottom, bottom_set)
+        top = name("top", 0) if sub.top == n_plies else name("extra", sub.top, SET_A)
+        plies = ", ".join(str(p + 1) for p in range(sub.first, sub.stop))
+        lines.append(f"subelement {s + 1}: plies {plies}  (P^sublam,{s + 1})")
+        for k, node in enumerate(bottom + top):
+            lines.append(f"    local node {k} <- {node}")
+    for i in range(1, n_plies):
+        if state_row[i - 1] == STRONG:
+            lines.append(f"cohesive element at interface {i}  (P^coh,{i})")
+            nodes = name("extra", i, SET_A) + name("extra", i, SET_B)
+            for k, node in enumerate(nodes):
+                lines.append(f"    local node {k} <- {node}")
+    return "\n".join(lines)
+
+
+def cell_columns(
+    V: dolfinx.fem.FunctionSpace, cell: int, local_to_global: np.ndarray
+) -> CellColumns:
+    nodes = V.dofmap.cell_dofs(cell)
+    return CellColumns(
+        bottom_local=np.asarray(nodes[:4], dtype=np.int32),
+        top_local=np.asarray(nodes[4:], dtype=np.int32),
+        bottom_global=np.asarray(local_to_global[nodes[:4]], dtype=np.int64),
+    )
+
+
+def as_state_rows(states: Sequence[Sequence[int]]) -> np.ndarray:
+    return np.asarray(states, dtype=np.int8)

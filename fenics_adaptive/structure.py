@@ -1,0 +1,550 @@
+"""What the explicit solver integrates: base nodes (a DOLFINx space) and extra nodes, their lumped
+masses, prescribed DOFs and internal forces, for the three kinds of model.
+
+Units: N, mm, s, tonne.
+
+- ESL: one cell through the thickness; every cell integrated by the UFL form.
+- layerwise (LW) reference: one cell layer per sublaminate, UFL forms, and cohesive elements
+  joining the node sets of split layer boundaries (the high-fidelity model).
+- adaptive: the ESL mesh whose cells are refined through the thickness (weak: extra nodes,
+  strong: duplicated extra nodes + a cohesive element). Refined cells leave the UFL form and are
+  computed subelement by subelement by numba (paper Eqs. (3)-(7)):
+
+      f_int = f_UFL(unrefined cells) + sum_i P_i^T f^sublam_i - sum_j P_j^T f^coh_j
+
+Refinement (``Structure.refine``) is collective and happens between steps: new extra nodes get
+positions and velocities interpolated from the cell's active nodes below and above (weak) or
+copied from set A (strong); the refined cells' old (sub)element masses are taken off their
+nodes and the new subelements' masses put on (total mass unchanged); the maps, constraints and
+stable time step are rebuilt. The per-step path allocates nothing.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from dataclasses import dataclass
+
+import numpy as np
+from dolfinx import fem, la
+from mpi4py import MPI
+
+from fenics_adaptive import enrichment as enr
+from fenics_adaptive.assembly import (
+    CohesiveSet,
+    SubelementSet,
+    add_cohesive_forces,
+    add_subelement_forces,
+)
+from fenics_adaptive.cohesive import P_KN, P_KS
+from fenics_adaptive.errors import InputError
+from fenics_adaptive.loading import (
+    COMPONENTS,
+    Amplitude,
+    PrescribedMotion,
+    ResolvedLoads,
+    face_nodes,
+)
+from fenics_adaptive.model import LayeredModel
+from fenics_adaptive.subelement import (
+    concatenate_rules,
+    pack_mass_rule,
+    pack_rule,
+    solid_shell_lumped_mass,
+    sublaminate_ply_zeta,
+)
+from fenics_adaptive.timestep import characteristic_lengths, cohesive_pair_time_steps
+
+
+@dataclass
+class Block:
+    """DOFs the solver integrates together: the base nodes, or the extra nodes. Vectors hold
+    owned then ghost entries; ``mass``, ``fixed`` refer to owned DOFs (block-unrolled, 3 per
+    node)."""
+
+    u: la.Vector
+    v: la.Vector
+    f: la.Vector  # internal force, owned entries complete after Structure.internal_force
+    mass: np.ndarray
+    fixed: np.ndarray
+    fixed_motion: np.ndarray  # index into Structure.motions
+
+    @property
+    def n_owned(self) -> int:
+        return len(self.mass)
+
+
+@dataclass(frozen=True)
+class Interfaces:
+    """Ply interfaces (1-based: interface i lies between ply i and ply i + 1) that may refine
+    weakly (``refine``), may delaminate (``delaminate``: strong refinement in an adaptive model,
+    cohesive elements in a layerwise one), and carry the symmetry condition (``symmetry``: their
+    nodes held on their reference plane, u_z = 0). ``initial``: state of the listed interfaces
+    of an adaptive model at t = 0 ("none", "weak", "strong": refined from the start)."""
+
+    refine: tuple[int, ...] = ()
+    delaminate: tuple[int, ...] = ()
+    symmetry: tuple[int, ...] = ()
+    initial: str = "none"
+
+
+class Structure:
+    """Base model + (optional) enrichment + cohesive elements, as the solver sees them."""
+
+    def __init__(
+        self,
+        base: LayeredModel,
+        loads: ResolvedLoads,
+        cohesive: CohesiveSet | None = None,
+        interfaces: Interfaces | None = None,
+        law_params: np.ndarray | None = None,
+    ):
+        self.base = base
+        self.loads = loads
+        self.comm = base.comm
+        V = base.V
+        self.n_base = V.dofmap.index_map.size_local + V.dofmap.index_map.num_ghosts
+        self.X_base = V.tabulate_dof_coordinates()[: self.n_base].copy()
+        self.v_base = fem.Function(V, name="velocity").x
+        self.f_base = fem.Function(V, name="internal_force").x
+        self.mass_base = fem.Function(V, name="mass").x
+        self.mass_base.array[:] = base.mass
+        self.interfaces = interfaces or Interfaces()
+        self.law_params = law_params
+        self.cohesive = cohesive if cohesive is not None else CohesiveSet.empty(np.zeros(8))
+        self.motions: list[PrescribedMotion] = list(loads.motions)
+        for i in self.interfaces.symmetry if len(base.layer_laminates) == 1 else ():
+            self.motions.append(
+                PrescribedMotion(f"interface{i}", "z", "displacement", 0.0, Amplitude.constant(0))
+            )
+
+        if len(base.layer_laminates) > 1 and (
+            self.interfaces.refine or self.interfaces.initial != "none"
+        ):
+            raise ValueError("only an ESL mesh (one cell through the thickness) can refine")
+        laminate = base.layer_laminates[0]
+        self.laminate = laminate
+        n_interfaces = laminate.n_plies - 1
+        n_cells = base.n_owned_cells
+        self.interface_state = np.zeros((n_cells, max(n_interfaces, 0)), dtype=np.int8)
+        index_map = V.dofmap.index_map
+        local_to_global = index_map.local_to_global(np.arange(self.n_base, dtype=np.int32))
+        nodes = V.dofmap.list[:n_cells]
+        self.bottom_local = np.ascontiguousarray(nodes[:, :4], dtype=np.int32)
+        self.top_local = np.ascontiguousarray(nodes[:, 4:], dtype=np.int32)
+        self.bottom_global = local_to_global[self.bottom_local].astype(np.int64)
+        self.original_cell = np.asarray(
+            base.mesh.topology.original_cell_index[:n_cells], dtype=np.int64
+        )
+        self.column_top = dict(zip(self.bottom_local.ravel(), self.top_local.ravel(), strict=True))
+
+        self.extra = enr.ExtraNodes(self.comm, max(n_interfaces, 1), index_map)
+        self._rules_index: dict[tuple[int, int], int] = {}
+        self._rules = []
+        self._mass_rules: dict[tuple[int, int], object] = {}
+        self.subelements = SubelementSet.empty(self._rule_table())
+        self.damage_rows: dict[tuple[int, int], int] = {}
+        self.refinement_energy = 0.0  # kinetic energy added by refinements (lumped-mass change)
+        self._solid_energy = 0.0
+        self._cohesive_energy = 0.0
+        self._rebuild_extra_block()
+        self.base_block = Block(
+            u=base.u.x,
+            v=self.v_base,
+            f=self.f_base,
+            mass=self.mass_base.array[: base.n_owned_dofs],
+            fixed=loads.fixed,
+            fixed_motion=loads.fixed_motion,
+        )
+
+    # ------------------------------------------------------------------ what the solver uses
+    @property
+    def blocks(self) -> list[Block]:
+        return [self.base_block, self.extra_block]
+
+    def internal_force(self) -> None:
+        """f_int into both blocks' ``f`` (owned entries complete)."""
+        f_base, f_extra = self.f_base.array, self.f_extra.array
+        f_base.fill(0.0)
+        f_extra.fill(0.0)
+        self.base.add_internal_force(f_base)
+        u_base = self.base.u.x.array.reshape(-1, 3)
+        u_extra = self.extra.vectors["u"].array.reshape(-1, 3)
+        X_extra = self.extra.vectors["X"].array.reshape(-1, 3)
+        fb, fx = f_base.reshape(-1, 3), f_extra.reshape(-1, 3)
+        self._solid_energy = add_subelement_forces(
+            self.subelements, self.X_base, X_extra, u_base, u_extra, fb, fx
+        )
+        self._cohesive_energy = add_cohesive_forces(
+            self.cohesive, self.X_base, X_extra, u_base, u_extra, fb, fx
+        )
+        self.f_base.scatter_reverse(la.InsertMode.add)
+        self.f_extra.scatter_reverse(la.InsertMode.add)
+
+    def energies(self) -> tuple[float, float]:
+        """(strain energy of the solids, recoverable cohesive energy) in mJ at the state of the
+        last ``internal_force`` call, summed over ranks."""
+        local = np.array([self._solid_energy, self._cohesive_energy])
+        solid, cohesive = self.comm.allreduce(local, op=MPI.SUM)
+        return solid + self.base.strain_energy(), cohesive
+
+    def kinetic_energy(self) -> float:
+        local = 0.0
+        for block in self.blocks:
+            v = block.v.array[: block.n_owned]
+            local += 0.5 * np.dot(block.mass * v, v)
+        return self.comm.allreduce(local, op=MPI.SUM)
+
+    def total_mass(self) -> float:
+        local = sum(block.mass[::3].sum() for block in self.blocks)
+        return self.comm.allreduce(local, op=MPI.SUM)
+
+    def momentum(self) -> np.ndarray:
+        local = np.zeros(3)
+        for block in self.blocks:
+            v = block.v.array[: block.n_owned].reshape(-1, 3)
+            local += (block.mass[::3, None] * v).sum(axis=0)
+        return self.comm.allreduce(local, op=MPI.SUM)
+
+    def stable_time_step(self) -> tuple[float, str]:
+        """(min of L_e / c over unrefined cells and subelements, and of the cohesive pair limit;
+        where it is attained), reduced over ranks. The caller applies the safety factor."""
+        candidates = []
+        ratios = characteristic_lengths(_cell_coordinates(self))
+        speeds = self.base.cell_wave_speeds()
+        refined = np.flatnonzero((self.interface_state != enr.NONE).any(axis=1))
+        ratios /= speeds
+        ratios[refined] = np.inf
+        if len(ratios):
+            cell = int(np.argmin(ratios))
+            candidates.append((float(ratios[cell]), f"cell {self.original_cell[cell]}"))
+        if len(self.subelements):
+            X = self._gather(self.subelements.nodes, "X")
+            sub_ratios = characteristic_lengths(X) / self._subelement_speeds
+            s = int(np.argmin(sub_ratios))
+            cell = self._subelement_cell[s]
+            candidates.append(
+                (float(sub_ratios[s]), f"subelement of cell {self.original_cell[cell]}")
+            )
+        if len(self.cohesive):
+            candidates.append(self._cohesive_time_step())
+        local = min(candidates) if candidates else (np.inf, "")
+        return self.comm.allreduce(local, op=MPI.MIN)
+
+    # ------------------------------------------------------------------ refinement
+    def refine(self, requests: Iterable[tuple[int, int, int]]) -> bool:
+        """Collective: refine owned cells. ``requests``: (local cell, interface, WEAK or STRONG);
+        a strong request on an unrefined interface makes it weak first. Returns whether anything
+        changed on any rank. Raises InputError for interfaces not allowed to refine."""
+        target = self.interface_state.copy()
+        for cell, interface, kind in requests:
+            allowed = set(self.interfaces.delaminate)
+            if kind != enr.STRONG:
+                allowed |= set(self.interfaces.refine)
+            if interface not in allowed:
+                what = "delaminate" if kind == enr.STRONG else "refine"
+                raise InputError("interfaces", f"interface {interface} is not allowed to {what}")
+            target[cell, interface - 1] = max(target[cell, interface - 1], kind)
+        old_state = self.interface_state.copy()
+        changed = np.flatnonzero((target != old_state).any(axis=1))
+        if not self.comm.allreduce(len(changed), op=MPI.SUM):
+            return False
+        for vector in (
+            self.base.u.x,
+            self.v_base,
+            self.extra.vectors["u"],
+            self.extra.vectors["v"],
+        ):
+            vector.scatter_forward()
+        kinetic_before = self.kinetic_energy()
+
+        n_interfaces = self.interface_state.shape[1]
+        for interface in range(1, n_interfaces + 1):  # weak, bottom to top
+            cells = changed[
+                (self.interface_state[changed, interface - 1] == enr.NONE)
+                & (target[changed, interface - 1] >= enr.WEAK)
+            ]
+            self._activate_weak(cells, interface)
+        for interface in range(1, n_interfaces + 1):  # then strong
+            cells = changed[
+                (self.interface_state[changed, interface - 1] == enr.WEAK)
+                & (target[changed, interface - 1] == enr.STRONG)
+            ]
+            self._activate_strong(cells, interface)
+
+        self._rebuild_extra_block()
+        self._update_masses(changed, old_state)
+        self._rebuild_maps()
+        self.base.set_ufl_cells([np.flatnonzero((self.interface_state == enr.NONE).all(axis=1))])
+        self.refinement_energy += self.kinetic_energy() - kinetic_before
+        return True
+
+    def _activate_weak(self, cells: np.ndarray, interface: int) -> None:
+        fractions = self.laminate.ply_fractions
+        requests: dict[int, tuple[int, np.ndarray]] = {}
+        for cell in cells:
+            row = self.interface_state[cell]
+            below = max([j for j in range(1, interface) if row[j - 1] != enr.NONE], default=0)
+            above = min(
+                [j for j in range(interface + 1, len(row) + 1) if row[j - 1] != enr.NONE],
+                default=len(row) + 1,
+            )
+            sub = enr.Subelement(below, above)
+            nodes = self._subelement_nodes(row, sub, cell)
+            w = (fractions[interface] - fractions[below]) / (fractions[above] - fractions[below])
+            values = {}
+            for name in ("u", "v", "X"):
+                gathered = self._gather(nodes[None, :], name)[0]
+                values[name] = (1.0 - w) * gathered[:4] + w * gathered[4:]
+            self._add_requests(requests, cell, interface, enr.SET_A, values)
+            row[interface - 1] = enr.WEAK
+        self.extra.activate(requests)
+
+    def _activate_strong(self, cells: np.ndarray, interface: int) -> None:
+        requests: dict[int, tuple[int, np.ndarray]] = {}
+        n_interfaces = self.interface_state.shape[1]
+        for cell in cells:
+            keys = [
+                enr.extra_key(g, interface, enr.SET_A, n_interfaces)
+                for g in self.bottom_global[cell]
+            ]
+            local = np.array([self.extra.index[k] for k in keys])
+            values = {
+                name: self.extra.vectors[name].array.reshape(-1, 3)[local].copy()
+                for name in ("u", "v", "X")
+            }
+            self._add_requests(requests, cell, interface, enr.SET_B, values)
+            self.interface_state[cell, interface - 1] = enr.STRONG
+            self.damage_rows[(int(cell), interface)] = len(self.damage_rows)
+        self.extra.activate(requests)
+        grown = np.zeros((len(self.damage_rows), 4))
+        grown[: len(self.cohesive.damage)] = self.cohesive.damage
+        self.cohesive.damage = grown
+
+    def _add_requests(self, requests, cell, interface, node_set, values) -> None:
+        n_interfaces = self.interface_state.shape[1]
+        tie = int(self.original_cell[cell])
+        for a in range(4):
+            key = enr.extra_key(self.bottom_global[cell, a], interface, node_set, n_interfaces)
+            row = np.concatenate([values["u"][a], values["v"][a], values["X"][a]])
+            if key not in requests or tie < requests[key][0]:
+                requests[key] = (tie, row)
+
+    # ------------------------------------------------------------------ maps and bookkeeping
+    def _subelement_nodes(self, row: np.ndarray, sub: enr.Subelement, cell: int) -> np.ndarray:
+        columns = enr.CellColumns(
+            self.bottom_local[cell], self.top_local[cell], self.bottom_global[cell]
+        )
+        return enr.subelement_nodes(
+            row, sub, columns, self.laminate.n_plies, self.extra.index, self.n_base
+        )
+
+    def cell_maps(self, cell: int) -> str:
+        """The gather/scatter maps (projection matrices as index lists) of one owned cell."""
+        columns = enr.CellColumns(
+            self.bottom_local[cell], self.top_local[cell], self.bottom_global[cell]
+        )
+        return enr.describe_cell(
+            self.interface_state[cell],
+            columns,
+            self.laminate.n_plies,
+            self.extra.index,
+            self.n_base,
+        )
+
+    def _rule_table(self):
+        n = self.laminate.n_plies
+        fractions = self.laminate.ply_fractions
+        stiffness = np.array(self.laminate.ply_stiffnesses())
+        density = np.array([p.material.rho for p in self.laminate.plies])
+        for first in range(n):
+            for stop in range(first + 1, n + 1):
+                zeta = sublaminate_ply_zeta(fractions, first, stop)
+                self._rules_index[(first, stop)] = len(self._rules)
+                self._rules.append(pack_rule(zeta, stiffness[first:stop], self.base.points_per_ply))
+                self._mass_rules[(first, stop)] = pack_mass_rule(zeta, density[first:stop])
+        return concatenate_rules(self._rules)
+
+    def _rebuild_maps(self) -> None:
+        nodes, rule, cell_of, speeds = [], [], [], []
+        coh_nodes, coh_rows, coh_interface = [], [], []
+        for cell in np.flatnonzero((self.interface_state != enr.NONE).any(axis=1)):
+            row = self.interface_state[cell]
+            for sub in enr.subelements(row):
+                nodes.append(self._subelement_nodes(row, sub, cell))
+                rule.append(self._rules_index[(sub.first, sub.stop)])
+                cell_of.append(cell)
+                speeds.append(
+                    max(
+                        p.material.dilatational_wave_speed()
+                        for p in self.laminate.plies[sub.first : sub.stop]
+                    )
+                )
+            columns = enr.CellColumns(
+                self.bottom_local[cell], self.top_local[cell], self.bottom_global[cell]
+            )
+            for interface in np.flatnonzero(row == enr.STRONG) + 1:
+                coh_nodes.append(
+                    enr.cohesive_nodes(
+                        columns,
+                        int(interface),
+                        self.laminate.n_plies,
+                        self.extra.index,
+                        self.n_base,
+                    )
+                )
+                coh_rows.append(self.damage_rows[(int(cell), int(interface))])
+                coh_interface.append(int(interface))
+        self.subelements = SubelementSet(
+            np.array(nodes, dtype=np.int32).reshape(-1, 8),
+            np.array(rule, dtype=np.int64),
+            self.subelements.rules,
+        )
+        self._subelement_cell = np.array(cell_of, dtype=np.int64)
+        self._subelement_speeds = np.array(speeds)
+        self.cohesive = CohesiveSet(
+            np.array(coh_nodes, dtype=np.int32).reshape(-1, 8),
+            np.array(coh_rows, dtype=np.int64),
+            self.cohesive.damage,
+            self.law_params if self.law_params is not None else self.cohesive.params,
+            np.array(coh_interface, dtype=np.int32),
+        )
+
+    def _rebuild_extra_block(self) -> None:
+        """Vectors and constraints of the extra nodes after their set changed."""
+        old_mass = getattr(self, "mass_extra", None)
+        self.f_extra = la.vector(self.extra.index_map, bs=3)
+        self.mass_extra = la.vector(self.extra.index_map, bs=3)
+        if old_mass is not None:
+            n_old = old_mass.index_map.size_local * 3
+            self.mass_extra.array[:n_old] = old_mass.array[:n_old]
+        fixed, motion_of = self._extra_constraints()
+        n_owned = self.extra.n_owned * 3
+        self.extra_block = Block(
+            u=self.extra.vectors["u"],
+            v=self.extra.vectors["v"],
+            f=self.f_extra,
+            mass=self.mass_extra.array[:n_owned],
+            fixed=fixed,
+            fixed_motion=motion_of,
+        )
+
+    def _extra_constraints(self) -> tuple[np.ndarray, np.ndarray]:
+        """Prescribed DOFs of the owned extra nodes: a face motion holds an extra node when both
+        base nodes of its column are on that face; a symmetry interface holds u_z of its nodes."""
+        fixed: dict[int, int] = {}
+        if self.extra.n_owned == 0:
+            return np.zeros(0, np.int32), np.zeros(0, np.int32)
+        n_interfaces = self.interface_state.shape[1]
+        parts = [enr.key_parts(k, n_interfaces) for k in self.extra.owned_keys]
+        bottom = np.array([self.extra.local_base_node(g) for g, _, _ in parts])
+        top = np.array([self.column_top[b] for b in bottom])
+        interface = np.array([i for _, i, _ in parts])
+        for m, motion in enumerate(self.motions):
+            if motion.face.startswith("interface"):
+                on = interface == int(motion.face.removeprefix("interface"))
+            else:
+                mask = np.zeros(self.n_base, dtype=bool)
+                mask[face_nodes(self.base, motion.face)] = True
+                on = mask[bottom] & mask[top]
+            for node in np.flatnonzero(on):
+                fixed.setdefault(3 * int(node) + COMPONENTS[motion.component], m)
+        dofs = np.array(sorted(fixed), dtype=np.int32)
+        return dofs, np.array([fixed[int(d)] for d in dofs], dtype=np.int32)
+
+    def _update_masses(self, cells: np.ndarray, old_state: np.ndarray) -> None:
+        """Take each changed cell's old (sub)element masses off its nodes, put the new ones on;
+        sums on shared nodes are completed by reverse scatters."""
+        delta_base = np.zeros(self.n_base)
+        delta_extra = np.zeros(self.extra.n_local)
+        m = np.zeros(8)
+        for cell in cells:
+            for state, sign in ((old_state[cell], -1.0), (self.interface_state[cell], 1.0)):
+                for sub in enr.subelements(state):
+                    nodes = self._subelement_nodes(state, sub, cell)
+                    X = self._gather(nodes[None, :], "X")[0]
+                    solid_shell_lumped_mass(X, *self._mass_rules[(sub.first, sub.stop)], m)
+                    for a, node in enumerate(nodes):
+                        if node < self.n_base:
+                            delta_base[node] += sign * m[a]
+                        else:
+                            delta_extra[node - self.n_base] += sign * m[a]
+        for delta, target in ((delta_base, self.mass_base), (delta_extra, self.mass_extra)):
+            scratch = la.vector(target.index_map, bs=3)
+            scratch.array.reshape(-1, 3)[:] = delta[:, None]
+            scratch.scatter_reverse(la.InsertMode.add)
+            n_owned = target.index_map.size_local * 3
+            target.array[:n_owned] += scratch.array[:n_owned]
+            target.scatter_forward()
+
+    def _gather(self, nodes: np.ndarray, name: str) -> np.ndarray:
+        """Values (n, 8, 3) of vector ``name`` ("u", "v", "X") at combined node indices."""
+        base = {
+            "u": self.base.u.x.array.reshape(-1, 3),
+            "v": self.v_base.array.reshape(-1, 3),
+            "X": self.X_base,
+        }[name]
+        extra = self.extra.vectors[name].array.reshape(-1, 3)
+        is_base = nodes < self.n_base
+        out = np.empty((*nodes.shape, 3))
+        out[is_base] = base[nodes[is_base]]
+        out[~is_base] = extra[nodes[~is_base] - self.n_base]
+        return out
+
+    def _cohesive_time_step(self) -> tuple[float, str]:
+        """Penalty springs of the cohesive elements against the masses they join."""
+        params = self.cohesive.params
+        stiffness = max(params[P_KN], params[P_KS])
+        X = self._gather(self.cohesive.nodes, "X")
+        areas = _quad_areas(X[:, :4, :])
+        # each node's share of the interface area, summed over the elements around it
+        area_base = la.vector(self.mass_base.index_map, bs=3)
+        area_extra = la.vector(self.mass_extra.index_map, bs=3)
+        ab, ax = area_base.array.reshape(-1, 3), area_extra.array.reshape(-1, 3)
+        for e, lower in enumerate(self.cohesive.nodes[:, :4]):
+            for node in lower:
+                if node < self.n_base:
+                    ab[node, 0] += 0.25 * areas[e]
+                else:
+                    ax[node - self.n_base, 0] += 0.25 * areas[e]
+        for vector in (area_base, area_extra):
+            vector.scatter_reverse(la.InsertMode.add)
+            vector.scatter_forward()
+        lower = self.cohesive.nodes[:, :4].ravel()
+        upper = self.cohesive.nodes[:, 4:].ravel()
+
+        def nodal(values_base, values_extra, nodes):
+            out = np.empty(len(nodes))
+            is_base = nodes < self.n_base
+            out[is_base] = values_base[nodes[is_base]]
+            out[~is_base] = values_extra[nodes[~is_base] - self.n_base]
+            return out
+
+        mb = self.mass_base.array.reshape(-1, 3)[:, 0]
+        mx = self.mass_extra.array.reshape(-1, 3)[:, 0]
+        steps = cohesive_pair_time_steps(
+            stiffness,
+            nodal(ab[:, 0], ax[:, 0], lower),
+            nodal(mb, mx, lower),
+            nodal(mb, mx, upper),
+        )
+        k = int(np.argmin(steps))
+        return float(steps[k]), f"cohesive element {k // 4} (penalty {stiffness:g} N/mm^3)"
+
+
+def _quad_areas(X: np.ndarray) -> np.ndarray:
+    """Areas of planar quadrilaterals with vertices (n, 4, 3) in tensor order."""
+    d1 = X[:, 3] - X[:, 0]
+    d2 = X[:, 2] - X[:, 1]
+    return 0.5 * np.linalg.norm(np.cross(d1, d2), axis=1)
+
+
+def _cell_coordinates(structure: Structure) -> np.ndarray:
+    n = structure.base.n_owned_cells
+    nodes = structure.base.V.dofmap.list[:n]
+    return structure.X_base[nodes]
+
+
+def cells_in_x_range(structure: Structure, x_min: float, x_max: float) -> np.ndarray:
+    """Owned cells whose centroid lies in x_min <= x <= x_max."""
+    x = _cell_coordinates(structure)[:, :, 0].mean(axis=1)
+    return np.flatnonzero((x >= x_min) & (x <= x_max)).astype(np.int32)

@@ -1,0 +1,173 @@
+"""The AFEM enrichment: subelement layout (paper Figure 2), extra-node positions (Eq. 1), and
+what weak and strong refinement must conserve (mass, momentum, the displacement field)."""
+
+import tomllib
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from fenics_adaptive import enrichment as enr
+from fenics_adaptive import explicit
+from fenics_adaptive.config import parse_config
+from fenics_adaptive.runner import build_structure
+
+DATA = Path(__file__).parent / "data"
+
+
+def figure2_columns():
+    return enr.CellColumns(
+        bottom_local=np.array([0, 1, 2, 3]),
+        top_local=np.array([4, 5, 6, 7]),
+        bottom_global=np.array([10, 11, 12, 13]),
+    )
+
+
+def test_figure_2_seven_plies_refined_at_interfaces_2_and_4():
+    """Paper Figure 2: plies 1-2 in the bottom subelement, 3-4 in the second, 5-7 on top."""
+    state = np.array([0, 1, 0, 2, 0, 0], dtype=np.int8)
+    subs = enr.subelements(state)
+    assert [(s.first, s.stop) for s in subs] == [(0, 2), (2, 4), (4, 7)]
+    text = enr.describe_cell(state, figure2_columns(), 7)
+    assert "subelement 1: plies 1, 2" in text
+    assert "subelement 2: plies 3, 4" in text
+    assert "subelement 3: plies 5, 6, 7" in text
+    # the third subelement sits on the upper copy (set B) of the strong interface 4
+    third = text.split("subelement 3")[1]
+    assert "i4B" in third.split("cohesive")[0]
+    assert "cohesive element at interface 4" in text
+
+
+def tcb(kind: str = "adaptive", **interfaces) -> dict:
+    data = tomllib.loads((DATA / f"tcb_{kind}.toml").read_text())
+    data["interfaces"].update(interfaces)
+    return data
+
+
+def structure_of(data):
+    return build_structure(parse_config(data))
+
+
+def test_extra_node_positions_follow_eq_1():
+    structure = structure_of(tcb(initial="strong"))
+    alpha = structure.laminate.interface_fractions
+    n_if = structure.interface_state.shape[1]
+    X = structure.extra.vectors["X"].array.reshape(-1, 3)
+    checked = 0
+    for key, local in structure.extra.index.items():
+        g, interface, _ = enr.key_parts(key, n_if)
+        bottom = structure.extra.local_base_node(g)
+        top = structure.column_top[bottom]
+        expected = structure.X_base[bottom] + alpha[interface - 1] * (
+            structure.X_base[top] - structure.X_base[bottom]
+        )
+        assert np.allclose(X[local], expected, atol=1e-14)
+        checked += 1
+    assert checked == structure.extra.n_local > 0
+    # shared by neighbours: 21 columns x (interface 4: A; 2 and 6: A and B) x 2 rows of nodes
+    assert structure.extra.n_owned == 21 * 2 * 5
+
+
+def set_linear_state(structure, rng):
+    """u and v linear in x (any smooth field would do): nodal values from coordinates."""
+    A = rng.normal(size=(3, 3)) * 1e-3
+    B = rng.normal(size=(3, 3))
+    for block, X in ((structure.base_block, structure.X_base),):
+        block.u.array.reshape(-1, 3)[:] = X @ A.T
+        block.v.array.reshape(-1, 3)[:] = X @ B.T
+    return A, B
+
+
+def test_weak_then_strong_refinement_conserves_mass_momentum_and_the_field():
+    structure = structure_of(tcb(initial="none"))
+    rng = np.random.default_rng(3)
+    A, B = set_linear_state(structure, rng)
+    mass, momentum = structure.total_mass(), structure.momentum()
+    structure.internal_force()
+    energy = structure.energies()[0]
+    cells = np.arange(5, 12)
+    assert structure.refine([(c, i, enr.WEAK) for c in cells for i in (2, 4, 6)])
+    # extra nodes start on the element's own (here linear) displacement and velocity fields
+    X_extra = structure.extra.vectors["X"].array.reshape(-1, 3)
+    assert np.allclose(structure.extra.vectors["u"].array.reshape(-1, 3), X_extra @ A.T)
+    assert np.allclose(structure.extra.vectors["v"].array.reshape(-1, 3), X_extra @ B.T)
+    assert structure.total_mass() == pytest.approx(mass, rel=1e-14)
+    assert np.allclose(structure.momentum(), momentum, rtol=1e-13, atol=0)
+    structure.internal_force()
+    assert structure.energies()[0] == pytest.approx(energy, rel=1e-12)
+
+    assert structure.refine([(c, i, enr.STRONG) for c in cells for i in (2, 6)])
+    assert structure.total_mass() == pytest.approx(mass, rel=1e-14)
+    assert np.allclose(structure.momentum(), momentum, rtol=1e-13, atol=0)
+    structure.internal_force()
+    solid, cohesive = structure.energies()
+    assert solid == pytest.approx(energy, rel=1e-12)
+    assert cohesive == 0.0  # a just-duplicated interface is closed
+    assert len(structure.cohesive) == 2 * len(cells)
+
+
+def test_refined_cell_masses_are_the_subelement_masses():
+    structure = structure_of(tcb(initial="none"))
+    m_base = structure.base_block.mass.copy()
+    structure.refine([(0, 4, enr.WEAK)])
+    # cell 0's four extra nodes hold the plies around interface 4 of that cell: their total is
+    # half of the cell's mass, the base nodes lost exactly that
+    extra_mass = structure.extra_block.mass[::3].sum()
+    cell_mass = structure.laminate.areal_mass() * 0.5 * 0.5
+    assert extra_mass == pytest.approx(0.5 * cell_mass, rel=1e-13)
+    assert m_base[::3].sum() - structure.base_block.mass[::3].sum() == pytest.approx(
+        0.5 * cell_mass, rel=1e-12
+    )
+
+
+def test_refinement_outside_the_allowed_interfaces_is_refused():
+    structure = structure_of(tcb(initial="none"))
+    with pytest.raises(Exception, match="interface 3"):
+        structure.refine([(0, 3, enr.WEAK)])
+    with pytest.raises(Exception, match="delaminate"):
+        structure.refine([(0, 4, enr.STRONG)])
+
+
+def test_stable_step_drops_with_thin_subelements_and_cohesive_springs():
+    """Refining at interface 1 leaves a subelement one ply (0.256 mm) thick: L_e / c halves
+    about; a stiff cohesive penalty lowers it further. The run stays stable at the new step."""
+    data = tcb(initial="none", refine=[1, 4], delaminate=[2, 6])
+    data["solver"].pop("time_step")
+    data["model"]["points_per_ply"] = 2
+    structure = structure_of(data)
+    before, _ = structure.stable_time_step()
+    structure.refine([(c, 1, enr.WEAK) for c in range(structure.base.n_owned_cells)])
+    after, where = structure.stable_time_step()
+    thin = 0.256 / structure.laminate.plies[0].material.dilatational_wave_speed()
+    assert "subelement" in where
+    assert after == pytest.approx(thin, rel=0.02)
+    assert after < 0.6 * before
+
+    data["cohesive"]["K_n"] = data["cohesive"]["K_s"] = 1e7
+    structure = structure_of(data)
+    structure.refine([(c, 2, enr.STRONG) for c in range(structure.base.n_owned_cells)])
+    limit, where = structure.stable_time_step()
+    assert "cohesive" in where
+    config = parse_config(data)
+    settings = explicit.SolverSettings(end_time=2000 * 0.9 * limit, output_interval=1e-6)
+    stats = explicit.run(structure, settings, config.probe)
+    assert stats.time_step == pytest.approx(0.9 * limit)
+    assert all(np.isfinite(r.kinetic_energy) for r in stats.history)
+    assert max(abs(r.energy_balance) for r in stats.history) < 1e-6 * max(
+        r.external_work for r in stats.history
+    )
+
+
+def test_cell_maps_of_a_refined_cell_name_its_nodes():
+    structure = structure_of(tcb(initial="none"))
+    structure.refine([(0, 4, enr.WEAK), (0, 2, enr.STRONG)])
+    text = structure.cell_maps(0)
+    assert text.count("subelement") == 3
+    assert "subelement 1: plies 1, 2" in text and "subelement 3: plies 5, 6, 7, 8" in text
+    assert "cohesive element at interface 2" in text
+    # every node a subelement names is a real local node with the coordinates Eq. (1) gives
+    n_base = structure.n_base
+    for line in text.splitlines():
+        if "<- extra" in line:
+            node = int(line.split("<- extra ")[1].split()[0])
+            assert n_base <= node < n_base + structure.extra.n_local
