@@ -31,11 +31,13 @@ from pathlib import Path
 from typing import Any
 
 from fenics_adaptive.cohesive import CohesiveLaw
+from fenics_adaptive.enrichment import STRONG, WEAK
 from fenics_adaptive.errors import InputError
 from fenics_adaptive.explicit import Probe, SolverSettings
+from fenics_adaptive.indicators import IndicatorSettings, Manual
 from fenics_adaptive.laminate import Laminate, Ply, PlyMaterial
 from fenics_adaptive.loading import COMPONENTS, Amplitude, FaceLoad, PrescribedMotion, clamp
-from fenics_adaptive.structure import Interfaces
+from fenics_adaptive.structure import Interfaces, Stabilisation
 
 MODEL_KINDS = ("esl", "adaptive", "layerwise")
 REFINEMENT_KINDS = ("weak", "strong")
@@ -53,18 +55,6 @@ class MeshConfig:
 
 
 @dataclass(frozen=True)
-class ManualRefinement:
-    """Refine the listed interfaces of every cell whose centroid lies in [x_min, x_max] at
-    ``time`` (the paper's TCB: refinement at a chosen displacement level)."""
-
-    time: float
-    interfaces: tuple[int, ...]
-    kind: str
-    x_min: float = -math.inf
-    x_max: float = math.inf
-
-
-@dataclass(frozen=True)
 class RunConfig:
     kind: str
     points_per_ply: int
@@ -75,7 +65,9 @@ class RunConfig:
     solver: SolverSettings
     probe: Probe
     interfaces: Interfaces = field(default_factory=Interfaces)
-    refinements: tuple[ManualRefinement, ...] = ()
+    refinements: tuple[Manual, ...] = ()
+    indicators: IndicatorSettings | None = None
+    stabilisation: Stabilisation = field(default_factory=Stabilisation)
     cohesive: CohesiveLaw | None = None
     source: str = "<memory>"
 
@@ -225,6 +217,8 @@ def parse_config(data: dict, source: str = "<memory>") -> RunConfig:
             )
     faces = face_names(len(mesh.layers))
     interfaces, refinements, cohesive = _interfaces(root, kind, laminate, mesh)
+    stabilisation = _stabilisation(root, kind)
+    indicators = _indicators(root, kind, interfaces, cohesive, materials)
 
     motions: list[PrescribedMotion] = []
     for table in root.array_of_tables("clamp"):
@@ -300,6 +294,8 @@ def parse_config(data: dict, source: str = "<memory>") -> RunConfig:
         probe=probe,
         interfaces=interfaces,
         refinements=refinements,
+        indicators=indicators,
+        stabilisation=stabilisation,
         cohesive=cohesive,
         source=source,
     )
@@ -458,8 +454,15 @@ def _interfaces(root: _Table, kind: str, laminate: Laminate, mesh: MeshConfig):
 
     refinements = []
     for rt in refinement_tables:
-        time = rt.number("time", minimum=0.0)
+        if rt.has("time") == rt.has("displacement"):
+            raise InputError(rt.key("time"), "give exactly one trigger: time (s) or displacement")
+        time = rt.number("time", minimum=0.0) if rt.has("time") else math.inf
+        displacement = (
+            rt.number("displacement", positive=True) if rt.has("displacement") else math.inf
+        )
         interfaces = _interface_list(rt, "interfaces", n_plies)
+        if not interfaces:
+            raise InputError(rt.key("interfaces"), "list the interfaces to refine")
         kind_name = rt.string("kind", REFINEMENT_KINDS)
         pool = delaminate if kind_name == "strong" else set(refine) | set(delaminate)
         for value in interfaces:
@@ -473,7 +476,8 @@ def _interfaces(root: _Table, kind: str, laminate: Laminate, mesh: MeshConfig):
         if x_max <= x_min:
             raise InputError(rt.key("x_max"), "must be larger than x_min")
         rt.finish()
-        refinements.append(ManualRefinement(time, interfaces, kind_name, x_min, x_max))
+        kind_code = STRONG if kind_name == "strong" else WEAK
+        refinements.append(Manual(interfaces, kind_code, time, displacement, x_min, x_max))
 
     cohesive = None
     if delaminate:
@@ -483,6 +487,53 @@ def _interfaces(root: _Table, kind: str, laminate: Laminate, mesh: MeshConfig):
     elif cohesive_table is not None:
         raise InputError("cohesive", "no interface delaminates ([interfaces] delaminate)")
     return Interfaces(refine, delaminate, symmetry, initial), tuple(refinements), cohesive
+
+
+def _stabilisation(root: _Table, kind: str) -> Stabilisation:
+    table = root.table("stabilisation", required=False)
+    if table is None:
+        return Stabilisation()
+    if kind != "adaptive":
+        raise InputError("stabilisation", "only an adaptive model refines, so only it stabilises")
+    damping = table.number("damping", default=0.0, minimum=0.0)
+    window = table.number("damping_window", default=0.0, minimum=0.0)
+    release = table.number("release_window", default=0.0, minimum=0.0)
+    table.finish()
+    if (damping > 0.0) != (window > 0.0):
+        raise InputError(
+            "stabilisation.damping_window",
+            "damping after weak refinement needs both damping (1/s) and damping_window (s)",
+        )
+    return Stabilisation(damping, window, release)
+
+
+def _indicators(root: _Table, kind: str, interfaces: Interfaces, cohesive, materials):
+    table = root.table("indicators", required=False)
+    if table is None:
+        return None
+    if kind != "adaptive":
+        raise InputError("indicators", "only an adaptive model refines")
+    interval = table.number("interval", positive=True)
+    ply_failure = table.number("ply_failure", positive=True) if table.has("ply_failure") else None
+    interface_stress = (
+        table.number("interface_stress", positive=True) if table.has("interface_stress") else None
+    )
+    matrix_damage = table.raw("matrix_damage", default=False)
+    if not isinstance(matrix_damage, bool):
+        raise InputError(table.key("matrix_damage"), "must be true or false")
+    spread_rings = table.integer("spread", default=0, minimum=0)
+    table.finish()
+    if interface_stress is not None and not interfaces.delaminate:
+        raise InputError(
+            "indicators.interface_stress", "no interface may delaminate ([interfaces] delaminate)"
+        )
+    if matrix_damage and not interfaces.delaminate:
+        raise InputError(
+            "indicators.matrix_damage", "no interface may delaminate ([interfaces] delaminate)"
+        )
+    if ply_failure is None and interface_stress is None and not matrix_damage:
+        raise InputError("indicators", "switch on at least one indicator")
+    return IndicatorSettings(interval, ply_failure, interface_stress, matrix_damage, spread_rings)
 
 
 def _amplitude(table: _Table) -> Amplitude:

@@ -209,6 +209,10 @@ def run(
         structure.internal_force()
         loads.external_force(t, f_ext_full)
         base.f_ext[:] = f_ext_full[: base.block.n_owned]
+        if structure.ties or tied[0]:
+            states[1].f_ext.fill(0.0)
+            structure.add_tie_forces(t, states[1].f_ext)
+            tied[0] = bool(structure.ties)
         mean_dt = 0.5 * (dt_prev + dt)
         for state in states:
             np.subtract(state.f_ext, state.f, out=state.acc)
@@ -227,6 +231,20 @@ def run(
                 state.reaction *= state.a_fixed
                 state.reaction += np.take(state.f, fixed, out=state.scratch)
                 state.reaction -= np.take(state.f_ext, fixed, out=state.scratch)
+
+    tied = [False]  # tie forces were applied last step (their f_ext must be cleared once)
+    damping_changes = [math.inf]  # next time a stabilisation damping window closes
+
+    def refresh_damping() -> None:
+        """Per-DOF damping: the global coefficient plus the open stabilisation windows."""
+        windows = structure.active_damping(t)
+        for index, state in enumerate(states):
+            state.damping[:] = settings.mass_damping
+            for window in windows:
+                if window.block == index:
+                    state.damping[window.dofs] += window.coefficient
+            state.damping[state.block.fixed] = 0.0
+        damping_changes[0] = min((w.until for w in windows), default=math.inf)
 
     work_int = work_ext = work_damp = 0.0  # this rank's shares
     t = 0.0
@@ -286,6 +304,8 @@ def run(
                         f"({where}), below the forced step {dt:.4g} s"
                     )
                 set_prescribed(t, dt)
+                structure.start_stabilisation(t)
+                refresh_damping()
                 forces_and_accelerations()  # of the refined structure, at t_n
                 if on_refined is not None:
                     on_refined(t, dt, where)
@@ -343,9 +363,11 @@ def run(
                 break
 
             mean_dt = 0.5 * (dt_prev + dt)
+            if t >= damping_changes[0]:
+                refresh_damping()
             for state in states:
                 # v_{n-1/2} -> v_{n+1/2}, with implicit mass-proportional damping where asked
-                if damped:
+                if damped or damping_changes[0] < math.inf:
                     state.v_mid[:] = state.v
                     np.multiply(state.damping, 0.5 * mean_dt, out=state.shrink)
                     np.add(state.shrink, 1.0, out=state.grow)

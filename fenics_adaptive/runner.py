@@ -22,8 +22,9 @@ from fenics_adaptive import explicit, output
 from fenics_adaptive.assembly import CohesiveSet
 from fenics_adaptive.config import RunConfig
 from fenics_adaptive.enrichment import STRONG, WEAK
+from fenics_adaptive.indicators import indicator_requests, spread
 from fenics_adaptive.layerwise import cohesive_pairs
-from fenics_adaptive.loading import Amplitude, PrescribedMotion, resolve
+from fenics_adaptive.loading import Amplitude, PrescribedMotion, face_dofs, resolve
 from fenics_adaptive.model import LayeredModel, build_model
 from fenics_adaptive.structure import Structure, cells_in_x_range
 from meshes.beam import BeamMesh, layered_mesh
@@ -77,7 +78,7 @@ def build_structure(config: RunConfig, comm: MPI.Comm = MPI.COMM_WORLD) -> Struc
                 np.array(boundaries, dtype=np.int32)[pairs.boundary],
             )
     loads = resolve(model, motions, config.loads)
-    structure = Structure(model, loads, cohesive, config.interfaces, params)
+    structure = Structure(model, loads, cohesive, config.interfaces, params, config.stabilisation)
     if config.kind == "adaptive" and config.interfaces.initial != "none":
         structure.refine(initial_refinement(structure, config))
     return structure
@@ -94,21 +95,45 @@ def initial_refinement(structure: Structure, config: RunConfig) -> list[tuple[in
     return requests
 
 
-def manual_refinements(config: RunConfig) -> Callable[[float, Structure], bool]:
-    """The solver's per-step hook for the config's [[refinement]] entries (collective)."""
-    pending = sorted(config.refinements, key=lambda r: r.time)
+def refinement_hook(config: RunConfig) -> Callable[[float, Structure], bool] | None:
+    """The solver's per-step hook that refines: the config's manual [[refinement]] entries and
+    its [indicators]. Decisions are taken on the same steps on every rank (time, or the global
+    probe displacement), so the collective refinement is entered by all."""
+    manual = list(config.refinements)
+    settings = config.indicators
+    if not manual and settings is None:
+        return None
+    probe_by_displacement = any(m.displacement < math.inf for m in manual)
+    strengths = (config.cohesive.N, config.cohesive.S) if config.cohesive is not None else None
+    next_check = [0.0]
 
     def on_step(t: float, structure: Structure) -> bool:
-        changed = False
-        while pending and pending[0].time <= t:
-            entry = pending.pop(0)
-            kind = STRONG if entry.kind == "strong" else WEAK
+        displacement = probe_displacement(structure, config.probe) if probe_by_displacement else 0
+        due = [m for m in manual if m.due(t, displacement)]
+        requests = []
+        for entry in due:
+            manual.remove(entry)
             cells = cells_in_x_range(structure, entry.x_min, entry.x_max)
-            requests = [(int(c), i, kind) for c in cells for i in entry.interfaces]
-            changed |= structure.refine(requests)
-        return changed
+            requests += [(int(c), i, entry.kind) for c in cells for i in entry.interfaces]
+        evaluate = settings is not None and t >= next_check[0]
+        if evaluate:
+            requests += indicator_requests(structure, settings, strengths)
+            next_check[0] = t + settings.interval
+            if settings.spread:
+                requests += spread(structure, requests, settings.spread)
+        if not due and not evaluate:
+            return False
+        return structure.refine(requests)
 
     return on_step
+
+
+def probe_displacement(structure: Structure, probe) -> float:
+    """Mean displacement of the probe face in the probe component, over all ranks."""
+    dofs = face_dofs(structure.base, probe.displacement_face, probe.component)
+    local = np.array([structure.base.u.x.array[dofs].sum(), len(dofs)], dtype=float)
+    total, count = structure.comm.allreduce(local, op=MPI.SUM)
+    return total / max(count, 1.0)
 
 
 def build_problem(config: RunConfig, comm: MPI.Comm = MPI.COMM_WORLD) -> Problem:
@@ -196,7 +221,7 @@ def run_config(
             on_history=history,
             on_fields=fields,
             on_progress=progress,
-            on_step=manual_refinements(config) if config.refinements else None,
+            on_step=refinement_hook(config),
             on_refined=lambda t, dt, where: say(
                 f"t = {t:.4e} s: refined; now {comm.allreduce(structure.extra.n_owned)} extra "
                 f"nodes, {comm.allreduce(len(structure.cohesive))} cohesive elements; time step "

@@ -37,6 +37,7 @@ from fenics_adaptive.assembly import (
 )
 from fenics_adaptive.cohesive import P_KN, P_KS
 from fenics_adaptive.errors import InputError
+from fenics_adaptive.laminate import Laminate
 from fenics_adaptive.loading import (
     COMPONENTS,
     Amplitude,
@@ -87,6 +88,52 @@ class Interfaces:
     initial: str = "none"
 
 
+@dataclass(frozen=True)
+class Stabilisation:
+    """The paper's remedies for the sudden change of internal forces on refinement (user
+    parameters). After a weak refinement the nodes of the refined cells get mass-proportional
+    damping ``damping`` (1/s) for ``damping_window`` (s). After a strong refinement a tie force
+    holds each new node pair together: at the moment of refinement it makes the two nodes
+    accelerate together exactly as the continuous interface did (it cancels the jump in
+    internal force that splitting causes; Menouillard & Belytschko 2010), and it is released
+    linearly to zero over ``release_window`` (s); 0 inserts the crack abruptly."""
+
+    damping: float = 0.0
+    damping_window: float = 0.0
+    release_window: float = 0.0
+
+    @property
+    def damps(self) -> bool:
+        return self.damping > 0.0 and self.damping_window > 0.0
+
+
+@dataclass
+class DampingWindow:
+    """Extra mass-proportional damping ``coefficient`` (1/s) on owned DOFs of a block until
+    ``until`` (s)."""
+
+    block: int
+    dofs: np.ndarray
+    coefficient: float
+    until: float
+
+
+@dataclass
+class Ties:
+    """Tie forces on owned extra-node pairs (lower node A, upper node B of a new strong
+    interface): +scale(t) T0 on A, -scale(t) T0 on B, scale falling from 1 at ``start`` to 0 at
+    ``start + window``."""
+
+    a: np.ndarray  # owned extra local indices
+    b: np.ndarray
+    force: np.ndarray  # (n, 3) N
+    start: float
+    window: float
+
+    def scale(self, t: float) -> float:
+        return max(0.0, 1.0 - (t - self.start) / self.window)
+
+
 class Structure:
     """Base model + (optional) enrichment + cohesive elements, as the solver sees them."""
 
@@ -97,8 +144,14 @@ class Structure:
         cohesive: CohesiveSet | None = None,
         interfaces: Interfaces | None = None,
         law_params: np.ndarray | None = None,
+        stabilisation: Stabilisation | None = None,
     ):
         self.base = base
+        self.stabilisation = stabilisation or Stabilisation()
+        self.damping_windows: list[DampingWindow] = []
+        self.ties: list[Ties] = []
+        self._new_weak_cells = np.zeros(0, dtype=np.int64)
+        self._new_pairs: list[tuple[int, int]] = []
         self.loads = loads
         self.comm = base.comm
         V = base.V
@@ -121,10 +174,17 @@ class Structure:
             self.interfaces.refine or self.interfaces.initial != "none"
         ):
             raise ValueError("only an ESL mesh (one cell through the thickness) can refine")
-        laminate = base.layer_laminates[0]
+        # the whole laminate (an LW model spreads it over its mesh layers) and the plies of each
+        # owned cell
+        laminate = Laminate(tuple(p for layer in base.layer_laminates for p in layer.plies))
         self.laminate = laminate
         n_interfaces = laminate.n_plies - 1
         n_cells = base.n_owned_cells
+        self.cell_plies = np.zeros((n_cells, 2), dtype=np.int64)
+        first = 0
+        for k, layer in enumerate(base.layer_laminates):
+            self.cell_plies[base.layer_cells(k)] = (first, first + layer.n_plies)
+            first += layer.n_plies
         self.interface_state = np.zeros((n_cells, max(n_interfaces, 0)), dtype=np.int8)
         index_map = V.dofmap.index_map
         local_to_global = index_map.local_to_global(np.arange(self.n_base, dtype=np.int32))
@@ -142,6 +202,9 @@ class Structure:
         self._rules = []
         self._mass_rules: dict[tuple[int, int], object] = {}
         self.subelements = SubelementSet.empty(self._rule_table())
+        self._subelement_cell = np.zeros(0, dtype=np.int64)
+        self._subelement_plies = np.zeros((0, 2), dtype=np.int64)
+        self._subelement_speeds = np.zeros(0)
         self.damage_rows: dict[tuple[int, int], int] = {}
         self.refinement_energy = 0.0  # kinetic energy added by refinements (lumped-mass change)
         self._solid_energy = 0.0
@@ -230,6 +293,79 @@ class Structure:
         local = min(candidates) if candidates else (np.inf, "")
         return self.comm.allreduce(local, op=MPI.MIN)
 
+    def elements(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Every solid element of this rank: nodes (n, 8) in combined local indices, the owned
+        cell each belongs to, and its plies [first, stop) of the laminate: unrefined cells
+        (whole cells: all plies, or an LW layer's) and the subelements of refined ones."""
+        unrefined = np.flatnonzero((self.interface_state == enr.NONE).all(axis=1))
+        nodes = np.hstack([self.bottom_local, self.top_local])[unrefined]
+        cells = unrefined.astype(np.int64)
+        plies = self.cell_plies[unrefined]
+        if len(self.subelements):
+            nodes = np.vstack([nodes, self.subelements.nodes])
+            cells = np.concatenate([cells, self._subelement_cell])
+            plies = np.vstack([plies, self._subelement_plies])
+        return nodes.astype(np.int32), cells, plies
+
+    # ------------------------------------------------------------------ stabilisation
+    def start_stabilisation(self, t: float) -> None:
+        """Collective, right after a refinement at time t: open the damping window of the newly
+        weakly refined cells' nodes and set the tie forces of the new strong node pairs from the
+        refined structure's internal forces at t."""
+        settings = self.stabilisation
+        if settings.damps and self.comm.allreduce(len(self._new_weak_cells), op=MPI.SUM):
+            for block, dofs in enumerate(self._nodes_of_cells(self._new_weak_cells)):
+                self.damping_windows.append(
+                    DampingWindow(block, dofs, settings.damping, t + settings.damping_window)
+                )
+        if settings.release_window > 0.0 and self._new_pairs:
+            self.internal_force()
+            pairs = np.array(self._new_pairs, dtype=np.int64)
+            f = self.f_extra.array.reshape(-1, 3)
+            m = self.mass_extra.array.reshape(-1, 3)[:, 0]
+            a, b = pairs[:, 0], pairs[:, 1]
+            m_a, m_b = m[a, None], m[b, None]
+            force = (m_b * f[a] - m_a * f[b]) / (m_a + m_b)
+            self.ties.append(Ties(a, b, force, t, settings.release_window))
+        self._new_weak_cells = np.zeros(0, dtype=np.int64)
+        self._new_pairs = []
+
+    def add_tie_forces(self, t: float, f_ext_extra: np.ndarray) -> None:
+        """Add the active tie forces at time t to the extra block's external force (owned DOFs,
+        flat)."""
+        self.ties = [tie for tie in self.ties if tie.scale(t) > 0.0]
+        f = f_ext_extra.reshape(-1, 3)
+        for tie in self.ties:
+            scale = tie.scale(t)
+            np.add.at(f, tie.a, scale * tie.force)
+            np.subtract.at(f, tie.b, scale * tie.force)
+
+    def active_damping(self, t: float) -> list[DampingWindow]:
+        self.damping_windows = [w for w in self.damping_windows if w.until > t]
+        return self.damping_windows
+
+    def _nodes_of_cells(self, cells: np.ndarray) -> list[np.ndarray]:
+        """Owned DOFs (base block, extra block) of the nodes of these owned cells and of their
+        subelements; nodes on other ranks are marked there by a reverse scatter."""
+        marks = [
+            la.vector(self.mass_base.index_map, bs=3),
+            la.vector(self.mass_extra.index_map, bs=3),
+        ]
+        base_marks = marks[0].array.reshape(-1, 3)
+        extra_marks = marks[1].array.reshape(-1, 3)
+        nodes, owner_cells, _ = self.elements()
+        for node in nodes[np.isin(owner_cells, cells)].ravel():
+            if node < self.n_base:
+                base_marks[node] = 1.0
+            else:
+                extra_marks[node - self.n_base] = 1.0
+        out = []
+        for vector in marks:
+            vector.scatter_reverse(la.InsertMode.add)
+            n_owned = vector.index_map.size_local * 3
+            out.append(np.flatnonzero(vector.array[:n_owned] > 0).astype(np.int32))
+        return out
+
     # ------------------------------------------------------------------ refinement
     def refine(self, requests: Iterable[tuple[int, int, int]]) -> bool:
         """Collective: refine owned cells. ``requests``: (local cell, interface, WEAK or STRONG);
@@ -248,6 +384,10 @@ class Structure:
         changed = np.flatnonzero((target != old_state).any(axis=1))
         if not self.comm.allreduce(len(changed), op=MPI.SUM):
             return False
+        self._new_weak_cells = changed[
+            ((old_state[changed] == enr.NONE) & (target[changed] >= enr.WEAK)).any(axis=1)
+        ]
+        self._new_pairs = []
         for vector in (
             self.base.u.x,
             self.v_base,
@@ -315,7 +455,10 @@ class Structure:
             self._add_requests(requests, cell, interface, enr.SET_B, values)
             self.interface_state[cell, interface - 1] = enr.STRONG
             self.damage_rows[(int(cell), interface)] = len(self.damage_rows)
-        self.extra.activate(requests)
+        for local in self.extra.activate(requests):  # new owned set-B nodes and their A partners
+            g, i, _ = enr.key_parts(self.extra.owned_keys[local], n_interfaces)
+            partner = self.extra.index[enr.extra_key(g, i, enr.SET_A, n_interfaces)]
+            self._new_pairs.append((partner, local))
         grown = np.zeros((len(self.damage_rows), 4))
         grown[: len(self.cohesive.damage)] = self.cohesive.damage
         self.cohesive.damage = grown
@@ -365,7 +508,7 @@ class Structure:
         return concatenate_rules(self._rules)
 
     def _rebuild_maps(self) -> None:
-        nodes, rule, cell_of, speeds = [], [], [], []
+        nodes, rule, cell_of, plies_of, speeds = [], [], [], [], []
         coh_nodes, coh_rows, coh_interface = [], [], []
         for cell in np.flatnonzero((self.interface_state != enr.NONE).any(axis=1)):
             row = self.interface_state[cell]
@@ -373,6 +516,7 @@ class Structure:
                 nodes.append(self._subelement_nodes(row, sub, cell))
                 rule.append(self._rules_index[(sub.first, sub.stop)])
                 cell_of.append(cell)
+                plies_of.append((sub.first, sub.stop))
                 speeds.append(
                     max(
                         p.material.dilatational_wave_speed()
@@ -400,6 +544,7 @@ class Structure:
             self.subelements.rules,
         )
         self._subelement_cell = np.array(cell_of, dtype=np.int64)
+        self._subelement_plies = np.array(plies_of, dtype=np.int64).reshape(-1, 2)
         self._subelement_speeds = np.array(speeds)
         self.cohesive = CohesiveSet(
             np.array(coh_nodes, dtype=np.int32).reshape(-1, 8),

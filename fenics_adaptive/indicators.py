@@ -1,0 +1,301 @@
+"""Refinement indicators: which cells refine, at which interfaces, weak or strong (paper,
+"Adaptivity").
+
+Units: N, mm, s, tonne (stresses MPa).
+
+- ``ply_failure`` (weak): a ply's failure index (``ply_damage.failure_indices``, matrix or fibre)
+  reaches a fraction of 1 in a cell: the refinable interfaces just below and above that ply
+  refine weakly, for a better through-thickness field around it.
+- ``interface_stress`` (strong): the cohesive initiation criterion
+  sqrt((<sigma_zz>/N)^2 + (tau/S)^2) evaluated at an interface with *recovered* out-of-plane
+  stresses reaches a fraction of 1. The unrefined shell's constitutive transverse stresses are
+  poor (constant shear through the thickness, no peel), so they are recovered from equilibrium
+  instead, as in the authors' ESL work: in-plane stresses of each ply, averaged on the nodes
+  (columns), give in-plane derivatives on each cell; integrating
+  d tau_xz/dz = -(d sigma_xx/dx + d sigma_xy/dy), d tau_yz/dz = -(d sigma_xy/dx + d sigma_yy/dy)
+  from the free bottom face gives the shear stresses at the interfaces (a linear correction
+  makes the top face free of shear traction too), and once more
+  d sigma_zz/dz = -(d tau_xz/dx + d tau_yz/dy) the peel stress (not corrected: a pressure on
+  the top face shows up there as it should).
+- ``matrix_damage`` (strong): matrix damage has started in a ply next to a delaminable
+  interface (matrix-crack-induced delamination).
+- manual: at a time or a probe displacement, in an x range (the paper's TCB); see ``Manual``.
+Refinement spreads to ``spread`` rings of neighbouring cells (cells sharing a node) and is never
+undone.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from dolfinx import la
+from mpi4py import MPI
+from numba import njit
+
+from fenics_adaptive import enrichment as enr
+from fenics_adaptive.laminate import rotation_about_z
+
+STRONG, WEAK = enr.STRONG, enr.WEAK
+
+
+@njit(cache=True)
+def _inverse_3x3(A, out):
+    det = (
+        A[0, 0] * (A[1, 1] * A[2, 2] - A[1, 2] * A[2, 1])
+        - A[0, 1] * (A[1, 0] * A[2, 2] - A[1, 2] * A[2, 0])
+        + A[0, 2] * (A[1, 0] * A[2, 1] - A[1, 1] * A[2, 0])
+    )
+    out[0, 0] = (A[1, 1] * A[2, 2] - A[1, 2] * A[2, 1]) / det
+    out[0, 1] = (A[0, 2] * A[2, 1] - A[0, 1] * A[2, 2]) / det
+    out[0, 2] = (A[0, 1] * A[1, 2] - A[0, 2] * A[1, 1]) / det
+    out[1, 0] = (A[1, 2] * A[2, 0] - A[1, 0] * A[2, 2]) / det
+    out[1, 1] = (A[0, 0] * A[2, 2] - A[0, 2] * A[2, 0]) / det
+    out[1, 2] = (A[0, 2] * A[1, 0] - A[0, 0] * A[1, 2]) / det
+    out[2, 0] = (A[1, 0] * A[2, 1] - A[1, 1] * A[2, 0]) / det
+    out[2, 1] = (A[0, 1] * A[2, 0] - A[0, 0] * A[2, 1]) / det
+    out[2, 2] = (A[0, 0] * A[1, 1] - A[0, 1] * A[1, 0]) / det
+
+
+@njit(cache=True)
+def _ply_center_strains(X_base, X_extra, u_base, u_extra, nodes, cells, plies, fractions, out):
+    """Small strain (Voigt, engineering shears) at the in-plane centre of every ply of every
+    element, at the ply's mid-thickness, into out[cell, ply]."""
+    n_base = X_base.shape[0]
+    X = np.empty((8, 3))
+    u = np.empty((8, 3))
+    dN = np.empty((8, 3))
+    J = np.empty((3, 3))
+    G = np.empty((3, 3))
+    Jinv = np.empty((3, 3))
+    grad = np.empty((3, 3))
+    point = np.empty(3)
+    v = np.empty(3)
+    s = np.empty(3)
+    for e in range(nodes.shape[0]):
+        for a in range(8):
+            n = nodes[e, a]
+            for i in range(3):
+                if n < n_base:
+                    X[a, i] = X_base[n, i]
+                    u[a, i] = u_base[n, i]
+                else:
+                    X[a, i] = X_extra[n - n_base, i]
+                    u[a, i] = u_extra[n - n_base, i]
+        first, stop = plies[e, 0], plies[e, 1]
+        bottom, top = fractions[first], fractions[stop]
+        for k in range(first, stop):
+            zeta = (0.5 * (fractions[k] + fractions[k + 1]) - bottom) / (top - bottom)
+            point[0], point[1], point[2] = 0.5, 0.5, zeta
+            for a in range(8):
+                for d in range(3):
+                    corner = (a >> d) & 1
+                    v[d] = point[d] if corner == 1 else 1.0 - point[d]
+                    s[d] = 1.0 if corner == 1 else -1.0
+                dN[a, 0] = s[0] * v[1] * v[2]
+                dN[a, 1] = v[0] * s[1] * v[2]
+                dN[a, 2] = v[0] * v[1] * s[2]
+            for i in range(3):
+                for r in range(3):
+                    J[i, r] = 0.0
+                    G[i, r] = 0.0
+                    for a in range(8):
+                        J[i, r] += X[a, i] * dN[a, r]
+                        G[i, r] += u[a, i] * dN[a, r]
+            _inverse_3x3(J, Jinv)
+            for i in range(3):
+                for r in range(3):
+                    grad[i, r] = G[i, 0] * Jinv[0, r] + G[i, 1] * Jinv[1, r] + G[i, 2] * Jinv[2, r]
+            out[cells[e], k, 0] = grad[0, 0]
+            out[cells[e], k, 1] = grad[1, 1]
+            out[cells[e], k, 2] = grad[2, 2]
+            out[cells[e], k, 3] = grad[1, 2] + grad[2, 1]
+            out[cells[e], k, 4] = grad[0, 2] + grad[2, 0]
+            out[cells[e], k, 5] = grad[0, 1] + grad[1, 0]
+
+
+def ply_strains(structure) -> np.ndarray:
+    """(n_owned_cells, n_plies, 6) strain at each ply's mid-point (in-plane centre of its cell),
+    shell frame, from whichever element (cell or subelement) holds the ply."""
+    nodes, cells, plies = structure.elements()
+    out = np.zeros((structure.base.n_owned_cells, structure.laminate.n_plies, 6))
+    _ply_center_strains(
+        structure.X_base,
+        structure.extra.vectors["X"].array.reshape(-1, 3),
+        structure.base.u.x.array.reshape(-1, 3),
+        structure.extra.vectors["u"].array.reshape(-1, 3),
+        nodes,
+        cells,
+        plies,
+        structure.laminate.ply_fractions,
+        out,
+    )
+    return out
+
+
+def ply_stresses(structure, strains: np.ndarray | None = None) -> np.ndarray:
+    """(n_owned_cells, n_plies, 6) shell-frame stress (MPa) at each ply's mid-point."""
+    strains = ply_strains(structure) if strains is None else strains
+    stiffness = np.array(structure.laminate.ply_stiffnesses())  # (n_plies, 6, 6)
+    return np.einsum("kij,ckj->cki", stiffness, strains)
+
+
+def to_material_frame(stresses: np.ndarray, angles_deg: np.ndarray) -> np.ndarray:
+    """Rotate Voigt stresses (..., n_plies, 6) of plies at ``angles_deg`` into their material
+    frames (1 fibre, 2 transverse, 3 normal)."""
+    out = np.empty_like(stresses)
+    pairs = ((0, 0), (1, 1), (2, 2), (1, 2), (0, 2), (0, 1))
+    for k, angle in enumerate(angles_deg):
+        R = rotation_about_z(angle)  # columns: material axes in the shell frame
+        sigma = np.zeros((*stresses.shape[:-2], 3, 3))
+        for a, (i, j) in enumerate(pairs):
+            sigma[..., i, j] = sigma[..., j, i] = stresses[..., k, a]
+        material = np.einsum("ai,...ij,bj->...ab", R.T, sigma, R.T)
+        for a, (i, j) in enumerate(pairs):
+            out[..., k, a] = material[..., i, j]
+    return out
+
+
+# ---------------------------------------------------------------------------- recovery
+def _column_average(structure, values: np.ndarray) -> np.ndarray:
+    """Average of per-cell values (n_cells, m) over the cells around each bottom node (over all
+    ranks), returned per cell and column: (n_cells, 4, m)."""
+    m = values.shape[1]
+    index_map = structure.base.V.dofmap.index_map
+    sums = la.vector(index_map, bs=m + 1)
+    table = sums.array.reshape(-1, m + 1)
+    np.add.at(table[:, :m], structure.bottom_local.ravel(), np.repeat(values, 4, axis=0))
+    np.add.at(table[:, m], structure.bottom_local.ravel(), 1.0)
+    sums.scatter_reverse(la.InsertMode.add)
+    sums.scatter_forward()
+    averages = table[:, :m] / np.maximum(table[:, m:], 1.0)
+    return averages[structure.bottom_local]
+
+
+def _in_plane_gradients(structure, nodal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """d/dx and d/dy at each cell's centre of values (n_cells, 4, m) at its bottom nodes
+    (bilinear in the bottom face, tensor order)."""
+    X = structure.X_base[structure.bottom_local]  # (n, 4, 3)
+    d_xi = np.array([-0.5, 0.5, -0.5, 0.5])
+    d_eta = np.array([-0.5, -0.5, 0.5, 0.5])
+    J = np.stack(
+        [
+            np.stack([X[:, :, 0] @ d_xi, X[:, :, 0] @ d_eta], axis=1),
+            np.stack([X[:, :, 1] @ d_xi, X[:, :, 1] @ d_eta], axis=1),
+        ],
+        axis=1,
+    )  # (n, 2 (x, y), 2 (xi, eta))
+    inv = np.linalg.inv(J)  # (n, 2 (xi, eta), 2 (x, y))
+    v_xi = np.einsum("a,nam->nm", d_xi, nodal)
+    v_eta = np.einsum("a,nam->nm", d_eta, nodal)
+    d_x = inv[:, 0, 0, None] * v_xi + inv[:, 1, 0, None] * v_eta
+    d_y = inv[:, 0, 1, None] * v_xi + inv[:, 1, 1, None] * v_eta
+    return d_x, d_y
+
+
+def recovered_interface_stresses(structure, stresses: np.ndarray | None = None) -> np.ndarray:
+    """(n_cells, n_plies + 1, 3): recovered (sigma_zz, tau_xz, tau_yz) in MPa at every ply
+    boundary of every owned cell, bottom face (0) to top face (n_plies)."""
+    stresses = ply_stresses(structure) if stresses is None else stresses
+    n_cells, n_plies, _ = stresses.shape
+    t = np.array([p.thickness for p in structure.laminate.plies])
+    z = np.concatenate([[0.0], np.cumsum(t)])
+    h = z[-1]
+    in_plane = stresses[:, :, [0, 1, 5]].reshape(n_cells, -1)  # sxx, syy, sxy per ply
+    d_x, d_y = _in_plane_gradients(structure, _column_average(structure, in_plane))
+    d_x = d_x.reshape(n_cells, n_plies, 3)
+    d_y = d_y.reshape(n_cells, n_plies, 3)
+    slope_xz = -(d_x[:, :, 0] + d_y[:, :, 2])  # d tau_xz / dz in each ply
+    slope_yz = -(d_x[:, :, 2] + d_y[:, :, 1])
+    tau = np.zeros((n_cells, n_plies + 1, 2))
+    tau[:, 1:, 0] = np.cumsum(slope_xz * t, axis=1)
+    tau[:, 1:, 1] = np.cumsum(slope_yz * t, axis=1)
+    tau -= (z / h)[None, :, None] * tau[:, -1:, :]  # traction-free top face too
+    d_x, d_y = _in_plane_gradients(structure, _column_average(structure, tau.reshape(n_cells, -1)))
+    div = (
+        (d_x.reshape(n_cells, n_plies + 1, 2)[:, :, 0])
+        + (d_y.reshape(n_cells, n_plies + 1, 2)[:, :, 1])
+    )
+    sigma_zz = np.zeros((n_cells, n_plies + 1))
+    sigma_zz[:, 1:] = -np.cumsum(0.5 * (div[:, 1:] + div[:, :-1]) * t, axis=1)
+    return np.concatenate([sigma_zz[:, :, None], tau], axis=2)
+
+
+def interface_initiation(recovered: np.ndarray, strength_n: float, strength_s: float):
+    """sqrt((<sigma_zz>/N)^2 + (tau/S)^2) at the inner interfaces 1 .. n-1: (n_cells, n - 1)."""
+    inner = recovered[:, 1:-1, :]
+    peel = np.maximum(inner[:, :, 0], 0.0) / strength_n
+    shear = np.hypot(inner[:, :, 1], inner[:, :, 2]) / strength_s
+    return np.sqrt(peel**2 + shear**2)
+
+
+# ---------------------------------------------------------------------------- decisions
+def indicator_requests(structure, settings: IndicatorSettings, strengths: tuple[float, float]):
+    """The refinements the indicators ask for on this rank's cells: (cell, interface, kind).
+    ``strengths``: the cohesive law's normal and shear strengths (MPa). Collective (the stress
+    recovery averages over neighbouring cells on all ranks)."""
+    requests = []
+    state = structure.interface_state
+    if settings.interface_stress is not None:
+        stresses = ply_stresses(structure)
+        index = interface_initiation(recovered_interface_stresses(structure, stresses), *strengths)
+        for interface in structure.interfaces.delaminate:
+            flagged = (index[:, interface - 1] >= settings.interface_stress) & (
+                state[:, interface - 1] < STRONG
+            )
+            requests += [(int(c), interface, STRONG) for c in np.flatnonzero(flagged)]
+    return requests
+
+
+# ---------------------------------------------------------------------------- spreading
+def spread(structure, requests: list[tuple[int, int, int]], rings: int) -> list:
+    """Add the cells sharing a node with a requested cell (``rings`` times), with the same
+    interface and kind. Collective (neighbours may live on other ranks)."""
+    n_interfaces = structure.interface_state.shape[1]
+    for _ in range(rings):
+        if not structure.comm.allreduce(len(requests), op=MPI.SUM):
+            break
+        marks = la.vector(structure.base.V.dofmap.index_map, bs=2 * n_interfaces)
+        table = marks.array.reshape(-1, 2, n_interfaces)
+        nodes = np.hstack([structure.bottom_local, structure.top_local])
+        for cell, interface, kind in requests:
+            table[nodes[cell], kind - 1, interface - 1] = 1.0
+        marks.scatter_reverse(la.InsertMode.add)
+        marks.scatter_forward()
+        touched = table[nodes] > 0  # (n_cells, 8, 2, n_if)
+        hit = touched.any(axis=1)
+        requests = [
+            (int(c), int(i) + 1, int(k) + 1) for c, k, i in zip(*np.nonzero(hit), strict=True)
+        ]
+    return requests
+
+
+@dataclass(frozen=True)
+class IndicatorSettings:
+    """Which indicators run, every ``interval`` seconds: fractions of 1 for the ply failure
+    index (weak) and the interface initiation criterion (strong), matrix damage (strong), and
+    how many rings of neighbours refine with a flagged cell."""
+
+    interval: float
+    ply_failure: float | None = None
+    interface_stress: float | None = None
+    matrix_damage: bool = False
+    spread: int = 0
+
+
+@dataclass(frozen=True)
+class Manual:
+    """Refine ``interfaces`` (``kind``) of the cells with centroid in [x_min, x_max] once the
+    time reaches ``time`` or the probe displacement (absolute value) reaches
+    ``displacement``."""
+
+    interfaces: tuple[int, ...]
+    kind: int
+    time: float = math.inf
+    displacement: float = math.inf
+    x_min: float = -math.inf
+    x_max: float = math.inf
+
+    def due(self, t: float, displacement: float) -> bool:
+        return t >= self.time or abs(displacement) >= self.displacement

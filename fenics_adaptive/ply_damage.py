@@ -1,0 +1,447 @@
+"""Intralaminar ply damage: 3-D Hashin failure indices and a crack-band matrix damage law.
+
+Units: N, mm, s, tonne. Strengths and stiffnesses in MPa, fracture energies in N/mm (= mJ/mm^2),
+energy densities in MPa (= mJ/mm^3), lengths in mm.
+
+Frames. Everything here is in the ply's material frame: 1 along the fibres, 2 in-plane
+transverse, 3 the laminate normal; Voigt order (11, 22, 33, 23, 13, 12) with engineering shear
+strains, as in ``laminate``. ``strain_rotation`` maps shell-frame strains to it.
+
+Failure indices (Hashin 1980, 3-D), evaluated with the *effective* stress s = C0 eps (the stress
+the undamaged ply would carry at the current strain), S12 the in-plane and S23 the transverse
+shear strength:
+
+    fibre tension     (s11 >= 0):       F = (s11/XT)^2 + (s12^2 + s13^2)/S12^2
+    fibre compression (s11 < 0):        F = (s11/XC)^2
+    matrix tension    (s22 + s33 >= 0): F = ((s22+s33)/YT)^2 + (s23^2 - s22 s33)/S23^2
+                                            + (s12^2 + s13^2)/S12^2
+    matrix compression (s22 + s33 < 0): F = [(YC/(2 S23))^2 - 1] (s22+s33)/YC
+                                            + ((s22+s33)/(2 S23))^2 + (s23^2 - s22 s33)/S23^2
+                                            + (s12^2 + s13^2)/S12^2
+
+The indices returned are *exposure factors*, not F: index = 1/lambda, lambda the factor by
+which the current stress must be scaled to reach F = 1. They are linear in the load
+(index(k s) = k index(s) for k > 0), reach 1.0 exactly when F does, and so compare directly
+with a load fraction such as 0.8. For the three quadratic forms the index is sqrt(F); matrix
+compression, F = a + b with a linear and b quadratic in s, gives (a + sqrt(a^2 + 4 b)) / 2. The
+index of the mode that does not apply (fibre compression under s11 >= 0, ...) is 0.
+
+Matrix damage (one scalar d per ply per element, never decreasing). A matrix crack has its
+normal along axis 2: it takes the transverse normal stress s22 (while open) and the shears s12
+and s23 on its faces. With c = C0[:, 1] (the 22 column of the undamaged stiffness) the free
+energy and the stress are
+
+    psi(eps, d) = 1/2 eps.C0.eps - d y(eps)
+    y(eps)      = <s22>^2 / (2 C0_22) + s12^2 / (2 G12) + s23^2 / (2 G23)   (s = C0 eps)
+    sigma       = C(d) eps,   C(d) = C0 - d (open c c^T / C0_22 + G12 e12 e12^T + G23 e23 e23^T)
+
+(<x> = max(x, 0); "open" means s22 > 0, a closed crack keeps the full transverse normal
+stiffness, so transverse compression is never degraded). C(d) is symmetric, positive definite
+for d < 1 (it is (1 - d) C0 plus a positive semi-definite part), and at d = 1 it is the
+stiffness with sigma_22 = sigma_12 = sigma_23 = 0 (the fibre and 13-shear stiffness only).
+Equivalently, in compliance form, S22 -> S22 + d / ((1 - d) C0_22), S44 -> S44 / (1 - d),
+S66 -> S66 / (1 - d), all couplings unchanged: E2, G23, G12 and the Poisson couplings through
+E2 are degraded consistently; in uniaxial transverse stress the ply responds with the modulus
+1 / (S22 + d / ((1 - d) C0_22)). The energy release rate -dpsi/dd = y depends on the strain
+only, which is what makes the dissipation exact (below).
+
+Initiation: when the matrix index (tension or compression, whichever applies) first reaches 1
+with y > 0, the onset energy y0 = y / index^2 (the value of y where the index is 1 on the
+proportional path through the current state) is stored; it does not change afterwards. Pure
+transverse compression (y = 0) never initiates damage: matrix compression, like fibre failure,
+is then an index only.
+
+Evolution (bilinear softening, crack band). With l_c the width of the crack band (the
+element's extent across the crack, given by the caller),
+
+    G_c   = G2c + (G6c - G2c) B,  B = y_shear / y        (Benzeggagh-Kenane, exponent 1)
+    rho   = sqrt(y / y0),         rho_F = G_c / (l_c y0)
+    d     = (1 - 1/rho) / (1 - 1/rho_F)  for 1 <= rho < rho_F,  1 for rho >= rho_F,
+    d     = max(d_old, d).
+
+This is the law d = delta_F (delta - delta_0) / (delta (delta_F - delta_0)) of the cohesive
+element in the equivalent displacement delta = l_c eps_eq, eps_eq = sqrt(2 y / K) (K = C0_22
+in transverse tension: eps_eq is then the transverse strain under uniaxial strain; K = G12 in
+in-plane shear: eps_eq = gamma_12), onset delta_0 = l_c sqrt(2 y0 / K), final
+delta_F = 2 G_c / sigma_eq0, sigma_eq0 = sqrt(2 K y0). The dissipated energy is int y dd; as
+d is a function of y alone (for a fixed mode mixity), it equals G_c / l_c per unit volume,
+i.e. G_c per unit crack area, for ANY strain path that keeps the mode fixed (pure transverse
+tension: G2c; pure in-plane shear: G6c), whatever l_c and whatever the other strains do (the
+lateral constraint of the neighbouring plies included). In uniaxial transverse stress the
+stress-strain curve is exactly bilinear: peak YT at YT/E2, zero at 2 G2c / (YT l_c).
+
+Softening needs rho_F > 1, and in uniaxial transverse stress a monotone strain needs
+rho_F > C0_22 / E2, i.e. l_c < 2 E2 G2c / YT^2; in shear l_c < 2 G12 G6c / S12^2
+(``max_band_width``; ``check_band_width`` raises ``InputError`` beyond). A path whose onset
+energy is higher than the pure modes' (e.g. transverse tension under through-thickness
+compression) can still reach rho_F <= 1: the ply then fails at once (d = 1), dissipating
+l_c y0 > G_c per area, as the cohesive law does.
+
+State of one ply of one element (``N_STATE`` floats, zero initially): S_D damage, S_Y0 onset
+energy (0 until initiation), S_FT, S_FC, S_MT, S_MC the largest fibre tension / fibre
+compression / matrix tension / matrix compression index seen so far.
+"""
+
+from __future__ import annotations
+
+import math
+import numbers
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import numpy as np
+from numba import njit
+
+from fenics_adaptive.errors import InputError
+from fenics_adaptive.laminate import VOIGT_PAIRS, Ply, PlyMaterial, rotation_about_z
+
+# Slots of PlyFailure.as_array() (the first N_FAILURE slots of a ply's parameter row).
+F_XT, F_XC, F_YT, F_YC, F_S12, F_S23, F_G2C, F_G6C = range(8)
+N_FAILURE = 8
+# Slots of a ply's parameter row (ply_params): the failure slots, then elastic constants.
+P_C22, P_G12, P_G23 = 8, 9, 10
+N_PLY_PARAMS = 11
+# Slots of a ply's damage state.
+S_D, S_Y0, S_FT, S_FC, S_MT, S_MC = range(6)
+N_STATE = 6
+
+# Puck's fracture angle under pure transverse compression; S23 defaults to YC / (2 tan 53 deg)
+# (Puck & Schuermann; LaRC04, Pinho et al.).
+FRACTURE_ANGLE_DEG = 53.0
+
+
+@dataclass(frozen=True)
+class PlyFailure:
+    """Strengths (MPa) and matrix fracture energies (N/mm) of one ply material.
+
+    XT, XC: fibre tension / compression strength; YT, YC: transverse tension / compression;
+    S12: in-plane shear; S23: transverse shear (optional, default YC / (2 tan 53 deg));
+    G2c: matrix mode I (transverse tension) fracture energy; G6c: matrix in-plane shear
+    fracture energy. All > 0, and S23 > YT / 2 (else Hashin's matrix tension criterion never
+    reaches 1 under equal biaxial transverse tension)."""
+
+    name: str
+    XT: float
+    XC: float
+    YT: float
+    YC: float
+    S12: float
+    G2c: float
+    G6c: float
+    S23: float | None = None
+
+    REQUIRED = ("XT", "XC", "YT", "YC", "S12", "G2c", "G6c")
+    OPTIONAL = ("S23",)
+
+    def __post_init__(self) -> None:
+        key = f"materials.{self.name}.failure"
+        for field in self.REQUIRED + (("S23",) if self.S23 is not None else ()):
+            value = getattr(self, field)
+            if (
+                isinstance(value, bool)
+                or not isinstance(value, numbers.Real)
+                or not math.isfinite(value)
+                or value <= 0
+            ):
+                raise InputError(f"{key}.{field}", f"must be a finite number > 0 (got {value!r})")
+        S23 = self.transverse_shear_strength
+        if not S23 > 0.5 * self.YT:
+            given = "" if self.S23 is not None else f" (default YC / (2 tan 53 deg) = {S23:.6g})"
+            raise InputError(
+                f"{key}.S23",
+                f"the transverse shear strength {S23:.6g}{given} must exceed YT/2 = "
+                f"{0.5 * self.YT:.6g} (Hashin's matrix tension criterion would never be "
+                "reached under equal biaxial transverse tension); give S23 explicitly",
+            )
+
+    @classmethod
+    def from_mapping(cls, name: str, values: Mapping[str, object]) -> PlyFailure:
+        """Build from the config table ``materials.NAME.failure``: exactly the keys XT, XC, YT,
+        YC, S12, G2c, G6c and optionally S23."""
+        key = f"materials.{name}.failure"
+        if not isinstance(values, Mapping):
+            raise InputError(key, "must be a table of strengths and fracture energies")
+        allowed = cls.REQUIRED + cls.OPTIONAL
+        unknown = sorted(set(values) - set(allowed))
+        if unknown:
+            raise InputError(f"{key}.{unknown[0]}", f"unknown key (allowed: {', '.join(allowed)})")
+        for field in cls.REQUIRED:
+            if field not in values:
+                raise InputError(f"{key}.{field}", "missing")
+        for field, value in values.items():
+            if isinstance(value, bool) or not isinstance(value, numbers.Real):
+                raise InputError(f"{key}.{field}", f"must be a number (got {value!r})")
+        return cls(name=name, **{k: float(v) for k, v in values.items()})
+
+    @property
+    def transverse_shear_strength(self) -> float:
+        if self.S23 is not None:
+            return self.S23
+        return self.YC / (2.0 * math.tan(math.radians(FRACTURE_ANGLE_DEG)))
+
+    def as_array(self) -> np.ndarray:
+        """float64 array for the kernels, slots F_XT, F_XC, F_YT, F_YC, F_S12, F_S23, F_G2C,
+        F_G6C (S23 with its default applied)."""
+        params = np.empty(N_FAILURE, dtype=np.float64)
+        params[F_XT], params[F_XC] = self.XT, self.XC
+        params[F_YT], params[F_YC] = self.YT, self.YC
+        params[F_S12], params[F_S23] = self.S12, self.transverse_shear_strength
+        params[F_G2C], params[F_G6C] = self.G2c, self.G6c
+        return params
+
+
+# ---------------------------------------------------------------------------------------------
+# crack band width
+
+
+def max_band_width(material: PlyMaterial, failure: PlyFailure) -> float:
+    """Largest crack band width l_c (mm) for which the ply softens without snap-back in pure
+    transverse tension (2 E2 G2c / YT^2) and pure in-plane shear (2 G12 G6c / S12^2); l_c must
+    stay strictly below it."""
+    return min(
+        2.0 * material.E2 * failure.G2c / failure.YT**2,
+        2.0 * material.G12 * failure.G6c / failure.S12**2,
+    )
+
+
+def check_band_width(material: PlyMaterial, failure: PlyFailure, band_width: float) -> None:
+    """Raise ``InputError`` if ``band_width`` (mm) is not below ``max_band_width``."""
+    key = f"materials.{material.name}.failure"
+    limits = (
+        ("G2c", 2.0 * material.E2 * failure.G2c / failure.YT**2, "2 E2 G2c / YT^2"),
+        ("G6c", 2.0 * material.G12 * failure.G6c / failure.S12**2, "2 G12 G6c / S12^2"),
+    )
+    for field, limit, formula in limits:
+        if not band_width < limit:
+            raise InputError(
+                f"{key}.{field}",
+                f"a cell is {band_width:.6g} mm across the matrix crack, at least the snap-back "
+                f"limit {formula} = {limit:.6g} mm of the crack band model: use smaller cells "
+                f"or a larger {field}",
+            )
+
+
+def crack_band_width(X: np.ndarray, angle_deg: float) -> float:
+    """Width (mm) of a hexahedral cell across a matrix crack of a ply at ``angle_deg``: the
+    extent of its mid-surface (the mean of the bottom and top vertices, DOLFINx order, zeta
+    through the thickness) along the in-plane transverse axis 2. For an a x b rectangle and a
+    ply at angle t this is a |sin t| + b |cos t|, the area of the cells a straight crack along
+    the fibres crosses per unit crack length in a structured mesh."""
+    X = np.asarray(X, dtype=np.float64).reshape(8, 3)
+    mid = 0.5 * (X[:4] + X[4:])
+    axis_2 = rotation_about_z(angle_deg)[:, 1]
+    projection = mid @ axis_2
+    return float(projection.max() - projection.min())
+
+
+# ---------------------------------------------------------------------------------------------
+# packing for the kernels
+
+
+def strain_rotation(angle_deg: float) -> np.ndarray:
+    """6x6 T with eps_material = T eps_shell (Voigt, engineering shears) for a ply at
+    ``angle_deg``; the shell-frame stiffness of a material-frame C is T^T C T."""
+    R = rotation_about_z(angle_deg)
+    T = np.empty((6, 6))
+    for b, (k, l) in enumerate(VOIGT_PAIRS):
+        E = np.zeros((3, 3))
+        E[k, l] = E[l, k] = 1.0 if k == l else 0.5
+        E_material = R.T @ E @ R
+        T[:, b] = [E_material[i, j] * (1.0 if i == j else 2.0) for i, j in VOIGT_PAIRS]
+    return T
+
+
+def _drop_round_off(C: np.ndarray) -> np.ndarray:
+    C = 0.5 * (C + C.T)
+    C[np.abs(C) < 1e-14 * np.abs(C).max()] = 0.0
+    return C
+
+
+def degradation_matrices(material: PlyMaterial) -> np.ndarray:
+    """(2, 6, 6) material-frame matrices A with C(d) = C0 - d (open A[0] + A[1]): A[0] =
+    c c^T / C0_22 (transverse normal, only while the crack is open), A[1] = G12 e12 e12^T +
+    G23 e23 e23^T (the two shears on the crack faces)."""
+    C0 = material.stiffness()
+    c = C0[:, 1].copy()
+    A = np.zeros((2, 6, 6))
+    A[0] = np.outer(c, c) / C0[1, 1]
+    A[1, 3, 3] = C0[3, 3]
+    A[1, 5, 5] = C0[5, 5]
+    return A
+
+
+def damaged_material_stiffness(material: PlyMaterial, d: float, crack_open: bool) -> np.ndarray:
+    """6x6 material-frame secant stiffness C(d) of a ply with matrix damage d."""
+    A = degradation_matrices(material)
+    return material.stiffness() - d * ((A[0] if crack_open else 0.0) + A[1])
+
+
+def ply_params_row(material: PlyMaterial, failure: PlyFailure) -> np.ndarray:
+    """A ply's parameter row (N_PLY_PARAMS,): failure slots, then C0_22, G12, G23."""
+    C0 = material.stiffness()
+    row = np.empty(N_PLY_PARAMS)
+    row[:N_FAILURE] = failure.as_array()
+    row[P_C22], row[P_G12], row[P_G23] = C0[1, 1], C0[5, 5], C0[3, 3]
+    return row
+
+
+class PackedPlyDamage(NamedTuple):
+    """Damage data of the plies of a packed rule, row k for the rule's ply k (parallel to
+    ``PackedRule.stiffness`` / ``PackedRules.stiffness``). The fields are kernel arguments in
+    order: ``solid_shell_force_damaged(X, u, *rule, *ply_damage, band_width, state, f_out)``."""
+
+    strain_to_stress: np.ndarray  # (n, 6, 6): shell-frame strain -> material-frame C0 eps
+    degradation: np.ndarray  # (n, 2, 6, 6): shell-frame T^T A T of degradation_matrices
+    params: np.ndarray  # (n, N_PLY_PARAMS): ply_params_row
+
+
+def pack_ply_damage(plies: Sequence[Ply], failures: Mapping[str, PlyFailure]) -> PackedPlyDamage:
+    """Damage data of ``plies`` (those of a (sub)element, bottom to top, in the order its rule
+    has them), with ``failures`` by material name."""
+    n = len(plies)
+    M = np.empty((n, 6, 6))
+    A = np.empty((n, 2, 6, 6))
+    params = np.empty((n, N_PLY_PARAMS))
+    for k, ply in enumerate(plies):
+        failure = failures.get(ply.material.name)
+        if failure is None:
+            raise InputError(
+                f"materials.{ply.material.name}.failure", "missing (ply damage needs it)"
+            )
+        T = strain_rotation(ply.angle)
+        M[k] = ply.material.stiffness() @ T
+        for i, A_material in enumerate(degradation_matrices(ply.material)):
+            A[k, i] = _drop_round_off(T.T @ A_material @ T)
+        params[k] = ply_params_row(ply.material, failure)
+    return PackedPlyDamage(M, A, params)
+
+
+def concatenate_ply_damage(packed: Sequence[PackedPlyDamage]) -> PackedPlyDamage:
+    """Concatenate in the order of ``subelement.concatenate_rules`` of the matching rules."""
+    return PackedPlyDamage(
+        *(np.ascontiguousarray(np.concatenate(parts)) for parts in zip(*packed, strict=True))
+    )
+
+
+def degraded_shell_stiffness(
+    stiffness: np.ndarray, ply_damage: PackedPlyDamage, k: int, d: float, crack_open: bool
+) -> np.ndarray:
+    """Shell-frame secant stiffness of ply k with damage d: what the kernels use (stiffness[k]
+    is the ply's undamaged shell-frame stiffness, e.g. ``PackedRule.stiffness``)."""
+    A = ply_damage.degradation[k]
+    return stiffness[k] - d * ((A[0] if crack_open else 0.0) + A[1])
+
+
+# ---------------------------------------------------------------------------------------------
+# numba kernels
+
+
+@njit(cache=True)
+def hashin_indices(s11, s22, s33, s23, s13, s12, params):
+    """Exposure-factor indices (fibre tension, fibre compression, matrix tension, matrix
+    compression) of the material-frame stress; ``params`` starts with the failure slots."""
+    S12 = params[F_S12]
+    S23 = params[F_S23]
+    shear = (s12 * s12 + s13 * s13) / (S12 * S12)
+    if s11 >= 0.0:
+        r = s11 / params[F_XT]
+        ft = math.sqrt(r * r + shear)
+        fc = 0.0
+    else:
+        ft = 0.0
+        fc = -s11 / params[F_XC]
+    sn = s22 + s33
+    transverse = (s23 * s23 - s22 * s33) / (S23 * S23)
+    if sn >= 0.0:
+        r = sn / params[F_YT]
+        mt = math.sqrt(max(r * r + transverse + shear, 0.0))
+        mc = 0.0
+    else:
+        YC = params[F_YC]
+        q = YC / (2.0 * S23)
+        a = (q * q - 1.0) * sn / YC
+        r = sn / (2.0 * S23)
+        b = max(r * r + transverse + shear, 0.0)
+        mt = 0.0
+        mc = 0.5 * (a + math.sqrt(a * a + 4.0 * b))
+    return ft, fc, mt, mc
+
+
+@njit(cache=True)
+def ply_damage_update(sigma, params, band_width, state):
+    """Update one ply's damage state (N_STATE,) in place from its effective material-frame
+    stress ``sigma`` (6,) = C0 eps; ``params`` is its ply_params_row, ``band_width`` l_c (mm).
+    Returns True if the crack is open (s22 > 0): the kernels then degrade with both
+    degradation matrices, else with the shear one only."""
+    ft, fc, mt, mc = hashin_indices(
+        sigma[0], sigma[1], sigma[2], sigma[3], sigma[4], sigma[5], params
+    )
+    state[S_FT] = max(state[S_FT], ft)
+    state[S_FC] = max(state[S_FC], fc)
+    state[S_MT] = max(state[S_MT], mt)
+    state[S_MC] = max(state[S_MC], mc)
+    s22 = sigma[1]
+    crack_open = s22 > 0.0
+    y_normal = s22 * s22 / (2.0 * params[P_C22]) if crack_open else 0.0
+    y_shear = sigma[5] * sigma[5] / (2.0 * params[P_G12]) + sigma[3] * sigma[3] / (
+        2.0 * params[P_G23]
+    )
+    y = y_normal + y_shear
+    y0 = state[S_Y0]
+    matrix = max(mt, mc)
+    if y0 == 0.0 and matrix >= 1.0 and y > 0.0:
+        y0 = y / (matrix * matrix)
+        state[S_Y0] = y0
+    if y0 > 0.0 and y > y0:
+        G2c = params[F_G2C]
+        Gc = G2c + (params[F_G6C] - G2c) * (y_shear / y)
+        rho_f = Gc / (band_width * y0)
+        rho = math.sqrt(y / y0)
+        if rho >= rho_f:  # also covers rho_f <= 1 (no softening possible: instant failure)
+            d = 1.0
+        else:
+            d = (1.0 - 1.0 / rho) / (1.0 - 1.0 / rho_f)
+        if d > state[S_D]:
+            state[S_D] = d
+    return crack_open
+
+
+# ---------------------------------------------------------------------------------------------
+# plain-Python wrappers
+
+
+class FailureIndices(NamedTuple):
+    fibre_tension: float
+    fibre_compression: float
+    matrix_tension: float
+    matrix_compression: float
+
+
+def failure_indices(failure: PlyFailure, stress: np.ndarray) -> FailureIndices:
+    """Hashin exposure-factor indices of a material-frame stress (6,) (MPa)."""
+    s = np.asarray(stress, dtype=np.float64)
+    return FailureIndices(*hashin_indices(s[0], s[1], s[2], s[3], s[4], s[5], failure.as_array()))
+
+
+def new_state(*shape: int) -> np.ndarray:
+    """Zero damage state of shape (*shape, N_STATE), e.g. new_state(n_cells, n_plies)."""
+    return np.zeros((*shape, N_STATE))
+
+
+def material_point_update(
+    material: PlyMaterial,
+    failure: PlyFailure,
+    strain: np.ndarray,
+    band_width: float,
+    state: np.ndarray,
+) -> tuple[np.ndarray, float]:
+    """One ply at one point: material-frame strain (6,) -> material-frame stress (6,) (MPa) and
+    secant strain energy density 1/2 sigma.eps (MPa), updating ``state`` (N_STATE,) in place.
+    The same law as the element kernels (for tests, plots and calibration)."""
+    eps = np.asarray(strain, dtype=np.float64)
+    crack_open = ply_damage_update(
+        material.stiffness() @ eps, ply_params_row(material, failure), band_width, state
+    )
+    sigma = damaged_material_stiffness(material, state[S_D], bool(crack_open)) @ eps
+    return sigma, 0.5 * float(sigma @ eps)

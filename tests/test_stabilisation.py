@@ -1,0 +1,139 @@
+"""Stabilisation of refinement in the explicit run (paper, "Numerical stabilisation"): the tie
+force of a strong refinement and the damping window of a weak one."""
+
+import copy
+import tomllib
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from fenics_adaptive import enrichment as enr
+from fenics_adaptive import explicit
+from fenics_adaptive.config import parse_config
+from fenics_adaptive.runner import build_structure, refinement_hook
+
+DATA = Path(__file__).parent / "data"
+
+
+def tcb(**sections) -> dict:
+    data = tomllib.loads((DATA / "tcb_adaptive.toml").read_text())
+    data["output"]["interval"] = 2e-7
+    for name, values in sections.items():
+        if name in data and isinstance(values, dict):
+            data[name].update(values)
+        else:
+            data[name] = values
+    return data
+
+
+def run(data):
+    config = parse_config(data)
+    structure = build_structure(config)
+    stats = explicit.run(structure, config.solver, config.probe, on_step=refinement_hook(config))
+    return structure, stats
+
+
+def test_tie_force_makes_new_pairs_accelerate_as_the_continuous_interface():
+    """At the moment of a strong refinement both nodes of every new pair get exactly the
+    acceleration the (weak) continuous interface node had."""
+    data = tcb(interfaces={"initial": "weak"}, stabilisation={"release_window": 1e-5})
+    data["solver"]["end_time"] = 1.4e-5  # a loaded, deformed, moving state
+    structure, _ = run(data)
+    structure.internal_force()
+    f = structure.f_extra.array.reshape(-1, 3)
+    m = structure.mass_extra.array.reshape(-1, 3)[:, 0]
+    n_if = structure.interface_state.shape[1]
+    continuous = {}
+    for key in structure.extra.owned_keys:
+        _, interface, _ = enr.key_parts(key, n_if)
+        if interface in (2, 6):
+            local = structure.extra.index[key]
+            continuous[key] = -f[local] / m[local]
+    cells = range(structure.base.n_owned_cells)
+    assert structure.refine([(c, i, enr.STRONG) for c in cells for i in (2, 6)])
+    structure.start_stabilisation(1.4e-5)
+    structure.internal_force()
+    f = structure.f_extra.array.reshape(-1, 3)
+    m = structure.mass_extra.array.reshape(-1, 3)[:, 0]
+    tie = np.zeros_like(f)
+    structure.add_tie_forces(1.4e-5, tie.ravel())
+    accelerations = (tie - f) / m[:, None]
+    scale = max(np.abs(a).max() for a in continuous.values())
+    checked = 0
+    for key, expected in continuous.items():
+        a_node = structure.extra.index[key]
+        b_node = structure.extra.index[key + 1]  # the set-B twin of a set-A key
+        assert np.abs(accelerations[a_node] - expected).max() < 1e-9 * scale
+        assert np.abs(accelerations[b_node] - expected).max() < 1e-9 * scale
+        checked += 1
+    assert checked == 2 * 21 * 2
+    # and released linearly: half of it halfway, none at the end
+    half = np.zeros_like(f)
+    structure.add_tie_forces(1.4e-5 + 0.5e-5, half.ravel())
+    assert np.allclose(half, 0.5 * tie, rtol=1e-12, atol=1e-12 * np.abs(tie).max())
+    end = np.zeros_like(f)
+    structure.add_tie_forces(1.4e-5 + 1e-5, end.ravel())
+    assert not end.any() and not structure.ties
+
+
+def late_strong(release: float):
+    """Weak at 2, 4, 6 from the start; 2 and 6 turn strong at 0.005 mm, after the cohesive
+    initiation (0.0029 mm in the reference): the paper's Figure 7 case."""
+    data = tcb(interfaces={"initial": "weak"})
+    data["solver"]["end_time"] = 5.0e-5
+    data["refinement"] = [{"displacement": 0.005, "interfaces": [2, 6], "kind": "strong"}]
+    if release:
+        data["stabilisation"] = {"release_window": release}
+    _, stats = run(data)
+    return stats.history
+
+
+def force(history):
+    return np.array([r.displacement for r in history]), np.array(
+        [r.reaction_force for r in history]
+    )
+
+
+def test_tie_release_removes_the_jump_and_the_oscillation_of_a_late_refinement():
+    reference_data = tcb()
+    reference_data["solver"]["end_time"] = 5.0e-5
+    _, reference = force(run(reference_data)[1].history)
+    results = {}
+    for release in (0.0, 1e-5):
+        displacement, f = force(late_strong(release))
+        i0 = int(np.argmax(displacement >= 0.005))
+        drop = f[i0 - 1] - f[i0 : i0 + 10].min()  # within 2 us of the refinement
+        after = slice(i0 + 60, i0 + 175)  # 12 to 35 us later: past the release window
+        deviation = (f - reference)[after]
+        results[release] = (drop, np.sqrt(np.mean(deviation**2)))
+    (drop_abrupt, rms_abrupt), (drop_tied, rms_tied) = results[0.0], results[1e-5]
+    assert drop_abrupt > 2.0  # N: the abrupt insertion unloads the arm at once
+    assert drop_tied < 0.05 * drop_abrupt
+    assert rms_abrupt > 0.1  # N: and leaves it ringing about the reference
+    assert rms_tied < 0.3 * rms_abrupt
+
+
+def test_damping_window_after_weak_refinement():
+    data = tcb(interfaces={"initial": "none"})
+    data["solver"]["end_time"] = 4.0e-5
+    data["refinement"] = [
+        {"time": 1.0e-5, "interfaces": [4], "kind": "weak"},
+        {"time": 1.0e-5, "interfaces": [2, 6], "kind": "weak"},
+    ]
+    data["stabilisation"] = {"damping": 2.0e5, "damping_window": 1.0e-5}
+    _, stats = run(data)
+    damping = np.array([r.damping_energy for r in stats.history])
+    time = np.array([r.time for r in stats.history])
+    assert damping[time < 1.0e-5].max() == 0.0
+    inside = damping[(time > 1.0e-5) & (time < 2.0e-5)]
+    assert inside[-1] > 0.0 and np.all(np.diff(inside) >= 0.0)  # dissipates while open
+    after = damping[time > 2.05e-5]
+    assert np.ptp(after) == pytest.approx(0.0, abs=1e-15)  # the window closed
+    balance = max(abs(r.energy_balance) for r in stats.history)
+    assert balance < 2e-3 * max(r.external_work for r in stats.history)
+
+    data = copy.deepcopy(data)
+    data.pop("stabilisation")
+    _, undamped = run(data)
+    assert undamped.history[-1].damping_energy == 0.0
