@@ -37,6 +37,7 @@ from fenics_adaptive.explicit import Probe, SolverSettings
 from fenics_adaptive.indicators import IndicatorSettings, Manual
 from fenics_adaptive.laminate import Laminate, Ply, PlyMaterial
 from fenics_adaptive.loading import COMPONENTS, Amplitude, FaceLoad, PrescribedMotion, clamp
+from fenics_adaptive.ply_damage import PlyFailure
 from fenics_adaptive.structure import Interfaces, Stabilisation
 
 MODEL_KINDS = ("esl", "adaptive", "layerwise")
@@ -68,6 +69,8 @@ class RunConfig:
     refinements: tuple[Manual, ...] = ()
     indicators: IndicatorSettings | None = None
     stabilisation: Stabilisation = field(default_factory=Stabilisation)
+    failures: dict[str, PlyFailure] = field(default_factory=dict)
+    ply_damage: bool = False
     cohesive: CohesiveLaw | None = None
     source: str = "<memory>"
 
@@ -201,11 +204,14 @@ def parse_config(data: dict, source: str = "<memory>") -> RunConfig:
     model = root.table("model")
     kind = model.string("kind", MODEL_KINDS)
     points_per_ply = model.integer("points_per_ply", default=1)
+    ply_damage = model.raw("ply_damage", default=False)
+    if not isinstance(ply_damage, bool):
+        raise InputError(model.key("ply_damage"), "must be true or false")
     if points_per_ply > 2:
         raise InputError(model.key("points_per_ply"), f"must be 1 or 2 (got {points_per_ply})")
     model.finish()
 
-    materials = _materials(root.table("materials"))
+    materials, failures = _materials(root.table("materials"))
     laminate = _laminate(root.table("laminate"), materials)
     mesh = _mesh(root.table("mesh"), kind, laminate)
     for k, count in enumerate(mesh.layers):
@@ -219,6 +225,14 @@ def parse_config(data: dict, source: str = "<memory>") -> RunConfig:
     interfaces, refinements, cohesive = _interfaces(root, kind, laminate, mesh)
     stabilisation = _stabilisation(root, kind)
     indicators = _indicators(root, kind, interfaces, cohesive, materials)
+    used = sorted({p.material.name for p in laminate.plies})
+    needs_failure = ply_damage or (indicators is not None and indicators.ply_failure is not None)
+    for name in used if needs_failure else ():
+        if name not in failures:
+            why = "model.ply_damage" if ply_damage else "indicators.ply_failure"
+            raise InputError(f"materials.{name}.failure", f"missing ({why} needs strengths)")
+    if indicators is not None and indicators.matrix_damage and not ply_damage:
+        raise InputError("indicators.matrix_damage", "needs model.ply_damage = true")
 
     motions: list[PrescribedMotion] = []
     for table in root.array_of_tables("clamp"):
@@ -296,19 +310,27 @@ def parse_config(data: dict, source: str = "<memory>") -> RunConfig:
         refinements=refinements,
         indicators=indicators,
         stabilisation=stabilisation,
+        failures=failures,
+        ply_damage=ply_damage,
         cohesive=cohesive,
         source=source,
     )
 
 
-def _materials(table: _Table) -> dict[str, PlyMaterial]:
+def _materials(table: _Table) -> tuple[dict[str, PlyMaterial], dict[str, PlyFailure]]:
+    """Ply materials, and the failure data ([materials.NAME.failure]) of those that have it."""
     if not table.data:
         raise InputError("materials", "define at least one material ([materials.NAME])")
-    materials = {}
-    for name in table.data:
+    materials, failures = {}, {}
+    for name, values in table.data.items():
         table.read.add(name)
-        materials[name] = PlyMaterial.from_mapping(name, table.data[name])
-    return materials
+        if not isinstance(values, dict):
+            raise InputError(f"materials.{name}", "must be a table of ply properties")
+        elastic = {k: v for k, v in values.items() if k != "failure"}
+        materials[name] = PlyMaterial.from_mapping(name, elastic)
+        if "failure" in values:
+            failures[name] = PlyFailure.from_mapping(name, values["failure"])
+    return materials, failures
 
 
 def _laminate(table: _Table, materials: dict[str, PlyMaterial]) -> Laminate:

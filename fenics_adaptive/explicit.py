@@ -70,6 +70,7 @@ class HistoryRow:
     damping_energy: float  # mJ, dissipated by mass damping
     dissipated_energy: float  # mJ, dissipated by materials (cohesive damage)
     refinement_energy: float  # mJ, kinetic energy changed by refinements
+    delaminated_area: float  # mm^2, failed cohesive elements
     time_step: float  # s
 
     @property
@@ -348,6 +349,7 @@ def run(
                     damping_energy=total[6],
                     dissipated_energy=total[4] - solid - cohesive,
                     refinement_energy=structure.refinement_energy,
+                    delaminated_area=structure.delaminated_area(),
                     time_step=dt,
                 )
                 stats.history.append(row)

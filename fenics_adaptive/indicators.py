@@ -3,9 +3,10 @@
 
 Units: N, mm, s, tonne (stresses MPa).
 
-- ``ply_failure`` (weak): a ply's failure index (``ply_damage.failure_indices``, matrix or fibre)
-  reaches a fraction of 1 in a cell: the refinable interfaces just below and above that ply
-  refine weakly, for a better through-thickness field around it.
+- ``ply_failure`` (weak): a ply's Hashin index (``ply_damage.hashin_indices``: exposure
+  factors, 1 = failure, fibre or matrix) reaches a fraction of 1 in a cell: the refinable
+  interfaces just below and above that ply refine weakly, for a better through-thickness field
+  around it.
 - ``interface_stress`` (strong): the cohesive initiation criterion
   sqrt((<sigma_zz>/N)^2 + (tau/S)^2) evaluated at an interface with *recovered* out-of-plane
   stresses reaches a fraction of 1. The unrefined shell's constitutive transverse stresses are
@@ -36,6 +37,7 @@ from numba import njit
 
 from fenics_adaptive import enrichment as enr
 from fenics_adaptive.laminate import rotation_about_z
+from fenics_adaptive.ply_damage import S_D, S_FT, S_MC, hashin_indices
 
 STRONG, WEAK = enr.STRONG, enr.WEAK
 
@@ -157,6 +159,30 @@ def to_material_frame(stresses: np.ndarray, angles_deg: np.ndarray) -> np.ndarra
     return out
 
 
+@njit(cache=True)
+def _hashin_field(stresses, params, out):
+    """Largest Hashin exposure factor (fibre or matrix) of each (cell, ply) material-frame
+    stress."""
+    for c in range(stresses.shape[0]):
+        for k in range(stresses.shape[1]):
+            s = stresses[c, k]
+            ft, fc, mt, mc = hashin_indices(s[0], s[1], s[2], s[3], s[4], s[5], params[k])
+            out[c, k] = max(max(ft, fc), max(mt, mc))
+
+
+def ply_failure_indices(structure) -> np.ndarray:
+    """(n_cells, n_plies) largest Hashin index (fibre or matrix; 1 = failure) of each ply: the
+    largest recorded so far when the ply damage model runs, else that of the current stress."""
+    if structure.ply_damage:
+        return structure.damage_state[:, :, S_FT : S_MC + 1].max(axis=2)
+    plies = structure.laminate.plies
+    params = np.array([structure.failures[p.material.name].as_array() for p in plies])
+    material = to_material_frame(ply_stresses(structure), np.array([p.angle for p in plies]))
+    out = np.zeros(material.shape[:2])
+    _hashin_field(material, params, out)
+    return out
+
+
 # ---------------------------------------------------------------------------- recovery
 def _column_average(structure, values: np.ndarray) -> np.ndarray:
     """Average of per-cell values (n_cells, m) over the cells around each bottom node (over all
@@ -237,6 +263,23 @@ def indicator_requests(structure, settings: IndicatorSettings, strengths: tuple[
     recovery averages over neighbouring cells on all ranks)."""
     requests = []
     state = structure.interface_state
+    n_interfaces = state.shape[1]
+    if settings.ply_failure is not None:
+        index = ply_failure_indices(structure)
+        weak = set(structure.interfaces.refine) | set(structure.interfaces.delaminate)
+        for ply in range(index.shape[1]):
+            cells = np.flatnonzero(index[:, ply] >= settings.ply_failure)
+            # the interfaces just below (ply) and above (ply + 1) the ply, 1-based
+            for interface in (ply, ply + 1):
+                if 1 <= interface <= n_interfaces and interface in weak:
+                    todo = cells[state[cells, interface - 1] == enr.NONE]
+                    requests += [(int(c), interface, WEAK) for c in todo]
+    if settings.matrix_damage:
+        damage = structure.damage_state[:, :, S_D]
+        for interface in structure.interfaces.delaminate:
+            cracked = (damage[:, interface - 1] > 0.0) | (damage[:, interface] > 0.0)
+            todo = np.flatnonzero(cracked & (state[:, interface - 1] < STRONG))
+            requests += [(int(c), interface, STRONG) for c in todo]
     if settings.interface_stress is not None:
         stresses = ply_stresses(structure)
         index = interface_initiation(recovered_interface_stresses(structure, stresses), *strengths)

@@ -13,6 +13,7 @@ when the run completes: a file named history.csv is always a finished run.
 
 from __future__ import annotations
 
+import base64
 import csv
 import json
 import os
@@ -22,6 +23,7 @@ from pathlib import Path
 from typing import TextIO
 
 import matplotlib
+import numpy as np
 
 matplotlib.use("Agg")
 import dolfinx.io
@@ -40,6 +42,8 @@ COLUMN_UNITS = {
     "external_work": "mJ",
     "damping_energy": "mJ",
     "dissipated_energy": "mJ",
+    "refinement_energy": "mJ",
+    "delaminated_area": "mm^2",
     "time_step": "s",
     "energy_balance": "mJ",
 }
@@ -143,6 +147,143 @@ class FieldWriter:
 
     def close(self) -> None:
         self.writer.close()
+
+
+# DOLFINx hexahedron vertex order -> VTK_HEXAHEDRON order (cyclic faces)
+_VTK_HEX = np.array([0, 1, 3, 2, 4, 5, 7, 6])
+_VTK_QUAD = np.array([0, 1, 3, 2])
+
+
+class ElementWriter:
+    """The enriched mesh for ParaView: every solid element as it is computed (unrefined cells,
+    and the subelements of refined ones, so the extra nodes and the sublaminates show, as in the
+    paper's Figure 4), the cohesive elements as quads with their damage, displacements on all
+    nodes (base and extra). One .vtu per output time (per rank, with a .pvtu in parallel),
+    collected in ``elements.pvd``."""
+
+    def __init__(self, out_dir: Path, structure):
+        self.structure = structure
+        self.comm = structure.comm
+        self.folder = out_dir / "elements"
+        if self.comm.rank == 0:
+            self.folder.mkdir(parents=True, exist_ok=True)
+            for old in self.folder.glob("*.*vtu"):
+                old.unlink()
+        self.comm.barrier()
+        self.steps: list[tuple[float, str]] = []
+        self.pvd = out_dir / "elements.pvd"
+
+    def __call__(self, t: float) -> None:
+        s = self.structure
+        index = len(self.steps)
+        X = np.vstack([s.X_base, s.extra.vectors["X"].array.reshape(-1, 3)])
+        u = np.vstack([s.base.u.x.array.reshape(-1, 3), s.extra.vectors["u"].array.reshape(-1, 3)])
+        nodes, _, plies = s.elements()
+        solids = nodes[:, _VTK_HEX]
+        cohesive = s.cohesive.nodes[:, :4][:, _VTK_QUAD]
+        damage = s.cohesive.damage[s.cohesive.damage_row].mean(axis=1)
+        connectivity = np.concatenate([solids.ravel(), cohesive.ravel()])
+        offsets = np.concatenate(
+            [
+                8 * np.arange(1, len(solids) + 1),
+                8 * len(solids) + 4 * np.arange(1, len(cohesive) + 1),
+            ]
+        )
+        types = np.concatenate([np.full(len(solids), 12), np.full(len(cohesive), 9)])
+        cell_data = {
+            "first_ply": np.concatenate([plies[:, 0] + 1, np.zeros(len(cohesive))]),
+            "last_ply": np.concatenate([plies[:, 1], np.zeros(len(cohesive))]),
+            "cohesive_damage": np.concatenate([np.full(len(solids), -1.0), damage]),
+            "rank": np.full(len(solids) + len(cohesive), float(self.comm.rank)),
+        }
+        point_data = {
+            "displacement": u,
+            "extra_node": np.r_[np.zeros(s.n_base), np.ones(len(u) - s.n_base)],
+        }
+        name = f"elements_{index:06d}"
+        piece = f"{name}_r{self.comm.rank}.vtu" if self.comm.size > 1 else f"{name}.vtu"
+        _write_vtu(self.folder / piece, X, connectivity, offsets, types, point_data, cell_data)
+        if self.comm.size > 1 and self.comm.rank == 0:
+            _write_pvtu(self.folder / f"{name}.pvtu", name, self.comm.size, point_data, cell_data)
+        self.steps.append((t, f"elements/{name}.{'pvtu' if self.comm.size > 1 else 'vtu'}"))
+        if self.comm.rank == 0:
+            entries = "\n".join(
+                f'    <DataSet timestep="{time!r}" file="{path}"/>' for time, path in self.steps
+            )
+            self.pvd.write_text(
+                '<?xml version="1.0"?>\n<VTKFile type="Collection" version="0.1">\n'
+                f"  <Collection>\n{entries}\n  </Collection>\n</VTKFile>\n"
+            )
+
+    def close(self) -> None:
+        pass
+
+
+def _encode(values: np.ndarray, dtype: str) -> str:
+    """Inline binary DataArray payload: base64 of a UInt32 byte count and the raw data."""
+    raw = np.ascontiguousarray(values, dtype=dtype).tobytes()
+    return base64.b64encode(np.uint32(len(raw)).tobytes() + raw).decode("ascii")
+
+
+def _data_array(name: str, values: np.ndarray, components: int = 1) -> str:
+    return (
+        f'<DataArray type="Float64" Name="{name}" NumberOfComponents="{components}" '
+        f'format="binary">{_encode(values, "<f8")}</DataArray>'
+    )
+
+
+def _write_vtu(path, X, connectivity, offsets, types, point_data, cell_data) -> None:
+    pd = "".join(_data_array(k, v, 3 if np.ndim(v) == 2 else 1) for k, v in point_data.items())
+    cd = "".join(_data_array(k, v) for k, v in cell_data.items())
+    path.write_text(
+        '<?xml version="1.0"?>\n<VTKFile type="UnstructuredGrid" version="0.1" '
+        'byte_order="LittleEndian" header_type="UInt32">\n'
+        f'<UnstructuredGrid><Piece NumberOfPoints="{len(X)}" NumberOfCells="{len(types)}">\n'
+        '<Points><DataArray type="Float64" NumberOfComponents="3" format="binary">'
+        f"{_encode(X, '<f8')}</DataArray></Points>\n"
+        '<Cells><DataArray type="Int64" Name="connectivity" format="binary">'
+        f"{_encode(connectivity, '<i8')}</DataArray>"
+        '<DataArray type="Int64" Name="offsets" format="binary">'
+        f"{_encode(offsets, '<i8')}</DataArray>"
+        '<DataArray type="UInt8" Name="types" format="binary">'
+        f"{_encode(types, 'u1')}</DataArray></Cells>\n"
+        f"<PointData>{pd}</PointData>\n<CellData>{cd}</CellData>\n"
+        "</Piece></UnstructuredGrid></VTKFile>\n"
+    )
+
+
+def _write_pvtu(path, name, ranks, point_data, cell_data) -> None:
+    def declare(data):
+        return "".join(
+            f'<PDataArray type="Float64" Name="{k}" '
+            f'NumberOfComponents="{3 if np.ndim(v) == 2 else 1}"/>'
+            for k, v in data.items()
+        )
+
+    pieces = "".join(f'<Piece Source="{name}_r{r}.vtu"/>' for r in range(ranks))
+    path.write_text(
+        '<?xml version="1.0"?>\n<VTKFile type="PUnstructuredGrid" version="0.1">\n'
+        '<PUnstructuredGrid GhostLevel="0"><PPoints><PDataArray type="Float64" '
+        'NumberOfComponents="3"/></PPoints>'
+        f"<PPointData>{declare(point_data)}</PPointData>"
+        f"<PCellData>{declare(cell_data)}</PCellData>{pieces}"
+        "</PUnstructuredGrid></VTKFile>\n"
+    )
+
+
+class FieldOutputs:
+    """All field outputs of a run: the base displacement (VTX) and the enriched mesh (VTU)."""
+
+    def __init__(self, out_dir: Path, structure):
+        self.writers = [FieldWriter(out_dir, [structure.base.u]), ElementWriter(out_dir, structure)]
+
+    def __call__(self, t: float) -> None:
+        for writer in self.writers:
+            writer(t)
+
+    def close(self) -> None:
+        for writer in self.writers:
+            writer.close()
 
 
 class Progress:

@@ -7,9 +7,9 @@ Frames. Everything here is in the ply's material frame: 1 along the fibres, 2 in
 transverse, 3 the laminate normal; Voigt order (11, 22, 33, 23, 13, 12) with engineering shear
 strains, as in ``laminate``. ``strain_rotation`` maps shell-frame strains to it.
 
-Failure indices (Hashin 1980, 3-D), evaluated with the *effective* stress s = C0 eps (the stress
-the undamaged ply would carry at the current strain), S12 the in-plane and S23 the transverse
-shear strength:
+Failure indices (Hashin 1980, 3-D) of a material-frame stress s, S12 the in-plane and S23 the
+transverse shear strength (the kernels pass the nominal stress C(d) eps, which is the effective
+stress C0 eps of the undamaged ply until the matrix damages):
 
     fibre tension     (s11 >= 0):       F = (s11/XT)^2 + (s12^2 + s13^2)/S12^2
     fibre compression (s11 < 0):        F = (s11/XC)^2
@@ -24,7 +24,9 @@ which the current stress must be scaled to reach F = 1. They are linear in the l
 (index(k s) = k index(s) for k > 0), reach 1.0 exactly when F does, and so compare directly
 with a load fraction such as 0.8. For the three quadratic forms the index is sqrt(F); matrix
 compression, F = a + b with a linear and b quadratic in s, gives (a + sqrt(a^2 + 4 b)) / 2. The
-index of the mode that does not apply (fibre compression under s11 >= 0, ...) is 0.
+index of the mode that does not apply (fibre compression under s11 >= 0, ...) is 0. As in
+Hashin's paper the fibre tension index contains the longitudinal shears: pure in-plane shear at
+S12 gives a fibre tension index of 1 as well.
 
 Matrix damage (one scalar d per ply per element, never decreasing). A matrix crack has its
 normal along axis 2: it takes the transverse normal stress s22 (while open) and the shears s12
@@ -45,11 +47,16 @@ E2 are degraded consistently; in uniaxial transverse stress the ply responds wit
 1 / (S22 + d / ((1 - d) C0_22)). The energy release rate -dpsi/dd = y depends on the strain
 only, which is what makes the dissipation exact (below).
 
-Initiation: when the matrix index (tension or compression, whichever applies) first reaches 1
-with y > 0, the onset energy y0 = y / index^2 (the value of y where the index is 1 on the
-proportional path through the current state) is stored; it does not change afterwards. Pure
-transverse compression (y = 0) never initiates damage: matrix compression, like fibre failure,
-is then an index only.
+Initiation: when the matrix index (tension or compression, whichever applies) of s = C0 eps first
+reaches 1 with y > 0, the onset energy y0 = y / index^2 (the value of y where the index is 1 on
+the proportional path through the current state) is stored; it does not change afterwards (an
+implicit driver must therefore detect the onset on its elastic predictor, as an explicit step
+does). Pure transverse compression (y = 0) never initiates damage: matrix compression, like
+fibre failure, is then an index only; but the compression branch does initiate cracking when
+the crack-face tractions are nonzero: in-plane shear under transverse compression, or s22 > 0
+with s22 + s33 < 0 (a ply of a cross-ply pulled across its fibres can be there), which the
+tension branch alone would never damage. Modes changing after the onset keep y0 (and take G_c
+of the current mixity).
 
 Evolution (bilinear softening, crack band). With l_c the width of the crack band (the
 element's extent across the crack, given by the caller),
@@ -79,7 +86,8 @@ l_c y0 > G_c per area, as the cohesive law does.
 
 State of one ply of one element (``N_STATE`` floats, zero initially): S_D damage, S_Y0 onset
 energy (0 until initiation), S_FT, S_FC, S_MT, S_MC the largest fibre tension / fibre
-compression / matrix tension / matrix compression index seen so far.
+compression / matrix tension / matrix compression index seen so far, evaluated with the
+nominal stress C(d) eps (the effective one while d = 0).
 """
 
 from __future__ import annotations
@@ -99,9 +107,10 @@ from fenics_adaptive.laminate import VOIGT_PAIRS, Ply, PlyMaterial, rotation_abo
 # Slots of PlyFailure.as_array() (the first N_FAILURE slots of a ply's parameter row).
 F_XT, F_XC, F_YT, F_YC, F_S12, F_S23, F_G2C, F_G6C = range(8)
 N_FAILURE = 8
-# Slots of a ply's parameter row (ply_params): the failure slots, then elastic constants.
-P_C22, P_G12, P_G23 = 8, 9, 10
-N_PLY_PARAMS = 11
+# Slots of a ply's parameter row (ply_params): the failure slots, then the undamaged stiffness
+# C0_21, C0_22, C0_23 (the normal entries of its 22 column), G12 and G23.
+P_C21, P_C22, P_C23, P_G12, P_G23 = 8, 9, 10, 11, 12
+N_PLY_PARAMS = 13
 # Slots of a ply's damage state.
 S_D, S_Y0, S_FT, S_FC, S_MT, S_MC = range(6)
 N_STATE = 6
@@ -278,11 +287,13 @@ def damaged_material_stiffness(material: PlyMaterial, d: float, crack_open: bool
 
 
 def ply_params_row(material: PlyMaterial, failure: PlyFailure) -> np.ndarray:
-    """A ply's parameter row (N_PLY_PARAMS,): failure slots, then C0_22, G12, G23."""
+    """A ply's parameter row (N_PLY_PARAMS,): failure slots, then C0_21, C0_22, C0_23, G12,
+    G23."""
     C0 = material.stiffness()
     row = np.empty(N_PLY_PARAMS)
     row[:N_FAILURE] = failure.as_array()
-    row[P_C22], row[P_G12], row[P_G23] = C0[1, 1], C0[5, 5], C0[3, 3]
+    row[P_C21], row[P_C22], row[P_C23] = C0[0, 1], C0[1, 1], C0[2, 1]
+    row[P_G12], row[P_G23] = C0[5, 5], C0[3, 3]
     return row
 
 
@@ -337,7 +348,7 @@ def degraded_shell_stiffness(
 # numba kernels
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def hashin_indices(s11, s22, s33, s23, s13, s12, params):
     """Exposure-factor indices (fibre tension, fibre compression, matrix tension, matrix
     compression) of the material-frame stress; ``params`` starts with the failure slots."""
@@ -368,19 +379,24 @@ def hashin_indices(s11, s22, s33, s23, s13, s12, params):
     return ft, fc, mt, mc
 
 
-@njit(cache=True)
-def ply_damage_update(sigma, params, band_width, state):
-    """Update one ply's damage state (N_STATE,) in place from its effective material-frame
-    stress ``sigma`` (6,) = C0 eps; ``params`` is its ply_params_row, ``band_width`` l_c (mm).
-    Returns True if the crack is open (s22 > 0): the kernels then degrade with both
-    degradation matrices, else with the shear one only."""
-    ft, fc, mt, mc = hashin_indices(
-        sigma[0], sigma[1], sigma[2], sigma[3], sigma[4], sigma[5], params
-    )
+@njit(cache=True, error_model="numpy")
+def _record_indices(s11, s22, s33, s23, s13, s12, params, state):
+    ft, fc, mt, mc = hashin_indices(s11, s22, s33, s23, s13, s12, params)
     state[S_FT] = max(state[S_FT], ft)
     state[S_FC] = max(state[S_FC], fc)
     state[S_MT] = max(state[S_MT], mt)
     state[S_MC] = max(state[S_MC], mc)
+    return max(mt, mc)
+
+
+@njit(cache=True, error_model="numpy")
+def ply_damage_update(sigma, params, band_width, state):
+    """Update one ply's damage state (N_STATE,) in place from its effective material-frame
+    stress ``sigma`` (6,) = C0 eps; ``params`` is its ply_params_row, ``band_width`` l_c (mm).
+    Returns True if the crack is open (s22 > 0): the kernels then degrade with both
+    degradation matrices, else with the shear one only. The recorded indices are those of the
+    nominal stress C(d) eps (equal to the effective one while d = 0): once the matrix has
+    cracked, the opening strain no longer loads the fibres through the Poisson coupling."""
     s22 = sigma[1]
     crack_open = s22 > 0.0
     y_normal = s22 * s22 / (2.0 * params[P_C22]) if crack_open else 0.0
@@ -389,11 +405,15 @@ def ply_damage_update(sigma, params, band_width, state):
     )
     y = y_normal + y_shear
     y0 = state[S_Y0]
-    matrix = max(mt, mc)
-    if y0 == 0.0 and matrix >= 1.0 and y > 0.0:
+    if y0 == 0.0:  # not initiated, so d = 0: the effective stress is the nominal one
+        matrix = _record_indices(
+            sigma[0], sigma[1], sigma[2], sigma[3], sigma[4], sigma[5], params, state
+        )
+        if matrix < 1.0 or y <= 0.0:
+            return crack_open
         y0 = y / (matrix * matrix)
         state[S_Y0] = y0
-    if y0 > 0.0 and y > y0:
+    if y > y0:
         G2c = params[F_G2C]
         Gc = G2c + (params[F_G6C] - G2c) * (y_shear / y)
         rho_f = Gc / (band_width * y0)
@@ -404,6 +424,19 @@ def ply_damage_update(sigma, params, band_width, state):
             d = (1.0 - 1.0 / rho) / (1.0 - 1.0 / rho_f)
         if d > state[S_D]:
             state[S_D] = d
+    d = state[S_D]
+    if d > 0.0:
+        opening = d * s22 / params[P_C22] if crack_open else 0.0
+        _record_indices(
+            sigma[0] - opening * params[P_C21],
+            sigma[1] - opening * params[P_C22],
+            sigma[2] - opening * params[P_C23],
+            (1.0 - d) * sigma[3],
+            sigma[4],
+            (1.0 - d) * sigma[5],
+            params,
+            state,
+        )
     return crack_open
 
 

@@ -104,11 +104,20 @@ def refinement_hook(config: RunConfig) -> Callable[[float, Structure], bool] | N
     if not manual and settings is None:
         return None
     probe_by_displacement = any(m.displacement < math.inf for m in manual)
+    probe_dofs = {}
     strengths = (config.cohesive.N, config.cohesive.S) if config.cohesive is not None else None
     next_check = [0.0]
 
     def on_step(t: float, structure: Structure) -> bool:
-        displacement = probe_displacement(structure, config.probe) if probe_by_displacement else 0
+        if probe_by_displacement and "dofs" not in probe_dofs:
+            probe_dofs["dofs"] = face_dofs(
+                structure.base, config.probe.displacement_face, config.probe.component
+            )
+        displacement = (
+            probe_displacement(structure, config.probe, probe_dofs["dofs"])
+            if probe_by_displacement
+            else 0.0
+        )
         due = [m for m in manual if m.due(t, displacement)]
         requests = []
         for entry in due:
@@ -128,9 +137,11 @@ def refinement_hook(config: RunConfig) -> Callable[[float, Structure], bool] | N
     return on_step
 
 
-def probe_displacement(structure: Structure, probe) -> float:
-    """Mean displacement of the probe face in the probe component, over all ranks."""
-    dofs = face_dofs(structure.base, probe.displacement_face, probe.component)
+def probe_displacement(structure: Structure, probe, dofs: np.ndarray | None = None) -> float:
+    """Mean displacement of the probe face in the probe component, over all ranks (``dofs``:
+    the probe's owned DOFs, if already known)."""
+    if dofs is None:
+        dofs = face_dofs(structure.base, probe.displacement_face, probe.component)
     local = np.array([structure.base.u.x.array[dofs].sum(), len(dofs)], dtype=float)
     total, count = structure.comm.allreduce(local, op=MPI.SUM)
     return total / max(count, 1.0)
@@ -152,6 +163,18 @@ def run_config(
     log: Callable[[str], None] | None = print,
 ) -> dict:
     """Run a config and write its results into ``out_dir``; returns the summary."""
+    return execute(config, out_dir, comm, show_progress, log)[0]
+
+
+def execute(
+    config: RunConfig,
+    out_dir: str | Path,
+    comm: MPI.Comm = MPI.COMM_WORLD,
+    show_progress: bool = True,
+    log: Callable[[str], None] | None = print,
+) -> tuple[dict, Structure]:
+    """``run_config``, also handing back the structure in its final state (for pictures and
+    further analysis)."""
     problem = build_problem(config, comm)
     say = log if (log is not None and comm.rank == 0) else (lambda _: None)
     model = problem.model
@@ -180,7 +203,7 @@ def run_config(
     comm.barrier()
     output.clear_previous_results(out_dir, comm)
     history = output.HistoryWriter(out_dir, comm)
-    fields = output.FieldWriter(out_dir, [model.u]) if config.solver.field_interval else None
+    fields = output.FieldOutputs(out_dir, structure) if config.solver.field_interval else None
     progress = output.Progress(config.solver.end_time, comm) if show_progress else None
     summary = {
         "status": "running",
@@ -279,4 +302,4 @@ def run_config(
         f"done: {stats.steps} steps in {stats.wall_time:.1f} s "
         f"({1e6 * stats.wall_time / max(stats.steps, 1):.0f} us/step); results in {out_dir}"
     )
-    return summary
+    return summary, structure

@@ -46,7 +46,15 @@ from fenics_adaptive.loading import (
     face_nodes,
 )
 from fenics_adaptive.model import LayeredModel
+from fenics_adaptive.ply_damage import (
+    check_band_width,
+    concatenate_ply_damage,
+    crack_band_width,
+    new_state,
+    pack_ply_damage,
+)
 from fenics_adaptive.subelement import (
+    add_damaged_subelement_forces,
     concatenate_rules,
     pack_mass_rule,
     pack_rule,
@@ -145,8 +153,12 @@ class Structure:
         interfaces: Interfaces | None = None,
         law_params: np.ndarray | None = None,
         stabilisation: Stabilisation | None = None,
+        failures: dict | None = None,
+        ply_damage: bool = False,
     ):
         self.base = base
+        self.failures = failures or {}
+        self.ply_damage = ply_damage
         self.stabilisation = stabilisation or Stabilisation()
         self.damping_windows: list[DampingWindow] = []
         self.ties: list[Ties] = []
@@ -206,6 +218,8 @@ class Structure:
         self._subelement_plies = np.zeros((0, 2), dtype=np.int64)
         self._subelement_speeds = np.zeros(0)
         self.damage_rows: dict[tuple[int, int], int] = {}
+        if ply_damage:
+            self._setup_ply_damage()
         self.refinement_energy = 0.0  # kinetic energy added by refinements (lumped-mass change)
         self._solid_energy = 0.0
         self._cohesive_energy = 0.0
@@ -229,14 +243,30 @@ class Structure:
         f_base, f_extra = self.f_base.array, self.f_extra.array
         f_base.fill(0.0)
         f_extra.fill(0.0)
-        self.base.add_internal_force(f_base)
         u_base = self.base.u.x.array.reshape(-1, 3)
         u_extra = self.extra.vectors["u"].array.reshape(-1, 3)
         X_extra = self.extra.vectors["X"].array.reshape(-1, 3)
         fb, fx = f_base.reshape(-1, 3), f_extra.reshape(-1, 3)
-        self._solid_energy = add_subelement_forces(
-            self.subelements, self.X_base, X_extra, u_base, u_extra, fb, fx
-        )
+        if self.ply_damage:
+            # every cell through numba: the ply damage state lives per (cell, ply)
+            self._solid_energy = add_damaged_subelement_forces(
+                *self._damaged_elements,
+                *self.subelements.rules,
+                *self._ply_damage_pack,
+                self.band_width,
+                self.damage_state,
+                self.X_base,
+                X_extra,
+                u_base,
+                u_extra,
+                fb,
+                fx,
+            )
+        else:
+            self.base.add_internal_force(f_base)
+            self._solid_energy = add_subelement_forces(
+                self.subelements, self.X_base, X_extra, u_base, u_extra, fb, fx
+            )
         self._cohesive_energy = add_cohesive_forces(
             self.cohesive, self.X_base, X_extra, u_base, u_extra, fb, fx
         )
@@ -249,6 +279,14 @@ class Structure:
         local = np.array([self._solid_energy, self._cohesive_energy])
         solid, cohesive = self.comm.allreduce(local, op=MPI.SUM)
         return solid + self.base.strain_energy(), cohesive
+
+    def delaminated_area(self) -> float:
+        """Area (mm^2) of the cohesive elements whose four points have failed, over all ranks."""
+        if not self.comm.allreduce(len(self.cohesive), op=MPI.SUM):
+            return 0.0
+        X = self._gather(self.cohesive.nodes[:, :4], "X")
+        local = _quad_areas(X)[self.cohesive.failed()].sum()
+        return self.comm.allreduce(local, op=MPI.SUM)
 
     def kinetic_energy(self) -> float:
         local = 0.0
@@ -292,6 +330,39 @@ class Structure:
             candidates.append(self._cohesive_time_step())
         local = min(candidates) if candidates else (np.inf, "")
         return self.comm.allreduce(local, op=MPI.MIN)
+
+    def _setup_ply_damage(self) -> None:
+        """Matrix damage per (cell, ply): every cell leaves the UFL form for the damage-aware
+        numba kernel (the same for ESL, adaptive and LW cells); crack band width of each ply of
+        each cell across its fibres."""
+        plies = self.laminate.plies
+        self._ply_damage_pack = concatenate_ply_damage(
+            [pack_ply_damage(plies[first:stop], self.failures) for first, stop in self._rules_index]
+        )
+        n_cells = self.base.n_owned_cells
+        X = _cell_coordinates(self)
+        self.band_width = np.zeros((n_cells, len(plies)))
+        for k, ply in enumerate(plies):
+            in_cell = (self.cell_plies[:, 0] <= k) & (k < self.cell_plies[:, 1])
+            for cell in np.flatnonzero(in_cell):
+                self.band_width[cell, k] = crack_band_width(X[cell], ply.angle)
+            if in_cell.any():
+                check_band_width(
+                    ply.material, self.failures[ply.material.name], self.band_width[:, k].max()
+                )
+        self.damage_state = new_state(n_cells, len(plies))
+        self.base.set_ufl_cells([np.zeros(0, np.int32)] * len(self.base.layer_laminates))
+        self._rebuild_damaged_elements()
+
+    def _rebuild_damaged_elements(self) -> None:
+        nodes, cells, plies = self.elements()
+        rules = np.array([self._rules_index[(int(a), int(b))] for a, b in plies], dtype=np.int64)
+        self._damaged_elements = (
+            nodes,
+            rules.reshape(-1),
+            cells.astype(np.int64),
+            plies[:, 0].astype(np.int64),
+        )
 
     def elements(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Every solid element of this rank: nodes (n, 8) in combined local indices, the owned
@@ -414,7 +485,12 @@ class Structure:
         self._rebuild_extra_block()
         self._update_masses(changed, old_state)
         self._rebuild_maps()
-        self.base.set_ufl_cells([np.flatnonzero((self.interface_state == enr.NONE).all(axis=1))])
+        if self.ply_damage:
+            self._rebuild_damaged_elements()
+        else:
+            self.base.set_ufl_cells(
+                [np.flatnonzero((self.interface_state == enr.NONE).all(axis=1))]
+            )
         self.refinement_energy += self.kinetic_energy() - kinetic_before
         return True
 

@@ -48,6 +48,7 @@ import numpy as np
 from numba import njit
 
 from fenics_adaptive import solid_shell
+from fenics_adaptive.ply_damage import S_D, ply_damage_update
 
 # Term codes of the packed rule, in the order of solid_shell.TERMS.
 TERM_NORMAL, TERM_SHEAR_XZ, TERM_SHEAR_YZ, TERM_SHEAR_CROSS = range(4)
@@ -583,3 +584,443 @@ def solid_shell_lumped_mass(X, points, weights, ply_of_point, density, m_out):
         scale = density[ply_of_point[p]] * abs(det) * weights[p]
         for a in range(8):
             m_out[a] += scale * values[a]
+
+
+# ---------------------------------------------------------------------------------------------
+# damage-aware kernels (matrix damage of ``ply_damage``)
+#
+# Layout. The plies of a packed rule are numbered k (``ply_of_point``, rows of ``stiffness``);
+# a ``ply_damage.PackedPlyDamage`` built for the same plies has the same rows. An element whose
+# points are start:stop holds the contiguous plies k0 = ply_of_point[start] .. k1 =
+# ply_of_point[stop - 1]; its rule-local ply j = k - k0 reads its crack band width and its
+# damage state (N_STATE floats, updated in place) from row j of the arrays given for that
+# element. The batched kernel takes them per element from ``band_width[state_row[e],
+# first_ply[e] + j]`` and ``damage_state[state_row[e], first_ply[e] + j]``: a cell's row holds
+# all plies of its laminate, so an ESL element (first_ply 0), the subelements of a refined cell
+# (first_ply = index of their lowest ply) and a layerwise cell holding a sublaminate all share
+# one state per (cell, laminate ply), which therefore survives refinement.
+#
+# Per element: (1) each ply's mean strain (shell frame; normal components and gamma_xy over
+# the ply's "normal" points, gamma_xz over its shear_xz points, gamma_yz over its shear_yz
+# points, weighted by w |det J|); (2) its effective material-frame stress C0 T eps and the
+# damage update; (3) its shell-frame secant stiffness stiffness[k] - d (open A0 + A1) into a
+# scratch copy (a plain copy while d = 0); (4) ``_element_force`` with that copy: with no
+# damage the force is the elastic kernel's, bit for bit. The elastic kernels are untouched.
+#
+# Consequences of one secant stiffness per ply: the dissipation is exactly G_c per crack area
+# when the strain is uniform within the ply; a strain gradient inside a damaging ply (bending)
+# releases slightly more (sum over points of eps.A.eps >= that of the mean strain), and the
+# force jumps where a damaged ply's mean transverse stress changes sign (crack closing). Cost:
+# about 2.2x the elastic kernel (the strain pass repeats the Jacobian work of the force pass).
+
+
+@njit(cache=True)
+def _fill_lines(X, u, positions, work, lines):
+    """The per-position intercepts and slopes of J and of the displacement gradient, exactly as
+    in ``_element_force``."""
+    bx = work[0]
+    bu = work[1]
+    _monomials(X, bx)
+    _monomials(u, bu)
+    for q in range(positions.shape[0]):
+        xi = positions[q, 0]
+        eta = positions[q, 1]
+        for s in range(2):
+            b = work[s]
+            for i in range(3):
+                lines[q, 2 * s, i, 0] = b[1, i] + eta * b[3, i]
+                lines[q, 2 * s + 1, i, 0] = b[5, i] + eta * b[7, i]
+                lines[q, 2 * s, i, 1] = b[2, i] + xi * b[3, i]
+                lines[q, 2 * s + 1, i, 1] = b[6, i] + xi * b[7, i]
+                lines[q, 2 * s, i, 2] = b[4, i] + xi * b[5, i] + eta * (b[6, i] + xi * b[7, i])
+                lines[q, 2 * s + 1, i, 2] = 0.0
+
+
+@njit(cache=True, error_model="numpy", fastmath={"contract", "reassoc", "nsz", "arcp"})
+def _ply_mean_strains(
+    X,
+    u,
+    start,
+    stop,
+    points,
+    weights,
+    terms,
+    ply_of_point,
+    position_of_point,
+    positions,
+    work,
+    lines,
+    strains,
+    volumes,
+):
+    """Mean shell-frame strain (xx, yy, zz, yz, xz, xy; engineering shears) of each ply of one
+    element (points start:stop) into ``strains[j]``, j = ply_of_point[p] - ply_of_point[start]:
+    xx, yy, zz, xy averaged over the ply's "normal" points, xz over its shear_xz points, yz over
+    its shear_yz points, each weighted by w |det J|. Scratch: ``volumes`` (>= n_plies, 3)."""
+    _fill_lines(X, u, positions, work, lines)
+    k0 = ply_of_point[start]
+    n_local = ply_of_point[stop - 1] - k0 + 1
+    for j in range(n_local):
+        for a in range(6):
+            strains[j, a] = 0.0
+        for a in range(3):
+            volumes[j, a] = 0.0
+    for p in range(start, stop):
+        term = terms[p]
+        if term == 3:
+            continue
+        q = position_of_point[p]
+        z = points[p, 2]
+        J00 = lines[q, 0, 0, 0] + z * lines[q, 1, 0, 0]
+        J01 = lines[q, 0, 0, 1] + z * lines[q, 1, 0, 1]
+        J02 = lines[q, 0, 0, 2]
+        J10 = lines[q, 0, 1, 0] + z * lines[q, 1, 1, 0]
+        J11 = lines[q, 0, 1, 1] + z * lines[q, 1, 1, 1]
+        J12 = lines[q, 0, 1, 2]
+        J20 = lines[q, 0, 2, 0] + z * lines[q, 1, 2, 0]
+        J21 = lines[q, 0, 2, 1] + z * lines[q, 1, 2, 1]
+        J22 = lines[q, 0, 2, 2]
+        G00 = lines[q, 2, 0, 0] + z * lines[q, 3, 0, 0]
+        G01 = lines[q, 2, 0, 1] + z * lines[q, 3, 0, 1]
+        G02 = lines[q, 2, 0, 2]
+        G10 = lines[q, 2, 1, 0] + z * lines[q, 3, 1, 0]
+        G11 = lines[q, 2, 1, 1] + z * lines[q, 3, 1, 1]
+        G12 = lines[q, 2, 1, 2]
+        G20 = lines[q, 2, 2, 0] + z * lines[q, 3, 2, 0]
+        G21 = lines[q, 2, 2, 1] + z * lines[q, 3, 2, 1]
+        G22 = lines[q, 2, 2, 2]
+        c00 = J11 * J22 - J12 * J21
+        c01 = J12 * J20 - J10 * J22
+        c02 = J10 * J21 - J11 * J20
+        det = J00 * c00 + J01 * c01 + J02 * c02
+        inv_det = 1.0 / det
+        K00 = c00 * inv_det
+        K10 = c01 * inv_det
+        K20 = c02 * inv_det
+        K01 = (J02 * J21 - J01 * J22) * inv_det
+        K11 = (J00 * J22 - J02 * J20) * inv_det
+        K21 = (J01 * J20 - J00 * J21) * inv_det
+        K02 = (J01 * J12 - J02 * J11) * inv_det
+        K12 = (J02 * J10 - J00 * J12) * inv_det
+        K22 = (J00 * J11 - J01 * J10) * inv_det
+        wd = weights[p] * abs(det)
+        j = ply_of_point[p] - k0
+        if term == 0:
+            strains[j, 0] += wd * (G00 * K00 + G01 * K10 + G02 * K20)
+            strains[j, 1] += wd * (G10 * K01 + G11 * K11 + G12 * K21)
+            strains[j, 2] += wd * (G20 * K02 + G21 * K12 + G22 * K22)
+            strains[j, 5] += wd * (
+                (G00 * K01 + G01 * K11 + G02 * K21) + (G10 * K00 + G11 * K10 + G12 * K20)
+            )
+            volumes[j, 0] += wd
+        elif term == 1:
+            strains[j, 4] += wd * (
+                (G00 * K02 + G01 * K12 + G02 * K22) + (G20 * K00 + G21 * K10 + G22 * K20)
+            )
+            volumes[j, 1] += wd
+        else:
+            strains[j, 3] += wd * (
+                (G10 * K02 + G11 * K12 + G12 * K22) + (G20 * K01 + G21 * K11 + G22 * K21)
+            )
+            volumes[j, 2] += wd
+    for j in range(n_local):
+        strains[j, 0] /= volumes[j, 0]
+        strains[j, 1] /= volumes[j, 0]
+        strains[j, 2] /= volumes[j, 0]
+        strains[j, 5] /= volumes[j, 0]
+        strains[j, 4] /= volumes[j, 1]
+        strains[j, 3] /= volumes[j, 2]
+
+
+@njit(cache=True)
+def _element_force_damaged(
+    X,
+    u,
+    start,
+    stop,
+    points,
+    weights,
+    terms,
+    ply_of_point,
+    position_of_point,
+    positions,
+    stiffness,
+    strain_to_stress,
+    degradation,
+    ply_params,
+    band_width,
+    state,
+    degraded,
+    dirty,
+    work,
+    lines,
+    sums,
+    strains,
+    volumes,
+    sigma,
+    f_out,
+):
+    """Damage update and force of one element (points start:stop) into f_out (8, 3); returns
+    the secant strain energy. ``band_width`` (n_local,) and ``state`` (n_local, N_STATE) are
+    the element's plies' rows (rule-local); ``degraded`` is a scratch array shaped like
+    ``stiffness`` (only the element's rows are written) and ``dirty`` (len(stiffness),) bool
+    says which of its rows differ from ``stiffness`` (elements sharing a rule share rows).
+    Other scratch: ``strains`` (>= n_local, 6), ``volumes`` (>= n_local, 3), ``sigma`` (6,)."""
+    _ply_mean_strains(
+        X,
+        u,
+        start,
+        stop,
+        points,
+        weights,
+        terms,
+        ply_of_point,
+        position_of_point,
+        positions,
+        work,
+        lines,
+        strains,
+        volumes,
+    )
+    k0 = ply_of_point[start]
+    n_local = ply_of_point[stop - 1] - k0 + 1
+    for j in range(n_local):
+        k = k0 + j
+        for a in range(6):
+            s = 0.0
+            for b in range(6):
+                s += strain_to_stress[k, a, b] * strains[j, b]
+            sigma[a] = s
+        crack_open = ply_damage_update(sigma, ply_params[k], band_width[j], state[j])
+        d = state[j, S_D]
+        if d == 0.0:
+            if dirty[k]:
+                for a in range(6):
+                    for b in range(6):
+                        degraded[k, a, b] = stiffness[k, a, b]
+                dirty[k] = False
+            continue
+        dirty[k] = True
+        if crack_open:
+            for a in range(6):
+                for b in range(6):
+                    degraded[k, a, b] = stiffness[k, a, b] - d * (
+                        degradation[k, 0, a, b] + degradation[k, 1, a, b]
+                    )
+        else:
+            for a in range(6):
+                for b in range(6):
+                    degraded[k, a, b] = stiffness[k, a, b] - d * degradation[k, 1, a, b]
+    return _element_force(
+        X,
+        u,
+        start,
+        stop,
+        points,
+        weights,
+        terms,
+        ply_of_point,
+        position_of_point,
+        positions,
+        degraded,
+        work,
+        lines,
+        sums,
+        f_out,
+    )
+
+
+@njit(cache=True)
+def solid_shell_force_damaged(
+    X,
+    u,
+    points,
+    weights,
+    terms,
+    ply_of_point,
+    position_of_point,
+    positions,
+    stiffness,
+    strain_to_stress,
+    degradation,
+    ply_params,
+    band_width,
+    state,
+    f_out,
+):
+    """Internal force (N) of one layered solid-shell (sub)element with matrix damage into
+    ``f_out`` (8, 3), overwritten, updating the damage ``state`` (n_plies, N_STATE) in place;
+    returns the secant strain energy (mJ), 1/2 sigma.eps with the damaged stiffness.
+
+    ``X``, ``u`` as in ``solid_shell_force``; then the fields of a ``PackedRule`` and of the
+    matching ``ply_damage.PackedPlyDamage`` (``pack_ply_damage`` of the same plies), then the
+    crack band width l_c (mm) of each ply (n_plies,) and the plies' states:
+    ``solid_shell_force_damaged(X, u, *rule, *ply_damage, band_width, state, f_out)``. For a
+    subelement spanning laminate plies first:stop of cell row r, pass
+    ``band_width[r, first:stop]`` and ``state[r, first:stop]`` (views: updated in place)."""
+    n_pos = positions.shape[0]
+    n_plies = stiffness.shape[0]
+    work = np.empty((2, 8, 3))
+    lines = np.empty((n_pos, 4, 3, 3))
+    sums = np.empty((n_pos, 2, 3, 3))
+    return _element_force_damaged(
+        X,
+        u,
+        0,
+        weights.shape[0],
+        points,
+        weights,
+        terms,
+        ply_of_point,
+        position_of_point,
+        positions,
+        stiffness,
+        strain_to_stress,
+        degradation,
+        ply_params,
+        band_width,
+        state,
+        np.empty_like(stiffness),
+        np.ones(n_plies, dtype=np.bool_),
+        work,
+        lines,
+        sums,
+        np.empty((n_plies, 6)),
+        np.empty((n_plies, 3)),
+        np.empty(6),
+        f_out,
+    )
+
+
+@njit(cache=True)
+def add_damaged_subelement_forces(
+    element_nodes,
+    rule_of_element,
+    state_row,
+    first_ply,
+    rule_offsets,
+    points,
+    weights,
+    terms,
+    ply_of_point,
+    position_of_point,
+    positions,
+    stiffness,
+    strain_to_stress,
+    degradation,
+    ply_params,
+    band_width,
+    damage_state,
+    X_base,
+    X_extra,
+    u_base,
+    u_extra,
+    f_base,
+    f_extra,
+):
+    """f += sum_e P_e^T f_e over damage-aware (sub)elements, updating their damage; returns the
+    total secant strain energy (mJ). Call as ``add_damaged_subelement_forces(nodes,
+    rule_of_element, state_row, first_ply, *rules, *ply_damage, band_width, damage_state,
+    X_base, X_extra, u_base, u_extra, f_base, f_extra)``.
+
+    ``element_nodes`` (ne, 8): combined local node indices (i < n_base = len(X_base): base node
+    i, else extra node i - n_base), as in ``assembly``; element e uses rule
+    ``rule_of_element[e]`` of the ``PackedRules`` and the concatenated ``PackedPlyDamage``
+    (``ply_damage.concatenate_ply_damage``, same order). Its rule-local ply j is laminate ply
+    ``first_ply[e] + j`` of the cell row ``state_row[e]``: crack band width
+    ``band_width[state_row[e], first_ply[e] + j]`` (band_width (n_rows, n_plies) in mm) and
+    state ``damage_state[state_row[e], first_ply[e] + j]`` (damage_state (n_rows, n_plies,
+    N_STATE), updated in place). Coordinates, displacements and forces are (n, 3) arrays;
+    forces land on ghosts too (reverse scatter by the caller)."""
+    n_base = X_base.shape[0]
+    n_pos = positions.shape[0]
+    n_plies = damage_state.shape[1]
+    work = np.empty((2, 8, 3))
+    lines = np.empty((n_pos, 4, 3, 3))
+    sums = np.empty((n_pos, 2, 3, 3))
+    degraded = stiffness.copy()
+    dirty = np.zeros(stiffness.shape[0], dtype=np.bool_)
+    strains = np.empty((n_plies, 6))
+    volumes = np.empty((n_plies, 3))
+    sigma = np.empty(6)
+    X = np.empty((8, 3))
+    u = np.empty((8, 3))
+    f = np.empty((8, 3))
+    energy = 0.0
+    for e in range(element_nodes.shape[0]):
+        nodes = element_nodes[e]
+        for a in range(8):
+            node = nodes[a]
+            for i in range(3):
+                if node < n_base:
+                    X[a, i] = X_base[node, i]
+                    u[a, i] = u_base[node, i]
+                else:
+                    X[a, i] = X_extra[node - n_base, i]
+                    u[a, i] = u_extra[node - n_base, i]
+        r = rule_of_element[e]
+        start = rule_offsets[r]
+        stop = rule_offsets[r + 1]
+        n_local = ply_of_point[stop - 1] - ply_of_point[start] + 1
+        row = state_row[e]
+        lo = first_ply[e]
+        energy += _element_force_damaged(
+            X,
+            u,
+            start,
+            stop,
+            points,
+            weights,
+            terms,
+            ply_of_point,
+            position_of_point,
+            positions,
+            stiffness,
+            strain_to_stress,
+            degradation,
+            ply_params,
+            band_width[row, lo : lo + n_local],
+            damage_state[row, lo : lo + n_local],
+            degraded,
+            dirty,
+            work,
+            lines,
+            sums,
+            strains,
+            volumes,
+            sigma,
+            f,
+        )
+        for a in range(8):
+            node = nodes[a]
+            for i in range(3):
+                if node < n_base:
+                    f_base[node, i] += f[a, i]
+                else:
+                    f_extra[node - n_base, i] += f[a, i]
+    return energy
+
+
+def ply_mean_strains(X: np.ndarray, u: np.ndarray, rule: PackedRule) -> np.ndarray:
+    """(n_plies, 6) mean shell-frame strain of each ply of one (sub)element, as the damaged
+    kernels sample it (plain wrapper for tests and post-processing)."""
+    n_pos = rule.positions.shape[0]
+    n_plies = rule.stiffness.shape[0]
+    strains = np.empty((n_plies, 6))
+    _ply_mean_strains(
+        np.ascontiguousarray(X, dtype=np.float64),
+        np.ascontiguousarray(u, dtype=np.float64),
+        0,
+        len(rule.weights),
+        rule.points,
+        rule.weights,
+        rule.terms,
+        rule.ply_of_point,
+        rule.position_of_point,
+        rule.positions,
+        np.empty((2, 8, 3)),
+        np.empty((n_pos, 4, 3, 3)),
+        strains,
+        np.empty((n_plies, 3)),
+    )
+    return strains

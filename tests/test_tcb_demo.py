@@ -1,0 +1,60 @@
+"""The TCB demo, short version (20 mm beam): the propagation branch against beam-theory LEFM,
+and the adaptive run against the layerwise reference."""
+
+import importlib.util
+import tomllib
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from fenics_adaptive import explicit
+from fenics_adaptive.config import parse_config
+from fenics_adaptive.runner import build_structure, refinement_hook
+
+ROOT = Path(__file__).parents[1]
+spec = importlib.util.spec_from_file_location("tcb_demo", ROOT / "demos" / "tcb.py")
+demo = importlib.util.module_from_spec(spec)
+spec.loader.exec_module(demo)
+
+
+def run(name: str):
+    base = demo.quick(tomllib.loads((ROOT / "demos" / "tcb.toml").read_text()))
+    config = parse_config(demo.variant(base, name))
+    structure = build_structure(config)
+    stats = explicit.run(structure, config.solver, config.probe, on_step=refinement_hook(config))
+    history = {
+        name: [getattr(r, name) for r in stats.history]
+        for name in ("displacement", "reaction_force", "delaminated_area", "dissipated_energy")
+    }
+    return config, history
+
+
+@pytest.fixture(scope="module")
+def reference():
+    return run("reference")
+
+
+def test_propagation_follows_beam_theory_lefm(reference):
+    """Once the crack is longer than 5 arm thicknesses the force stays within 10 % of the
+    LEFM branch P = K^1.5 / sqrt(3 E I delta)."""
+    config, history = reference
+    result = demo.lefm_comparison(config, history)
+    assert result["points"] >= 20
+    assert result["crack_length_range_mm"][1] > 3.5  # the crack did run
+    assert 0.9 <= result["force_over_lefm_min"] and result["force_over_lefm_max"] <= 1.1
+    assert result["force_over_lefm_mean"] == pytest.approx(1.0, abs=0.03)
+    assert result["root_rotation_chi"] == pytest.approx(1.6, abs=0.05)
+
+
+def test_adaptive_joins_the_reference_after_refinement(reference):
+    _, ref = reference
+    _, adaptive = run("adaptive")
+    F, F_ref = np.array(adaptive["reaction_force"]), np.array(ref["reaction_force"])
+    delta = np.array(adaptive["displacement"])
+    joined = delta > 0.01
+    assert np.abs(F - F_ref)[joined].max() < 0.06 * np.abs(F_ref).max()
+    assert adaptive["dissipated_energy"][-1] == pytest.approx(
+        ref["dissipated_energy"][-1], rel=0.01
+    )
+    assert adaptive["delaminated_area"][-1] == pytest.approx(ref["delaminated_area"][-1], abs=0.25)
