@@ -26,7 +26,7 @@ from __future__ import annotations
 import itertools
 import math
 import tomllib
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -56,6 +56,18 @@ class MeshConfig:
 
 
 @dataclass(frozen=True)
+class MatrixStrength:
+    """Plies (0-based) whose matrix cracks at ``factor`` x YT in the cells with centroid x in
+    [x_min, x_max] (see ``Structure.scale_matrix_strength``): < 1 seeds a flaw, > 1 keeps the
+    cells under a roller (a line of nodes here, a contact patch in reality) from crushing."""
+
+    plies: tuple[int, ...]
+    factor: float
+    x_min: float = -math.inf
+    x_max: float = math.inf
+
+
+@dataclass(frozen=True)
 class RunConfig:
     kind: str
     points_per_ply: int
@@ -71,6 +83,7 @@ class RunConfig:
     stabilisation: Stabilisation = field(default_factory=Stabilisation)
     failures: dict[str, PlyFailure] = field(default_factory=dict)
     ply_damage: bool = False
+    matrix_strength: tuple[MatrixStrength, ...] = ()
     cohesive: CohesiveLaw | None = None
     source: str = "<memory>"
 
@@ -233,10 +246,33 @@ def parse_config(data: dict, source: str = "<memory>") -> RunConfig:
             raise InputError(f"materials.{name}.failure", f"missing ({why} needs strengths)")
     if indicators is not None and indicators.matrix_damage and not ply_damage:
         raise InputError("indicators.matrix_damage", "needs model.ply_damage = true")
+    flaws: list[MatrixStrength] = []
+    for table in root.array_of_tables("matrix_strength"):
+        if not ply_damage:
+            raise InputError(table.key("plies"), "needs model.ply_damage = true")
+        plies = table.raw("plies")
+        if (
+            not isinstance(plies, list)
+            or not plies
+            or any(
+                isinstance(p, bool) or not isinstance(p, int) or not 1 <= p <= laminate.n_plies
+                for p in plies
+            )
+        ):
+            raise InputError(
+                table.key("plies"), f"must list plies 1 .. {laminate.n_plies} (got {plies!r})"
+            )
+        factor = table.number("factor", positive=True, maximum=10.0)
+        x_min = table.number("x_min") if table.has("x_min") else -math.inf
+        x_max = table.number("x_max") if table.has("x_max") else math.inf
+        table.finish()
+        flaws.append(MatrixStrength(tuple(p - 1 for p in plies), factor, x_min, x_max))
 
     motions: list[PrescribedMotion] = []
     for table in root.array_of_tables("clamp"):
-        motions += clamp(_face(table, faces))
+        face = _face(table, faces)
+        x_range = _x_range(table, mesh)
+        motions += [replace(m, x_range=x_range) for m in clamp(face)]
         table.finish()
     for table in root.array_of_tables("prescribed"):
         face = _face(table, faces)
@@ -247,7 +283,11 @@ def parse_config(data: dict, source: str = "<memory>") -> RunConfig:
             )
         kind_of_motion = "displacement" if table.has("displacement") else "velocity"
         value = table.number(kind_of_motion)
-        motions.append(PrescribedMotion(face, component, kind_of_motion, value, _amplitude(table)))
+        motions.append(
+            PrescribedMotion(
+                face, component, kind_of_motion, value, _amplitude(table), _x_range(table, mesh)
+            )
+        )
         table.finish()
     loads: list[FaceLoad] = []
     for table in root.array_of_tables("load"):
@@ -278,6 +318,7 @@ def parse_config(data: dict, source: str = "<memory>") -> RunConfig:
         displacement_face=_face(output, faces, "displacement_face"),
         reaction_face=_face(output, faces, "reaction_face"),
         component=output.string("component", tuple(COMPONENTS)),
+        displacement_x=_x_range(output, mesh, "displacement_x"),
     )
     output.finish()
     if interval > end_time:
@@ -312,6 +353,7 @@ def parse_config(data: dict, source: str = "<memory>") -> RunConfig:
         stabilisation=stabilisation,
         failures=failures,
         ply_damage=ply_damage,
+        matrix_strength=tuple(flaws),
         cohesive=cohesive,
         source=source,
     )
@@ -410,6 +452,27 @@ def _face(table: _Table, faces: list[str], name: str = "face") -> str:
                 "their common nodes)",
             )
     return face
+
+
+def _x_range(table: _Table, mesh: MeshConfig, name: str = "x") -> tuple[float, float] | None:
+    """Optional x selection of a face's nodes (mm): ``x`` for one line of nodes across the
+    width (it must be a node line of the mesh), or ``x_min`` and ``x_max`` for a pad."""
+    if table.has(name):
+        x = table.number(name, minimum=0.0, maximum=mesh.length)
+        cells = x / mesh.length * mesh.nx
+        if abs(cells - round(cells)) > 1e-6:
+            raise InputError(
+                table.key(name),
+                f"x = {x} mm is not on a node line (cells are {mesh.length / mesh.nx:g} mm long)",
+            )
+        return (x, x)
+    if name != "x" or not (table.has("x_min") or table.has("x_max")):
+        return None
+    low = table.number("x_min", minimum=0.0, maximum=mesh.length)
+    high = table.number("x_max", minimum=0.0, maximum=mesh.length)
+    if high < low:
+        raise InputError(table.key("x_max"), f"must be >= x_min ({low:g})")
+    return (low, high)
 
 
 def _interface_list(table: _Table, name: str, n_plies: int) -> tuple[int, ...]:
@@ -544,7 +607,12 @@ def _indicators(root: _Table, kind: str, interfaces: Interfaces, cohesive, mater
     if not isinstance(matrix_damage, bool):
         raise InputError(table.key("matrix_damage"), "must be true or false")
     spread_rings = table.integer("spread", default=0, minimum=0)
+    strong_after = table.number("strong_after", minimum=0.0) if table.has("strong_after") else None
     table.finish()
+    if strong_after is not None and not interfaces.delaminate:
+        raise InputError(
+            "indicators.strong_after", "no interface may delaminate ([interfaces] delaminate)"
+        )
     if interface_stress is not None and not interfaces.delaminate:
         raise InputError(
             "indicators.interface_stress", "no interface may delaminate ([interfaces] delaminate)"
@@ -555,7 +623,9 @@ def _indicators(root: _Table, kind: str, interfaces: Interfaces, cohesive, mater
         )
     if ply_failure is None and interface_stress is None and not matrix_damage:
         raise InputError("indicators", "switch on at least one indicator")
-    return IndicatorSettings(interval, ply_failure, interface_stress, matrix_damage, spread_rings)
+    return IndicatorSettings(
+        interval, ply_failure, interface_stress, matrix_damage, spread_rings, strong_after
+    )
 
 
 def _amplitude(table: _Table) -> Amplitude:

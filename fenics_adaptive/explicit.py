@@ -56,6 +56,7 @@ class Probe:
     displacement_face: str
     reaction_face: str
     component: str
+    displacement_x: tuple[float, float] | None = None  # only the face's nodes in this x range
 
 
 @dataclass
@@ -89,6 +90,9 @@ COLUMNS = [*HistoryRow.__dataclass_fields__, "energy_balance"]
 
 class Diverged(RuntimeError):
     pass
+
+
+RUNAWAY = 100.0  # kinetic energy beyond this multiple of the work put in means instability
 
 
 @dataclass
@@ -186,7 +190,9 @@ def run(
     damped = settings.mass_damping > 0.0
 
     component = COMPONENTS[probe.component]
-    probe_dofs = face_dofs(structure.base, probe.displacement_face, probe.component)
+    probe_dofs = face_dofs(
+        structure.base, probe.displacement_face, probe.component, x_range=probe.displacement_x
+    )
     n_probe = comm.allreduce(len(probe_dofs), op=MPI.SUM)
     reaction_motions = np.array(
         [
@@ -247,6 +253,7 @@ def run(
             state.damping[state.block.fixed] = 0.0
         damping_changes[0] = min((w.until for w in windows), default=math.inf)
 
+    initial_energy = [0.0]  # kinetic + strain energy at t = 0
     work_int = work_ext = work_damp = 0.0  # this rank's shares
     t = 0.0
     dt_prev = 0.0
@@ -338,6 +345,17 @@ def run(
                         f"step {dt:.4g} s, stable step {stable:.4g} s"
                     )
                 solid, cohesive = structure.energies()
+                if step == 0:  # an initial velocity or displacement brings energy along
+                    initial_energy[0] = total[3] + solid + cohesive
+                # runaway: the motion holds far more energy than was ever put in
+                kinetic, put_in = total[3], abs(total[5]) + initial_energy[0]
+                if step > 0 and kinetic > RUNAWAY * max(put_in, 1e-300):
+                    raise Diverged(
+                        f"t = {t:.6g} s (step {step}): kinetic energy {kinetic:.4g} mJ exceeds "
+                        f"{RUNAWAY:g} x the work put in ({put_in:.4g} mJ): the run is unstable "
+                        f"(time step {dt:.4g} s, stable step {stable:.4g} s, limited by {where}; "
+                        "a cohesive penalty or a damaged material too stiff for it?)"
+                    )
                 row = HistoryRow(
                     time=t,
                     displacement=total[0] / max(n_probe, 1),

@@ -5,8 +5,8 @@ Units: N, mm, s, tonne (stresses MPa).
 
 - ``ply_failure`` (weak): a ply's Hashin index (``ply_damage.hashin_indices``: exposure
   factors, 1 = failure, fibre or matrix) reaches a fraction of 1 in a cell: the refinable
-  interfaces just below and above that ply refine weakly, for a better through-thickness field
-  around it.
+  interfaces nearest below and above that ply refine weakly, for a better through-thickness
+  field around it (the paper: the bottom 0/90 interface refines when the lowermost ply fails).
 - ``interface_stress`` (strong): the cohesive initiation criterion
   sqrt((<sigma_zz>/N)^2 + (tau/S)^2) evaluated at an interface with *recovered* out-of-plane
   stresses reaches a fraction of 1. The unrefined shell's constitutive transverse stresses are
@@ -257,23 +257,31 @@ def interface_initiation(recovered: np.ndarray, strength_n: float, strength_s: f
 
 
 # ---------------------------------------------------------------------------- decisions
-def indicator_requests(structure, settings: IndicatorSettings, strengths: tuple[float, float]):
-    """The refinements the indicators ask for on this rank's cells: (cell, interface, kind).
-    ``strengths``: the cohesive law's normal and shear strengths (MPa). Collective (the stress
-    recovery averages over neighbouring cells on all ranks)."""
+def indicator_requests(
+    structure, settings: IndicatorSettings, strengths: tuple[float, float], t: float = 0.0
+):
+    """The refinements the indicators ask for on this rank's cells at time t: (cell,
+    interface, kind). ``strengths``: the cohesive law's normal and shear strengths (MPa).
+    Collective (the stress recovery averages over neighbouring cells on all ranks)."""
     requests = []
     state = structure.interface_state
-    n_interfaces = state.shape[1]
+    if settings.strong_after is not None:
+        for interface in structure.interfaces.delaminate:
+            due = (state[:, interface - 1] == enr.WEAK) & (
+                structure.weak_since[:, interface - 1] + settings.strong_after <= t
+            )
+            requests += [(int(c), interface, STRONG) for c in np.flatnonzero(due)]
     if settings.ply_failure is not None:
         index = ply_failure_indices(structure)
-        weak = set(structure.interfaces.refine) | set(structure.interfaces.delaminate)
+        weak = sorted(set(structure.interfaces.refine) | set(structure.interfaces.delaminate))
         for ply in range(index.shape[1]):
             cells = np.flatnonzero(index[:, ply] >= settings.ply_failure)
-            # the interfaces just below (ply) and above (ply + 1) the ply, 1-based
-            for interface in (ply, ply + 1):
-                if 1 <= interface <= n_interfaces and interface in weak:
-                    todo = cells[state[cells, interface - 1] == enr.NONE]
-                    requests += [(int(c), interface, WEAK) for c in todo]
+            # the refinable interfaces nearest below (<= ply) and above (>= ply + 1) the ply
+            below = [i for i in weak if i <= ply]
+            above = [i for i in weak if i >= ply + 1]
+            for interface in ([below[-1]] if below else []) + ([above[0]] if above else []):
+                todo = cells[state[cells, interface - 1] == enr.NONE]
+                requests += [(int(c), interface, WEAK) for c in todo]
     if settings.matrix_damage:
         damage = structure.damage_state[:, :, S_D]
         for interface in structure.interfaces.delaminate:
@@ -317,14 +325,17 @@ def spread(structure, requests: list[tuple[int, int, int]], rings: int) -> list:
 @dataclass(frozen=True)
 class IndicatorSettings:
     """Which indicators run, every ``interval`` seconds: fractions of 1 for the ply failure
-    index (weak) and the interface initiation criterion (strong), matrix damage (strong), and
-    how many rings of neighbours refine with a flagged cell."""
+    index (weak) and the interface initiation criterion (strong), matrix damage (strong), how
+    many rings of neighbours refine with a flagged cell, and ``strong_after``: a delaminable
+    interface refined weakly turns strong that long after (the paper's four-point bending:
+    damping for 0.2 ms after the weak refinement, then the strong one)."""
 
     interval: float
     ply_failure: float | None = None
     interface_stress: float | None = None
     matrix_damage: bool = False
     spread: int = 0
+    strong_after: float | None = None  # s: a weak delaminable interface turns strong this late
 
 
 @dataclass(frozen=True)

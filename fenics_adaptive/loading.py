@@ -104,15 +104,18 @@ class Amplitude:
 
 @dataclass(frozen=True)
 class PrescribedMotion:
-    """Displacement of ``component`` of every node on ``face``: value * amplitude(t) when
-    ``kind`` is "displacement" (mm), value * integral of amplitude when it is "velocity" (mm/s).
-    A clamp is a displacement of 0 in all components."""
+    """Displacement of ``component`` of every node on ``face`` (or only those with x in
+    ``x_range``):
+    value * amplitude(t) when ``kind`` is "displacement" (mm), value * integral of amplitude
+    when it is "velocity" (mm/s). A clamp is a displacement of 0 in all components."""
 
     face: str
     component: str
     kind: str
     value: float
     amplitude: Amplitude
+    x_range: tuple[float, float] | None = None  # only the face's nodes with x in it (mm): a
+    # line (x, x) or a pad (x_min, x_max) of a support or a load
 
     def displacement(self, t: float) -> float:
         if self.kind == "displacement":
@@ -162,9 +165,12 @@ class ResolvedLoads:
                 out += self._scratch
 
 
-def face_nodes(model: LayeredModel, face: str) -> np.ndarray:
+def face_nodes(
+    model: LayeredModel, face: str, x_range: tuple[float, float] | None = None
+) -> np.ndarray:
     """Local nodes (owned and ghosts, sorted) on a face group. ``a&b`` names the nodes on both
-    face a and face b (for example ``x1&top``: the top edge of the end x1)."""
+    face a and face b (for example ``x1&top``: the top edge of the end x1); ``x_range`` keeps
+    only those with x_min <= x <= x_max (a line of nodes across the width, or a pad)."""
     names = face.split("&")
     nodes = None
     for name in names:
@@ -174,15 +180,23 @@ def face_nodes(model: LayeredModel, face: str) -> np.ndarray:
         beam.mesh.topology.create_connectivity(fdim, beam.mesh.topology.dim)
         on_face = fem.locate_dofs_topological(model.V, fdim, facets)
         nodes = on_face if nodes is None else np.intersect1d(nodes, on_face)
+    if x_range is not None:
+        x = model.V.tabulate_dof_coordinates()[nodes, 0]
+        tol = 1e-6 * model.beam.length
+        nodes = nodes[(x >= x_range[0] - tol) & (x <= x_range[1] + tol)]
     return np.sort(nodes).astype(np.int32)
 
 
 def face_dofs(
-    model: LayeredModel, face: str, component: str, owned_only: bool = True
+    model: LayeredModel,
+    face: str,
+    component: str,
+    owned_only: bool = True,
+    x_range: tuple[float, float] | None = None,
 ) -> np.ndarray:
     """DOFs (block-unrolled, sorted) of one component on a face group (``face_nodes``): this
     rank's owned ones, or with ``owned_only=False`` also its ghosts."""
-    dofs = 3 * face_nodes(model, face) + COMPONENTS[component]
+    dofs = 3 * face_nodes(model, face, x_range) + COMPONENTS[component]
     if owned_only:
         dofs = dofs[dofs < model.n_owned_dofs]
     return dofs.astype(np.int32)
@@ -200,7 +214,11 @@ def resolve(
 ) -> ResolvedLoads:
     owner: dict[int, int] = {}
     for k, motion in enumerate(motions):
-        for dof in face_dofs(model, motion.face, motion.component):
+        dofs = face_dofs(model, motion.face, motion.component, x_range=motion.x_range)
+        if model.comm.allreduce(len(dofs), op=MPI.SUM) == 0:
+            where = f" at x in {motion.x_range} mm" if motion.x_range is not None else ""
+            raise ValueError(f"face {motion.face!r}{where} has no nodes to prescribe")
+        for dof in dofs:
             previous = owner.setdefault(int(dof), k)
             if previous != k and motions[previous] != motion:
                 # the same DOF prescribed twice is fine only if both hold it at zero

@@ -114,6 +114,11 @@ N_PLY_PARAMS = 13
 # Slots of a ply's damage state.
 S_D, S_Y0, S_FT, S_FC, S_MT, S_MC = range(6)
 N_STATE = 6
+# A fully cracked ply keeps this fraction of the stiffness its matrix damage removes: the
+# stiffness uses (1 - RESIDUAL) d. Without it a cell whose plies have all cracked is a
+# zero-stiffness mechanism, and crack closure on such a cell has blown explicit runs up. The law
+# softens towards G_c / (1 - RESIDUAL), so that the dissipated energy stays G_c per crack area.
+RESIDUAL = 0.01
 
 # Puck's fracture angle under pure transverse compression; S23 defaults to YC / (2 tan 53 deg)
 # (Puck & Schuermann; LaRC04, Pinho et al.).
@@ -283,7 +288,7 @@ def degradation_matrices(material: PlyMaterial) -> np.ndarray:
 def damaged_material_stiffness(material: PlyMaterial, d: float, crack_open: bool) -> np.ndarray:
     """6x6 material-frame secant stiffness C(d) of a ply with matrix damage d."""
     A = degradation_matrices(material)
-    return material.stiffness() - d * ((A[0] if crack_open else 0.0) + A[1])
+    return material.stiffness() - (1.0 - RESIDUAL) * d * ((A[0] if crack_open else 0.0) + A[1])
 
 
 def ply_params_row(material: PlyMaterial, failure: PlyFailure) -> np.ndarray:
@@ -341,7 +346,7 @@ def degraded_shell_stiffness(
     """Shell-frame secant stiffness of ply k with damage d: what the kernels use (stiffness[k]
     is the ply's undamaged shell-frame stiffness, e.g. ``PackedRule.stiffness``)."""
     A = ply_damage.degradation[k]
-    return stiffness[k] - d * ((A[0] if crack_open else 0.0) + A[1])
+    return stiffness[k] - (1.0 - RESIDUAL) * d * ((A[0] if crack_open else 0.0) + A[1])
 
 
 # ---------------------------------------------------------------------------------------------
@@ -415,7 +420,7 @@ def ply_damage_update(sigma, params, band_width, state):
         state[S_Y0] = y0
     if y > y0:
         G2c = params[F_G2C]
-        Gc = G2c + (params[F_G6C] - G2c) * (y_shear / y)
+        Gc = (G2c + (params[F_G6C] - G2c) * (y_shear / y)) / (1.0 - RESIDUAL)
         rho_f = Gc / (band_width * y0)
         rho = math.sqrt(y / y0)
         if rho >= rho_f:  # also covers rho_f <= 1 (no softening possible: instant failure)

@@ -78,7 +78,19 @@ def build_structure(config: RunConfig, comm: MPI.Comm = MPI.COMM_WORLD) -> Struc
                 np.array(boundaries, dtype=np.int32)[pairs.boundary],
             )
     loads = resolve(model, motions, config.loads)
-    structure = Structure(model, loads, cohesive, config.interfaces, params, config.stabilisation)
+    structure = Structure(
+        model,
+        loads,
+        cohesive,
+        config.interfaces,
+        params,
+        config.stabilisation,
+        config.failures,
+        config.ply_damage,
+    )
+    for region in config.matrix_strength:
+        cells = cells_in_x_range(structure, region.x_min, region.x_max)
+        structure.scale_matrix_strength(cells, region.plies, region.factor)
     if config.kind == "adaptive" and config.interfaces.initial != "none":
         structure.refine(initial_refinement(structure, config))
     return structure
@@ -111,7 +123,10 @@ def refinement_hook(config: RunConfig) -> Callable[[float, Structure], bool] | N
     def on_step(t: float, structure: Structure) -> bool:
         if probe_by_displacement and "dofs" not in probe_dofs:
             probe_dofs["dofs"] = face_dofs(
-                structure.base, config.probe.displacement_face, config.probe.component
+                structure.base,
+                config.probe.displacement_face,
+                config.probe.component,
+                x_range=config.probe.displacement_x,
             )
         displacement = (
             probe_displacement(structure, config.probe, probe_dofs["dofs"])
@@ -126,13 +141,13 @@ def refinement_hook(config: RunConfig) -> Callable[[float, Structure], bool] | N
             requests += [(int(c), i, entry.kind) for c in cells for i in entry.interfaces]
         evaluate = settings is not None and t >= next_check[0]
         if evaluate:
-            requests += indicator_requests(structure, settings, strengths)
+            requests += indicator_requests(structure, settings, strengths, t)
             next_check[0] = t + settings.interval
             if settings.spread:
                 requests += spread(structure, requests, settings.spread)
         if not due and not evaluate:
             return False
-        return structure.refine(requests)
+        return structure.refine(requests, t)
 
     return on_step
 
@@ -141,7 +156,9 @@ def probe_displacement(structure: Structure, probe, dofs: np.ndarray | None = No
     """Mean displacement of the probe face in the probe component, over all ranks (``dofs``:
     the probe's owned DOFs, if already known)."""
     if dofs is None:
-        dofs = face_dofs(structure.base, probe.displacement_face, probe.component)
+        dofs = face_dofs(
+            structure.base, probe.displacement_face, probe.component, x_range=probe.displacement_x
+        )
     local = np.array([structure.base.u.x.array[dofs].sum(), len(dofs)], dtype=float)
     total, count = structure.comm.allreduce(local, op=MPI.SUM)
     return total / max(count, 1.0)

@@ -36,7 +36,9 @@ def solve_static(
     bcs = [
         fem.dirichletbc(
             motion.displacement(t),
-            face_dofs(model, motion.face, motion.component, owned_only=False),
+            face_dofs(
+                model, motion.face, motion.component, owned_only=False, x_range=motion.x_range
+            ),
             V.sub(COMPONENTS[motion.component]),
         )
         for motion in motions

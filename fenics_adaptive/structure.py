@@ -47,6 +47,7 @@ from fenics_adaptive.loading import (
 )
 from fenics_adaptive.model import LayeredModel
 from fenics_adaptive.ply_damage import (
+    S_Y0,
     check_band_width,
     concatenate_ply_damage,
     crack_band_width,
@@ -198,6 +199,7 @@ class Structure:
             self.cell_plies[base.layer_cells(k)] = (first, first + layer.n_plies)
             first += layer.n_plies
         self.interface_state = np.zeros((n_cells, max(n_interfaces, 0)), dtype=np.int8)
+        self.weak_since = np.full(self.interface_state.shape, np.inf)  # s
         index_map = V.dofmap.index_map
         local_to_global = index_map.local_to_global(np.arange(self.n_base, dtype=np.int32))
         nodes = V.dofmap.list[:n_cells]
@@ -280,6 +282,11 @@ class Structure:
         solid, cohesive = self.comm.allreduce(local, op=MPI.SUM)
         return solid + self.base.strain_energy(), cohesive
 
+    def _mechanical_energy(self) -> float:
+        """Kinetic + solid strain + recoverable cohesive energy (mJ) of the current state."""
+        self.internal_force()
+        return self.kinetic_energy() + sum(self.energies())
+
     def delaminated_area(self) -> float:
         """Area (mm^2) of the cohesive elements whose four points have failed, over all ranks."""
         if not self.comm.allreduce(len(self.cohesive), op=MPI.SUM):
@@ -353,6 +360,20 @@ class Structure:
         self.damage_state = new_state(n_cells, len(plies))
         self.base.set_ufl_cells([np.zeros(0, np.int32)] * len(self.base.layer_laminates))
         self._rebuild_damaged_elements()
+
+    def scale_matrix_strength(self, cells: np.ndarray, plies: Iterable[int], factor: float) -> None:
+        """Let the matrix of these plies (0-based) in these owned cells crack at ``factor`` times
+        the transverse strength: below 1 a flaw that decides where the first crack forms where
+        the stress is uniform (between the loading points of a four-point bending test), above
+        1 cells kept from crushing under a roller. Sets the ply's crack-onset energy to
+        (factor YT)^2 / (2 C22)."""
+        if not self.ply_damage:
+            raise InputError("matrix_strength", "needs model.ply_damage = true")
+        for k in plies:
+            ply = self.laminate.plies[k]
+            C22 = ply.material.stiffness()[1, 1]
+            YT = self.failures[ply.material.name].YT
+            self.damage_state[cells, k, S_Y0] = (factor * YT) ** 2 / (2.0 * C22)
 
     def _rebuild_damaged_elements(self) -> None:
         nodes, cells, plies = self.elements()
@@ -438,10 +459,11 @@ class Structure:
         return out
 
     # ------------------------------------------------------------------ refinement
-    def refine(self, requests: Iterable[tuple[int, int, int]]) -> bool:
-        """Collective: refine owned cells. ``requests``: (local cell, interface, WEAK or STRONG);
-        a strong request on an unrefined interface makes it weak first. Returns whether anything
-        changed on any rank. Raises InputError for interfaces not allowed to refine."""
+    def refine(self, requests: Iterable[tuple[int, int, int]], t: float = 0.0) -> bool:
+        """Collective: refine owned cells at time t. ``requests``: (local cell, interface, WEAK
+        or STRONG); a strong request on an unrefined interface makes it weak first. Returns
+        whether anything changed on any rank. Raises InputError for interfaces not allowed to
+        refine."""
         target = self.interface_state.copy()
         for cell, interface, kind in requests:
             allowed = set(self.interfaces.delaminate)
@@ -466,7 +488,7 @@ class Structure:
             self.extra.vectors["v"],
         ):
             vector.scatter_forward()
-        kinetic_before = self.kinetic_energy()
+        energy_before = self._mechanical_energy()
 
         n_interfaces = self.interface_state.shape[1]
         for interface in range(1, n_interfaces + 1):  # weak, bottom to top
@@ -475,6 +497,7 @@ class Structure:
                 & (target[changed, interface - 1] >= enr.WEAK)
             ]
             self._activate_weak(cells, interface)
+            self.weak_since[cells, interface - 1] = t
         for interface in range(1, n_interfaces + 1):  # then strong
             cells = changed[
                 (self.interface_state[changed, interface - 1] == enr.WEAK)
@@ -491,7 +514,9 @@ class Structure:
             self.base.set_ufl_cells(
                 [np.flatnonzero((self.interface_state == enr.NONE).all(axis=1))]
             )
-        self.refinement_energy += self.kinetic_energy() - kinetic_before
+        # Interpolated nodes keep a cell's field, but a node a neighbour activated earlier keeps
+        # its own state, and the lumped masses move: book what that changes
+        self.refinement_energy += self._mechanical_energy() - energy_before
         return True
 
     def _activate_weak(self, cells: np.ndarray, interface: int) -> None:
@@ -665,7 +690,7 @@ class Structure:
                 on = interface == int(motion.face.removeprefix("interface"))
             else:
                 mask = np.zeros(self.n_base, dtype=bool)
-                mask[face_nodes(self.base, motion.face)] = True
+                mask[face_nodes(self.base, motion.face, motion.x_range)] = True
                 on = mask[bottom] & mask[top]
             for node in np.flatnonzero(on):
                 fixed.setdefault(3 * int(node) + COMPONENTS[motion.component], m)

@@ -48,7 +48,7 @@ import numpy as np
 from numba import njit
 
 from fenics_adaptive import solid_shell
-from fenics_adaptive.ply_damage import S_D, ply_damage_update
+from fenics_adaptive.ply_damage import P_C22, RESIDUAL, S_D, ply_damage_update
 
 # Term codes of the packed rule, in the order of solid_shell.TERMS.
 TERM_NORMAL, TERM_SHEAR_XZ, TERM_SHEAR_YZ, TERM_SHEAR_CROSS = range(4)
@@ -280,10 +280,19 @@ def _element_force(
     lines,
     sums,
     f_out,
+    opening=None,
+    opening_scale=None,
 ):
     """Force of one element from points start:stop of the packed arrays into f_out (8, 3),
     overwritten; returns the strain energy. Work arrays: ``work`` (2, 8, 3), ``lines``
-    (n_pos, 4, 3, 3), ``sums`` (n_pos, 2, 3, 3)."""
+    (n_pos, 4, 3, 3), ``sums`` (n_pos, 2, 3, 3).
+
+    Matrix cracks (damaged kernel only): where ``opening_scale[k]`` > 0, ply k's ``stiffness``
+    is its closed-crack stiffness and, point by point, the crack opens where the effective
+    transverse stress s = opening[k] . (exx, eyy, ezz, 0, 0, gxy) is positive: the stress loses
+    opening_scale[k] s opening[k] and the energy 1/2 opening_scale[k] s^2. Decided per point,
+    this keeps the material elastic between damage increments (a per-ply switch on the mean
+    stress pumps energy into a ringing cracked ply)."""
     n_pos = positions.shape[0]
     bx = work[0]
     bu = work[1]
@@ -362,6 +371,20 @@ def _element_force(
             sxy = stiffness[k, 5, 0] * exx + stiffness[k, 5, 1] * eyy
             sxy += stiffness[k, 5, 2] * ezz + stiffness[k, 5, 5] * gxy
             energy += 0.5 * wd * (sxx * exx + syy * eyy + szz * ezz + sxy * gxy)
+            if opening_scale is not None and opening_scale[k] > 0.0:
+                s22 = (
+                    opening[k, 0] * exx
+                    + opening[k, 1] * eyy
+                    + opening[k, 2] * ezz
+                    + opening[k, 5] * gxy
+                )
+                if s22 > 0.0:
+                    scale = opening_scale[k] * s22
+                    sxx -= scale * opening[k, 0]
+                    syy -= scale * opening[k, 1]
+                    szz -= scale * opening[k, 2]
+                    sxy -= scale * opening[k, 5]
+                    energy -= 0.5 * wd * scale * s22
             sxx *= wd
             syy *= wd
             szz *= wd
@@ -752,6 +775,7 @@ def _element_force_damaged(
     state,
     degraded,
     dirty,
+    opening_scale,
     work,
     lines,
     sums,
@@ -791,9 +815,10 @@ def _element_force_damaged(
             for b in range(6):
                 s += strain_to_stress[k, a, b] * strains[j, b]
             sigma[a] = s
-        crack_open = ply_damage_update(sigma, ply_params[k], band_width[j], state[j])
-        d = state[j, S_D]
+        ply_damage_update(sigma, ply_params[k], band_width[j], state[j])
+        d = (1.0 - RESIDUAL) * state[j, S_D]
         if d == 0.0:
+            opening_scale[k] = 0.0
             if dirty[k]:
                 for a in range(6):
                     for b in range(6):
@@ -801,16 +826,11 @@ def _element_force_damaged(
                 dirty[k] = False
             continue
         dirty[k] = True
-        if crack_open:
-            for a in range(6):
-                for b in range(6):
-                    degraded[k, a, b] = stiffness[k, a, b] - d * (
-                        degradation[k, 0, a, b] + degradation[k, 1, a, b]
-                    )
-        else:
-            for a in range(6):
-                for b in range(6):
-                    degraded[k, a, b] = stiffness[k, a, b] - d * degradation[k, 1, a, b]
+        # the closed-crack stiffness; the kernel opens the crack point by point
+        for a in range(6):
+            for b in range(6):
+                degraded[k, a, b] = stiffness[k, a, b] - d * degradation[k, 1, a, b]
+        opening_scale[k] = d / ply_params[k, P_C22]
     return _element_force(
         X,
         u,
@@ -827,6 +847,8 @@ def _element_force_damaged(
         lines,
         sums,
         f_out,
+        strain_to_stress[:, 1, :],
+        opening_scale,
     )
 
 
@@ -882,6 +904,7 @@ def solid_shell_force_damaged(
         state,
         np.empty_like(stiffness),
         np.ones(n_plies, dtype=np.bool_),
+        np.zeros(n_plies),
         work,
         lines,
         sums,
@@ -940,6 +963,7 @@ def add_damaged_subelement_forces(
     sums = np.empty((n_pos, 2, 3, 3))
     degraded = stiffness.copy()
     dirty = np.zeros(stiffness.shape[0], dtype=np.bool_)
+    opening_scale = np.zeros(stiffness.shape[0])
     strains = np.empty((n_plies, 6))
     volumes = np.empty((n_plies, 3))
     sigma = np.empty(6)
@@ -983,6 +1007,7 @@ def add_damaged_subelement_forces(
             damage_state[row, lo : lo + n_local],
             degraded,
             dirty,
+            opening_scale,
             work,
             lines,
             sums,

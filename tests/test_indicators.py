@@ -117,3 +117,96 @@ def test_spread_reaches_the_neighbours_once_per_ring():
     assert cells(one) == [4.75, 5.25, 5.75]
     assert cells(two) == [4.25, 4.75, 5.25, 5.75, 6.25]
     assert {(i, k) for _, i, k in two} == {(2, enr.STRONG)}
+
+
+def failure_cantilever(ply_damage: bool):
+    """[90/0/0/90] ESL cantilever under a tip load, the matrix of the outer 90-degree plies
+    loaded in transverse tension/compression by bending, strongest at the clamp."""
+    data = {
+        "model": {"kind": "adaptive", "ply_damage": ply_damage},
+        "mesh": {"length": 20.0, "width": 1.0, "nx": 20, "ny": 2},
+        "materials": {
+            "ply": {
+                "E1": 1e5,
+                "E2": 1e4,
+                "G12": 5e3,
+                "nu12": 0.25,
+                "nu23": 0.25,
+                "rho": 1.6e-9,
+                "failure": {
+                    "XT": 2000.0,
+                    "XC": 1200.0,
+                    "YT": 50.0,
+                    "YC": 200.0,
+                    "S12": 80.0,
+                    "G2c": 0.3,
+                    "G6c": 0.8,
+                },
+            }
+        },
+        "laminate": {"material": "ply", "ply_thickness": 0.25, "angles": [90, 0, 0, 90]},
+        "interfaces": {"refine": [1, 2], "delaminate": [1]},
+        "cohesive": {
+            "K_n": 1e5,
+            "K_s": 1e5,
+            "N": 50.0,
+            "S": 80.0,
+            "GIc": 0.3,
+            "GIIc": 0.8,
+            "law": "bk",
+            "exponent": 2.0,
+        },
+        "clamp": [{"face": "x0"}],
+        "prescribed": [{"face": "x1", "component": "z", "displacement": -1.0, "rise_time": 1.0}],
+        "solver": {"end_time": 1e-4},
+        "output": {
+            "interval": 1e-5,
+            "displacement_face": "x1",
+            "reaction_face": "x0",
+            "component": "z",
+        },
+    }
+    return parse_config(data)
+
+
+def test_ply_failure_indicator_refines_next_to_the_failing_ply():
+    config = failure_cantilever(ply_damage=False)
+    structure = build_structure(config)
+    x, z = structure.X_base[:, 0], structure.X_base[:, 2]
+    u = structure.base.u.x.array.reshape(-1, 3)
+    u[:, 2] = 0.02 * x**2  # pure bending, curvature 0.04/mm, no transverse shear
+    u[:, 0] = -0.04 * x * (z - 0.5)
+    index = ind.ply_failure_indices(structure)
+    # transverse strain of the outer 90-degree plies: +-0.04 * 0.375 = 1.5 %: the bottom one in
+    # tension far beyond YT = 50 MPa, the top one in compression, below YC = 200 MPa
+    assert index[:, 0].min() > 2.0
+    top = index[:, 3]
+    assert 0.3 < top.min() and top.max() < 1.0
+    assert index[:, 1].max() < 1.0  # the 0-degree plies carry it along their fibres
+    n = structure.base.n_owned_cells
+
+    def asked(fraction):
+        settings = ind.IndicatorSettings(interval=1.0, ply_failure=fraction)
+        return ind.indicator_requests(structure, settings, (50.0, 80.0))
+
+    # ply 1 -> the nearest refinable interface above it: 1, in every cell
+    assert sorted(asked(1.0)) == [(c, 1, enr.WEAK) for c in range(n)]
+    # just below the top ply's index it asks too -> the nearest refinable interface below: 2
+    both = asked(0.99 * top.min())
+    assert sorted({(i, k) for _, i, k in both}) == [(1, enr.WEAK), (2, enr.WEAK)]
+    assert asked(1.01 * index.max()) == []
+
+
+def test_matrix_damage_indicator_delaminates_next_to_a_cracked_ply():
+    config = failure_cantilever(ply_damage=True)
+    structure = build_structure(config)
+    from fenics_adaptive.ply_damage import S_D
+
+    structure.damage_state[3, 0, S_D] = 0.2  # cell 3: bottom 90-degree ply cracking
+    structure.damage_state[7, 2, S_D] = 0.5  # cell 7: a ply away from interface 1
+    settings = ind.IndicatorSettings(interval=1.0, matrix_damage=True)
+    requests = ind.indicator_requests(structure, settings, (50.0, 80.0))
+    assert requests == [(3, 1, enr.STRONG)]
+    assert structure.refine(requests)
+    assert structure.interface_state[3, 0] == enr.STRONG
+    assert ind.indicator_requests(structure, settings, (50.0, 80.0)) == []
