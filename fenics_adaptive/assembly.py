@@ -21,7 +21,12 @@ import numpy as np
 from numba import njit
 
 from fenics_adaptive.cohesive import cohesive_element_force
-from fenics_adaptive.subelement import PackedRules, _element_force
+from fenics_adaptive.subelement import (
+    PackedRules,
+    _element_force,
+    gather_nodes,
+    scatter_add_nodes,
+)
 
 
 @dataclass
@@ -124,26 +129,6 @@ def add_cohesive_forces(
 
 
 @njit(cache=True)
-def _gather(nodes, n_base, base, extra, out):
-    for a in range(8):
-        node = nodes[a]
-        for i in range(3):
-            out[a, i] = base[node, i] if node < n_base else extra[node - n_base, i]
-
-
-@njit(cache=True)
-def _scatter(nodes, n_base, values, sign, base, extra):
-    for a in range(8):
-        node = nodes[a]
-        if node < n_base:
-            for i in range(3):
-                base[node, i] += sign * values[a, i]
-        else:
-            for i in range(3):
-                extra[node - n_base, i] += sign * values[a, i]
-
-
-@njit(cache=True)
 def _add_subelement_forces(
     element_nodes,
     rule_of_element,
@@ -173,8 +158,8 @@ def _add_subelement_forces(
     energy = 0.0
     for e in range(element_nodes.shape[0]):
         nodes = element_nodes[e]
-        _gather(nodes, n_base, X_base, X_extra, X)
-        _gather(nodes, n_base, u_base, u_extra, u)
+        gather_nodes(nodes, n_base, X_base, X_extra, X)
+        gather_nodes(nodes, n_base, u_base, u_extra, u)
         r = rule_of_element[e]
         energy += _element_force(
             X,
@@ -193,7 +178,7 @@ def _add_subelement_forces(
             sums,
             f,
         )
-        _scatter(nodes, n_base, f, 1.0, f_base, f_extra)
+        scatter_add_nodes(nodes, n_base, f, 1.0, f_base, f_extra)
     return energy
 
 
@@ -217,9 +202,9 @@ def _add_cohesive_forces(
     stored = 0.0
     for e in range(element_nodes.shape[0]):
         nodes = element_nodes[e]
-        _gather(nodes, n_base, X_base, X_extra, X)
-        _gather(nodes, n_base, u_base, u_extra, u)
+        gather_nodes(nodes, n_base, X_base, X_extra, X)
+        gather_nodes(nodes, n_base, u_base, u_extra, u)
         energy, _ = cohesive_element_force(X, u, params, damage[damage_row[e]], f)
         stored += energy
-        _scatter(nodes, n_base, f, -1.0, f_base, f_extra)
+        scatter_add_nodes(nodes, n_base, f, -1.0, f_base, f_extra)
     return stored

@@ -38,6 +38,7 @@ from numba import njit
 from fenics_adaptive import enrichment as enr
 from fenics_adaptive.laminate import rotation_about_z
 from fenics_adaptive.ply_damage import S_D, S_FT, S_MC, hashin_indices
+from fenics_adaptive.subelement import gather_nodes
 
 STRONG, WEAK = enr.STRONG, enr.WEAK
 
@@ -76,15 +77,8 @@ def _ply_center_strains(X_base, X_extra, u_base, u_extra, nodes, cells, plies, f
     v = np.empty(3)
     s = np.empty(3)
     for e in range(nodes.shape[0]):
-        for a in range(8):
-            n = nodes[e, a]
-            for i in range(3):
-                if n < n_base:
-                    X[a, i] = X_base[n, i]
-                    u[a, i] = u_base[n, i]
-                else:
-                    X[a, i] = X_extra[n - n_base, i]
-                    u[a, i] = u_extra[n - n_base, i]
+        gather_nodes(nodes[e], n_base, X_base, X_extra, X)
+        gather_nodes(nodes[e], n_base, u_base, u_extra, u)
         first, stop = plies[e, 0], plies[e, 1]
         bottom, top = fractions[first], fractions[stop]
         for k in range(first, stop):

@@ -247,6 +247,29 @@ def pack_mass_rule(ply_zeta: np.ndarray, ply_density: np.ndarray) -> PackedMassR
 
 
 @njit(cache=True)
+def gather_nodes(nodes, n_base, base, extra, out):
+    """out (8, 3) = values of 8 nodes given in combined local indices: i < n_base is base node
+    i (``base`` (n, 3)), else extra node i - n_base (``extra``)."""
+    for a in range(8):
+        node = nodes[a]
+        for i in range(3):
+            out[a, i] = base[node, i] if node < n_base else extra[node - n_base, i]
+
+
+@njit(cache=True)
+def scatter_add_nodes(nodes, n_base, values, sign, base, extra):
+    """Add sign * values (8, 3) onto 8 nodes in combined local indices (see gather_nodes)."""
+    for a in range(8):
+        node = nodes[a]
+        if node < n_base:
+            for i in range(3):
+                base[node, i] += sign * values[a, i]
+        else:
+            for i in range(3):
+                extra[node - n_base, i] += sign * values[a, i]
+
+
+@njit(cache=True)
 def _monomials(values, out):
     """out (8, 3) = coefficients b_m of the trilinear interpolant of ``values`` (8, 3) in the
     monomials xi^(m & 1) eta^((m >> 1) & 1) zeta^((m >> 2) & 1): the Moebius transform
@@ -973,15 +996,8 @@ def add_damaged_subelement_forces(
     energy = 0.0
     for e in range(element_nodes.shape[0]):
         nodes = element_nodes[e]
-        for a in range(8):
-            node = nodes[a]
-            for i in range(3):
-                if node < n_base:
-                    X[a, i] = X_base[node, i]
-                    u[a, i] = u_base[node, i]
-                else:
-                    X[a, i] = X_extra[node - n_base, i]
-                    u[a, i] = u_extra[node - n_base, i]
+        gather_nodes(nodes, n_base, X_base, X_extra, X)
+        gather_nodes(nodes, n_base, u_base, u_extra, u)
         r = rule_of_element[e]
         start = rule_offsets[r]
         stop = rule_offsets[r + 1]
@@ -1016,13 +1032,7 @@ def add_damaged_subelement_forces(
             sigma,
             f,
         )
-        for a in range(8):
-            node = nodes[a]
-            for i in range(3):
-                if node < n_base:
-                    f_base[node, i] += f[a, i]
-                else:
-                    f_extra[node - n_base, i] += f[a, i]
+        scatter_add_nodes(nodes, n_base, f, 1.0, f_base, f_extra)
     return energy
 
 
