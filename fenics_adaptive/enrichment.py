@@ -38,10 +38,8 @@ are append-only, so state carries over by copying.
 from __future__ import annotations
 
 import itertools
-from collections.abc import Sequence
 from dataclasses import dataclass, field
 
-import dolfinx
 import numpy as np
 from dolfinx import common, la
 from mpi4py import MPI
@@ -306,18 +304,3 @@ def describe_cell(
             for k, node in enumerate(nodes):
                 lines.append(f"    local node {k} <- {node}")
     return "\n".join(lines)
-
-
-def cell_columns(
-    V: dolfinx.fem.FunctionSpace, cell: int, local_to_global: np.ndarray
-) -> CellColumns:
-    nodes = V.dofmap.cell_dofs(cell)
-    return CellColumns(
-        bottom_local=np.asarray(nodes[:4], dtype=np.int32),
-        top_local=np.asarray(nodes[4:], dtype=np.int32),
-        bottom_global=np.asarray(local_to_global[nodes[:4]], dtype=np.int64),
-    )
-
-
-def as_state_rows(states: Sequence[Sequence[int]]) -> np.ndarray:
-    return np.asarray(states, dtype=np.int8)

@@ -574,22 +574,21 @@ class Structure:
                 requests[key] = (tie, row)
 
     # ------------------------------------------------------------------ maps and bookkeeping
-    def _subelement_nodes(self, row: np.ndarray, sub: enr.Subelement, cell: int) -> np.ndarray:
-        columns = enr.CellColumns(
+    def _columns(self, cell: int) -> enr.CellColumns:
+        return enr.CellColumns(
             self.bottom_local[cell], self.top_local[cell], self.bottom_global[cell]
         )
+
+    def _subelement_nodes(self, row: np.ndarray, sub: enr.Subelement, cell: int) -> np.ndarray:
         return enr.subelement_nodes(
-            row, sub, columns, self.laminate.n_plies, self.extra.index, self.n_base
+            row, sub, self._columns(cell), self.laminate.n_plies, self.extra.index, self.n_base
         )
 
     def cell_maps(self, cell: int) -> str:
         """The gather/scatter maps (projection matrices as index lists) of one owned cell."""
-        columns = enr.CellColumns(
-            self.bottom_local[cell], self.top_local[cell], self.bottom_global[cell]
-        )
         return enr.describe_cell(
             self.interface_state[cell],
-            columns,
+            self._columns(cell),
             self.laminate.n_plies,
             self.extra.index,
             self.n_base,
@@ -624,9 +623,7 @@ class Structure:
                         for p in self.laminate.plies[sub.first : sub.stop]
                     )
                 )
-            columns = enr.CellColumns(
-                self.bottom_local[cell], self.top_local[cell], self.bottom_global[cell]
-            )
+            columns = self._columns(cell)
             for interface in np.flatnonzero(row == enr.STRONG) + 1:
                 coh_nodes.append(
                     enr.cohesive_nodes(
