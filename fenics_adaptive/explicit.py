@@ -131,6 +131,8 @@ class _BlockState:
         self.v = block.v.array[:n]
         self.f = block.f.array[:n]
         self.m = block.mass
+        # constrained DOFs (border extra nodes) have no mass of their own: they follow masters
+        self.inv_m = np.divide(1.0, self.m, out=np.zeros(n), where=self.m > 0.0)
         self.acc, self.du, self.f_old, self.f_ext, self.f_ext_old = (np.zeros(n) for _ in range(5))
         self.damping = np.full(n, damping)
         self.damping[block.fixed] = 0.0
@@ -223,7 +225,7 @@ def run(
         mean_dt = 0.5 * (dt_prev + dt)
         for state in states:
             np.subtract(state.f_ext, state.f, out=state.acc)
-            state.acc /= state.m
+            state.acc *= state.inv_m
             if len(state.block.fixed):
                 fixed = state.block.fixed
                 # the acceleration that takes the prescribed DOFs exactly to u(t_{n+1})
@@ -412,6 +414,7 @@ def run(
                 state.f_old[:] = state.f
                 state.f_ext_old[:] = state.f_ext
                 state.reaction_old[:] = state.reaction
+            structure.follow_border()
 
             dt_prev = dt
             t += dt

@@ -16,7 +16,8 @@ Refinement (``Structure.refine``) is collective and happens between steps: new e
 positions and velocities interpolated from the cell's active nodes below and above (weak) or
 copied from set A (strong); the refined cells' old (sub)element masses are taken off their
 nodes and the new subelements' masses put on (total mass unchanged); the maps, constraints and
-stable time step are rebuilt. The per-step path allocates nothing.
+stable time step are rebuilt. Extra nodes on the border of a refined region follow their
+unrefined neighbour (``border``). The per-step path allocates nothing.
 """
 
 from __future__ import annotations
@@ -34,6 +35,14 @@ from fenics_adaptive.assembly import (
     SubelementSet,
     add_cohesive_forces,
     add_subelement_forces,
+)
+from fenics_adaptive.border import (
+    BorderConstraints,
+    border_constraints,
+    column_counts,
+    follow_masters,
+    transfer_forces,
+    transfer_masses,
 )
 from fenics_adaptive.cohesive import P_KN, P_KS
 from fenics_adaptive.errors import InputError
@@ -225,15 +234,9 @@ class Structure:
         self.refinement_energy = 0.0  # kinetic energy added by refinements (lumped-mass change)
         self._solid_energy = 0.0
         self._cohesive_energy = 0.0
-        self._rebuild_extra_block()
-        self.base_block = Block(
-            u=base.u.x,
-            v=self.v_base,
-            f=self.f_base,
-            mass=self.mass_base.array[: base.n_owned_dofs],
-            fixed=loads.fixed,
-            fixed_motion=loads.fixed_motion,
-        )
+        self.border = BorderConstraints.empty()
+        self._resize_extra_vectors()
+        self._rebuild_blocks()
 
     # ------------------------------------------------------------------ what the solver uses
     @property
@@ -272,8 +275,19 @@ class Structure:
         self._cohesive_energy = add_cohesive_forces(
             self.cohesive, self.X_base, X_extra, u_base, u_extra, fb, fx
         )
+        if len(self.border):
+            transfer_forces(*self._border_args, f_base, f_extra)
         self.f_base.scatter_reverse(la.InsertMode.add)
         self.f_extra.scatter_reverse(la.InsertMode.add)
+
+    def follow_border(self, velocity: bool = False) -> None:
+        """Put the constrained extra DOFs (owned and ghosts) where their masters are (after
+        the masters moved and were forward-scattered); also their velocities if asked."""
+        if not len(self.border):
+            return
+        follow_masters(*self._border_args, self.base.u.x.array, self.extra.vectors["u"].array)
+        if velocity:
+            follow_masters(*self._border_args, self.v_base.array, self.extra.vectors["v"].array)
 
     def energies(self) -> tuple[float, float]:
         """(strain energy of the solids, recoverable cohesive energy) in mJ at the state of the
@@ -414,7 +428,7 @@ class Structure:
             self.internal_force()
             pairs = np.array(self._new_pairs, dtype=np.int64)
             f = self.f_extra.array.reshape(-1, 3)
-            m = self.mass_extra.array.reshape(-1, 3)[:, 0]
+            m = self.extra_block.mass.reshape(-1, 3)[:, 0]  # after the border's transfer
             a, b = pairs[:, 0], pairs[:, 1]
             m_a, m_b = m[a, None], m[b, None]
             force = (m_b * f[a] - m_a * f[b]) / (m_a + m_b)
@@ -505,7 +519,7 @@ class Structure:
             ]
             self._activate_strong(cells, interface)
 
-        self._rebuild_extra_block()
+        self._resize_extra_vectors()
         self._update_masses(changed, old_state)
         self._rebuild_maps()
         if self.ply_damage:
@@ -514,6 +528,16 @@ class Structure:
             self.base.set_ufl_cells(
                 [np.flatnonzero((self.interface_state == enr.NONE).all(axis=1))]
             )
+        free_b = self.border.free_b
+        self._rebuild_blocks()
+        # the strong node pairs that open now: new set-B nodes no longer bound to set A
+        n_interfaces = self.interface_state.shape[1]
+        for key in sorted(self.border.free_b - free_b):
+            local = self.extra.index[key]
+            if local < self.extra.n_owned:
+                g, i, _ = enr.key_parts(key, n_interfaces)
+                partner = self.extra.index[enr.extra_key(g, i, enr.SET_A, n_interfaces)]
+                self._new_pairs.append((partner, local))
         # Interpolated nodes keep a cell's field, but a node a neighbour activated earlier keeps
         # its own state, and the lumped masses move: book what that changes
         self.refinement_energy += self._mechanical_energy() - energy_before
@@ -556,10 +580,7 @@ class Structure:
             self._add_requests(requests, cell, interface, enr.SET_B, values)
             self.interface_state[cell, interface - 1] = enr.STRONG
             self.damage_rows[(int(cell), interface)] = len(self.damage_rows)
-        for local in self.extra.activate(requests):  # new owned set-B nodes and their A partners
-            g, i, _ = enr.key_parts(self.extra.owned_keys[local], n_interfaces)
-            partner = self.extra.index[enr.extra_key(g, i, enr.SET_A, n_interfaces)]
-            self._new_pairs.append((partner, local))
+        self.extra.activate(requests)
         grown = np.zeros((len(self.damage_rows), 4))
         grown[: len(self.cohesive.damage)] = self.cohesive.damage
         self.cohesive.damage = grown
@@ -652,33 +673,70 @@ class Structure:
             np.array(coh_interface, dtype=np.int32),
         )
 
-    def _rebuild_extra_block(self) -> None:
-        """Vectors and constraints of the extra nodes after their set changed."""
+    def _resize_extra_vectors(self) -> None:
+        """Force and (assembled) mass vectors of the extra nodes after their set changed."""
         old_mass = getattr(self, "mass_extra", None)
         self.f_extra = la.vector(self.extra.index_map, bs=3)
         self.mass_extra = la.vector(self.extra.index_map, bs=3)
         if old_mass is not None:
             n_old = old_mass.index_map.size_local * 3
             self.mass_extra.array[:n_old] = old_mass.array[:n_old]
-        fixed, motion_of = self._extra_constraints()
+
+    def _rebuild_blocks(self) -> None:
+        """Collective: border constraints, the masses the solver divides by (constrained masses
+        moved to their masters), prescribed DOFs; constrained nodes put on their masters."""
+        prescribed = self._extra_prescriptions()
+        if self.extra.n_local:
+            counts = column_counts(
+                self.comm, self.base.V.dofmap.index_map, self.bottom_local, self.interface_state
+            )
+            self.border = border_constraints(
+                counts,
+                self.extra,
+                self.column_top,
+                self.laminate.ply_fractions,
+                self.n_base,
+                prescribed >= 0,
+            )
+        self._border_args = (
+            self.border.dofs,
+            self.border.masters,
+            self.border.weights,
+            3 * self.n_base,
+        )
+        mass_base, mass_extra = transfer_masses(
+            self.border, self.mass_base, self.mass_extra, self.n_base
+        )
+        self.follow_border(velocity=True)
         n_owned = self.extra.n_owned * 3
+        fixed = np.flatnonzero(prescribed[:n_owned] >= 0).astype(np.int32)
+        self.base_block = Block(
+            u=self.base.u.x,
+            v=self.v_base,
+            f=self.f_base,
+            mass=mass_base,
+            fixed=self.loads.fixed,
+            fixed_motion=self.loads.fixed_motion,
+        )
         self.extra_block = Block(
             u=self.extra.vectors["u"],
             v=self.extra.vectors["v"],
             f=self.f_extra,
-            mass=self.mass_extra.array[:n_owned],
+            mass=mass_extra,
             fixed=fixed,
-            fixed_motion=motion_of,
+            fixed_motion=prescribed[fixed].astype(np.int32),
         )
 
-    def _extra_constraints(self) -> tuple[np.ndarray, np.ndarray]:
-        """Prescribed DOFs of the owned extra nodes: a face motion holds an extra node when both
-        base nodes of its column are on that face; a symmetry interface holds u_z of its nodes."""
-        fixed: dict[int, int] = {}
-        if self.extra.n_owned == 0:
-            return np.zeros(0, np.int32), np.zeros(0, np.int32)
+    def _extra_prescriptions(self) -> np.ndarray:
+        """Motion index (into ``motions``) holding each local extra DOF (owned and ghosts), -1
+        for none: a face motion holds an extra node when both base nodes of its column are on
+        that face; a symmetry interface holds u_z of its nodes. The first motion listed wins."""
+        prescribed = np.full(3 * self.extra.n_local, -1, dtype=np.int64)
+        if self.extra.n_local == 0:
+            return prescribed
         n_interfaces = self.interface_state.shape[1]
-        parts = [enr.key_parts(k, n_interfaces) for k in self.extra.owned_keys]
+        parts = [enr.key_parts(k, n_interfaces) for k in self.extra.index]
+        local = np.fromiter(self.extra.index.values(), dtype=np.int64)
         bottom = np.array([self.extra.local_base_node(g) for g, _, _ in parts])
         top = np.array([self.column_top[b] for b in bottom])
         interface = np.array([i for _, i, _ in parts])
@@ -689,10 +747,10 @@ class Structure:
                 mask = np.zeros(self.n_base, dtype=bool)
                 mask[face_nodes(self.base, motion.face, motion.x_range)] = True
                 on = mask[bottom] & mask[top]
-            for node in np.flatnonzero(on):
-                fixed.setdefault(3 * int(node) + COMPONENTS[motion.component], m)
-        dofs = np.array(sorted(fixed), dtype=np.int32)
-        return dofs, np.array([fixed[int(d)] for d in dofs], dtype=np.int32)
+            dofs = 3 * local[on] + COMPONENTS[motion.component]
+            dofs = dofs[prescribed[dofs] < 0]
+            prescribed[dofs] = m
+        return prescribed
 
     def _update_masses(self, cells: np.ndarray, old_state: np.ndarray) -> None:
         """Take each changed cell's old (sub)element masses off its nodes, put the new ones on;

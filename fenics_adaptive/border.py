@@ -1,0 +1,207 @@
+"""Extra nodes on the border of a refined region: constrained to the unrefined neighbour.
+
+An extra node exists as soon as one cell around its column is refined at its interface. A
+neighbouring cell that is not refined there interpolates its field linearly between the nodes it
+does have. If the extra node moved freely the two cells would disagree along their shared
+column. The refined region would then end in a partial hinge through the thickness, a crack
+through the plies on one side of the interface. In four-point bending that made the beam
+collapse as soon as a region refined.
+
+So a border extra node is *constrained*, like a hanging node. Its *masters* are the nodes of its
+column that every cell around the column has: the two base nodes, and the extra nodes of
+interfaces refined in all of those cells (the *free* nodes). The constrained node follows the
+piecewise-linear field through those masters. Every cell around the column then sees the same
+field along it, whatever its own refinement. Forces and lumped masses of a constrained node go to
+its masters with the interpolation weights. This row-sum lumping keeps mass and momentum. Its
+motion is set from theirs after every step.
+
+A set-B node (upper side of a strong interface) is free only when every cell around is strong
+there. Until then it follows set A, so the crack is closed at the front of the strong region.
+
+When the last cell around a column refines, the node is freed. It already sits where the new
+cell's field puts it, so freeing it changes no strain energy. Only the lumped masses move, and
+``Structure.refine`` books that.
+
+Prescribed DOFs (a face motion, the symmetry interface) keep their prescription and are not
+constrained.
+
+MPI: the counts of refined cells per column are summed over ranks. Every rank holding a
+constrained node also holds its masters: the cell that uses the node has the column's base
+nodes, and a free extra node is used by every cell of the column. So forces are transferred on
+each rank's partial sums before the reverse scatter, and motions are set on owned and ghost
+entries from the forward-scattered masters, with no extra communication.
+
+Units: none (weights are fractions of the thickness).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numba
+import numpy as np
+from dolfinx import la
+
+from fenics_adaptive import enrichment as enr
+
+
+@dataclass(frozen=True)
+class BorderConstraints:
+    """Constrained DOFs of this rank's extra nodes (owned and ghosts).
+
+    ``dofs``: their combined flat DOF indices (3 n_base + 3 local extra index + component);
+    ``masters`` (k, 2): combined flat DOF indices of the masters; ``weights`` (k, 2), summing to
+    1 (a single master has weight 0 on the second, which repeats the first);
+    ``free_b``: keys of the set-B nodes that are free (every cell around is strong)."""
+
+    dofs: np.ndarray
+    masters: np.ndarray
+    weights: np.ndarray
+    free_b: frozenset[int]
+
+    @classmethod
+    def empty(cls) -> BorderConstraints:
+        return cls(np.zeros(0, np.int64), np.zeros((0, 2), np.int64), np.zeros((0, 2)), frozenset())
+
+    def __len__(self) -> int:
+        return len(self.dofs)
+
+
+def column_counts(comm, base_map, bottom_local: np.ndarray, state: np.ndarray) -> np.ndarray:
+    """Collective. For every local base node (owned and ghosts) used as a column bottom:
+    (number of cells around it, cells weak or strong at each interface, cells strong at each
+    interface), summed over ranks: shape (n_local_base, 1 + 2 n_interfaces)."""
+    n_interfaces = state.shape[1]
+    counts = la.vector(base_map, bs=1 + 2 * n_interfaces)
+    table = counts.array.reshape(-1, 1 + 2 * n_interfaces)
+    refined = (state >= enr.WEAK).astype(np.float64)
+    strong = (state == enr.STRONG).astype(np.float64)
+    for a in range(bottom_local.shape[1]):
+        np.add.at(table[:, 0], bottom_local[:, a], 1.0)
+        np.add.at(table[:, 1 : 1 + n_interfaces], bottom_local[:, a], refined)
+        np.add.at(table[:, 1 + n_interfaces :], bottom_local[:, a], strong)
+    counts.scatter_reverse(la.InsertMode.add)
+    counts.scatter_forward()
+    return np.rint(table).astype(np.int64)
+
+
+def border_constraints(
+    counts: np.ndarray,
+    extra: enr.ExtraNodes,
+    column_top: dict[int, int],
+    fractions: np.ndarray,
+    n_base: int,
+    prescribed: np.ndarray,
+) -> BorderConstraints:
+    """The constraints of this rank's extra nodes from the column counts (``column_counts``).
+
+    ``fractions``: thickness fractions of the ply boundaries (0 .. 1, n_plies + 1);
+    ``prescribed``: bool per local extra DOF (owned and ghosts), True where a motion holds it."""
+    n_interfaces = extra.n_interfaces
+    n_plies = n_interfaces + 1
+
+    def free(bottom: int, interface: int, node_set: int) -> bool:
+        row = counts[bottom]
+        column = 1 + (node_set * n_interfaces) + interface - 1
+        return row[column] == row[0]
+
+    def node(g: int, interface: int, node_set: int) -> int:
+        return n_base + extra.index[enr.extra_key(g, interface, node_set, n_interfaces)]
+
+    dofs, masters, weights, free_b = [], [], [], set()
+    for key, local in extra.index.items():
+        g, interface, node_set = enr.key_parts(key, n_interfaces)
+        bottom = extra.local_base_node(g)
+        if free(bottom, interface, node_set):
+            if node_set == enr.SET_B:
+                free_b.add(key)
+            continue
+        if node_set == enr.SET_B and free(bottom, interface, enr.SET_A):
+            nodes, w = (node(g, interface, enr.SET_A),) * 2, (1.0, 0.0)
+        else:
+            below = max((j for j in range(1, interface) if free(bottom, j, enr.SET_A)), default=0)
+            above = min(
+                (j for j in range(interface + 1, n_plies) if free(bottom, j, enr.SET_A)),
+                default=n_plies,
+            )
+            if below == 0:
+                lower = bottom
+            else:
+                lower = node(g, below, enr.SET_B if free(bottom, below, enr.SET_B) else enr.SET_A)
+            upper = column_top[bottom] if above == n_plies else node(g, above, enr.SET_A)
+            s = (fractions[interface] - fractions[below]) / (fractions[above] - fractions[below])
+            nodes, w = (lower, upper), (1.0 - s, s)
+        for component in range(3):
+            if prescribed[3 * local + component]:
+                continue
+            dofs.append(3 * (n_base + local) + component)
+            masters.append([3 * nodes[0] + component, 3 * nodes[1] + component])
+            weights.append(w)
+    return BorderConstraints(
+        np.array(dofs, dtype=np.int64),
+        np.array(masters, dtype=np.int64).reshape(-1, 2),
+        np.array(weights, dtype=np.float64).reshape(-1, 2),
+        frozenset(free_b),
+    )
+
+
+def transfer_masses(
+    constraints: BorderConstraints,
+    mass_base: la.Vector,
+    mass_extra: la.Vector,
+    n_base: int,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Collective. Lumped masses with the constrained DOFs' masses moved to their masters:
+    (base, extra) arrays of the owned DOFs. ``mass_*``: the assembled masses (owned entries
+    complete). Each owned constrained DOF hands its mass over once, on its owner."""
+    n_base_dofs = 3 * n_base
+    out = []
+    scratch = [la.vector(v.index_map, bs=3) for v in (mass_base, mass_extra)]
+    n_owned_extra = 3 * mass_extra.index_map.size_local
+    m_extra = mass_extra.array
+    for dof, masters, weights in zip(
+        constraints.dofs, constraints.masters, constraints.weights, strict=True
+    ):
+        c = dof - n_base_dofs
+        if c >= n_owned_extra:  # a ghost: its owner transfers it
+            continue
+        scratch[1].array[c] -= m_extra[c]
+        for master, w in zip(masters, weights, strict=True):
+            if master < n_base_dofs:
+                scratch[0].array[master] += w * m_extra[c]
+            else:
+                scratch[1].array[master - n_base_dofs] += w * m_extra[c]
+    for vector, delta in zip((mass_base, mass_extra), scratch, strict=True):
+        delta.scatter_reverse(la.InsertMode.add)
+        n_owned = 3 * vector.index_map.size_local
+        out.append(vector.array[:n_owned] + delta.array[:n_owned])
+    return out[0], out[1]
+
+
+@numba.njit(cache=True)
+def transfer_forces(dofs, masters, weights, n_base_dofs, f_base, f_extra):
+    """Move the constrained DOFs' forces (this rank's partial sums) to their masters."""
+    for k in range(dofs.shape[0]):
+        c = dofs[k] - n_base_dofs
+        value = f_extra[c]
+        f_extra[c] = 0.0
+        for j in range(2):
+            master = masters[k, j]
+            if master < n_base_dofs:
+                f_base[master] += weights[k, j] * value
+            else:
+                f_extra[master - n_base_dofs] += weights[k, j] * value
+
+
+@numba.njit(cache=True)
+def follow_masters(dofs, masters, weights, n_base_dofs, x_base, x_extra):
+    """Set the constrained DOFs of x (displacement or velocity) from their masters."""
+    for k in range(dofs.shape[0]):
+        value = 0.0
+        for j in range(2):
+            master = masters[k, j]
+            if master < n_base_dofs:
+                value += weights[k, j] * x_base[master]
+            else:
+                value += weights[k, j] * x_extra[master - n_base_dofs]
+        x_extra[dofs[k] - n_base_dofs] = value
