@@ -1,6 +1,8 @@
-"""Command line: ``fenics-adaptive run CONFIG.toml --out DIR`` and ``fenics-adaptive check``.
+"""Command line: ``fenics-adaptive run CONFIG.toml --out DIR [--restart CHECKPOINT]`` and
+``fenics-adaptive check``.
 
-Exit status: 0 done, 2 bad input (one line on stderr naming the key), 1 the run failed.
+Exit status: 0 done, 2 bad input (one line on stderr naming the key), 1 the run failed, 130 the
+run was interrupted (SIGINT or SIGTERM) after writing a checkpoint to continue from.
 """
 
 from __future__ import annotations
@@ -26,6 +28,11 @@ def main(argv: list[str] | None = None) -> int:
     run.add_argument("config", help="TOML run configuration")
     run.add_argument("--out", required=True, help="output folder (created if needed)")
     run.add_argument("--quiet", action="store_true", help="no progress and no log lines")
+    run.add_argument(
+        "--restart",
+        metavar="CHECKPOINT",
+        help="continue from this checkpoint folder (or the output folder holding one)",
+    )
     check = commands.add_parser("check", help="check a config and report the time step, no run")
     check.add_argument("config", help="TOML run configuration")
     args = parser.parse_args(argv)
@@ -33,6 +40,7 @@ def main(argv: list[str] | None = None) -> int:
     comm = MPI.COMM_WORLD
     # Imported here so that `--help` answers without loading DOLFINx.
     from fenics_adaptive.config import load_config
+    from fenics_adaptive.explicit import Interrupted
     from fenics_adaptive.runner import build_problem, run_config
 
     try:
@@ -52,7 +60,16 @@ def main(argv: list[str] | None = None) -> int:
             comm,
             show_progress=not args.quiet,
             log=None if args.quiet else print,
+            restart=args.restart,
         )
+    except Interrupted as error:
+        if comm.rank == 0:
+            print(
+                f"fenics-adaptive: {error}; continue with: fenics-adaptive run {args.config} "
+                f"--out {args.out} --restart {args.out}",
+                file=sys.stderr,
+            )
+        return 130
     except InputError as error:
         if comm.rank == 0:
             print(f"fenics-adaptive: {args.config}: {error}", file=sys.stderr)

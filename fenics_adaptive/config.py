@@ -164,8 +164,10 @@ class _Table:
             raise InputError(self.key(name), f"must be <= {maximum:g} (got {value:g})")
         return value
 
-    def integer(self, name: str, default: Any = ..., minimum: int = 1) -> int:
+    def integer(self, name: str, default: Any = ..., minimum: int = 1) -> int | None:
         value = self.raw(name, default)
+        if value is None and default is None:
+            return None
         if isinstance(value, bool) or not isinstance(value, int):
             raise InputError(self.key(name), f"must be an integer >= {minimum} (got {value!r})")
         if value < minimum:
@@ -314,6 +316,7 @@ def parse_config(data: dict, source: str = "<memory>") -> RunConfig:
     output = root.table("output")
     interval = output.number("interval", positive=True)
     fields_interval = output.number("fields_interval", default=None, positive=True)
+    checkpoint_interval = output.integer("checkpoint_interval", default=None)
     probe = Probe(
         displacement_face=_face(output, faces, "displacement_face"),
         reaction_face=_face(output, faces, "reaction_face"),
@@ -345,6 +348,7 @@ def parse_config(data: dict, source: str = "<memory>") -> RunConfig:
             time_step=forced,
             mass_damping=damping,
             field_interval=fields_interval,
+            checkpoint_interval=checkpoint_interval,
         ),
         probe=probe,
         interfaces=interfaces,

@@ -45,6 +45,7 @@ class SolverSettings:
     time_step: float | None = None  # forced step (s); must not exceed the stable one
     mass_damping: float = 0.0  # 1/s, on every free DOF
     field_interval: float | None = None  # s between field outputs (None: none)
+    checkpoint_interval: int | None = None  # steps between checkpoints (None: none)
 
 
 @dataclass(frozen=True)
@@ -90,6 +91,34 @@ COLUMNS = [*HistoryRow.__dataclass_fields__, "energy_balance"]
 
 class Diverged(RuntimeError):
     pass
+
+
+class Interrupted(RuntimeError):
+    """The run was asked to stop (SIGINT, SIGTERM) and stopped after writing a checkpoint."""
+
+    def __init__(self, t: float, step: int):
+        super().__init__(f"interrupted at t = {t:.6g} s (step {step}); a checkpoint was written")
+        self.t, self.step = t, step
+
+
+# What a checkpoint keeps of each block: every array the next step reads (u and v with their
+# ghosts; the rest owned), so that a resumed run repeats the uninterrupted one bit for bit.
+BLOCK_ARRAYS = ("u_all", "v_all", "du", "f_old", "f_ext_old", "reaction_old")
+SOLVER_SCALARS = (
+    "t",
+    "step",
+    "dt",
+    "dt_prev",
+    "stable",
+    "next_output",
+    "next_fields",
+    "work_int",
+    "work_ext",
+    "work_damp",
+    "initial_energy",
+    "tied",
+    "refinements",
+)
 
 
 RUNAWAY = 100.0  # kinetic energy beyond this multiple of the work put in means instability
@@ -164,6 +193,9 @@ def run(
     time_step: float | None = None,
     initial_displacement: np.ndarray | None = None,
     initial_velocity: np.ndarray | None = None,
+    checkpoint: Callable[[dict], None] | None = None,
+    stop_requested: Callable[[], bool] | None = None,
+    resume: dict | None = None,
 ) -> RunStats:
     """Integrate from t = 0 to ``settings.end_time``, starting from ``initial_displacement`` and
     ``initial_velocity`` (base DOFs, owned + ghost entries; default zero; the velocity is taken
@@ -173,7 +205,14 @@ def run(
     structure (refinement): the blocks are then rebuilt and the stable step recomputed, and
     ``on_refined(t, new step, what limits it)`` is told.
     ``time_step`` bypasses the stability check (for tests that show what an unstable step
-    does)."""
+    does).
+
+    Checkpoints: every ``settings.checkpoint_interval`` steps and after the last step (if
+    that is set), and, in any case, when
+    ``stop_requested()`` turns True on any rank (polled every 64 steps), ``checkpoint(state)``
+    gets the solver state (``SOLVER_SCALARS`` and per block ``BLOCK_ARRAYS``) to store with the
+    structure's; after a stop it raises ``Interrupted``. ``resume``: such a state, to continue
+    from (the structure must already be restored to the same moment)."""
     comm = structure.comm
     loads = structure.loads
     dt, stable, where = choose_time_step(structure, settings)
@@ -184,8 +223,9 @@ def run(
 
     states = [_BlockState(b, settings.mass_damping) for b in structure.blocks]
     base = states[0]
-    base.block.u.array[:] = 0.0 if initial_displacement is None else initial_displacement
-    base.block.v.array[:] = 0.0 if initial_velocity is None else initial_velocity
+    if resume is None:
+        base.block.u.array[:] = 0.0 if initial_displacement is None else initial_displacement
+        base.block.v.array[:] = 0.0 if initial_velocity is None else initial_velocity
     n_motions = len(structure.motions)
     motion_now, motion_next = np.zeros(n_motions), np.zeros(n_motions)
     f_ext_full = np.zeros_like(base.block.u.array)
@@ -242,6 +282,20 @@ def run(
                 state.reaction -= np.take(state.f_ext, fixed, out=state.scratch)
 
     tied = [False]  # tie forces were applied last step (their f_ext must be cleared once)
+    not_finite = [False]  # this rank has seen a non-finite internal work
+
+    def where_fastest() -> str:
+        """Collective: where the largest (or a non-finite) velocity is, for error messages."""
+        best = (-1.0, "")
+        for index, state in enumerate(states):
+            speed = np.abs(state.v)
+            speed[~np.isfinite(speed)] = np.inf
+            if len(speed) and speed.max() > best[0]:
+                dof = int(np.argmax(speed))
+                best = (float(speed[dof]), structure.describe_dof(index, dof))
+        speed, text = max(comm.allgather(best))
+        return f"at {text} (|v| = {speed:.3g} mm/s)"
+
     damping_changes = [math.inf]  # next time a stabilisation damping window closes
 
     def refresh_damping() -> None:
@@ -262,10 +316,38 @@ def run(
     next_output = 0.0
     next_fields = 0.0 if (settings.field_interval and on_fields) else math.inf
     step = 0
-    set_prescribed(0.0, dt)
+    if resume is not None:
+        t, step, dt, dt_prev, stable = (resume[k] for k in ("t", "step", "dt", "dt_prev", "stable"))
+        step = int(step)
+        next_output, next_fields = resume["next_output"], resume["next_fields"]
+        work_int, work_ext, work_damp = (resume[k] for k in ("work_int", "work_ext", "work_damp"))
+        initial_energy[0] = resume["initial_energy"]
+        tied[0] = bool(resume["tied"])
+        stats.refinements = int(resume["refinements"])
+        stats.time_step, stats.stable_time_step = dt, stable
+        for index, state in enumerate(states):
+            state.block.u.array[:] = resume[f"block{index}_u_all"]
+            state.block.v.array[:] = resume[f"block{index}_v_all"]
+            for name in BLOCK_ARRAYS[2:]:
+                getattr(state, name)[:] = resume[f"block{index}_{name}"]
+        refresh_damping()
+    set_prescribed(t, dt)
     for state in states:
         np.put(state.u, state.block.fixed, state.u_now)
         state.block.u.scatter_forward()
+    checkpoint_every = settings.checkpoint_interval if checkpoint is not None else None
+
+    def write_checkpoint() -> None:
+        scalars = (t, step, dt, dt_prev, stable, next_output, next_fields, work_int, work_ext)
+        scalars += (work_damp, initial_energy[0], float(tied[0]), stats.refinements)
+        state_now = dict(zip(SOLVER_SCALARS, scalars, strict=True))
+        for index, state in enumerate(states):
+            state_now[f"block{index}_u_all"] = state.block.u.array
+            state_now[f"block{index}_v_all"] = state.block.v.array
+            for name in BLOCK_ARRAYS[2:]:
+                state_now[f"block{index}_{name}"] = getattr(state, name)
+        checkpoint(state_now)
+
     start = time.perf_counter()
 
     # a diverging run is reported by Diverged, not by floating-point warnings
@@ -288,11 +370,14 @@ def run(
                         )
                 # the internal work sums every DOF's force and motion: a single non-finite
                 # value anywhere shows here, in the step it appears
+                # (in parallel the other ranks learn it at the next poll, every 64 steps)
                 if not math.isfinite(work_int):
-                    raise Diverged(
-                        f"t = {t:.6g} s (step {step}): the solution is no longer finite; time "
-                        f"step {dt:.4g} s, stable step {stable:.4g} s"
-                    )
+                    not_finite[0] = True
+                    if comm.size == 1:
+                        raise Diverged(
+                            f"t = {t:.6g} s (step {step}): the solution is no longer finite "
+                            f"{where_fastest()}; time step {dt:.4g} s, stable step {stable:.4g} s"
+                        )
 
             # refinement between steps: the work of the last step was counted with the old
             # structure's forces above; the new one starts from its own forces at t_n
@@ -343,8 +428,8 @@ def run(
                 total = comm.allreduce(local, op=MPI.SUM)
                 if not np.all(np.isfinite(total)):
                     raise Diverged(
-                        f"t = {t:.6g} s (step {step}): the solution is no longer finite; time "
-                        f"step {dt:.4g} s, stable step {stable:.4g} s"
+                        f"t = {t:.6g} s (step {step}): the solution is no longer finite "
+                        f"{where_fastest()}; time step {dt:.4g} s, stable step {stable:.4g} s"
                     )
                 solid, cohesive = structure.energies()
                 if step == 0:  # an initial velocity or displacement brings energy along
@@ -354,7 +439,8 @@ def run(
                 if step > 0 and kinetic > RUNAWAY * max(put_in, 1e-300):
                     raise Diverged(
                         f"t = {t:.6g} s (step {step}): kinetic energy {kinetic:.4g} mJ exceeds "
-                        f"{RUNAWAY:g} x the work put in ({put_in:.4g} mJ): the run is unstable "
+                        f"{RUNAWAY:g} x the work put in ({put_in:.4g} mJ), fastest "
+                        f"{where_fastest()}: the run is unstable "
                         f"(time step {dt:.4g} s, stable step {stable:.4g} s, limited by {where}; "
                         "a cohesive penalty or a damaged material too stiff for it?)"
                     )
@@ -420,8 +506,28 @@ def run(
             t += dt
             step += 1
             set_prescribed(t, dt)
-            if on_progress is not None and step % 64 == 0:
-                on_progress(t)
+            if step % 64 == 0:
+                if on_progress is not None:
+                    on_progress(t)
+                stop = stop_requested is not None and stop_requested()
+                if comm.size > 1:
+                    flags = np.array([stop, not_finite[0]], dtype=np.int32)
+                    comm.Allreduce(MPI.IN_PLACE, flags, op=MPI.MAX)
+                    stop = bool(flags[0])
+                    if flags[1]:
+                        raise Diverged(
+                            f"t = {t:.6g} s (step {step}): the solution is no longer finite "
+                            f"{where_fastest()}; time step {dt:.4g} s, stable step {stable:.4g} s"
+                        )
+                if stop:
+                    if checkpoint is not None:
+                        write_checkpoint()
+                    raise Interrupted(t, step)
+            # periodic, and the last state (a restart with a later end time extends the run)
+            if checkpoint_every and (
+                step % checkpoint_every == 0 or t >= settings.end_time - 1e-9 * dt
+            ):
+                write_checkpoint()
 
     stats.steps = n_steps_done
     stats.wall_time = time.perf_counter() - start

@@ -30,6 +30,7 @@ import dolfinx.io
 import matplotlib.pyplot as plt
 from mpi4py import MPI
 
+from fenics_adaptive.errors import InputError
 from fenics_adaptive.explicit import COLUMNS, HistoryRow
 
 COLUMN_UNITS = {
@@ -54,7 +55,7 @@ RESULT_FILES = ("history.csv", "summary.json", "force_displacement.png", "energi
 class HistoryWriter:
     """CSV history, full double precision, flushed every row (rank 0 only)."""
 
-    def __init__(self, out_dir: Path, comm: MPI.Comm):
+    def __init__(self, out_dir: Path, comm: MPI.Comm, rows: list[HistoryRow] = ()):
         self.partial = out_dir / "history.partial.csv"
         self.final = out_dir / "history.csv"
         self.file: TextIO | None = None
@@ -62,6 +63,8 @@ class HistoryWriter:
             self.file = open(self.partial, "w", newline="")
             self.writer = csv.writer(self.file)
             self.writer.writerow(COLUMNS)
+        for row in rows:  # a restart keeps the rows up to its checkpoint
+            self(row)
 
     def __call__(self, row: HistoryRow) -> None:
         if self.file is None:
@@ -84,6 +87,23 @@ def read_history(path: str | Path) -> dict[str, list[float]]:
         rows = list(csv.reader(f))
     header, body = rows[0], rows[1:]
     return {name: [float(r[i]) for r in body] for i, name in enumerate(header)}
+
+
+def history_until(out_dir: Path, t: float) -> list[HistoryRow]:
+    """The rows of the run in ``out_dir`` (complete or partial history) before time t (s): a
+    run resumed at t writes its row at t itself if t is an output time."""
+    for name in ("history.csv", "history.partial.csv"):
+        if (out_dir / name).exists():
+            table = read_history(out_dir / name)
+            break
+    else:
+        raise InputError("restart", f"no history.csv in {out_dir} to continue")
+    names = [n for n in HistoryRow.__dataclass_fields__]
+    rows = []
+    for k, time_k in enumerate(table["time"]):
+        if time_k < t:
+            rows.append(HistoryRow(**{n: table[n][k] for n in names}))
+    return rows
 
 
 def write_summary(out_dir: Path, summary: dict, comm: MPI.Comm) -> None:

@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import math
 import platform
+import signal
+import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -18,7 +20,7 @@ import numpy as np
 from mpi4py import MPI
 
 import fenics_adaptive
-from fenics_adaptive import explicit, output
+from fenics_adaptive import checkpoint, explicit, output
 from fenics_adaptive.assembly import CohesiveSet
 from fenics_adaptive.config import RunConfig
 from fenics_adaptive.enrichment import STRONG, WEAK
@@ -47,8 +49,11 @@ class Problem:
         return self.structure.base.beam
 
 
-def build_structure(config: RunConfig, comm: MPI.Comm = MPI.COMM_WORLD) -> Structure:
-    """Mesh, model, loads and (for adaptive) the initial refinement of a config."""
+def build_structure(
+    config: RunConfig, comm: MPI.Comm = MPI.COMM_WORLD, refine_initially: bool = True
+) -> Structure:
+    """Mesh, model, loads and (for adaptive, unless a restart replays it) the initial
+    refinement of a config."""
     layers = config.layer_laminates()
     boundaries = config.layer_boundaries
     beam = layered_mesh(
@@ -91,7 +96,7 @@ def build_structure(config: RunConfig, comm: MPI.Comm = MPI.COMM_WORLD) -> Struc
     for region in config.matrix_strength:
         cells = cells_in_x_range(structure, region.x_min, region.x_max)
         structure.scale_matrix_strength(cells, region.plies, region.factor)
-    if config.kind == "adaptive" and config.interfaces.initial != "none":
+    if refine_initially and config.kind == "adaptive" and config.interfaces.initial != "none":
         structure.refine(initial_refinement(structure, config))
     return structure
 
@@ -107,49 +112,60 @@ def initial_refinement(structure: Structure, config: RunConfig) -> list[tuple[in
     return requests
 
 
-def refinement_hook(config: RunConfig) -> Callable[[float, Structure], bool] | None:
+class RefinementHook:
     """The solver's per-step hook that refines: the config's manual [[refinement]] entries and
     its [indicators]. Decisions are taken on the same steps on every rank (time, or the global
-    probe displacement), so the collective refinement is entered by all."""
-    manual = list(config.refinements)
-    settings = config.indicators
-    if not manual and settings is None:
-        return None
-    probe_by_displacement = any(m.displacement < math.inf for m in manual)
-    probe_dofs = {}
-    strengths = (config.cohesive.N, config.cohesive.S) if config.cohesive is not None else None
-    next_check = [0.0]
+    probe displacement), so the collective refinement is entered by all. Its state (which
+    manual entries are still pending, when the indicators run next) goes into checkpoints."""
 
-    def on_step(t: float, structure: Structure) -> bool:
-        if probe_by_displacement and "dofs" not in probe_dofs:
-            probe_dofs["dofs"] = face_dofs(
-                structure.base,
-                config.probe.displacement_face,
-                config.probe.component,
-                x_range=config.probe.displacement_x,
-            )
-        displacement = (
-            probe_displacement(structure, config.probe, probe_dofs["dofs"])
-            if probe_by_displacement
-            else 0.0
-        )
-        due = [m for m in manual if m.due(t, displacement)]
+    def __init__(self, config: RunConfig):
+        self.config = config
+        self.pending = list(range(len(config.refinements)))  # manual entries not yet done
+        self.next_check = 0.0  # s: next indicator evaluation
+        self.by_displacement = any(m.displacement < math.inf for m in config.refinements)
+        self.probe_dofs: np.ndarray | None = None
+        cohesive = config.cohesive
+        self.strengths = (cohesive.N, cohesive.S) if cohesive is not None else None
+
+    @classmethod
+    def of(cls, config: RunConfig) -> RefinementHook | None:
+        return cls(config) if config.refinements or config.indicators is not None else None
+
+    def state(self) -> dict[str, np.ndarray]:
+        return {"pending": np.array(self.pending, dtype=np.int64), "next_check": self.next_check}
+
+    def restore(self, state: dict[str, np.ndarray]) -> None:
+        self.pending = [int(k) for k in state["pending"]]
+        self.next_check = float(state["next_check"])
+
+    def __call__(self, t: float, structure: Structure) -> bool:
+        config, settings = self.config, self.config.indicators
+        displacement = 0.0
+        if self.by_displacement:
+            if self.probe_dofs is None:
+                self.probe_dofs = face_dofs(
+                    structure.base,
+                    config.probe.displacement_face,
+                    config.probe.component,
+                    x_range=config.probe.displacement_x,
+                )
+            displacement = probe_displacement(structure, config.probe, self.probe_dofs)
+        due = [k for k in self.pending if config.refinements[k].due(t, displacement)]
         requests = []
-        for entry in due:
-            manual.remove(entry)
+        for k in due:
+            self.pending.remove(k)
+            entry = config.refinements[k]
             cells = cells_in_x_range(structure, entry.x_min, entry.x_max)
             requests += [(int(c), i, entry.kind) for c in cells for i in entry.interfaces]
-        evaluate = settings is not None and t >= next_check[0]
+        evaluate = settings is not None and t >= self.next_check
         if evaluate:
-            requests += indicator_requests(structure, settings, strengths, t)
-            next_check[0] = t + settings.interval
+            requests += indicator_requests(structure, settings, self.strengths, t)
+            self.next_check = t + settings.interval
             if settings.spread:
                 requests += spread(structure, requests, settings.spread)
         if not due and not evaluate:
             return False
         return structure.refine(requests, t)
-
-    return on_step
 
 
 def probe_displacement(structure: Structure, probe, dofs: np.ndarray | None = None) -> float:
@@ -178,9 +194,10 @@ def run_config(
     comm: MPI.Comm = MPI.COMM_WORLD,
     show_progress: bool = True,
     log: Callable[[str], None] | None = print,
+    restart: str | Path | None = None,
 ) -> dict:
     """Run a config and write its results into ``out_dir``; returns the summary."""
-    return execute(config, out_dir, comm, show_progress, log)[0]
+    return execute(config, out_dir, comm, show_progress, log, restart)[0]
 
 
 def execute(
@@ -189,10 +206,26 @@ def execute(
     comm: MPI.Comm = MPI.COMM_WORLD,
     show_progress: bool = True,
     log: Callable[[str], None] | None = print,
+    restart: str | Path | None = None,
 ) -> tuple[dict, Structure]:
     """``run_config``, also handing back the structure in its final state (for pictures and
-    further analysis)."""
-    problem = build_problem(config, comm)
+    further analysis). ``restart``: a checkpoint folder (or the output folder holding one) to
+    continue from; the history up to the checkpoint is kept, the rest is run again.
+
+    SIGINT and SIGTERM stop the run at the next poll (every 64 steps) with a checkpoint, a
+    flushed ``history.partial.csv`` and a summary saying "interrupted"."""
+    resume, hook_state, kept_rows = None, None, []
+    if restart is None:
+        problem = build_problem(config, comm)
+    else:
+        manifest, arrays = checkpoint.read(restart, comm, config)
+        structure = build_structure(config, comm, refine_initially=False)
+        checkpoint.restore_structure(structure, arrays)
+        resume = checkpoint.solver_state(arrays)
+        hook_state = checkpoint.hook_state(arrays)
+        where = structure.stable_time_step()[1]
+        problem = Problem(config, structure, float(resume["dt"]), float(resume["stable"]), where)
+        kept_rows = output.history_until(Path(out_dir), manifest["time_s"])
     say = log if (log is not None and comm.rank == 0) else (lambda _: None)
     model = problem.model
     structure = problem.structure
@@ -218,9 +251,17 @@ def execute(
     if comm.rank == 0:
         out_dir.mkdir(parents=True, exist_ok=True)
     comm.barrier()
-    output.clear_previous_results(out_dir, comm)
-    history = output.HistoryWriter(out_dir, comm)
-    fields = output.FieldOutputs(out_dir, structure) if config.solver.field_interval else None
+    fields_dir = out_dir
+    if resume is None:
+        output.clear_previous_results(out_dir, comm)
+    else:
+        say(f"restarted from the checkpoint at t = {float(resume['t']):.6e} s")
+        fields_dir = out_dir / f"restart_step{int(resume['step'])}"  # earlier fields stay
+        if comm.rank == 0:
+            fields_dir.mkdir(exist_ok=True)
+        comm.barrier()
+    history = output.HistoryWriter(out_dir, comm, kept_rows)
+    fields = output.FieldOutputs(fields_dir, structure) if config.solver.field_interval else None
     progress = output.Progress(config.solver.end_time, comm) if show_progress else None
     summary = {
         "status": "running",
@@ -252,6 +293,16 @@ def execute(
             "python": platform.python_version(),
         },
     }
+    hook = RefinementHook.of(config)
+    if hook is not None and hook_state:
+        hook.restore(hook_state)
+
+    def write_checkpoint(solver_state: dict) -> None:
+        checkpoint.write(
+            out_dir, comm, solver_state, structure, hook.state() if hook else {}, config
+        )
+
+    stop = _StopOnSignal()
     start = time.perf_counter()
     try:
         stats = explicit.run(
@@ -261,30 +312,37 @@ def execute(
             on_history=history,
             on_fields=fields,
             on_progress=progress,
-            on_step=refinement_hook(config),
+            on_step=hook,
             on_refined=lambda t, dt, where: say(
                 f"t = {t:.4e} s: refined; now {comm.allreduce(structure.extra.n_owned)} extra "
                 f"nodes, {comm.allreduce(len(structure.cohesive))} cohesive elements; time step "
                 f"{dt:.4e} s (limited by {where})"
             ),
+            checkpoint=write_checkpoint,
+            stop_requested=stop,
+            resume=resume,
         )
     except BaseException as error:
         history.close(completed=False)
         if fields is not None:
             fields.close()
-        summary["status"] = "failed"
+        interrupted = isinstance(error, explicit.Interrupted)
+        summary["status"] = "interrupted" if interrupted else "failed"
         summary["error"] = f"{type(error).__name__}: {error}"
+        if interrupted:
+            summary["checkpoint"] = str(out_dir / checkpoint.FOLDER)
         summary["wall_time_s"] = time.perf_counter() - start
         output.write_summary(out_dir, summary, comm)
         raise
     finally:
+        stop.release()
         if progress is not None:
             progress.done()
     history.close(completed=True)
     if fields is not None:
         fields.close()
 
-    rows = stats.history
+    rows = kept_rows + stats.history
     peak = max(rows, key=lambda r: abs(r.reaction_force))
     scale = max(max(abs(r.external_work) for r in rows), 1e-300)
     summary.update(
@@ -320,3 +378,29 @@ def execute(
         f"({1e6 * stats.wall_time / max(stats.steps, 1):.0f} us/step); results in {out_dir}"
     )
     return summary, structure
+
+
+class _StopOnSignal:
+    """SIGINT / SIGTERM set a flag that the solver polls (then checkpoints and stops) instead
+    of killing the run mid-write. A second signal is not caught: it stops at once."""
+
+    SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+    def __init__(self):
+        self.requested = False
+        self.previous = {}
+        if threading.current_thread() is threading.main_thread():
+            for number in self.SIGNALS:
+                self.previous[number] = signal.signal(number, self._handle)
+
+    def _handle(self, number, frame) -> None:
+        self.requested = True
+        self.release()
+
+    def __call__(self) -> bool:
+        return self.requested
+
+    def release(self) -> None:
+        for number, handler in self.previous.items():
+            signal.signal(number, handler)
+        self.previous = {}

@@ -232,6 +232,8 @@ class Structure:
         if ply_damage:
             self._setup_ply_damage()
         self.refinement_energy = 0.0  # kinetic energy added by refinements (lumped-mass change)
+        # every refinement that changed something: (t, this rank's requests), for restarts
+        self.refinement_log: list[tuple[float, list[tuple[int, int, int]]]] = []
         self._solid_energy = 0.0
         self._cohesive_energy = 0.0
         self.border = BorderConstraints.empty()
@@ -288,6 +290,23 @@ class Structure:
         follow_masters(*self._border_args, self.base.u.x.array, self.extra.vectors["u"].array)
         if velocity:
             follow_masters(*self._border_args, self.v_base.array, self.extra.vectors["v"].array)
+
+    def describe_dof(self, block: int, dof: int) -> str:
+        """Where an owned DOF of a block is, in words (for error messages)."""
+        node, component = divmod(dof, 3)
+        axis = "xyz"[component]
+        if block == 0:
+            x = self.X_base[node]
+            cells = np.flatnonzero((self.bottom_local == node) | (self.top_local == node))
+            cell = f"cell {self.original_cell[cells[0]]}, " if len(cells) else ""
+            return f"{cell}base node at ({x[0]:.4g}, {x[1]:.4g}, {x[2]:.4g}) mm, u_{axis}"
+        n_interfaces = self.interface_state.shape[1]
+        _, interface, node_set = enr.key_parts(self.extra.owned_keys[node], n_interfaces)
+        x = self.extra.vectors["X"].array.reshape(-1, 3)[node]
+        return (
+            f"extra node of interface {interface} (set {'AB'[node_set]}) at "
+            f"({x[0]:.4g}, {x[1]:.4g}, {x[2]:.4g}) mm, u_{axis}"
+        )
 
     def energies(self) -> tuple[float, float]:
         """(strain energy of the solids, recoverable cohesive energy) in mJ at the state of the
@@ -436,6 +455,12 @@ class Structure:
         self._new_weak_cells = np.zeros(0, dtype=np.int64)
         self._new_pairs = []
 
+    def discard_stabilisation_requests(self) -> None:
+        """Forget what the last refinement would stabilise (a restart replaying refinements
+        restores the stabilisation state it stored instead)."""
+        self._new_weak_cells = np.zeros(0, dtype=np.int64)
+        self._new_pairs = []
+
     def add_tie_forces(self, t: float, f_ext_extra: np.ndarray) -> None:
         """Add the active tie forces at time t to the extra block's external force (owned DOFs,
         flat)."""
@@ -478,6 +503,7 @@ class Structure:
         or STRONG); a strong request on an unrefined interface makes it weak first. Returns
         whether anything changed on any rank. Raises InputError for interfaces not allowed to
         refine."""
+        requests = list(requests)
         target = self.interface_state.copy()
         for cell, interface, kind in requests:
             allowed = set(self.interfaces.delaminate)
@@ -491,6 +517,7 @@ class Structure:
         changed = np.flatnonzero((target != old_state).any(axis=1))
         if not self.comm.allreduce(len(changed), op=MPI.SUM):
             return False
+        self.refinement_log.append((t, [tuple(int(x) for x in r) for r in requests]))
         self._new_weak_cells = changed[
             ((old_state[changed] == enr.NONE) & (target[changed] >= enr.WEAK)).any(axis=1)
         ]

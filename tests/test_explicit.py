@@ -5,6 +5,7 @@ Units: N, mm, s, tonne.
 """
 
 import math
+import re
 
 import numpy as np
 import pytest
@@ -120,7 +121,7 @@ def test_stable_time_step_estimate_is_safe_and_sharp():
     )
     assert max(amplitude) < 10 * np.abs(u0).max()
     above = explicit.SolverSettings(end_time=steps * 1.2 * critical, output_interval=1e-6)
-    with pytest.raises(explicit.Diverged):
+    with pytest.raises(explicit.Diverged) as failure:
         explicit.run(
             Structure(model, loads),
             above,
@@ -128,6 +129,10 @@ def test_stable_time_step_estimate_is_safe_and_sharp():
             time_step=1.2 * critical,
             initial_displacement=u0,
         )
+    # the message says when and where (the node moving fastest), and what to suspect
+    message = str(failure.value)
+    assert "t = " in message and "time step" in message
+    assert re.search(r"at cell \d+, base node at \(", message), message
 
 
 def test_quasi_static_explicit_matches_static_solution():

@@ -14,7 +14,7 @@ from fenics_adaptive import indicators as ind
 from fenics_adaptive.config import parse_config
 from fenics_adaptive.laminate import Laminate, PlyMaterial
 from fenics_adaptive.model import build_model
-from fenics_adaptive.runner import build_structure, probe_displacement, refinement_hook
+from fenics_adaptive.runner import RefinementHook, build_structure, probe_displacement
 from fenics_adaptive.static import solve_static
 from fenics_adaptive.structure import Structure
 from meshes import esl_mesh
@@ -89,7 +89,7 @@ def test_manual_refinement_by_displacement():
     data["solver"]["end_time"] = 2.0e-5
     config = parse_config(data)
     structure = build_structure(config)
-    hook = refinement_hook(config)
+    hook = RefinementHook.of(config)
     at = []
 
     def on_step(t, s):

@@ -11,7 +11,7 @@ import pytest
 from fenics_adaptive import enrichment as enr
 from fenics_adaptive import explicit
 from fenics_adaptive.config import parse_config
-from fenics_adaptive.runner import build_structure, refinement_hook
+from fenics_adaptive.runner import RefinementHook, build_structure
 
 DATA = Path(__file__).parent / "data"
 
@@ -30,7 +30,7 @@ def tcb(**sections) -> dict:
 def run(data):
     config = parse_config(data)
     structure = build_structure(config)
-    stats = explicit.run(structure, config.solver, config.probe, on_step=refinement_hook(config))
+    stats = explicit.run(structure, config.solver, config.probe, on_step=RefinementHook.of(config))
     return structure, stats
 
 

@@ -10,7 +10,7 @@ import pytest
 
 from fenics_adaptive import explicit
 from fenics_adaptive.config import parse_config
-from fenics_adaptive.runner import build_structure, refinement_hook
+from fenics_adaptive.runner import RefinementHook, build_structure
 
 ROOT = Path(__file__).parents[1]
 spec = importlib.util.spec_from_file_location("tcb_demo", ROOT / "demos" / "tcb.py")
@@ -22,7 +22,7 @@ def run(name: str):
     base = demo.quick(tomllib.loads((ROOT / "demos" / "tcb.toml").read_text()))
     config = parse_config(demo.variant(base, name))
     structure = build_structure(config)
-    stats = explicit.run(structure, config.solver, config.probe, on_step=refinement_hook(config))
+    stats = explicit.run(structure, config.solver, config.probe, on_step=RefinementHook.of(config))
     history = {
         name: [getattr(r, name) for r in stats.history]
         for name in ("displacement", "reaction_force", "delaminated_area", "dissipated_energy")
