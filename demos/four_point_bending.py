@@ -13,12 +13,14 @@ all runs:
 - ``adaptive``: the same with the paper's stabilisation: damping for 0.2 ms after the weak
   refinement, the strong refinement released over 0.02 ms.
 
-Status: the LW reference runs through. The adaptive runs do not yet: refining cells one ring
-after the other next to cells refined earlier (whose extra nodes already carry the layered
-field) injects energy at every refinement of this strongly heterogeneous cross-ply (the
-``refinement_energy`` column books it), and once the 90-degree plies have cracked the run turns
-unstable; the solver's runaway check stops it and the demo reports where. Refining the whole
-region at once from the start (``initial = "strong"``) reproduces the reference.
+The refined region grows ring by ring as the crack spreads. Extra nodes on its border follow
+the unrefined neighbours (``fenics_adaptive.border``), so the region does not end in a hinge.
+
+Known difference: the ESL cell has one thickness strain per cell. In bending that puts a
+spurious through-thickness stress into the outer plies, about half of the bending stress. The
+bottom 90-degree block therefore cracks at a loading-roller displacement of about 0.25 mm in the
+unrefined ESL cells, against 0.38 mm in the LW reference. An enhanced assumed strain for the
+thickness direction would remove this. It is not implemented.
 
     .venv/bin/python demos/four_point_bending.py --out results/four_point_bending
 
@@ -82,14 +84,65 @@ def facts(structure, summary: dict, history: dict) -> dict:
     }
 
 
+def smooth(values: np.ndarray, width: int) -> np.ndarray:
+    """Moving average over ``width`` rows (the force rings after every crack; the mean shows
+    the trend)."""
+    kernel = np.ones(width) / width
+    return np.convolve(np.pad(values, width // 2, mode="edge"), kernel, mode="valid")[: len(values)]
+
+
+def plot(histories: dict, path: Path) -> None:
+    """Force against roller displacement (raw and smoothed), and the delaminated area and the
+    dissipated energy, like the paper's Figure 8."""
+    styles = {
+        "reference": dict(color="k", lw=2.0),
+        "adaptive_unstabilised": dict(color="tab:red", lw=1.2),
+        "adaptive": dict(color="tab:blue", lw=1.2),
+    }
+    fig, (top, bottom) = plt.subplots(
+        2, 1, figsize=(7, 7), layout="constrained", sharex=True, height_ratios=(3, 2)
+    )
+    for name, h in histories.items():
+        d = np.abs(np.array(h["displacement"]))
+        force = np.abs(np.array(h["reaction_force"]))
+        label = name.replace("_", " ")
+        top.plot(d, force, color=styles[name]["color"], lw=0.4, alpha=0.35)
+        top.plot(d, smooth(force, 25), label=f"{label} (moving mean)", **styles[name])
+        bottom.plot(d, h["delaminated_area"], label=f"{label}: delaminated area", **styles[name])
+        bottom.plot(
+            d, h["dissipated_energy"], ls="--", label=f"{label}: dissipated energy", **styles[name]
+        )
+    top.set_ylabel("force on the loading roller (N, half beam)")
+    top.set_title("four-point bending, [90_4/0_4]s IM7/8552")
+    bottom.set_xlabel("loading roller displacement (mm)")
+    bottom.set_ylabel("area (mm$^2$) / energy (mJ)")
+    for ax in (top, bottom):
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+    fig.savefig(path, dpi=150)
+    plt.close(fig)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--config", default=HERE / "four_point_bending.toml")
     parser.add_argument("--out", default="results/four_point_bending")
+    parser.add_argument(
+        "--plot-only", action="store_true", help="redraw the plot from the results in --out"
+    )
     args = parser.parse_args()
     base = tomllib.loads(Path(args.config).read_text())
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
+    if args.plot_only:
+        histories = {}
+        for name in RUNS:
+            for file in ("history.csv", "history.partial.csv"):
+                if (out / name / file).exists():
+                    histories[name] = read_history(out / name / file)
+                    break
+        plot(histories, out / "four_point_bending.png")
+        return
 
     results, histories = {}, {}
     for name in RUNS:
@@ -114,29 +167,9 @@ def main() -> None:
         r["dissipated_energy_relative_to_reference"] = (
             r["dissipated_energy_mJ"] / reference["dissipated_energy_mJ"] - 1
         )
-        r["wall_time_relative_to_reference"] = r["wall_time_s"] / reference["wall_time_s"]
+        r["wall_time_ratio_to_reference"] = r["wall_time_s"] / reference["wall_time_s"]
 
-    fig, ax = plt.subplots(figsize=(7, 4.5), layout="constrained")
-    styles = {
-        "reference": dict(color="k", lw=2.0),
-        "adaptive_unstabilised": dict(color="tab:red", lw=1.0),
-        "adaptive": dict(color="tab:blue", lw=1.2),
-    }
-    for name, h in histories.items():
-        ax.plot(
-            np.abs(h["displacement"]),
-            np.abs(h["reaction_force"]),
-            label=name.replace("_", " "),
-            **styles[name],
-        )
-    ax.set_xlabel("loading roller displacement (mm)")
-    ax.set_ylabel("force on the loading roller (N, half beam)")
-    ax.set_title("four-point bending, [90_4/0_4]s IM7/8552")
-    ax.grid(alpha=0.3)
-    ax.legend()
-    fig.savefig(out / "four_point_bending.png", dpi=150)
-    plt.close(fig)
-
+    plot(histories, out / "four_point_bending.png")
     summary = {"units": "N, mm, s, tonne (mJ)", "runs": results}
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
     print(json.dumps(summary, indent=2))

@@ -16,8 +16,9 @@ the summation order of the assembly.
 
 Energies (global, on output steps): kinetic 1/2 v.M.v at full steps; internal work
 sum 1/2 (f_n + f_{n+1}).du (strain energy plus what materials dissipate); external work of loads
-and of prescribed motions (reaction forces); damping work; the kinetic energy that refinement
-adds or removes when it redistributes lumped masses. Balance:
+and of prescribed motions (reaction forces); damping work; the mechanical energy that
+refinement adds or removes (kinetic: it redistributes lumped masses; strain and cohesive: what
+new nodes change, also added to the internal work). Balance:
 kinetic + internal + damping - external - refinement = 0 up to the scheme's O(dt^2) error.
 Dissipated = internal work - solid strain energy - recoverable cohesive energy.
 """
@@ -70,8 +71,8 @@ class HistoryRow:
     internal_energy: float  # mJ, work of the internal forces
     external_work: float  # mJ, work of loads and prescribed motions
     damping_energy: float  # mJ, dissipated by mass damping
-    dissipated_energy: float  # mJ, dissipated by materials (cohesive damage)
-    refinement_energy: float  # mJ, kinetic energy changed by refinements
+    dissipated_energy: float  # mJ, dissipated by materials (ply and cohesive damage)
+    refinement_energy: float  # mJ, kinetic + strain + cohesive energy changed by refinements
     delaminated_area: float  # mm^2, failed cohesive elements
     time_step: float  # s
 
@@ -383,6 +384,10 @@ def run(
             # structure's forces above; the new one starts from its own forces at t_n
             if on_step is not None and on_step(t, structure):
                 stats.refinements += 1
+                # the strain and cohesive energy the refinement changed count as internal work
+                # (booked once, on rank 0), so that the dissipated energy does not jump
+                if comm.rank == 0:
+                    work_int += structure.last_refinement_potential
                 states = [
                     _BlockState(b, settings.mass_damping, old)
                     for b, old in zip(structure.blocks, states, strict=True)

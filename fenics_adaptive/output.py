@@ -7,6 +7,10 @@ A run writes into its output folder
   force_displacement.png   reaction force vs probe displacement
   energies.png             energy balance vs time
   displacement.bp/         displacement field over time (ADIOS2/VTX, opens in ParaView >= 5.9)
+  elements.pvd, elements/  the enriched mesh as computed: subelements, extra and cohesive elements
+  plies.pvd, plies/        every ply of every cell as a slab: stress, Hashin indices, damage
+  checkpoint/              the state to restart from (``checkpoint``)
+The field files come every ``fields_interval``; a fresh run first removes all of these.
 While running, the history is written to history.partial.csv and only renamed to history.csv
 when the run completes: a file named history.csv is always a finished run.
 """
@@ -17,6 +21,7 @@ import base64
 import csv
 import json
 import os
+import shutil
 import sys
 import time
 from pathlib import Path
@@ -32,6 +37,8 @@ from mpi4py import MPI
 
 from fenics_adaptive.errors import InputError
 from fenics_adaptive.explicit import COLUMNS, HistoryRow
+from fenics_adaptive.indicators import ply_failure_indices, ply_strains
+from fenics_adaptive.ply_damage import S_D, S_FC, S_FT, S_MC, S_MT, nominal_ply_stresses
 
 COLUMN_UNITS = {
     "time": "s",
@@ -50,6 +57,7 @@ COLUMN_UNITS = {
 }
 
 RESULT_FILES = ("history.csv", "summary.json", "force_displacement.png", "energies.png")
+RESULT_FOLDERS = ("displacement.bp", "elements", "plies", "checkpoint", "checkpoint.partial")
 
 
 class HistoryWriter:
@@ -117,8 +125,12 @@ def clear_previous_results(out_dir: Path, comm: MPI.Comm) -> None:
     """Remove the results of an earlier run in the same folder so that none of them can be
     mistaken for this run's."""
     if comm.rank == 0:
-        for name in (*RESULT_FILES, "history.partial.csv"):
+        for name in (*RESULT_FILES, "history.partial.csv", "elements.pvd", "plies.pvd"):
             (out_dir / name).unlink(missing_ok=True)
+        for folder in RESULT_FOLDERS:
+            shutil.rmtree(out_dir / folder, ignore_errors=True)
+        for folder in out_dir.glob("restart_step*"):
+            shutil.rmtree(folder, ignore_errors=True)
     comm.barrier()
 
 
@@ -174,30 +186,61 @@ _VTK_HEX = np.array([0, 1, 3, 2, 4, 5, 7, 6])
 _VTK_QUAD = np.array([0, 1, 3, 2])
 
 
+class _VtuSeries:
+    """One .vtu per output time in ``<out>/<name>/`` (per rank, with a .pvtu in parallel),
+    collected with its times in ``<out>/<name>.pvd`` for ParaView."""
+
+    def __init__(self, out_dir: Path, name: str, comm: MPI.Comm):
+        self.name, self.comm = name, comm
+        self.folder = out_dir / name
+        if comm.rank == 0:
+            self.folder.mkdir(parents=True, exist_ok=True)
+            for old in self.folder.glob("*.*vtu"):
+                old.unlink()
+        comm.barrier()
+        self.steps: list[tuple[float, str]] = []
+        self.pvd = out_dir / f"{name}.pvd"
+
+    def write(self, t: float, X, connectivity, offsets, types, point_data, cell_data) -> None:
+        stem = f"{self.name}_{len(self.steps):06d}"
+        parallel = self.comm.size > 1
+        piece = f"{stem}_r{self.comm.rank}.vtu" if parallel else f"{stem}.vtu"
+        _write_vtu(self.folder / piece, X, connectivity, offsets, types, point_data, cell_data)
+        if parallel and self.comm.rank == 0:
+            _write_pvtu(self.folder / f"{stem}.pvtu", stem, self.comm.size, point_data, cell_data)
+        self.steps.append((t, f"{self.name}/{stem}.{'pvtu' if parallel else 'vtu'}"))
+        if self.comm.rank == 0:
+            entries = "\n".join(
+                f'    <DataSet timestep="{time!r}" file="{path}"/>' for time, path in self.steps
+            )
+            self.pvd.write_text(
+                '<?xml version="1.0"?>\n<VTKFile type="Collection" version="0.1">\n'
+                f"  <Collection>\n{entries}\n  </Collection>\n</VTKFile>\n"
+            )
+
+
+def _combined_nodes(structure) -> tuple[np.ndarray, np.ndarray]:
+    """Reference positions and displacements (n_base + n_extra, 3) of all local nodes."""
+    s = structure
+    X = np.vstack([s.X_base, s.extra.vectors["X"].array.reshape(-1, 3)])
+    u = np.vstack([s.base.u.x.array.reshape(-1, 3), s.extra.vectors["u"].array.reshape(-1, 3)])
+    return X, u
+
+
 class ElementWriter:
     """The enriched mesh for ParaView: every solid element as it is computed (unrefined cells,
     and the subelements of refined ones, so the extra nodes and the sublaminates show, as in the
     paper's Figure 4), the cohesive elements as quads with their damage, displacements on all
-    nodes (base and extra). One .vtu per output time (per rank, with a .pvtu in parallel),
-    collected in ``elements.pvd``."""
+    nodes (base and extra). Written to ``elements/`` and ``elements.pvd``."""
 
     def __init__(self, out_dir: Path, structure):
         self.structure = structure
         self.comm = structure.comm
-        self.folder = out_dir / "elements"
-        if self.comm.rank == 0:
-            self.folder.mkdir(parents=True, exist_ok=True)
-            for old in self.folder.glob("*.*vtu"):
-                old.unlink()
-        self.comm.barrier()
-        self.steps: list[tuple[float, str]] = []
-        self.pvd = out_dir / "elements.pvd"
+        self.series = _VtuSeries(out_dir, "elements", self.comm)
 
     def __call__(self, t: float) -> None:
         s = self.structure
-        index = len(self.steps)
-        X = np.vstack([s.X_base, s.extra.vectors["X"].array.reshape(-1, 3)])
-        u = np.vstack([s.base.u.x.array.reshape(-1, 3), s.extra.vectors["u"].array.reshape(-1, 3)])
+        X, u = _combined_nodes(s)
         nodes, _, plies = s.elements()
         solids = nodes[:, _VTK_HEX]
         cohesive = s.cohesive.nodes[:, :4][:, _VTK_QUAD]
@@ -220,20 +263,67 @@ class ElementWriter:
             "displacement": u,
             "extra_node": np.r_[np.zeros(s.n_base), np.ones(len(u) - s.n_base)],
         }
-        name = f"elements_{index:06d}"
-        piece = f"{name}_r{self.comm.rank}.vtu" if self.comm.size > 1 else f"{name}.vtu"
-        _write_vtu(self.folder / piece, X, connectivity, offsets, types, point_data, cell_data)
-        if self.comm.size > 1 and self.comm.rank == 0:
-            _write_pvtu(self.folder / f"{name}.pvtu", name, self.comm.size, point_data, cell_data)
-        self.steps.append((t, f"elements/{name}.{'pvtu' if self.comm.size > 1 else 'vtu'}"))
-        if self.comm.rank == 0:
-            entries = "\n".join(
-                f'    <DataSet timestep="{time!r}" file="{path}"/>' for time, path in self.steps
+        self.series.write(t, X, connectivity, offsets, types, point_data, cell_data)
+
+    def close(self) -> None:
+        pass
+
+
+# Per-ply cell data of PlyWriter: material-frame stress components (MPa)
+STRESS_NAMES = ("s11", "s22", "s33", "s23", "s13", "s12")
+
+
+class PlyWriter:
+    """Ply-by-ply results for ParaView: each ply of each cell as its own hexahedron (the slab
+    between the ply's bottom and top within the element that holds it), with the ply number and
+    angle, the material-frame stress at the ply's centre (MPa, with the matrix damage of the
+    ply), the Hashin exposure factors (largest so far when the ply damage model runs, else of
+    the current stress; only for materials with failure data) and the matrix damage. Written to
+    ``plies/`` and ``plies.pvd``; threshold on ``ply`` to look at one ply of the laminate."""
+
+    def __init__(self, out_dir: Path, structure):
+        self.structure = structure
+        self.series = _VtuSeries(out_dir, "plies", structure.comm)
+
+    def __call__(self, t: float) -> None:
+        s = self.structure
+        plies = s.laminate.plies
+        fractions = s.laminate.ply_fractions
+        X, u = _combined_nodes(s)
+        nodes, cells, spans = s.elements()
+        counts = spans[:, 1] - spans[:, 0]
+        element = np.repeat(np.arange(len(nodes)), counts)
+        ply = np.concatenate([np.arange(a, b) for a, b in spans]) if len(spans) else element
+        bottom, top = fractions[spans[element, 0]], fractions[spans[element, 1]]
+        s0 = ((fractions[ply] - bottom) / (top - bottom))[:, None, None]
+        s1 = ((fractions[ply + 1] - bottom) / (top - bottom))[:, None, None]
+        slab_points = []
+        for values in (X, u):
+            lower, upper = values[nodes[element, :4]], values[nodes[element, 4:]]
+            slab = np.concatenate(
+                [lower + s0 * (upper - lower), lower + s1 * (upper - lower)], axis=1
             )
-            self.pvd.write_text(
-                '<?xml version="1.0"?>\n<VTKFile type="Collection" version="0.1">\n'
-                f"  <Collection>\n{entries}\n  </Collection>\n</VTKFile>\n"
-            )
+            slab_points.append(slab.reshape(-1, 3))
+        n = len(element)
+        connectivity = (8 * np.arange(n)[:, None] + _VTK_HEX[None, :]).ravel()
+        offsets = 8 * np.arange(1, n + 1)
+        owner = cells[element]
+        damage = s.damage_state[:, :, S_D] if s.ply_damage else None
+        stress = nominal_ply_stresses(ply_strains(s), plies, damage)[owner, ply]
+        cell_data = {
+            "ply": ply + 1.0,
+            "angle": np.array([p.angle for p in plies])[ply],
+            **{name: stress[:, i] for i, name in enumerate(STRESS_NAMES)},
+        }
+        if s.ply_damage:
+            for name, slot in (("FT", S_FT), ("FC", S_FC), ("MT", S_MT), ("MC", S_MC)):
+                cell_data[f"hashin_{name}"] = s.damage_state[owner, ply, slot]
+            cell_data["matrix_damage"] = s.damage_state[owner, ply, S_D]
+        elif all(p.material.name in s.failures for p in plies):
+            cell_data["hashin_max"] = ply_failure_indices(s)[owner, ply]
+        point_data = {"displacement": slab_points[1]}
+        types = np.full(n, 12)
+        self.series.write(t, slab_points[0], connectivity, offsets, types, point_data, cell_data)
 
     def close(self) -> None:
         pass
@@ -292,10 +382,15 @@ def _write_pvtu(path, name, ranks, point_data, cell_data) -> None:
 
 
 class FieldOutputs:
-    """All field outputs of a run: the base displacement (VTX) and the enriched mesh (VTU)."""
+    """All field outputs of a run: the base displacement (VTX), the enriched mesh and the
+    ply-by-ply results (VTU series)."""
 
     def __init__(self, out_dir: Path, structure):
-        self.writers = [FieldWriter(out_dir, [structure.base.u]), ElementWriter(out_dir, structure)]
+        self.writers = [
+            FieldWriter(out_dir, [structure.base.u]),
+            ElementWriter(out_dir, structure),
+            PlyWriter(out_dir, structure),
+        ]
 
     def __call__(self, t: float) -> None:
         for writer in self.writers:

@@ -349,6 +349,25 @@ def degraded_shell_stiffness(
     return stiffness[k] - (1.0 - RESIDUAL) * d * ((A[0] if crack_open else 0.0) + A[1])
 
 
+def nominal_ply_stresses(
+    strains: np.ndarray, plies: Sequence[Ply], damage: np.ndarray | None = None
+) -> np.ndarray:
+    """Material-frame stress C(d) T eps (MPa) of plies with shell-frame strains ``strains``
+    (n, n_plies, 6) and matrix damage ``damage`` (n, n_plies; None: undamaged): what the kernels
+    compute at those strains. The crack is open where the undamaged s22 is tensile."""
+    out = np.empty_like(strains)
+    for k, ply in enumerate(plies):
+        eps = strains[:, k] @ strain_rotation(ply.angle).T
+        effective = eps @ ply.material.stiffness().T
+        out[:, k] = effective
+        if damage is not None:
+            A = degradation_matrices(ply.material)
+            d = (1.0 - RESIDUAL) * damage[:, k, None]
+            open_crack = (effective[:, 1] > 0.0)[:, None]
+            out[:, k] -= d * (open_crack * (eps @ A[0].T) + eps @ A[1].T)
+    return out
+
+
 # ---------------------------------------------------------------------------------------------
 # numba kernels
 

@@ -350,7 +350,9 @@ def execute(
             "status": "completed",
             "steps": stats.steps,
             "wall_time_s": stats.wall_time,
-            "time_per_step_s": stats.wall_time / max(stats.steps, 1),
+            # a restart ran only the steps after its checkpoint
+            "time_per_step_s": stats.wall_time
+            / max(stats.steps - (int(resume["step"]) if resume else 0), 1),
             "peak_reaction_force_N": peak.reaction_force,
             "displacement_at_peak_mm": peak.displacement,
             "final": {

@@ -231,7 +231,11 @@ class Structure:
         self.damage_rows: dict[tuple[int, int], int] = {}
         if ply_damage:
             self._setup_ply_damage()
-        self.refinement_energy = 0.0  # kinetic energy added by refinements (lumped-mass change)
+        # mechanical energy (kinetic + strain + recoverable cohesive, mJ) that refinements added
+        # in total, and the potential part of the last one (the solver books it as internal
+        # work, so that the dissipated energy does not jump)
+        self.refinement_energy = 0.0
+        self.last_refinement_potential = 0.0
         # every refinement that changed something: (t, this rank's requests), for restarts
         self.refinement_log: list[tuple[float, list[tuple[int, int, int]]]] = []
         self._solid_energy = 0.0
@@ -315,10 +319,10 @@ class Structure:
         solid, cohesive = self.comm.allreduce(local, op=MPI.SUM)
         return solid + self.base.strain_energy(), cohesive
 
-    def _mechanical_energy(self) -> float:
-        """Kinetic + solid strain + recoverable cohesive energy (mJ) of the current state."""
+    def _mechanical_energy(self) -> tuple[float, float]:
+        """(kinetic, solid strain + recoverable cohesive) energy (mJ) of the current state."""
         self.internal_force()
-        return self.kinetic_energy() + sum(self.energies())
+        return self.kinetic_energy(), sum(self.energies())
 
     def delaminated_area(self) -> float:
         """Area (mm^2) of the cohesive elements whose four points have failed, over all ranks."""
@@ -529,7 +533,7 @@ class Structure:
             self.extra.vectors["v"],
         ):
             vector.scatter_forward()
-        energy_before = self._mechanical_energy()
+        kinetic_before, potential_before = self._mechanical_energy()
 
         n_interfaces = self.interface_state.shape[1]
         for interface in range(1, n_interfaces + 1):  # weak, bottom to top
@@ -565,9 +569,11 @@ class Structure:
                 g, i, _ = enr.key_parts(key, n_interfaces)
                 partner = self.extra.index[enr.extra_key(g, i, enr.SET_A, n_interfaces)]
                 self._new_pairs.append((partner, local))
-        # Interpolated nodes keep a cell's field, but a node a neighbour activated earlier keeps
-        # its own state, and the lumped masses move: book what that changes
-        self.refinement_energy += self._mechanical_energy() - energy_before
+        # New and freed nodes sit where the cells' fields put them, so the strain energy hardly
+        # changes; the lumped masses move, which changes the kinetic energy: book both
+        kinetic, potential = self._mechanical_energy()
+        self.last_refinement_potential = potential - potential_before
+        self.refinement_energy += kinetic - kinetic_before + self.last_refinement_potential
         return True
 
     def _activate_weak(self, cells: np.ndarray, interface: int) -> None:

@@ -10,7 +10,8 @@ import numpy as np
 
 from fenics_adaptive.config import parse_config
 from fenics_adaptive.explicit import COLUMNS
-from fenics_adaptive.output import COLUMN_UNITS, ElementWriter
+from fenics_adaptive.output import COLUMN_UNITS, STRESS_NAMES, ElementWriter, PlyWriter
+from fenics_adaptive.ply_damage import strain_rotation
 from fenics_adaptive.runner import build_structure
 
 DATA = Path(__file__).parent / "data"
@@ -54,3 +55,36 @@ def test_element_file_holds_subelements_extra_nodes_and_cohesive_elements(tmp_pa
     assert extra.sum() == structure.extra.n_local
     plies = decode(arrays["first_ply"], "<f8")[:80], decode(arrays["last_ply"], "<f8")[:80]
     assert sorted(set(zip(*plies, strict=True))) == [(1, 2), (3, 4), (5, 6), (7, 8)]
+
+
+def test_ply_file_holds_every_ply_as_a_slab_with_its_stress(tmp_path):
+    """A uniform strain on the refined TCB beam: 8 slabs per cell at the plies' heights, and
+    each slab's material-frame stress is C0 T eps of its ply, from whichever subelement holds
+    the ply."""
+    data = tomllib.loads((DATA / "tcb_adaptive.toml").read_text())
+    data["laminate"]["angles"] = [0, 45, 90, -45, -45, 90, 45, 0]
+    data["interfaces"]["symmetry"] = []
+    structure = build_structure(parse_config(data))
+    strain = np.array([[1e-4, 2e-5, 0.0], [2e-5, -3e-5, 1e-5], [0.0, 1e-5, 5e-5]])
+    for X, u in (
+        (structure.X_base, structure.base.u.x.array),
+        (structure.extra.vectors["X"].array.reshape(-1, 3), structure.extra.vectors["u"].array),
+    ):
+        u[:] = (X @ strain.T).ravel()
+    PlyWriter(tmp_path, structure)(0.0)
+    piece = ET.parse(tmp_path / "plies/plies_000000.vtu").getroot().find("UnstructuredGrid/Piece")
+    assert int(piece.get("NumberOfCells")) == 20 * 8
+    arrays = {a.get("Name"): a for a in piece.iter("DataArray")}
+    ply = decode(arrays["ply"], "<f8").astype(int)
+    assert np.all(np.bincount(ply)[1:] == 20)
+    points = decode(piece.find("Points/DataArray"), "<f8").reshape(-1, 8, 3)
+    z = structure.laminate.ply_fractions * structure.laminate.thickness  # bottom face z = 0
+    np.testing.assert_allclose(points[:, 0, 2], z[ply - 1], atol=1e-12)
+    np.testing.assert_allclose(points[:, 4, 2], z[ply], atol=1e-12)
+    voigt = np.array([strain[0, 0], strain[1, 1], strain[2, 2], 2 * strain[1, 2],
+                      2 * strain[0, 2], 2 * strain[0, 1]])  # fmt: skip
+    for k, p in enumerate(structure.laminate.plies):
+        expected = p.material.stiffness() @ strain_rotation(p.angle) @ voigt
+        for i, name in enumerate(STRESS_NAMES):
+            values = decode(arrays[name], "<f8")[ply == k + 1]
+            np.testing.assert_allclose(values, expected[i], rtol=1e-9, atol=1e-9)

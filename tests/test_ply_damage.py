@@ -567,3 +567,20 @@ def test_cracks_of_a_cross_ply_cell_dissipate_G2c_per_crack_area(width_y):
     # ply's along y (thickness x width_y)
     area = 0.25 * 1.0 + 0.25 * width_y
     assert dissipated / area == pytest.approx(FAILURE.G2c, rel=1e-2)
+
+
+def test_nominal_ply_stresses_are_the_damaged_secant_stiffness_times_the_strain():
+    """The output's vectorised ply stress equals C(d) T eps built from the damaged material
+    stiffness, with the crack open under transverse tension and closed under compression."""
+    material = PlyMaterial("m", E1=1e5, E2=1e4, G12=5e3, G23=4e3, nu12=0.25, nu23=0.25, rho=1e-9)
+    plies = [Ply(material, angle, 0.25) for angle in (0.0, 30.0, 90.0)]
+    rng = np.random.default_rng(7)
+    strains = 1e-3 * rng.standard_normal((50, 3, 6))
+    damage = rng.uniform(0.0, 1.0, (50, 3))
+    stresses = pd.nominal_ply_stresses(strains, plies, damage)
+    for c in range(50):
+        for k, ply in enumerate(plies):
+            eps = pd.strain_rotation(ply.angle) @ strains[c, k]
+            crack_open = (material.stiffness() @ eps)[1] > 0.0
+            C = pd.damaged_material_stiffness(material, damage[c, k], crack_open)
+            np.testing.assert_allclose(stresses[c, k], C @ eps, rtol=1e-12, atol=1e-9)

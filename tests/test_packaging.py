@@ -1,0 +1,313 @@
+"""The Docker image and the native install stay in step, read from the files alone (no Docker
+engine, no network): same DOLFINx release, same pins for everything else, a default command that
+runs a demo that exists, and every third-party import of the code declared somewhere."""
+
+from __future__ import annotations
+
+import ast
+import importlib.metadata
+import json
+import re
+import shlex
+import sys
+import tomllib
+from pathlib import Path, PurePosixPath
+
+import pytest
+from packaging.requirements import Requirement
+from packaging.utils import canonicalize_name
+from packaging.version import Version
+
+ROOT = Path(__file__).parents[1]
+DOCKERFILE = ROOT / "Dockerfile"
+INSTALL_SCRIPT = ROOT / "scripts" / "install.sh"
+MAKEFILE = ROOT / "Makefile"
+
+# The wheel that brings DOLFINx (with PETSc, MPI, basix, ffcx, ufl) to the native install; in
+# Docker the official DOLFINx image brings all of it instead.
+DOLFINX_WHEEL = "dolfinx-solver-real"
+OFFICIAL_IMAGES = ("dolfinx/dolfinx", "docker.io/dolfinx/dolfinx", "ghcr.io/fenics/dolfinx/dolfinx")
+# Modules that come with DOLFINx: natively as the dolfinx-solver-real wheel and its own
+# dependencies, in Docker from the image. Nothing else may be imported without being pinned.
+DOLFINX_STACK = {"dolfinx", "basix", "ffcx", "ufl", "mpi4py", "petsc4py", "slepc4py", "numpy"}
+# Import name -> distribution name, where they differ (add an entry with a new such dependency).
+DISTRIBUTION_OF = {"yaml": "pyyaml", "PIL": "pillow", "skimage": "scikit-image"}
+SCANNED = ("fenics_adaptive", "meshes", "demos")
+
+
+# ------------------------------------------------------------------ reading the files
+def dockerfile_instructions() -> list[tuple[str, str]]:
+    """(INSTRUCTION, arguments) of the Dockerfile, continuation lines joined, comments dropped."""
+    instructions, pending = [], ""
+    for raw in DOCKERFILE.read_text().splitlines():
+        line = raw.strip()
+        if not line or line.startswith("#"):
+            continue
+        if line.endswith("\\"):
+            pending += line[:-1] + " "
+            continue
+        line, pending = pending + line, ""
+        keyword, _, rest = line.partition(" ")
+        instructions.append((keyword.upper(), rest.strip()))
+    assert not pending, "the Dockerfile ends inside a continued line"
+    return instructions
+
+
+def expand_args(text: str, args: dict[str, str]) -> str:
+    return re.sub(
+        r"\$\{(\w+)\}|\$(\w+)", lambda m: args.get(m.group(1) or m.group(2), m.group(0)), text
+    )
+
+
+def base_image() -> str:
+    """The image of the last FROM (the stage the image is built from), ARGs expanded."""
+    args, image = {}, None
+    for keyword, rest in dockerfile_instructions():
+        if keyword == "ARG" and "=" in rest:
+            name, _, value = rest.partition("=")
+            args[name.strip()] = value.strip().strip('"')
+        elif keyword == "FROM":
+            words = [w for w in rest.split() if not w.startswith("--")]
+            image = expand_args(words[0], args)
+    assert image is not None, "the Dockerfile has no FROM"
+    return image
+
+
+def split_image(image: str) -> tuple[str, str]:
+    """(repository, tag) of ``repo[:tag][@digest]``."""
+    name = image.split("@")[0]
+    repository, _, tag = name.rpartition(":") if ":" in name.split("/")[-1] else (name, "", "")
+    return repository, tag
+
+
+def requirement_lines(path: Path) -> list[str]:
+    lines = []
+    for raw in path.read_text().splitlines():
+        line = raw.split("#", 1)[0].strip()
+        if line:
+            lines.append(line)
+    return lines
+
+
+def requirement_files(path: Path) -> list[Path]:
+    """The file and every file it includes with ``-r``, depth first."""
+    assert path.is_file(), f"requirements file {path.relative_to(ROOT)} is missing"
+    files = [path]
+    for line in requirement_lines(path):
+        if line.startswith(("-r ", "--requirement ")):
+            files += requirement_files(path.parent / line.split(None, 1)[1])
+    return files
+
+
+def pins(files: list[Path]) -> dict[str, Requirement]:
+    """Canonical distribution name -> requirement, over the files (``-r`` lines skipped)."""
+    out = {}
+    for path in files:
+        for line in requirement_lines(path):
+            if line.startswith("-"):
+                continue
+            requirement = Requirement(line)
+            out[canonicalize_name(requirement.name)] = requirement
+    return out
+
+
+def install_script_requirement_files() -> list[Path]:
+    """Requirement files scripts/install.sh installs with ``pip install -r``, includes followed."""
+    text = INSTALL_SCRIPT.read_text()
+    named = re.findall(r"pip install[^\n]*?-r\s+\"?\$root/([\w./-]+)\"?", text)
+    assert named, "scripts/install.sh installs no requirements file with -r"
+    return [f for name in named for f in requirement_files(ROOT / name)]
+
+
+def docker_requirement_files() -> list[Path]:
+    """Requirement files the Dockerfile installs with ``pip install -r``, relative to the folder
+    the build context is copied to (includes followed)."""
+    files = []
+    for keyword, rest in dockerfile_instructions():
+        if keyword == "RUN" and "pip install" in rest:
+            words = shlex.split(rest)
+            files += [
+                ROOT / words[k + 1]
+                for k, w in enumerate(words[:-1])
+                if w in ("-r", "--requirement")
+            ]
+    return [f for path in files for f in requirement_files(path)]
+
+
+def docker_command() -> list[str]:
+    commands = [rest for keyword, rest in dockerfile_instructions() if keyword == "CMD"]
+    assert commands, "the Dockerfile has no CMD"
+    command = commands[-1]
+    return json.loads(command) if command.startswith("[") else shlex.split(command)
+
+
+def build_context_folder() -> PurePosixPath:
+    """Where ``COPY . <dest>`` puts the repository in the image (relative dest: to WORKDIR)."""
+    workdir = PurePosixPath("/")
+    for keyword, rest in dockerfile_instructions():
+        if keyword == "WORKDIR":
+            workdir = workdir / rest
+        elif keyword == "COPY":
+            words = [w for w in rest.split() if not w.startswith("--")]
+            if words[:-1] == ["."]:
+                return workdir / words[-1]
+    raise AssertionError("the Dockerfile does not copy the repository (COPY . <folder>)")
+
+
+def makefile_demo_script() -> str:
+    """The script ``make demo`` runs."""
+    text = MAKEFILE.read_text()
+    recipe = re.search(r"^demo:.*\n((?:\t.*\n?)+)", text, re.MULTILINE)
+    assert recipe, "the Makefile has no demo target"
+    scripts = re.findall(r"(demos/\S+\.py)", recipe.group(1))
+    assert scripts, "make demo runs no demos/*.py"
+    return scripts[0]
+
+
+# ------------------------------------------------------------------ (a) same DOLFINx
+def test_docker_base_image_is_the_official_dolfinx_image_of_the_native_release():
+    repository, tag = split_image(base_image())
+    assert repository in OFFICIAL_IMAGES, f"base image {repository!r} is not the official DOLFINx"
+    match = re.fullmatch(r"v(\d+\.\d+\.\d+)(-r\d+)?", tag)
+    assert match, f"base image tag {tag!r} is not a DOLFINx release tag such as v0.11.0"
+    native = pins(install_script_requirement_files())
+    assert DOLFINX_WHEEL in native, f"the native install pins no {DOLFINX_WHEEL}"
+    specifiers = list(native[DOLFINX_WHEEL].specifier)
+    assert len(specifiers) == 1 and specifiers[0].operator == "==", (
+        f"{DOLFINX_WHEEL} is not pinned exactly: {native[DOLFINX_WHEEL]}"
+    )
+    native_release = Version(specifiers[0].version).release  # 0.11.0.post0 -> (0, 11, 0)
+    image_release = Version(match.group(1)).release
+    assert image_release == native_release, (
+        f"Docker uses DOLFINx {match.group(1)}, the native install "
+        f"{DOLFINX_WHEEL} {specifiers[0].version}"
+    )
+
+
+# ------------------------------------------------------------------ (b) same pins
+def test_docker_installs_the_pins_the_install_script_uses():
+    native_files = install_script_requirement_files()
+    docker_files = docker_requirement_files()
+    assert docker_files, "the Dockerfile installs no requirements file"
+    for path in docker_files:
+        assert path in native_files, (
+            f"the Dockerfile installs {path.relative_to(ROOT)}, which scripts/install.sh does "
+            f"not use ({[str(f.relative_to(ROOT)) for f in native_files]})"
+        )
+    native, docker = pins(native_files), pins(docker_files)
+    assert DOLFINX_WHEEL not in docker, "the image brings DOLFINx: do not install the wheel too"
+    assert set(docker) == set(native) - {DOLFINX_WHEEL}, (
+        "the image and the native install must get the same non-DOLFINx pins: only in native "
+        f"{sorted(set(native) - set(docker) - {DOLFINX_WHEEL})}, only in Docker "
+        f"{sorted(set(docker) - set(native))}"
+    )
+    for name, requirement in native.items():
+        operators = [s.operator for s in requirement.specifier]
+        assert operators == ["=="], f"{requirement} is not pinned exactly (name==version)"
+        assert docker.get(name, requirement) == requirement
+
+
+def test_requirement_files_are_copied_before_they_are_installed():
+    copied = []
+    for keyword, rest in dockerfile_instructions():
+        if keyword == "COPY":
+            words = [w for w in rest.split() if not w.startswith("--")]
+            copied += [w.rstrip("/") for w in words[:-1]]
+        elif keyword == "RUN" and "pip install" in rest:
+            words = shlex.split(rest)
+            for k, w in enumerate(words[:-1]):
+                if w in ("-r", "--requirement"):
+                    path = words[k + 1]
+                    assert any(c == "." or path == c or path.startswith(c + "/") for c in copied), (
+                        f"RUN installs {path} before any COPY brings it into the image"
+                    )
+
+
+# ------------------------------------------------------------------ (c) the default command
+def test_docker_default_command_runs_the_main_demo_into_results():
+    command = docker_command()
+    scripts = [w for w in command if w.endswith(".py")]
+    assert scripts, f"the default command {command} runs no Python script"
+    script = PurePosixPath(scripts[0])
+    context = build_context_folder()
+    if script.is_absolute():
+        assert script.is_relative_to(context), f"{script} is not in the copied repository"
+        script = script.relative_to(context)
+    assert (ROOT / script).is_file(), f"the default command runs {script}, which does not exist"
+    assert str(script) == makefile_demo_script(), "Docker and `make demo` run different demos"
+    assert "--out" in command, "the default command does not say where the results go"
+    out = PurePosixPath(command[command.index("--out") + 1])
+    assert out.is_relative_to("/results"), f"results go to {out}, not into /results (mounted)"
+
+
+# ------------------------------------------------------------------ (d) declared imports
+def imported_modules(path: Path) -> set[str]:
+    """Top-level names of the absolute imports of a file."""
+    tree = ast.parse(path.read_text(), filename=str(path))
+    names = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            names.update(alias.name.split(".")[0] for alias in node.names)
+        elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+            names.add(node.module.split(".")[0])
+    return names
+
+
+def declared_distributions() -> set[str]:
+    pyproject = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
+    declared = [Requirement(r).name for r in pyproject.get("dependencies", [])]
+    for extra in pyproject.get("optional-dependencies", {}).values():
+        declared += [Requirement(r).name for r in extra]
+    declared += list(pins(install_script_requirement_files()))
+    return {canonicalize_name(name) for name in declared}
+
+
+def test_every_imported_dependency_is_declared():
+    pyproject = tomllib.loads((ROOT / "pyproject.toml").read_text())
+    project = set(pyproject["tool"]["setuptools"]["packages"])
+    declared = declared_distributions()
+    assert canonicalize_name(DOLFINX_WHEEL) in declared
+    missing = {}
+    for folder in SCANNED:
+        for path in sorted((ROOT / folder).rglob("*.py")):
+            for module in imported_modules(path):
+                if (
+                    module in sys.stdlib_module_names
+                    or module == "__future__"
+                    or module in project
+                    or module in DOLFINX_STACK
+                    or canonicalize_name(DISTRIBUTION_OF.get(module, module)) in declared
+                ):
+                    continue
+                missing.setdefault(module, []).append(str(path.relative_to(ROOT)))
+    assert not missing, (
+        "imported but neither stdlib, the project, DOLFINx's stack, nor pinned in "
+        f"requirements/common.txt: {missing}"
+    )
+
+
+def test_import_scan_sees_the_dependencies():
+    """Guards the scan itself: it must find the known third-party imports."""
+    found = set().union(
+        *(imported_modules(p) for folder in SCANNED for p in (ROOT / folder).rglob("*.py"))
+    )
+    assert {"dolfinx", "numba", "gmsh", "matplotlib", "numpy", "fenics_adaptive"} <= found
+
+
+def test_dolfinx_stack_comes_with_the_native_wheel():
+    """Natively, the DOLFINX_STACK modules must be brought by the pinned wheel (checked against
+    its installed metadata where it is installed; the Docker image has its own DOLFINx)."""
+    metadata = importlib.metadata
+    try:
+        requires = metadata.requires(DOLFINX_WHEEL) or []
+    except metadata.PackageNotFoundError:
+        pytest.skip(f"{DOLFINX_WHEEL} is not installed here (the Docker image)")
+    brought = {canonicalize_name(Requirement(r).name) for r in requires if "extra" not in r}
+    providers = metadata.packages_distributions()
+    for module in DOLFINX_STACK:
+        dists = {canonicalize_name(d) for d in providers.get(module, [])}
+        if not dists:
+            continue  # not installed natively (e.g. slepc4py in some wheels)
+        assert dists & (brought | {canonicalize_name(DOLFINX_WHEEL)}), (
+            f"{module} ({dists}) is not brought by {DOLFINX_WHEEL}: pin it in requirements/"
+        )
