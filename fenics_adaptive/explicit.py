@@ -203,8 +203,9 @@ def run(
     as v_{-1/2}).
 
     ``on_step(t, structure)`` runs before every step and returns True if it changed the
-    structure (refinement): the blocks are then rebuilt and the stable step recomputed, and
-    ``on_refined(t, new step, what limits it)`` is told.
+    structure (refinement): the blocks are then rebuilt, the stable step recomputed, the
+    stabilisation of the new refinement started (``Structure.start_stabilisation(t)``: damping
+    windows, tie forces), and ``on_refined(t, new step, what limits it)`` is told.
     ``time_step`` bypasses the stability check (for tests that show what an unstable step
     does).
 

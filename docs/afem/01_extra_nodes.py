@@ -1,0 +1,223 @@
+"""# 1. Where the extra nodes go: Eq. (1) of the paper
+
+An adaptive cell is one 8-node solid-shell hexahedron through the whole laminate. Refining it at
+ply interface i adds four *extra nodes*, one on each vertical edge of the cell, at the height of
+that interface. This script refines a two-cell strip and checks that every extra node sits where
+Eq. (1) of the paper puts it.
+
+Run it from the repository root (serial, about 2 s):
+
+    .venv/bin/python docs/afem/01_extra_nodes.py
+
+Units: N, mm, s, tonne.
+"""
+
+# %% [markdown]
+# ## The rule
+#
+# A cell has 8 base nodes: 0-3 on its bottom face and 4-7 on its top face, node a + 4 straight
+# above node a. The pair (a, a + 4) is a *column*. Ply interface i (1-based) lies between ply i
+# and ply i + 1. Its thickness fraction is
+#
+#     alpha_i = (t_1 + ... + t_i) / (t_1 + ... + t_n)
+#
+# with t_k the ply thicknesses. The extra node of column a at interface i sits at
+#
+#     X = X_hat_a + alpha_i (X_hat_{a+4} - X_hat_a)                      (paper, Eq. 1)
+#
+# where X_hat are the reference positions of the base nodes. The rule uses only the column, so
+# it holds for tapered or skewed cells too.
+#
+# The paper numbers the nodes of an element subelement by subelement, so each interface point
+# appears twice in its Eq. (1): as a top node of subelement i and as a bottom node of subelement
+# i + 1 (X_{8(i-1)+5} = X_{8i+1}). Here every node is stored once, and the subelements refer to
+# it by index (`02_figure2_maps.py`).
+
+# %%
+import tomllib
+
+import numpy as np
+from mpi4py import MPI
+
+from fenics_adaptive import enrichment as enr
+from fenics_adaptive.config import parse_config
+from fenics_adaptive.runner import build_structure
+
+# %% [markdown]
+# ## The model
+#
+# Seven plies of unequal thickness, so that the fractions alpha_i are not evenly spaced. Two
+# cells side by side along x. Every interface may refine; interface 4 may also turn strong. The
+# clamp, solver and output sections are required by the config parser but unused here: nothing
+# is time-integrated.
+
+# %%
+CONFIG = """
+[model]
+kind = "adaptive"
+
+[mesh]
+length = 2.0
+width = 0.5
+nx = 2
+ny = 1
+
+[materials.ply]
+E1 = 100000.0
+E2 = 10000.0
+G12 = 5000.0
+G23 = 4000.0
+nu12 = 0.25
+nu23 = 0.25
+rho = 1.6e-9
+
+[laminate]
+plies = [
+    {material = "ply", angle = 0, thickness = 0.15},
+    {material = "ply", angle = 90, thickness = 0.15},
+    {material = "ply", angle = 0, thickness = 0.30},
+    {material = "ply", angle = 90, thickness = 0.30},
+    {material = "ply", angle = 0, thickness = 0.20},
+    {material = "ply", angle = 90, thickness = 0.20},
+    {material = "ply", angle = 0, thickness = 0.20},
+]
+
+[interfaces]
+refine = [1, 2, 3, 5, 6]
+delaminate = [4]
+
+[cohesive]
+K_n = 1.0e5
+K_s = 1.0e5
+N = 20.0
+S = 40.0
+GIc = 0.4
+GIIc = 1.0
+law = "bk"
+exponent = 2.0
+
+[[clamp]]
+face = "x0"
+
+[solver]
+end_time = 1.0e-5
+
+[output]
+interval = 1.0e-6
+displacement_face = "x0"
+reaction_face = "x0"
+component = "z"
+"""
+
+assert MPI.COMM_WORLD.size == 1, "run this script in serial"
+structure = build_structure(parse_config(tomllib.loads(CONFIG), source="01_extra_nodes"))
+laminate = structure.laminate
+
+# %% [markdown]
+# ## The fractions alpha_i
+#
+# The laminate computes alpha_i from the ply thicknesses. We compute them again by hand.
+
+# %%
+thickness = np.array([ply.thickness for ply in laminate.plies])
+alpha_by_hand = np.cumsum(thickness)[:-1] / thickness.sum()
+alpha = laminate.interface_fractions
+print("interface  alpha_i")
+for i, a in enumerate(alpha, start=1):
+    print(f"{i:9d}  {a:.6f}")
+assert np.allclose(alpha, alpha_by_hand, rtol=0.0, atol=1e-15)
+
+# %% [markdown]
+# ## Refine, in an arbitrary order
+#
+# The left cell refines at interface 4 first, then 2, then 6, in three separate steps. The right
+# cell refines at interface 4 only. A new extra node takes its position (and its displacement and
+# velocity) by linear interpolation between the closest active nodes below and above it in its
+# column. When interface 2 refines after interface 4, its nodes are interpolated between the
+# bottom base node and the interface-4 node. In exact arithmetic this is again Eq. (1); below we
+# check that round-off keeps it so.
+
+# %%
+centroid_x = structure.X_base[structure.bottom_local].mean(axis=1)[:, 0]
+left, right = (int(c) for c in np.argsort(centroid_x))
+for interface in (4, 2, 6):
+    structure.refine([(left, interface, enr.WEAK)])
+structure.refine([(right, 4, enr.WEAK)])
+
+# %% [markdown]
+# ## Check every extra node against Eq. (1)
+#
+# An extra node is known by a key: (bottom base node of its column, interface, set). We decode
+# the key, find the column's two base nodes, and compare. We also recover the fraction from the
+# position, s = (X - X_bottom) . (X_top - X_bottom) / |X_top - X_bottom|^2, which must equal
+# alpha_i.
+
+# %%
+n_interfaces = laminate.n_plies - 1
+X_extra = structure.extra.vectors["X"].array.reshape(-1, 3)
+worst_position, worst_fraction = 0.0, 0.0
+rows = []
+for key, local in structure.extra.index.items():
+    global_bottom, interface, node_set = enr.key_parts(key, n_interfaces)
+    bottom = structure.extra.local_base_node(global_bottom)
+    top = structure.column_top[bottom]
+    X_bottom, X_top = structure.X_base[bottom], structure.X_base[top]
+    expected = X_bottom + alpha[interface - 1] * (X_top - X_bottom)
+    edge = X_top - X_bottom
+    fraction = (X_extra[local] - X_bottom) @ edge / (edge @ edge)
+    worst_position = max(worst_position, np.abs(X_extra[local] - expected).max())
+    worst_fraction = max(worst_fraction, abs(fraction - alpha[interface - 1]))
+    if bottom == structure.bottom_local[left, 0]:
+        rows.append(
+            (interface, "AB"[node_set], alpha[interface - 1], X_extra[local][2], expected[2])
+        )
+
+print("\nleft cell, column 0 (bottom base node at z = 0, top at z = h):")
+print("interface  set  alpha_i   z (node)  z (Eq. 1)")
+for interface, name, a, z_node, z_eq in sorted(rows):
+    print(f"{interface:9d}  {name:>3}  {a:.5f}  {z_node:9.6f}  {z_eq:9.6f}")
+print(
+    f"largest |X - X_Eq.1| = {worst_position:.1e} mm, largest |s - alpha_i| = {worst_fraction:.1e}"
+)
+assert worst_position < 1e-14
+assert worst_fraction < 1e-14
+
+# %% [markdown]
+# ## Neighbours share extra nodes
+#
+# Extra nodes belong to columns, not to cells. The two cells share the two columns of their
+# common face. Both are refined at interface 4, so interface 4 has 6 extra nodes, not 8: the
+# displacement stays continuous across the common face. (What happens when only one of two
+# neighbours is refined is the subject of `06_border.py`.)
+
+# %%
+keys_at_4 = [
+    key for key in structure.extra.index if enr.key_parts(key, n_interfaces)[1:] == (4, enr.SET_A)
+]
+print(f"\nextra nodes at interface 4: {len(keys_at_4)} (2 cells x 4 columns - 2 shared columns)")
+assert len(keys_at_4) == 6
+
+# %% [markdown]
+# ## Set A and set B
+#
+# The paper describes each interface by two coinciding surfaces. A weak refinement activates the
+# first surface (set A). A strong refinement activates the reserved copy (set B, the upper side
+# of the future crack). Here set B is created only when needed. Its nodes start at the set-A
+# positions, displacements and velocities, so the two surfaces coincide exactly.
+
+# %%
+structure.refine([(left, 4, enr.STRONG)])
+pairs = 0
+for key, local in structure.extra.index.items():
+    global_bottom, interface, node_set = enr.key_parts(key, n_interfaces)
+    if node_set == enr.SET_B:
+        partner = structure.extra.index[
+            enr.extra_key(global_bottom, interface, enr.SET_A, n_interfaces)
+        ]
+        for name in ("X", "u", "v"):
+            values = structure.extra.vectors[name].array.reshape(-1, 3)
+            assert np.array_equal(values[local], values[partner])
+        pairs += 1
+print(f"set-B nodes after the strong refinement of the left cell: {pairs}, each on its set-A twin")
+assert pairs == 4
+print("01_extra_nodes: all checks passed")

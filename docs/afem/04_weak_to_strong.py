@@ -1,0 +1,284 @@
+"""# 4. From weak to strong refinement
+
+A weak refinement lets the strain jump at a ply interface; a strong refinement lets the
+displacement jump there (a delamination). Neither may change the state of the structure at the
+moment it happens: the displacement field, the velocity field, the mass and the momentum stay
+the same, and a new cohesive element starts closed, with zero traction. This script refines a
+region of a beam weakly, then strongly, and checks all of that.
+
+Run it from the repository root (serial, about 2 s):
+
+    .venv/bin/python docs/afem/04_weak_to_strong.py
+
+Units: N, mm, s, tonne (energies in mJ = N mm, momentum in tonne mm/s).
+"""
+
+# %%
+import tomllib
+
+import numpy as np
+from mpi4py import MPI
+
+from fenics_adaptive import enrichment as enr
+from fenics_adaptive.cohesive import cohesive_element_force
+from fenics_adaptive.config import parse_config
+from fenics_adaptive.runner import build_structure
+from fenics_adaptive.structure import cells_in_x_range
+
+# %% [markdown]
+# ## The model
+#
+# The beam of the paper's TCB example, shortened: 10 x 0.5 mm, eight 0-degree plies of
+# 0.256 mm, 20 cells along x. Interface 4 may refine weakly; interfaces 2 and 6 may also
+# delaminate.
+
+# %%
+CONFIG = """
+[model]
+kind = "adaptive"
+
+[mesh]
+length = 10.0
+width = 0.5
+nx = 20
+ny = 1
+
+[materials.ply]
+E1 = 100000.0
+E2 = 10000.0
+G12 = 5000.0
+G23 = 4000.0
+nu12 = 0.25
+nu23 = 0.25
+rho = 1.6e-9
+
+[laminate]
+material = "ply"
+ply_thickness = 0.256
+angles = [0, 0, 0, 0, 0, 0, 0, 0]
+
+[interfaces]
+refine = [4]
+delaminate = [2, 6]
+
+[cohesive]
+K_n = 1.0e5
+K_s = 1.0e5
+N = 20.0
+S = 40.0
+GIc = 0.4
+GIIc = 1.0
+law = "bk"
+exponent = 2.0
+
+[[clamp]]
+face = "x0"
+
+[solver]
+end_time = 1.0e-5
+
+[output]
+interval = 1.0e-6
+displacement_face = "x0"
+reaction_face = "x0"
+component = "z"
+"""
+
+assert MPI.COMM_WORLD.size == 1, "run this script in serial"
+structure = build_structure(parse_config(tomllib.loads(CONFIG), source="04_weak_to_strong"))
+n_interfaces = structure.laminate.n_plies - 1
+alpha = structure.laminate.interface_fractions
+
+# %% [markdown]
+# ## A moving, deformed beam
+#
+# We put a displacement field and a velocity field on the base nodes by hand (a state in the
+# middle of a dynamic run would do as well). The displacement stretches the laminate through
+# its thickness and shears it, u_z = e z and u_x = g z: the ply interfaces carry a normal stress
+# and a shear stress, which matters below. The velocity is not uniform (a spin and a stretch).
+# Then we record what must not change.
+
+# %%
+X = structure.X_base
+stretch, shear = 2e-4, 2e-4  # e and g, dimensionless
+u_base = structure.base.u.x.array.reshape(-1, 3)
+v_base = structure.v_base.array.reshape(-1, 3)
+u_base[:, 0] = shear * X[:, 2]
+u_base[:, 2] = stretch * X[:, 2]
+v_base[:, 0] = -5.0 * X[:, 2]  # mm/s
+v_base[:, 2] = 10.0 * X[:, 0]
+
+
+def snapshot(structure):
+    """What the state is made of: strain energies, mass, momentum, kinetic energy."""
+    structure.internal_force()
+    solid, cohesive = structure.energies()
+    return {
+        "solid": solid,
+        "cohesive": cohesive,
+        "mass": structure.total_mass(),
+        "momentum": structure.momentum(),
+        "kinetic": structure.kinetic_energy(),
+    }
+
+
+def report(title, now, before):
+    print(f"\n{title}")
+    print(f"  strain energy of the solids {now['solid']:.9e} mJ (before {before['solid']:.9e})")
+    print(f"  cohesive energy             {now['cohesive']:.1e} mJ")
+    print(f"  total mass                  {now['mass']:.9e} tonne")
+    print(f"  momentum                    {now['momentum']} tonne mm/s")
+    print(f"  kinetic energy              {now['kinetic']:.9e} mJ (before {before['kinetic']:.9e})")
+
+
+start = snapshot(structure)
+
+# %% [markdown]
+# ## Weak refinement: new nodes on the old field
+#
+# The cells between x = 2.5 and 6.5 mm refine weakly at interfaces 2, 4 and 6. Each new extra
+# node takes its reference position from Eq. (1) and its displacement and velocity by the same
+# interpolation between the active nodes below and above it. Along a vertical edge the field of
+# an unrefined cell is linear in the thickness, so the node lands exactly on the old field:
+#
+#     u_extra = u_bottom + alpha_i (u_top - u_bottom)      (likewise v)
+#
+# This holds for any nodal field, not only for the simple one chosen above: whatever the base
+# nodes carry, the field of a cell is linear along each of its columns. Every subelement then
+# reproduces the part of the old field it covers. The strain energy, the mass (the subelements'
+# masses replace the cell's) and the momentum (the lumped masses move with the same
+# interpolation weights) do not change.
+
+# %%
+region = cells_in_x_range(structure, 2.5, 6.5)
+print(f"refining {len(region)} cells at interfaces 2, 4, 6 (weak)")
+structure.refine([(int(c), i, enr.WEAK) for c in region for i in (2, 4, 6)])
+
+
+def largest_deviation_from_old_field(structure, name, base_values):
+    """Largest |value - interpolated old value| over all extra nodes, for u or v."""
+    values = structure.extra.vectors[name].array.reshape(-1, 3)
+    worst = 0.0
+    for key, local in structure.extra.index.items():
+        global_bottom, interface, _ = enr.key_parts(key, n_interfaces)
+        bottom = structure.extra.local_base_node(global_bottom)
+        top = structure.column_top[bottom]
+        old = base_values[bottom] + alpha[interface - 1] * (base_values[top] - base_values[bottom])
+        worst = max(worst, np.abs(values[local] - old).max())
+    return worst
+
+
+du = largest_deviation_from_old_field(structure, "u", u_base)
+dv = largest_deviation_from_old_field(structure, "v", v_base)
+weak = snapshot(structure)
+report("after the weak refinement", weak, start)
+print(f"  extra nodes off the old field: u by {du:.1e} mm, v by {dv:.1e} mm/s")
+assert du < 1e-15 and dv < 1e-13
+assert abs(weak["solid"] - start["solid"]) < 1e-12 * start["solid"]
+assert abs(weak["mass"] - start["mass"]) < 1e-14 * start["mass"]
+momentum_scale = np.linalg.norm(start["momentum"])
+assert np.abs(weak["momentum"] - start["momentum"]).max() < 1e-13 * momentum_scale
+
+# %% [markdown]
+# The kinetic energy is the one quantity that may change: the same velocities now multiply
+# redistributed lumped masses. The structure books the difference as `refinement_energy`, so
+# the energy balance of a run still closes.
+
+# %%
+print(f"  booked refinement energy    {structure.refinement_energy:.3e} mJ")
+kinetic_change = weak["kinetic"] - start["kinetic"]
+assert abs(kinetic_change - structure.refinement_energy) < 1e-12 * start["kinetic"]
+
+# %% [markdown]
+# ## Strong refinement: unzip, closed
+#
+# The same cells now turn strong at interfaces 2 and 6. Each interface gets its set-B nodes,
+# copied from set A (position, displacement, velocity), and a cohesive element between the two
+# sets. The twins move together, so this time even the kinetic energy stays: set B takes over
+# part of set A's lumped mass, at the same velocity. Before this step we record the internal
+# force on every set-A node.
+
+# %%
+f_extra_before = structure.f_extra.array.reshape(-1, 3).copy()
+index_before = dict(structure.extra.index)
+structure.refine([(int(c), i, enr.STRONG) for c in region for i in (2, 6)])
+strong = snapshot(structure)
+report("after the strong refinement", strong, start)
+
+u_extra = structure.extra.vectors["u"].array.reshape(-1, 3)
+v_extra = structure.extra.vectors["v"].array.reshape(-1, 3)
+pairs = []
+for key, local in structure.extra.index.items():
+    global_bottom, interface, node_set = enr.key_parts(key, n_interfaces)
+    if node_set == enr.SET_B:
+        twin = enr.extra_key(global_bottom, interface, enr.SET_A, n_interfaces)
+        pairs.append((structure.extra.index[twin], local, index_before[twin]))
+a_nodes, b_nodes, a_before = (np.array(column) for column in zip(*pairs, strict=True))
+assert np.array_equal(u_extra[a_nodes], u_extra[b_nodes])
+assert np.array_equal(v_extra[a_nodes], v_extra[b_nodes])
+assert abs(strong["solid"] - start["solid"]) < 1e-12 * start["solid"]
+assert abs(strong["kinetic"] - weak["kinetic"]) < 1e-12 * weak["kinetic"]
+assert np.abs(strong["momentum"] - start["momentum"]).max() < 1e-13 * momentum_scale
+print(f"  {len(pairs)} node pairs, each with the same u and v on both sides")
+
+# %% [markdown]
+# ### The new cohesive elements are closed and carry nothing
+#
+# The opening is the jump u_B - u_A, zero for every element. We evaluate each cohesive element
+# on its own: zero force, zero stored energy, no damage.
+
+# %%
+X_all = np.vstack([structure.X_base, structure.extra.vectors["X"].array.reshape(-1, 3)])
+u_all = np.vstack([u_base, u_extra])
+largest_traction_force = 0.0
+for nodes in structure.cohesive.nodes:
+    f_element = np.zeros((8, 3))
+    damage = np.zeros(4)
+    energy, _ = cohesive_element_force(
+        X_all[nodes], u_all[nodes], structure.cohesive.params, damage, f_element
+    )
+    assert energy == 0.0 and not damage.any()
+    largest_traction_force = max(largest_traction_force, np.abs(f_element).max())
+print(
+    f"  {len(structure.cohesive)} cohesive elements, largest nodal force {largest_traction_force}"
+)
+assert len(structure.cohesive) == 2 * len(region)
+assert largest_traction_force == 0.0 and strong["cohesive"] == 0.0
+
+# %% [markdown]
+# ### Only where the forces land changes
+#
+# Before, a set-A node collected the force of the subelement below and of the subelement above
+# the interface. Now the subelement above acts on the set-B twin. The sum of the two is the old
+# force, to round-off. But each side alone now carries the whole interface stress: in our
+# uniform state, on a node away from the edges of the region, f_A = +(sigma_xz, 0, sigma_zz) A
+# and f_B = -(sigma_xz, 0, sigma_zz) A, with A the node's share of the interface area
+# (0.125 mm^2 here: a quarter of each of the two 0.5 x 0.5 mm cells around it). The two faces
+# would accelerate apart at once, although nothing has opened yet. That jump is the subject of
+# `05_stabilisation.py`. (The y components come from the in-plane stress sigma_yy, which the
+# Poisson effect creates, acting on the free side face y = 0 of the beam. They are not an
+# interface stress; the split shares them between the two sides.)
+
+# %%
+f_extra = structure.f_extra.array.reshape(-1, 3)
+split_sum_error = np.abs(f_extra[a_nodes] + f_extra[b_nodes] - f_extra_before[a_before]).max()
+print(f"  |f_A + f_B - f_before| at most {split_sum_error:.1e} N")
+assert split_sum_error < 1e-12 * np.abs(f_extra[a_nodes]).max()
+
+C = structure.laminate.plies[0].stiffness()  # Voigt order xx, yy, zz, yz, xz, xy
+strain = np.array([0.0, 0.0, stretch, 0.0, shear, 0.0])
+sigma = C @ strain
+traction = np.array([sigma[4], 0.0, sigma[2]])  # MPa, on a plane of normal z
+X_extra = structure.extra.vectors["X"].array.reshape(-1, 3)
+middle = np.flatnonzero(np.isclose(X_extra[a_nodes, 0], 4.5) & np.isclose(X_extra[a_nodes, 1], 0.0))
+pair = middle[0]
+A, B = a_nodes[pair], b_nodes[pair]
+node_area = 2 * 0.25 * (0.5 * 0.5)
+print(f"  pair at x = 4.5 mm: sigma_zz = {sigma[2]:.3f} MPa, sigma_xz = {sigma[4]:.3f} MPa")
+print(f"    f on A before the split {f_extra_before[a_before[pair]]} N")
+print(f"    f on A after            {f_extra[A]} N")
+print(f"    f on B after            {f_extra[B]} N")
+print(f"    traction x node area    {traction * node_area} N")
+assert np.allclose(f_extra[A, [0, 2]], traction[[0, 2]] * node_area, rtol=1e-10)
+assert np.allclose(f_extra[B, [0, 2]], -traction[[0, 2]] * node_area, rtol=1e-10)
+print("04_weak_to_strong: all checks passed")
