@@ -657,7 +657,10 @@ class Structure:
             for stop in range(first + 1, n + 1):
                 zeta = sublaminate_ply_zeta(fractions, first, stop)
                 self._rules_index[(first, stop)] = len(self._rules)
-                self._rules.append(pack_rule(zeta, stiffness[first:stop], self.base.points_per_ply))
+                # a one-ply subelement with one point through its thickness would bend with
+                # zero energy (an hourglass mode through the thickness): it gets two
+                points = self.base.points_per_ply if stop - first > 1 else 2
+                self._rules.append(pack_rule(zeta, stiffness[first:stop], points))
                 self._mass_rules[(first, stop)] = pack_mass_rule(zeta, density[first:stop])
         return concatenate_rules(self._rules)
 

@@ -180,3 +180,27 @@ def test_cell_maps_of_a_refined_cell_name_its_nodes():
         if "<- extra" in line:
             node = int(line.split("<- extra ")[1].split()[0])
             assert n_base <= node < n_base + structure.extra.n_local
+
+
+def test_one_ply_subelements_have_no_zero_energy_modes():
+    """Refining every interface of a [0]8 beam with one point per ply leaves one-ply
+    subelements; with one point through their thickness they would bend at zero energy. The
+    stiffness of the clamped, fully refined beam has no zero eigenvalue."""
+    from fenics_adaptive.comparison import probe_stiffness
+
+    data = tcb(initial="none")
+    data["mesh"].update(nx=4, length=2.0)
+    data["interfaces"] = {"refine": [1, 2, 3, 4, 5, 6, 7]}
+    data.pop("cohesive")
+    structure = structure_of(data)
+    cells = range(structure.base.n_owned_cells)
+    structure.refine([(c, i, enr.WEAK) for c in cells for i in range(1, 8)])
+    K, _ = probe_stiffness(structure)
+    fixed = np.concatenate(
+        [structure.base_block.fixed, structure.extra_block.fixed + 3 * structure.n_base]
+    )
+    free = np.setdiff1d(np.arange(K.n), fixed)
+    dense = np.zeros((K.n, K.n))
+    np.add.at(dense, (K.rows, K.cols), K.values)
+    eigenvalues = np.linalg.eigvalsh(0.5 * (dense + dense.T)[np.ix_(free, free)])
+    assert eigenvalues.min() > 1e-8 * eigenvalues.max()
