@@ -33,6 +33,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from mpi4py import MPI
 
+from fenics_adaptive.contact import Contact
 from fenics_adaptive.errors import InputError
 from fenics_adaptive.loading import COMPONENTS, face_dofs
 from fenics_adaptive.structure import Block, Structure
@@ -75,6 +76,9 @@ class HistoryRow:
     refinement_energy: float  # mJ, kinetic + strain + cohesive energy changed by refinements
     delaminated_area: float  # mm^2, failed cohesive elements
     time_step: float  # s
+    contact_force: float = 0.0  # N, z component of the force the structure applies to the impactor
+    impactor_displacement: float = 0.0  # mm, z displacement of the impactor
+    impact_work: float = 0.0  # mJ, energy the impactor gave up (kinetic + penalty, from t = 0)
 
     @property
     def energy_balance(self) -> float:
@@ -83,6 +87,7 @@ class HistoryRow:
             + self.internal_energy
             + self.damping_energy
             - self.external_work
+            - self.impact_work
             - self.refinement_energy
         )
 
@@ -197,6 +202,7 @@ def run(
     checkpoint: Callable[[dict], None] | None = None,
     stop_requested: Callable[[], bool] | None = None,
     resume: dict | None = None,
+    contact: Contact | None = None,
 ) -> RunStats:
     """Integrate from t = 0 to ``settings.end_time``, starting from ``initial_displacement`` and
     ``initial_velocity`` (base DOFs, owned + ghost entries; default zero; the velocity is taken
@@ -214,7 +220,11 @@ def run(
     ``stop_requested()`` turns True on any rank (polled every 64 steps), ``checkpoint(state)``
     gets the solver state (``SOLVER_SCALARS`` and per block ``BLOCK_ARRAYS``) to store with the
     structure's; after a stop it raises ``Interrupted``. ``resume``: such a state, to continue
-    from (the structure must already be restored to the same moment)."""
+    from (the structure must already be restored to the same moment).
+
+    ``contact``: a rigid impactor hitting the top face (``contact.Contact``), integrated with
+    the structure; its forces are not external work: the history reports the energy the
+    impactor gave up as ``impact_work``."""
     comm = structure.comm
     loads = structure.loads
     dt, stable, where = choose_time_step(structure, settings)
@@ -232,6 +242,11 @@ def run(
     motion_now, motion_next = np.zeros(n_motions), np.zeros(n_motions)
     f_ext_full = np.zeros_like(base.block.u.array)
     damped = settings.mass_damping > 0.0
+    contact_force = np.zeros(base.block.n_owned)  # impactor on the base DOFs (owned), N
+    impactor_initial = [0.0]  # mJ: the impactor's kinetic + penalty energy at t = 0
+    if contact is not None:
+        contact.limit_penalty(dt)
+        z0 = contact.centre[2]
 
     component = COMPONENTS[probe.component]
     probe_dofs = face_dofs(
@@ -265,8 +280,13 @@ def run(
             structure.add_tie_forces(t, states[1].f_ext)
             tied[0] = bool(structure.ties)
         mean_dt = 0.5 * (dt_prev + dt)
+        if contact is not None:
+            contact_force.fill(0.0)
+            contact.add_forces(base.block.u.array, contact_force)
         for state in states:
             np.subtract(state.f_ext, state.f, out=state.acc)
+            if contact is not None and state is base:
+                state.acc += contact_force
             state.acc *= state.inv_m
             if len(state.block.fixed):
                 fixed = state.block.fixed
@@ -282,6 +302,8 @@ def run(
                 state.reaction *= state.a_fixed
                 state.reaction += np.take(state.f, fixed, out=state.scratch)
                 state.reaction -= np.take(state.f_ext, fixed, out=state.scratch)
+                if contact is not None and state is base:
+                    state.reaction -= np.take(contact_force, fixed, out=state.scratch)
 
     tied = [False]  # tie forces were applied last step (their f_ext must be cleared once)
     not_finite = [False]  # this rank has seen a non-finite internal work
@@ -327,6 +349,10 @@ def run(
         tied[0] = bool(resume["tied"])
         stats.refinements = int(resume["refinements"])
         stats.time_step, stats.stable_time_step = dt, stable
+        if contact is not None:
+            contact.restore({k: resume[f"impactor_{k}"] for k in ("centre", "velocity")})
+            impactor_initial[0] = float(resume["impactor_initial"])
+            z0 = float(resume["impactor_z0"])
         for index, state in enumerate(states):
             state.block.u.array[:] = resume[f"block{index}_u_all"]
             state.block.v.array[:] = resume[f"block{index}_v_all"]
@@ -348,6 +374,11 @@ def run(
             state_now[f"block{index}_v_all"] = state.block.v.array
             for name in BLOCK_ARRAYS[2:]:
                 state_now[f"block{index}_{name}"] = getattr(state, name)
+        if contact is not None:
+            for name, value in contact.state().items():
+                state_now[f"impactor_{name}"] = value
+            state_now["impactor_initial"] = impactor_initial[0]
+            state_now["impactor_z0"] = z0
         checkpoint(state_now)
 
     start = time.perf_counter()
@@ -438,8 +469,10 @@ def run(
                         f"{where_fastest()}; time step {dt:.4g} s, stable step {stable:.4g} s"
                     )
                 solid, cohesive = structure.energies()
+                impactor_energy = contact.energy(dt_prev) if contact is not None else 0.0
                 if step == 0:  # an initial velocity or displacement brings energy along
-                    initial_energy[0] = total[3] + solid + cohesive
+                    initial_energy[0] = total[3] + solid + cohesive + impactor_energy
+                    impactor_initial[0] = impactor_energy
                 # runaway: the motion holds far more energy than was ever put in
                 kinetic, put_in = total[3], abs(total[5]) + initial_energy[0]
                 if step > 0 and kinetic > RUNAWAY * max(put_in, 1e-300):
@@ -464,6 +497,10 @@ def run(
                     delaminated_area=structure.delaminated_area(),
                     time_step=dt,
                 )
+                if contact is not None:
+                    row.contact_force = float(contact.force[2])
+                    row.impactor_displacement = float(contact.centre[2] - z0)
+                    row.impact_work = impactor_initial[0] - impactor_energy
                 stats.history.append(row)
                 if on_history is not None:
                     on_history(row)
@@ -507,6 +544,8 @@ def run(
                 state.f_ext_old[:] = state.f_ext
                 state.reaction_old[:] = state.reaction
             structure.follow_border()
+            if contact is not None:
+                contact.advance(mean_dt, dt)
 
             dt_prev = dt
             t += dt

@@ -53,6 +53,9 @@ COLUMN_UNITS = {
     "refinement_energy": "mJ",
     "delaminated_area": "mm^2",
     "time_step": "s",
+    "contact_force": "N",
+    "impactor_displacement": "mm",
+    "impact_work": "mJ",
     "energy_balance": "mJ",
 }
 
