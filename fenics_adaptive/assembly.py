@@ -8,6 +8,11 @@ its 8 nodes' reference coordinates and displacements (the paper's P x), calls th
 kernel, and adds its force into the nodal force arrays (P^T f). Forces land on ghost entries
 too; the caller's reverse scatter sums them on the owners.
 
+Kinematics: ``add_subelement_forces(..., finite=True)`` evaluates the subelements with the total
+Lagrangian (Green-Lagrange) kernel, as the UFL forms of a model built with kinematics =
+"finite". The cohesive element needs no switch: its local frame always follows the current
+mid-surface (``cohesive``), so it is objective under large rotations as it is.
+
 Sign: ``add_subelement_forces`` adds f^sublam; ``add_cohesive_forces`` subtracts f^coh (paper
 Eq. 3: f = f^lam - f^coh, with f^coh the force the tractions apply to the nodes), so both build
 the internal force f_int of m a = f_ext - f_int.
@@ -84,8 +89,10 @@ def add_subelement_forces(
     u_extra: np.ndarray,
     f_base: np.ndarray,
     f_extra: np.ndarray,
+    finite: bool = False,
 ) -> float:
-    """f += sum_i P_i^T f^sublam_i; returns the strain energy (mJ). Arrays (n, 3)."""
+    """f += sum_i P_i^T f^sublam_i; returns the strain energy (mJ). Arrays (n, 3). ``finite``:
+    total Lagrangian kinematics (Green-Lagrange strain), else small strain."""
     if len(subelements) == 0:
         return 0.0
     return _add_subelement_forces(
@@ -98,6 +105,7 @@ def add_subelement_forces(
         u_extra,
         f_base,
         f_extra,
+        bool(finite),
     )
 
 
@@ -146,6 +154,7 @@ def _add_subelement_forces(
     u_extra,
     f_base,
     f_extra,
+    finite,
 ):
     n_base = X_base.shape[0]
     n_pos = positions.shape[0]
@@ -177,6 +186,9 @@ def _add_subelement_forces(
             lines,
             sums,
             f,
+            None,
+            None,
+            finite,
         )
         scatter_add_nodes(nodes, n_base, f, 1.0, f_base, f_extra)
     return energy

@@ -5,7 +5,8 @@ its header. Every problem is reported as one line naming the key, e.g.
 ``mesh.nx: must be an integer >= 1 (got 0)``; unknown keys are errors, never ignored.
 
 Sections (see demos/*.toml for complete examples):
-  [model]        kind = "esl" | "layerwise"; points_per_ply (1 or 2)
+  [model]        kind = "esl" | "layerwise"; points_per_ply (1 or 2); kinematics = "small"
+                 (default) | "finite" (total Lagrangian: large rotations; no ply_damage)
   [mesh]         length, width (mm), nx, ny (cells in-plane); layers = [plies per mesh layer]
                  for a layerwise model (default: one layer per ply)
   [materials.NAME]  E1, E2, G12, nu12, nu23, rho, optional G23
@@ -16,7 +17,11 @@ Sections (see demos/*.toml for complete examples):
   [[load]]       face, force = [Fx, Fy, Fz] (N, total over the face), time curve
   [solver]       end_time, safety_factor, time_step (optional, forced), mass_damping (1/s)
   [output]       interval (s between history rows), fields_interval (s, optional),
-                 displacement_face, reaction_face, component
+                 checkpoint_interval (steps, optional), displacement_face, reaction_face,
+                 component
+  [impactor]     shape ("sphere" | "cylinder", axis along y), radius (mm), mass (tonne),
+                 position = [x, y, z] (mm), velocity = [vx, vy, vz] (mm/s), optional penalty
+                 (N/mm per node); a rigid body hitting the top face (``contact``)
 Time curve (for prescribed/load): rise_time + profile ("smooth" or "linear"): 0 -> 1 over
 rise_time, then held; or curve = [[t0, s0], [t1, s1], ...] (piecewise linear, held after).
 """
@@ -31,6 +36,7 @@ from pathlib import Path
 from typing import Any
 
 from fenics_adaptive.cohesive import CohesiveLaw
+from fenics_adaptive.contact import IMPACTOR_SHAPES, Impactor
 from fenics_adaptive.enrichment import STRONG, WEAK
 from fenics_adaptive.errors import InputError
 from fenics_adaptive.explicit import Probe, SolverSettings
@@ -38,6 +44,7 @@ from fenics_adaptive.indicators import IndicatorSettings, Manual
 from fenics_adaptive.laminate import Laminate, Ply, PlyMaterial
 from fenics_adaptive.loading import COMPONENTS, Amplitude, FaceLoad, PrescribedMotion, clamp
 from fenics_adaptive.ply_damage import PlyFailure
+from fenics_adaptive.solid_shell import KINEMATICS
 from fenics_adaptive.structure import Interfaces, Stabilisation
 
 MODEL_KINDS = ("esl", "adaptive", "layerwise")
@@ -83,6 +90,8 @@ class RunConfig:
     stabilisation: Stabilisation = field(default_factory=Stabilisation)
     failures: dict[str, PlyFailure] = field(default_factory=dict)
     ply_damage: bool = False
+    kinematics: str = "small"  # solid_shell.KINEMATICS
+    impactor: Impactor | None = None
     matrix_strength: tuple[MatrixStrength, ...] = ()
     cohesive: CohesiveLaw | None = None
     source: str = "<memory>"
@@ -224,6 +233,15 @@ def parse_config(data: dict, source: str = "<memory>") -> RunConfig:
         raise InputError(model.key("ply_damage"), "must be true or false")
     if points_per_ply > 2:
         raise InputError(model.key("points_per_ply"), f"must be 1 or 2 (got {points_per_ply})")
+    kinematics = model.string("kinematics", KINEMATICS, default="small")
+    if kinematics == "finite" and ply_damage:
+        # the ply damage kernel samples small strains; mixing it with finite kinematics would
+        # silently damage rotating plies
+        raise InputError(
+            model.key("kinematics"),
+            '"finite" cannot be combined with model.ply_damage = true (the ply damage model is '
+            "small-strain only)",
+        )
     model.finish()
 
     materials, failures = _materials(root.table("materials"))
@@ -239,6 +257,7 @@ def parse_config(data: dict, source: str = "<memory>") -> RunConfig:
     faces = face_names(len(mesh.layers))
     interfaces, refinements, cohesive = _interfaces(root, kind, laminate, mesh)
     stabilisation = _stabilisation(root, kind)
+    impactor = _impactor(root)
     indicators = _indicators(root, kind, interfaces, cohesive, materials)
     used = sorted({p.material.name for p in laminate.plies})
     needs_failure = ply_damage or (indicators is not None and indicators.ply_failure is not None)
@@ -357,6 +376,8 @@ def parse_config(data: dict, source: str = "<memory>") -> RunConfig:
         stabilisation=stabilisation,
         failures=failures,
         ply_damage=ply_damage,
+        kinematics=kinematics,
+        impactor=impactor,
         matrix_strength=tuple(flaws),
         cohesive=cohesive,
         source=source,
@@ -576,6 +597,33 @@ def _interfaces(root: _Table, kind: str, laminate: Laminate, mesh: MeshConfig):
     elif cohesive_table is not None:
         raise InputError("cohesive", "no interface delaminates ([interfaces] delaminate)")
     return Interfaces(refine, delaminate, symmetry, initial), tuple(refinements), cohesive
+
+
+def _vector3(table: _Table, name: str, unit: str) -> tuple[float, float, float]:
+    value = table.raw(name)
+    if (
+        not isinstance(value, list)
+        or len(value) != 3
+        or any(isinstance(v, bool) or not isinstance(v, int | float) for v in value)
+    ):
+        raise InputError(table.key(name), f"must be [x, y, z] in {unit} (got {value!r})")
+    return (float(value[0]), float(value[1]), float(value[2]))
+
+
+def _impactor(root: _Table) -> Impactor | None:
+    table = root.table("impactor", required=False)
+    if table is None:
+        return None
+    impactor = Impactor(
+        shape=table.string("shape", IMPACTOR_SHAPES),
+        radius=table.number("radius", positive=True),
+        mass=table.number("mass", positive=True),
+        position=_vector3(table, "position", "mm"),
+        velocity=_vector3(table, "velocity", "mm/s"),
+        penalty=table.number("penalty", default=None, positive=True),
+    )
+    table.finish()
+    return impactor
 
 
 def _stabilisation(root: _Table, kind: str) -> Stabilisation:

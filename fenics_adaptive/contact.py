@@ -30,6 +30,8 @@ from numba import njit
 
 from fenics_adaptive.loading import face_nodes
 
+IMPACTOR_SHAPES = ("sphere", "cylinder")
+
 
 @dataclass(frozen=True)
 class Impactor:
@@ -110,6 +112,14 @@ class Contact:
         self.x = np.empty((len(self.nodes), 3))
         self.f = np.empty((len(self.nodes), 3))
         self.cylinder = impactor.shape == "cylinder"
+
+    def initial_gap(self) -> float:
+        """Collective: the smallest gap (mm) between the impactor and the undeformed top face."""
+        dx = self.X - self.centre
+        if self.cylinder:
+            dx[:, 1] = 0.0
+        local = float(np.min(np.linalg.norm(dx, axis=1))) if len(self.X) else np.inf
+        return self.comm.allreduce(local, op=MPI.MIN) - self.impactor.radius
 
     def limit_penalty(self, dt: float) -> None:
         """Cap the default penalty for the time step dt (an explicit penalty is kept and

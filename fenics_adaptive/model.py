@@ -5,6 +5,10 @@ Units: N, mm, s, tonne.
 
 An ESL model has one mesh layer carrying the whole laminate; a layerwise (LW) model has one mesh
 layer per sublaminate, each carrying its own plies. Both are the same object here.
+
+``kinematics`` ("small" or "finite", see ``solid_shell``) selects the strain measure of the UFL
+forms; the adaptive model's numba subelements read the same attribute, so the two paths always
+use the same kinematics.
 """
 
 from __future__ import annotations
@@ -54,6 +58,12 @@ class LayeredModel:
     force_ufl: ufl.Form | None = None  # f_int(u) . v, kept for linearisation (static, stiffness)
     force_form: fem.Form | None = None
     energy_form: fem.Form | None = None
+    kinematics: str = "small"  # "small" | "finite" (solid_shell.KINEMATICS)
+
+    @property
+    def finite(self) -> bool:
+        """Total Lagrangian (Green-Lagrange strain) rather than small-strain kinematics."""
+        return self.kinematics == "finite"
 
     @property
     def mesh(self) -> dolfinx.mesh.Mesh:
@@ -84,10 +94,23 @@ class LayeredModel:
         energy = 0
         for laminate, cells in zip(self.layer_laminates, self.ufl_cells, strict=True):
             groups = solid_shell.ply_groups(laminate, self.points_per_ply)
-            energy += solid_shell.strain_energy_form(self.u, groups, kernels, cells, self.selective)
+            energy += solid_shell.strain_energy_form(
+                self.u, groups, kernels, cells, self.selective, self.kinematics
+            )
         self.force_ufl = ufl.derivative(energy, self.u, v)
         self.force_form = fem.form(self.force_ufl, jit_options=JIT_OPTIONS)
         self.energy_form = fem.form(energy, jit_options=JIT_OPTIONS)
+
+    def set_kinematics(self, kinematics: str) -> None:
+        """Switch the strain measure ("small" or "finite") and rebuild the forms over the same
+        cells (for a model built without it, e.g. by an older caller)."""
+        if kinematics not in solid_shell.KINEMATICS:
+            raise ValueError(
+                f"kinematics must be one of {', '.join(solid_shell.KINEMATICS)} "
+                f"(got {kinematics!r})"
+            )
+        self.kinematics = kinematics
+        self.set_ufl_cells(self.ufl_cells)
 
     def add_internal_force(self, out: np.ndarray) -> None:
         """Add this rank's share of f_int(u) (N) over the UFL cells into ``out`` (owned + ghost
@@ -132,8 +155,14 @@ def build_model(
     layer_laminates: list[Laminate],
     points_per_ply: int = 1,
     selective: bool = True,
+    kinematics: str = "small",
 ) -> LayeredModel:
-    """``selective=False`` gives the plain fully integrated hexahedron (locks; for comparison)."""
+    """``selective=False`` gives the plain fully integrated hexahedron (locks; for comparison).
+    ``kinematics``: "small" (linear strain) or "finite" (total Lagrangian, Green-Lagrange)."""
+    if kinematics not in solid_shell.KINEMATICS:
+        raise ValueError(
+            f"kinematics must be one of {', '.join(solid_shell.KINEMATICS)} (got {kinematics!r})"
+        )
     if len(layer_laminates) != beam.n_layers:
         raise ValueError(
             f"the mesh has {beam.n_layers} layers but {len(layer_laminates)} laminates were given"
@@ -158,6 +187,7 @@ def build_model(
         V=V,
         u=fem.Function(V, name="displacement"),
         mass=np.zeros(0),
+        kinematics=kinematics,
     )
     cells = [model.layer_cells(k) for k in range(len(layer_laminates))]
     model.set_ufl_cells(cells)

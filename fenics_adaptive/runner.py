@@ -23,7 +23,9 @@ import fenics_adaptive
 from fenics_adaptive import checkpoint, explicit, output
 from fenics_adaptive.assembly import CohesiveSet
 from fenics_adaptive.config import RunConfig
+from fenics_adaptive.contact import Contact
 from fenics_adaptive.enrichment import STRONG, WEAK
+from fenics_adaptive.errors import InputError
 from fenics_adaptive.indicators import indicator_requests, spread
 from fenics_adaptive.layerwise import cohesive_pairs
 from fenics_adaptive.loading import Amplitude, PrescribedMotion, face_dofs, resolve
@@ -65,7 +67,7 @@ def build_structure(
         [laminate.thickness for laminate in layers],
         [b in config.interfaces.delaminate for b in boundaries],
     )
-    model = build_model(beam, layers, config.points_per_ply)
+    model = build_model(beam, layers, config.points_per_ply, kinematics=config.kinematics)
     motions = list(config.motions)
     cohesive = None
     params = config.cohesive.as_array() if config.cohesive is not None else None
@@ -247,6 +249,15 @@ def execute(
         f"{n_steps} steps to {config.solver.end_time:.4e} s"
     )
 
+    contact = None
+    if config.impactor is not None:
+        contact = Contact.on(config.impactor, structure)
+        gap = contact.initial_gap()
+        if gap <= 0.0:
+            raise InputError(
+                "impactor.position",
+                f"the impactor starts {-gap:.4g} mm inside the top face; place it above",
+            )
     out_dir = Path(out_dir)
     if comm.rank == 0:
         out_dir.mkdir(parents=True, exist_ok=True)
@@ -321,6 +332,7 @@ def execute(
             checkpoint=write_checkpoint,
             stop_requested=stop,
             resume=resume,
+            contact=contact,
         )
     except BaseException as error:
         history.close(completed=False)
@@ -354,6 +366,7 @@ def execute(
             "time_per_step_s": stats.wall_time
             / max(stats.steps - (int(resume["step"]) if resume else 0), 1),
             "peak_reaction_force_N": peak.reaction_force,
+            "peak_contact_force_N": max(r.contact_force for r in rows),
             "displacement_at_peak_mm": peak.displacement,
             "final": {
                 "time_s": rows[-1].time,

@@ -21,6 +21,15 @@ A ply rotated about the normal is monoclinic: its stiffness does not couple the 
 (yz, xz) to the other four components, so these four terms are the whole strain energy. The rule
 is expressed once (``ply_rules``) and used by both the UFL forms here and the numba subelement
 kernel, which must agree with them to round-off.
+
+Kinematics (``KINEMATICS``). "small": the linearised strain eps = sym(grad u). "finite": total
+Lagrangian, the Green-Lagrange strain E = 1/2 (F^T F - I), F = I + Grad u, with the second
+Piola-Kirchhoff stress S = C E (orthotropic St. Venant-Kirchhoff; C the ply stiffness rotated
+about the normal in the REFERENCE frame, the same constant as for small strain), so a rigid
+rotation gives E = 0 exactly. The selective rule applies term by term to the components of E
+(2 E_xz on the 1 x 2 points, 2 E_yz on the 2 x 1 points, ...): the same point sets, hence no
+shear locking in bending with large rotations either. The energy is 1/2 S : E, and the internal
+force its derivative, f . v = integral of F S : Grad v over the reference volume.
 """
 
 from __future__ import annotations
@@ -33,6 +42,8 @@ import ufl
 from dolfinx import fem
 
 from fenics_adaptive.laminate import Laminate
+
+KINEMATICS = ("small", "finite")
 
 GAUSS_2 = np.array([0.5 - 0.5 / np.sqrt(3.0), 0.5 + 0.5 / np.sqrt(3.0)])
 
@@ -139,6 +150,24 @@ def voigt_small_strain(u: ufl.core.expr.Expr) -> ufl.core.expr.Expr:
     return ufl.as_vector([e[0, 0], e[1, 1], e[2, 2], 2 * e[1, 2], 2 * e[0, 2], 2 * e[0, 1]])
 
 
+def voigt_green_lagrange(u: ufl.core.expr.Expr) -> ufl.core.expr.Expr:
+    """Green-Lagrange strain E = 1/2 (H + H^T + H^T H), H = Grad u, in Voigt order with
+    engineering shears (2 E_ij). Written from H rather than as 1/2 (F^T F - I): the latter loses
+    the small strains of a stiff laminate to cancellation against I."""
+    H = ufl.grad(u)
+    E = 0.5 * (H + H.T + H.T * H)
+    return ufl.as_vector([E[0, 0], E[1, 1], E[2, 2], 2 * E[1, 2], 2 * E[0, 2], 2 * E[0, 1]])
+
+
+def voigt_strain(u: ufl.core.expr.Expr, kinematics: str = "small") -> ufl.core.expr.Expr:
+    """The strain measure of ``kinematics`` ("small" or "finite"), Voigt order."""
+    if kinematics == "small":
+        return voigt_small_strain(u)
+    if kinematics == "finite":
+        return voigt_green_lagrange(u)
+    raise ValueError(f"kinematics must be one of {', '.join(KINEMATICS)} (got {kinematics!r})")
+
+
 class SeparateKernels:
     """Hands every custom-quadrature integral its own subdomain id, hence its own FFCx kernel.
 
@@ -179,17 +208,19 @@ def strain_energy_form(
     kernels: SeparateKernels | None = None,
     cells: np.ndarray | None = None,
     selective: bool = True,
+    kinematics: str = "small",
 ) -> ufl.Form:
     """Strain energy (N mm) of the layered solid-shell with the selective (ANS) rule over
     ``cells`` (default: all owned cells), as a UFL form in the displacement ``u``. The internal
     force is its derivative. ``selective=False`` integrates the transverse shear with the full
     2x2 rule instead: the plain hexahedron, which locks in bending (kept to show what the
-    selective rule buys)."""
+    selective rule buys). ``kinematics``: "small" (1/2 sigma : eps) or "finite" (1/2 S : E with
+    the Green-Lagrange strain E; see the module docstring)."""
     mesh = u.function_space.mesh
     kernels = kernels if kernels is not None else SeparateKernels(mesh)
     cells = cells if cells is not None else owned_cells(mesh)
     energy = 0
-    eps = voigt_small_strain(u)
+    eps = voigt_strain(u, kinematics)
     e_normal = ufl.as_vector([eps[i] for i in NORMAL])
     for group in groups:
         C = group.stiffness
@@ -213,9 +244,12 @@ def internal_force_form(
     kernels: SeparateKernels | None = None,
     cells: np.ndarray | None = None,
     selective: bool = True,
+    kinematics: str = "small",
 ) -> ufl.Form:
-    """Internal force f_int(u) . v (N mm for a virtual displacement v)."""
-    return ufl.derivative(strain_energy_form(u, groups, kernels, cells, selective), u, v)
+    """Internal force f_int(u) . v (N mm for a virtual displacement v); nonlinear in u for
+    ``kinematics="finite"``."""
+    energy = strain_energy_form(u, groups, kernels, cells, selective, kinematics)
+    return ufl.derivative(energy, u, v)
 
 
 def lumped_mass_form(

@@ -167,6 +167,8 @@ class Structure:
         ply_damage: bool = False,
     ):
         self.base = base
+        if ply_damage and base.finite:
+            raise ValueError("the ply damage kernel is small-strain only: use kinematics 'small'")
         self.failures = failures or {}
         self.ply_damage = ply_damage
         self.stabilisation = stabilisation or Stabilisation()
@@ -275,8 +277,10 @@ class Structure:
             )
         else:
             self.base.add_internal_force(f_base)
+            # the subelements use the base model's kinematics, read per call so that
+            # LayeredModel.set_kinematics switches both paths together
             self._solid_energy = add_subelement_forces(
-                self.subelements, self.X_base, X_extra, u_base, u_extra, fb, fx
+                self.subelements, self.X_base, X_extra, u_base, u_extra, fb, fx, self.base.finite
             )
         self._cohesive_energy = add_cohesive_forces(
             self.cohesive, self.X_base, X_extra, u_base, u_extra, fb, fx

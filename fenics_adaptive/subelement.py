@@ -16,7 +16,10 @@ Conventions (the same as ``solid_shell`` and ``timestep.reference_gradients``):
 - reference cell [0, 1]^3; vertex k sits at (k & 1, (k >> 1) & 1, (k >> 2) & 1) (DOLFINx
   order); zeta, the third reference coordinate, runs through the laminate thickness;
 - ``X``, ``u`` are (8, 3) arrays of vertex coordinates / displacements in that vertex order;
-- small strain, Voigt order (xx, yy, zz, yz, xz, xy) with engineering shears;
+- small strain, Voigt order (xx, yy, zz, yz, xz, xy) with engineering shears; or, with
+  ``finite=True``, the Green-Lagrange strain E = 1/2 (H + H^T + H^T H), H = Grad u (the same
+  Voigt order, 2 E_ij as the shears) and the second Piola-Kirchhoff stress S = C E (total
+  Lagrangian; ``solid_shell`` module docstring), e below standing for E and sigma for S;
 - strain energy of the selective (ANS-equivalent) rule, per integration point of weight w:
 
     term 0 "normal"       2x2 in-plane   1/2 e_N . C[N, N] e_N, N = (xx, yy, zz, xy) = (0, 1, 2, 5)
@@ -36,7 +39,9 @@ forms intercept and slope of J and of du/d(xi, eta, zeta) on each position's ver
 evaluates them per point with one multiply-add per entry, accumulates the per-point
 P = w |det J| sigma J^-T into two moments per position (sum P, sum zeta P), turns those into the
 derivatives with respect to the monomial coefficients and transforms back to the 8 vertices
-(the transposed butterfly) at the end.
+(the transposed butterfly) at the end. With finite kinematics the per-point P is
+w |det J| F S J^-T (first Piola-Kirchhoff stress times the reference gradient map: the
+derivative of 1/2 S : E), F = I + H; the rest is unchanged.
 """
 
 from __future__ import annotations
@@ -305,10 +310,13 @@ def _element_force(
     f_out,
     opening=None,
     opening_scale=None,
+    finite=False,
 ):
     """Force of one element from points start:stop of the packed arrays into f_out (8, 3),
     overwritten; returns the strain energy. Work arrays: ``work`` (2, 8, 3), ``lines``
-    (n_pos, 4, 3, 3), ``sums`` (n_pos, 2, 3, 3).
+    (n_pos, 4, 3, 3), ``sums`` (n_pos, 2, 3, 3). ``finite``: Green-Lagrange strain and second
+    Piola-Kirchhoff stress instead of small strain (not combined with matrix cracks: the caller,
+    the damaged kernel, is small-strain only).
 
     Matrix cracks (damaged kernel only): where ``opening_scale[k]`` > 0, ply k's ``stiffness``
     is its closed-crack stiffness and, point by point, the crack opens where the effective
@@ -379,12 +387,33 @@ def _element_force(
         wd = weights[p] * abs(det)
         k = ply_of_point[p]
         term = terms[p]
+        if finite:
+            # displacement gradient H[i, j] = du_i/dx_j (reference x) = G[i, r] K[r, j]; every
+            # term needs all of it (F = I + H maps its stress to the nodes)
+            H00 = G00 * K00 + G01 * K10 + G02 * K20
+            H01 = G00 * K01 + G01 * K11 + G02 * K21
+            H02 = G00 * K02 + G01 * K12 + G02 * K22
+            H10 = G10 * K00 + G11 * K10 + G12 * K20
+            H11 = G10 * K01 + G11 * K11 + G12 * K21
+            H12 = G10 * K02 + G11 * K12 + G12 * K22
+            H20 = G20 * K00 + G21 * K10 + G22 * K20
+            H21 = G20 * K01 + G21 * K11 + G22 * K21
+            H22 = G20 * K02 + G21 * K12 + G22 * K22
+        else:
+            H00 = H01 = H02 = H10 = H11 = H12 = H20 = H21 = H22 = 0.0
         # stress of this point's energy term (times w |det J|): s_xx, s_yy, s_zz, s_yz, s_xz, s_xy
         if term == 0:
-            exx = G00 * K00 + G01 * K10 + G02 * K20
-            eyy = G10 * K01 + G11 * K11 + G12 * K21
-            ezz = G20 * K02 + G21 * K12 + G22 * K22
-            gxy = (G00 * K01 + G01 * K11 + G02 * K21) + (G10 * K00 + G11 * K10 + G12 * K20)
+            if finite:
+                # E_ii = H_ii + 1/2 sum_k H_ki^2; 2 E_xy = H_xy + H_yx + sum_k H_kx H_ky
+                exx = H00 + 0.5 * (H00 * H00 + H10 * H10 + H20 * H20)
+                eyy = H11 + 0.5 * (H01 * H01 + H11 * H11 + H21 * H21)
+                ezz = H22 + 0.5 * (H02 * H02 + H12 * H12 + H22 * H22)
+                gxy = (H01 + H10) + (H00 * H01 + H10 * H11 + H20 * H21)
+            else:
+                exx = G00 * K00 + G01 * K10 + G02 * K20
+                eyy = G10 * K01 + G11 * K11 + G12 * K21
+                ezz = G20 * K02 + G21 * K12 + G22 * K22
+                gxy = (G00 * K01 + G01 * K11 + G02 * K21) + (G10 * K00 + G11 * K10 + G12 * K20)
             sxx = stiffness[k, 0, 0] * exx + stiffness[k, 0, 1] * eyy
             sxx += stiffness[k, 0, 2] * ezz + stiffness[k, 0, 5] * gxy
             syy = stiffness[k, 1, 0] * exx + stiffness[k, 1, 1] * eyy
@@ -417,10 +446,16 @@ def _element_force(
         else:
             gxz = 0.0
             gyz = 0.0
-            if term != 2:
-                gxz = (G00 * K02 + G01 * K12 + G02 * K22) + (G20 * K00 + G21 * K10 + G22 * K20)
-            if term != 1:
-                gyz = (G10 * K02 + G11 * K12 + G12 * K22) + (G20 * K01 + G21 * K11 + G22 * K21)
+            if finite:
+                if term != 2:
+                    gxz = (H02 + H20) + (H00 * H02 + H10 * H12 + H20 * H22)
+                if term != 1:
+                    gyz = (H12 + H21) + (H01 * H02 + H11 * H12 + H21 * H22)
+            else:
+                if term != 2:
+                    gxz = (G00 * K02 + G01 * K12 + G02 * K22) + (G20 * K00 + G21 * K10 + G22 * K20)
+                if term != 1:
+                    gyz = (G10 * K02 + G11 * K12 + G12 * K22) + (G20 * K01 + G21 * K11 + G22 * K21)
             if term == 1:
                 sxz = stiffness[k, 4, 4] * gxz
                 syz = 0.0
@@ -450,6 +485,20 @@ def _element_force(
         P20 = sxz * K00 + syz * K01 + szz * K02
         P21 = sxz * K10 + syz * K11 + szz * K12
         P22 = sxz * K20 + syz * K21 + szz * K22
+        if finite:
+            # first Piola-Kirchhoff: P <- F P = P + H P (P was S J^-T)
+            Q00 = P00 + (H00 * P00 + H01 * P10 + H02 * P20)
+            Q01 = P01 + (H00 * P01 + H01 * P11 + H02 * P21)
+            Q02 = P02 + (H00 * P02 + H01 * P12 + H02 * P22)
+            Q10 = P10 + (H10 * P00 + H11 * P10 + H12 * P20)
+            Q11 = P11 + (H10 * P01 + H11 * P11 + H12 * P21)
+            Q12 = P12 + (H10 * P02 + H11 * P12 + H12 * P22)
+            Q20 = P20 + (H20 * P00 + H21 * P10 + H22 * P20)
+            Q21 = P21 + (H20 * P01 + H21 * P11 + H22 * P21)
+            Q22 = P22 + (H20 * P02 + H21 * P12 + H22 * P22)
+            P00, P01, P02 = Q00, Q01, Q02
+            P10, P11, P12 = Q10, Q11, Q12
+            P20, P21, P22 = Q20, Q21, Q22
         sums[q, 0, 0, 0] += P00
         sums[q, 0, 0, 1] += P01
         sums[q, 0, 0, 2] += P02
@@ -509,14 +558,15 @@ def solid_shell_force(
     positions,
     stiffness,
     f_out,
+    finite=False,
 ):
     """Internal force (N) of one layered solid-shell (sub)element into ``f_out`` (8, 3),
     overwritten; returns its strain energy (mJ = N mm).
 
     ``X``, ``u``: (8, 3) vertex coordinates and displacements (mm), DOLFINx vertex order. The
     remaining inputs are the fields of a ``PackedRule`` (``pack_rule``), so the usual call is
-    ``solid_shell_force(X, u, *rule, f_out)``. Small strain, selective (ANS-equivalent) rule;
-    see the module docstring."""
+    ``solid_shell_force(X, u, *rule, f_out)``. Small strain (or, ``finite=True``, total
+    Lagrangian), selective (ANS-equivalent) rule; see the module docstring."""
     n_pos = positions.shape[0]
     work = np.empty((2, 8, 3))
     lines = np.empty((n_pos, 4, 3, 3))
@@ -537,6 +587,9 @@ def solid_shell_force(
         lines,
         sums,
         f_out,
+        None,
+        None,
+        finite,
     )
 
 
@@ -554,9 +607,10 @@ def solid_shell_forces(
     positions,
     stiffness,
     f_all,
+    finite=False,
 ):
     """Internal forces (N) of many (sub)elements into ``f_all`` (ne, 8, 3), overwritten; returns
-    their total strain energy (mJ).
+    their total strain energy (mJ). ``finite``: total Lagrangian kinematics.
 
     ``X_all``, ``u_all``: (ne, 8, 3) vertex coordinates and displacements (mm), DOLFINx vertex
     order. Element e uses the points ``rule_offsets[r]:rule_offsets[r + 1]`` with
@@ -587,6 +641,9 @@ def solid_shell_forces(
             lines,
             sums,
             f_all[e],
+            None,
+            None,
+            finite,
         )
     return energy
 

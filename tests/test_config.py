@@ -123,3 +123,43 @@ def test_not_toml_and_missing_file(tmp_path):
         load_config(bad)
     with pytest.raises(InputError, match="cannot read"):
         load_config(tmp_path / "absent.toml")
+
+
+IMPACTOR = {
+    "shape": "sphere",
+    "radius": 5.0,
+    "mass": 1e-5,
+    "position": [10.0, 1.0, 8.0],
+    "velocity": [0.0, 0.0, -1000.0],
+}
+BAD_IMPACTORS = [
+    ("shape", "cube"),
+    ("radius", 0.0),
+    ("mass", -1.0),
+    ("position", [1.0, 2.0]),
+    ("velocity", [0.0, 0.0, "fast"]),
+    ("penalty", 0.0),
+    ("spin", 3.0),
+]
+
+
+@pytest.mark.parametrize(("key", "value"), BAD_IMPACTORS, ids=[b[0] for b in BAD_IMPACTORS])
+def test_malformed_impactor_names_the_key(key, value):
+    data = base()
+    data["impactor"] = {**IMPACTOR, key: value}
+    with pytest.raises(InputError) as caught:
+        parse_config(data)
+    assert caught.value.key == f"impactor.{key}", str(caught.value)
+
+
+def test_impactor_parses_and_one_inside_the_plate_is_refused(tmp_path):
+    from fenics_adaptive.runner import run_config
+
+    data = base()
+    data["impactor"] = dict(IMPACTOR)
+    config = parse_config(data)
+    assert config.impactor.velocity == (0.0, 0.0, -1000.0)
+    data["impactor"]["position"] = [10.0, 1.0, 6.0]  # top face at z = 2, radius 5
+    with pytest.raises(InputError, match="inside the top face") as caught:
+        run_config(parse_config(data), tmp_path, show_progress=False, log=None)
+    assert caught.value.key == "impactor.position"

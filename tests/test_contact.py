@@ -25,7 +25,7 @@ def test_penalty_force_points_away_from_the_centre_and_stores_its_energy():
     assert energy == pytest.approx(0.5 * 100.0 * (0.1**2 + 0.0**2))  # the second sits on R
     # a cylinder along y ignores y
     f_cyl = np.zeros_like(x)
-    penalty_forces(x + [0.0, 5.0, 0.0], np.zeros(3), 1.0, True, 100.0, f_cyl)
+    penalty_forces(x + np.array([0.0, 5.0, 0.0]), np.zeros(3), 1.0, True, 100.0, f_cyl)
     np.testing.assert_allclose(f_cyl, f)
 
 
