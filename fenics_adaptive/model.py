@@ -20,6 +20,7 @@ import numpy as np
 import ufl
 from dolfinx import fem
 from mpi4py import MPI
+from numba import njit
 
 from fenics_adaptive import solid_shell
 from fenics_adaptive.laminate import Laminate
@@ -100,6 +101,7 @@ class LayeredModel:
         self.force_ufl = ufl.derivative(energy, self.u, v)
         self.force_form = fem.form(self.force_ufl, jit_options=JIT_OPTIONS)
         self.energy_form = fem.form(energy, jit_options=JIT_OPTIONS)
+        self._packed = PackedDisplacement(self.force_form, self.u, self.V)
 
     def set_kinematics(self, kinematics: str) -> None:
         """Switch the strain measure ("small" or "finite") and rebuild the forms over the same
@@ -115,7 +117,10 @@ class LayeredModel:
     def add_internal_force(self, out: np.ndarray) -> None:
         """Add this rank's share of f_int(u) (N) over the UFL cells into ``out`` (owned + ghost
         entries, no scatter)."""
-        fem.assemble_vector(out, self.force_form)
+        self._packed.update()
+        fem.assemble_vector(
+            out, self.force_form, constants=self._packed.constants, coeffs=self._packed.coeffs
+        )
 
     def internal_force(self, out: dolfinx.la.Vector) -> None:
         """f_int(u) (N) into ``out``, a vector on the space's index map: owned entries complete,
@@ -209,3 +214,50 @@ def cell_vertex_coordinates(mesh: dolfinx.mesh.Mesh) -> np.ndarray:
     """(n_local_cells, 8, 3) vertex coordinates of the locally owned cells."""
     n_local = mesh.topology.index_map(3).size_local
     return mesh.geometry.x[mesh.geometry.dofmaps[0][:n_local]]
+
+
+@njit(cache=True)
+def _gather_cell_values(u, cell_dofs, out):
+    """out[r, 3 a + c] = u[3 cell_dofs[r, a] + c]: the displacement as FFCx kernels read it."""
+    for r in range(cell_dofs.shape[0]):
+        for a in range(cell_dofs.shape[1]):
+            for c in range(3):
+                out[r, 3 * a + c] = u[3 * cell_dofs[r, a] + c]
+
+
+class PackedDisplacement:
+    """The constants and the packed displacement of the force form, kept between steps.
+
+    DOLFINx packs every coefficient of every integral on each assembly call. The force form has
+    several integrals over the same cells (one kernel per custom quadrature rule, see
+    ``solid_shell.SeparateKernels``), each with its own copy of u, and its constants (the ply
+    stiffnesses) never change. Here the constants are packed once, and u once per step into one
+    array per set of cells, shared by the integrals over those cells."""
+
+    def __init__(self, form: fem.Form, u: fem.Function, V: fem.FunctionSpace):
+        self.u = u.x.array
+        self.constants = fem.pack_constants(form)
+        reference = fem.pack_coefficients(form)
+        dofmap = V.dofmap.list
+        groups: dict[bytes, tuple[np.ndarray, np.ndarray]] = {}
+        self.coeffs = {}
+        for key, values in reference.items():
+            integral_type, subdomain = key
+            cells = np.asarray(form._cpp_object.domains(integral_type, subdomain))
+            if integral_type != fem.IntegralType.cell or values.shape != (len(cells), 24):
+                raise ValueError("PackedDisplacement: expected cell integrals of u (P1, 3 comps)")
+            signature = cells.tobytes()
+            if signature not in groups:
+                cell_dofs = np.ascontiguousarray(dofmap[cells], dtype=np.int64)
+                groups[signature] = (cell_dofs, np.empty((len(cells), 24)))
+            self.coeffs[key] = groups[signature][1]
+        self.groups = list(groups.values())
+        self.update()
+        for key, values in reference.items():  # the gather is DOLFINx's packing
+            if not np.array_equal(self.coeffs[key], values):
+                raise ValueError("PackedDisplacement: the layout differs from DOLFINx's packing")
+
+    def update(self) -> None:
+        for cell_dofs, packed in self.groups:
+            _gather_cell_values(self.u, cell_dofs, packed)
+
