@@ -660,7 +660,12 @@ def _indicators(root: _Table, kind: str, interfaces: Interfaces, cohesive, mater
         raise InputError(table.key("matrix_damage"), "must be true or false")
     spread_rings = table.integer("spread", default=0, minimum=0)
     strong_after = table.number("strong_after", minimum=0.0) if table.has("strong_after") else None
+    front = table.integer("front", default=0, minimum=0)
     table.finish()
+    if front and not interfaces.delaminate:
+        raise InputError(
+            "indicators.front", "no interface may delaminate ([interfaces] delaminate)"
+        )
     if strong_after is not None and not interfaces.delaminate:
         raise InputError(
             "indicators.strong_after", "no interface may delaminate ([interfaces] delaminate)"
@@ -676,7 +681,7 @@ def _indicators(root: _Table, kind: str, interfaces: Interfaces, cohesive, mater
     if ply_failure is None and interface_stress is None and not matrix_damage:
         raise InputError("indicators", "switch on at least one indicator")
     return IndicatorSettings(
-        interval, ply_failure, interface_stress, matrix_damage, spread_rings, strong_after
+        interval, ply_failure, interface_stress, matrix_damage, spread_rings, strong_after, front
     )
 
 

@@ -293,6 +293,19 @@ def indicator_requests(
     return requests
 
 
+def front_requests(structure, rings: int) -> list[tuple[int, int, int]]:
+    """Collective: strong refinements that keep every started delamination ``rings`` cells
+    inside the refined region: the cells whose cohesive element at an interface has damage > 0,
+    spread by ``rings``."""
+    damage = structure.cohesive.damage
+    started = [
+        (cell, interface, STRONG)
+        for (cell, interface), row in structure.damage_rows.items()
+        if damage[row].max() > 0.0
+    ]
+    return spread(structure, started, rings)
+
+
 # ---------------------------------------------------------------------------- spreading
 def spread(structure, requests: list[tuple[int, int, int]], rings: int) -> list:
     """Add the cells sharing a node with a requested cell (``rings`` times), with the same
@@ -322,7 +335,10 @@ class IndicatorSettings:
     index (weak) and the interface initiation criterion (strong), matrix damage (strong), how
     many rings of neighbours refine with a flagged cell, and ``strong_after``: a delaminable
     interface refined weakly turns strong that long after (the paper's four-point bending:
-    damping for 0.2 ms after the weak refinement, then the strong one)."""
+    damping for 0.2 ms after the weak refinement, then the strong one). ``front``: the
+    delamination front stays inside the refined region: the cells within that many rings of a
+    cell whose cohesive element has started to fail refine strongly at that interface (the
+    stress recovery of the unrefined cells ahead of a front does not see its stress peak)."""
 
     interval: float
     ply_failure: float | None = None
@@ -330,6 +346,7 @@ class IndicatorSettings:
     matrix_damage: bool = False
     spread: int = 0
     strong_after: float | None = None  # s: a weak delaminable interface turns strong this late
+    front: int = 0  # rings refined strongly around cohesive elements that have started to fail
 
 
 @dataclass(frozen=True)

@@ -26,7 +26,7 @@ from fenics_adaptive.config import RunConfig
 from fenics_adaptive.contact import Contact
 from fenics_adaptive.enrichment import STRONG, WEAK
 from fenics_adaptive.errors import InputError
-from fenics_adaptive.indicators import indicator_requests, spread
+from fenics_adaptive.indicators import front_requests, indicator_requests, spread
 from fenics_adaptive.layerwise import cohesive_pairs
 from fenics_adaptive.loading import Amplitude, PrescribedMotion, face_dofs, resolve
 from fenics_adaptive.model import LayeredModel, build_model
@@ -165,6 +165,8 @@ class RefinementHook:
             self.next_check = t + settings.interval
             if settings.spread:
                 requests += spread(structure, requests, settings.spread)
+            if settings.front:
+                requests += front_requests(structure, settings.front)
         if not due and not evaluate:
             return False
         return structure.refine(requests, t)
@@ -356,7 +358,8 @@ def execute(
 
     rows = kept_rows + stats.history
     peak = max(rows, key=lambda r: abs(r.reaction_force))
-    scale = max(max(abs(r.external_work) for r in rows), 1e-300)
+    # the energy put in: by loads and motions, or by an impactor
+    scale = max(max(max(abs(r.external_work), abs(r.impact_work)) for r in rows), 1e-300)
     summary.update(
         {
             "status": "completed",

@@ -119,6 +119,20 @@ def test_spread_reaches_the_neighbours_once_per_ring():
     assert {(i, k) for _, i, k in two} == {(2, enr.STRONG)}
 
 
+def test_front_keeps_a_started_delamination_inside_the_refined_region():
+    """A cohesive element that has started to fail asks for strong refinement of the cells
+    within ``front`` rings, at its interface only; undamaged ones ask for nothing."""
+    structure = build_structure(parse_config(tcb()))
+    x = structure.X_base[structure.bottom_local][:, :, 0].mean(axis=1)
+    middle = int(np.argmin(np.abs(x - 5.25)))
+    structure.refine([(c, 2, enr.STRONG) for c in np.flatnonzero(np.abs(x - 5.25) < 0.3)])
+    assert ind.front_requests(structure, 2) == []
+    structure.cohesive.damage[structure.damage_rows[(middle, 2)], 1] = 0.01
+    requests = ind.front_requests(structure, 2)
+    assert sorted(np.round(x[[c for c, _, _ in requests]], 6)) == [4.25, 4.75, 5.25, 5.75, 6.25]
+    assert {(i, k) for _, i, k in requests} == {(2, enr.STRONG)}
+
+
 def failure_cantilever(ply_damage: bool):
     """[90/0/0/90] ESL cantilever under a tip load, the matrix of the outer 90-degree plies
     loaded in transverse tension/compression by bending, strongest at the clamp."""
