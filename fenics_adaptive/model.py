@@ -260,4 +260,3 @@ class PackedDisplacement:
     def update(self) -> None:
         for cell_dofs, packed in self.groups:
             _gather_cell_values(self.u, cell_dofs, packed)
-

@@ -1,0 +1,458 @@
+"""Benchmarks: what the adaptive element costs, measured side by side.
+
+    .venv/bin/python benchmarks/run.py             # every benchmark, default sizes
+    .venv/bin/python benchmarks/run.py --quick     # small sizes (a smoke run, ~1 min)
+    .venv/bin/python benchmarks/run.py --only kernels,step
+
+Each figure is the median of ``--repeat`` (default 5) timed repetitions after a warm-up call;
+numba's first-call compile time is measured separately and reported in its own column, never in
+a timing. Problem sizes are flags. The table goes to the terminal and, with the machine it ran
+on, to ``benchmarks/results/latest.md`` and ``latest.json``. CI does not run this: timings are
+not tests.
+
+Rows (issue 5's targets in brackets):
+
+- ``kernel``: internal force of unrefined cells of the TCB beam scaled up (eight 0.256 mm plies,
+  0.5 mm cells, ny = 10): the UFL/FFCx form, the numba kernel, and the numba kernel with the ply
+  damage update. An integration-point update is one (ply, in-plane point) of the 8 x 2 x 2
+  layered rule of a cell [>= 15 M/s elastic, >= 8 M/s with damage];
+- ``step``: a whole explicit step, unrefined and fully refined (weak at interface 4, strong at 2
+  and 6 in every cell) [unrefined/refined <= 0.70], and the share of the step that is not force
+  computation [<= 20 %];
+- ``scaling``: unrefined step time per cell at growing sizes [within 15 % of linear];
+- ``mpi``: the unrefined step on 1 and 2 ranks [speed-up >= 1.7, same history];
+- ``memory``: peak resident memory of the impact plate (``demos/plate_impact.toml``): ESL,
+  adaptive with the central 10 % of cells refined, layerwise [adaptive <= 0.4 x LW];
+- ``plate``: the impact plate run past its peak force, adaptive against layerwise [wall time
+  <= 0.35 x LW, peak contact force within 2 %].
+
+Units: seconds, cells, integration points.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import json
+import os
+import platform
+import resource
+import statistics
+import subprocess
+import sys
+import time
+import tomllib
+from pathlib import Path
+
+import mpi4py  # noqa: F401  (before dolfinx)
+import numpy as np
+from mpi4py import MPI
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from fenics_adaptive import enrichment as enr  # noqa: E402
+from fenics_adaptive import explicit  # noqa: E402
+from fenics_adaptive.assembly import SubelementSet, add_subelement_forces  # noqa: E402
+from fenics_adaptive.config import parse_config  # noqa: E402
+from fenics_adaptive.runner import build_structure, execute  # noqa: E402
+
+POINTS_PER_CELL = 8 * 2 * 2  # plies x in-plane points of the layered rule
+FAILURE = {"XT": 1500.0, "XC": 1200.0, "YT": 50.0, "YC": 200.0, "S12": 80.0, "G2c": 0.3, "G6c": 0.8}
+
+
+def beam_config(n_cells: int, kind: str = "adaptive", ply_damage: bool = False) -> dict:
+    """The TCB beam with about ``n_cells`` cells (ny = 10 across, nx along), unloaded except
+    for a slow opening of the arms so that the forces are not trivially zero."""
+    data = tomllib.loads((ROOT / "demos" / "tcb.toml").read_text())
+    data.pop("refinement", None)
+    ny = 10 if n_cells >= 1000 else 1
+    nx = max(n_cells // ny, 2)
+    data["mesh"].update(nx=nx, ny=ny, length=0.5 * nx, width=0.5 * ny)
+    data["solver"]["end_time"] = 1.0
+    data["output"]["interval"] = 1.0
+    data["output"].pop("fields_interval", None)
+    if ply_damage:
+        data["model"]["ply_damage"] = True
+        data["materials"]["prototype"]["failure"] = dict(FAILURE)
+    if kind == "layerwise":
+        data["model"]["kind"] = "layerwise"
+        data["mesh"]["layers"] = [2, 2, 2, 2]
+        data["interfaces"] = {"delaminate": [2, 6], "symmetry": [4]}
+    return data
+
+
+def refine_all(structure) -> None:
+    cells = range(structure.base.n_owned_cells)
+    structure.refine([(c, 4, enr.WEAK) for c in cells])
+    structure.refine([(c, i, enr.STRONG) for c in cells for i in (2, 6)])
+
+
+def deform(structure, seed: int = 0) -> None:
+    """A smooth bending-like displacement (0.01 % strain scale): every point does real work."""
+    X = structure.X_base
+    u = structure.base.u.x.array.reshape(-1, 3)
+    u[:, 2] = 1e-4 * X[:, 0] ** 2 / max(X[:, 0].max(), 1.0)
+    u[:, 0] = -2e-4 * (X[:, 2] - X[:, 2].mean()) * X[:, 0] / max(X[:, 0].max(), 1.0)
+    structure.follow_border()
+
+
+def timed(call, repeat: int) -> tuple[float, float]:
+    """(median seconds of ``repeat`` calls after a first one, first-call seconds)."""
+    start = time.perf_counter()
+    call()
+    first = time.perf_counter() - start
+    times = []
+    for _ in range(repeat):
+        start = time.perf_counter()
+        call()
+        times.append(time.perf_counter() - start)
+    return statistics.median(times), first
+
+
+# ------------------------------------------------------------------------------ benchmarks
+def bench_kernels(n_cells: int, repeat: int) -> list[dict]:
+    """Internal force of unrefined cells, three ways: the UFL/FFCx form, the numba kernel
+    (each cell one subelement holding all 8 plies), the numba kernel with the ply damage
+    update. Integration-point updates per second per core."""
+    rows = []
+    structure = build_structure(parse_config(beam_config(n_cells)))
+    deform(structure)
+    n = structure.base.n_owned_cells
+    f = np.zeros_like(structure.base.u.x.array)
+    median, first = timed(lambda: structure.base.add_internal_force(f), repeat)
+    rows.append(_kernel_row("UFL/FFCx form, elastic", n, median, first))
+
+    rule = structure._rules_index[(0, structure.laminate.n_plies)]
+    cells = SubelementSet(
+        np.hstack([structure.bottom_local, structure.top_local]).astype(np.int32),
+        np.full(n, rule, dtype=np.int64),
+        structure.subelements.rules,
+    )
+    X_extra = np.zeros((0, 3))
+    u = structure.base.u.x.array.reshape(-1, 3)
+    fb = f.reshape(-1, 3)
+    median, first = timed(
+        lambda: add_subelement_forces(cells, structure.X_base, X_extra, u, X_extra, fb, X_extra),
+        repeat,
+    )
+    rows.append(_kernel_row("numba kernel, elastic", n, median, first))
+
+    damaged = build_structure(parse_config(beam_config(n_cells, ply_damage=True)))
+    deform(damaged)
+    median, first = timed(damaged.internal_force, repeat)
+    rows.append(_kernel_row("numba kernel, with ply damage update", n, median, first))
+    return rows
+
+
+def _kernel_row(name: str, n_cells: int, seconds: float, first: float) -> dict:
+    return {
+        "benchmark": "kernel",
+        "case": name,
+        "cells": n_cells,
+        "seconds": seconds,
+        "us_per_cell": 1e6 * seconds / n_cells,
+        "million_points_per_s": n_cells * POINTS_PER_CELL / seconds / 1e6,
+        "compile_s": max(first - seconds, 0.0),
+    }
+
+
+def step_time(structure, steps: int, repeat: int) -> tuple[float, float]:
+    """(seconds per explicit step, seconds per internal-force evaluation), medians."""
+    config_steps = explicit.SolverSettings(end_time=1.0, output_interval=1.0)
+    dt, _, _ = explicit.choose_time_step(structure, config_steps)
+    settings = explicit.SolverSettings(end_time=steps * dt, output_interval=steps * dt)
+    probe = explicit.Probe("x1&top", "x1&top", "z")
+
+    def run():
+        stats = explicit.run(structure, settings, probe, time_step=dt)
+        per_step.append(stats.wall_time / max(stats.steps, 1))
+
+    per_step: list[float] = []
+    run()  # warm-up (compiles)
+    per_step.clear()
+    for _ in range(repeat):
+        run()
+    force, _ = timed(structure.internal_force, repeat)
+    return statistics.median(per_step), force
+
+
+def bench_step(n_cells: int, steps: int, repeat: int) -> list[dict]:
+    """A whole explicit step, unrefined and fully refined, and the share of the step that is
+    not force computation."""
+    rows = []
+    for state in ("unrefined", "refined"):
+        start = time.perf_counter()
+        structure = build_structure(parse_config(beam_config(n_cells)))
+        if state == "refined":
+            refine_all(structure)
+        setup = time.perf_counter() - start
+        step, force = step_time(structure, steps, repeat)
+        rows.append(
+            {
+                "benchmark": "step",
+                "case": state,
+                "cells": structure.comm.allreduce(structure.base.n_owned_cells),
+                "ranks": structure.comm.size,
+                "seconds": step,
+                "us_per_cell": 1e6 * step / structure.base.n_owned_cells,
+                "force_seconds": force,
+                "non_force_fraction": max(step - force, 0.0) / step,
+                "setup_s": setup,
+            }
+        )
+    rows[0]["unrefined_over_refined"] = rows[0]["seconds"] / rows[1]["seconds"]
+    return rows
+
+
+def bench_scaling(sizes: list[int], steps: int, repeat: int) -> list[dict]:
+    """Unrefined step time per cell at growing sizes (linear growth: constant per-cell time)."""
+    rows = []
+    for n in sizes:
+        structure = build_structure(parse_config(beam_config(n)))
+        step, _ = step_time(structure, steps, repeat)
+        rows.append(
+            {
+                "benchmark": "scaling",
+                "case": f"{n} cells",
+                "cells": structure.base.n_owned_cells,
+                "seconds": step,
+                "us_per_cell": 1e6 * step / structure.base.n_owned_cells,
+            }
+        )
+    base = rows[0]["us_per_cell"]
+    for row in rows:
+        row["per_cell_relative_to_smallest"] = row["us_per_cell"] / base
+    return rows
+
+
+def bench_mpi(n_cells: int, steps: int, repeat: int) -> list[dict]:
+    """The unrefined step on 1 and 2 MPI ranks (subprocesses), and whether their force
+    histories agree."""
+    rows = []
+    for ranks in (1, 2):
+        command = [sys.executable, __file__, "--only", "mpi-worker", "--cells", str(n_cells)]
+        command += ["--steps", str(steps), "--repeat", str(repeat)]
+        if ranks > 1:
+            command = [str(Path(sys.executable).parent / "mpiexec"), "-n", str(ranks), *command]
+        done = subprocess.run(command, capture_output=True, text=True, check=True)
+        rows.append(json.loads(done.stdout.strip().splitlines()[-1]))
+    rows[1]["speed_up"] = rows[0]["seconds"] / rows[1]["seconds"]
+    rows[1]["history_difference"] = float(
+        np.max(np.abs(np.array(rows[0]["history"]) - np.array(rows[1]["history"])))
+        / max(np.max(np.abs(rows[0]["history"])), 1e-300)
+    )
+    for row in rows:
+        row.pop("history")
+    return rows
+
+
+def mpi_worker(n_cells: int, steps: int, repeat: int) -> None:
+    comm = MPI.COMM_WORLD
+    structure = build_structure(parse_config(beam_config(n_cells)), comm)
+    step, _ = step_time(structure, steps, repeat)
+    # a short loaded history to compare between rank counts
+    config = parse_config(beam_config(n_cells))
+    fresh = build_structure(config, comm)
+    dt, _, _ = explicit.choose_time_step(fresh, config.solver)
+    settings = explicit.SolverSettings(end_time=200 * dt, output_interval=20 * dt)
+    stats = explicit.run(fresh, settings, config.probe, time_step=dt)
+    history = [r.reaction_force for r in stats.history]
+    step = comm.allreduce(step, op=MPI.MAX)
+    if comm.rank == 0:
+        print(
+            json.dumps(
+                {
+                    "benchmark": "mpi",
+                    "case": f"{comm.size} rank(s)",
+                    "cells": n_cells,
+                    "ranks": comm.size,
+                    "seconds": step,
+                    "history": history,
+                }
+            )
+        )
+
+
+def plate_config(name: str, end_time: float | None = None) -> dict:
+    """The impact plate of ``demos/plate_impact.toml`` as the demo runs it (esl, adaptive,
+    layerwise)."""
+    spec = importlib.util.spec_from_file_location(
+        "plate_impact", ROOT / "demos" / "plate_impact.py"
+    )
+    demo = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(demo)
+    data = demo.variant(tomllib.loads((ROOT / "demos" / "plate_impact.toml").read_text()), name)
+    if end_time is not None:
+        data["solver"]["end_time"] = end_time
+    return data
+
+
+def bench_plate(end_time: float) -> list[dict]:
+    """The impact plate to ``end_time`` (past the peak force), adaptive against the layerwise
+    reference: wall time, peak contact force, refined fraction."""
+    rows = []
+    for name in ("adaptive", "layerwise"):
+        config = parse_config(plate_config(name, end_time), source=name)
+        summary, structure = execute(
+            config, ROOT / "benchmarks" / "results" / f"plate_{name}", show_progress=False, log=None
+        )
+        refined = (structure.interface_state != enr.NONE).any(axis=1).mean()
+        rows.append(
+            {
+                "benchmark": "plate",
+                "case": name,
+                "cells": structure.base.n_owned_cells,
+                "seconds": summary["wall_time_s"],
+                "peak_contact_N": summary["peak_contact_force_N"],
+                "refined_fraction": float(refined) if structure.interface_state.size else 0.0,
+            }
+        )
+    adaptive, layerwise = rows
+    adaptive["wall_over_layerwise"] = adaptive["seconds"] / layerwise["seconds"]
+    adaptive["peak_vs_layerwise"] = adaptive["peak_contact_N"] / layerwise["peak_contact_N"] - 1
+    return rows
+
+
+def bench_memory() -> list[dict]:
+    """Peak resident memory of a process that builds the impact plate and takes 10 steps
+    (subprocesses): ESL, adaptive with the central 10 % of the cells strongly refined at its
+    three interfaces, layerwise."""
+    rows = []
+    for case in ("esl", "adaptive_10pct", "layerwise"):
+        command = [sys.executable, __file__, "--only", "memory-worker", "--case", case]
+        done = subprocess.run(command, capture_output=True, text=True, check=True)
+        rows.append(json.loads(done.stdout.strip().splitlines()[-1]))
+    lw = rows[-1]["peak_MiB"]
+    for row in rows:
+        row["relative_to_layerwise"] = row["peak_MiB"] / lw
+    return rows
+
+
+def memory_worker(case: str) -> None:
+    name = {"esl": "esl", "adaptive_10pct": "esl", "layerwise": "layerwise"}[case]
+    data = plate_config(name)
+    data.pop("impactor")
+    structure = build_structure(parse_config(data))
+    if case == "adaptive_10pct":
+        centre = structure.X_base[structure.bottom_local].mean(axis=1)[:, :2]
+        distance = np.abs(centre - centre.mean(axis=0)).max(axis=1)
+        cells = np.flatnonzero(distance <= np.quantile(distance, 0.1))
+        interfaces = data["interfaces"]["delaminate"]
+        structure.refine([(int(c), i, enr.STRONG) for c in cells for i in interfaces])
+    step_time(structure, 10, 1)
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0  # KiB -> MiB (Linux)
+    n = structure.base.n_owned_cells
+    print(json.dumps({"benchmark": "memory", "case": case, "cells": n, "peak_MiB": peak}))
+
+
+# ------------------------------------------------------------------------------ reporting
+def machine() -> str:
+    cpu = "unknown CPU"
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    return f"{cpu}, {os.cpu_count()} cores, Python {platform.python_version()}"
+
+
+def table(rows: list[dict]) -> str:
+    lines = [
+        "| benchmark | case | cells | time (s) | us/cell | figure |",
+        "|---|---|---|---|---|---|",
+    ]
+    for r in rows:
+        figure = []
+        for key, fmt in (
+            ("million_points_per_s", "{:.1f} M points/s"),
+            ("compile_s", "compile {:.1f} s"),
+            ("unrefined_over_refined", "unrefined/refined {:.2f}"),
+            ("non_force_fraction", "non-force {:.0%}"),
+            ("setup_s", "setup {:.0f} s"),
+            ("per_cell_relative_to_smallest", "per cell x{:.2f}"),
+            ("speed_up", "speed-up {:.2f}"),
+            ("history_difference", "history diff {:.1e}"),
+            ("peak_MiB", "{:.0f} MiB"),
+            ("peak_contact_N", "peak contact {:.1f} N"),
+            ("refined_fraction", "refined {:.1%}"),
+            ("wall_over_layerwise", "wall/LW {:.2f}"),
+            ("peak_vs_layerwise", "peak vs LW {:+.2%}"),
+            ("relative_to_layerwise", "x{:.2f} of LW"),
+        ):
+            if key in r:
+                figure.append(fmt.format(r[key]))
+        seconds = f"{r['seconds']:.4g}" if "seconds" in r else "-"
+        us = f"{r['us_per_cell']:.2f}" if "us_per_cell" in r else "-"
+        lines.append(
+            f"| {r['benchmark']} | {r['case']} | {r['cells']} | {seconds} | {us} | "
+            f"{', '.join(figure)} |"
+        )
+    return "\n".join(lines)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--only", default="kernels,step,scaling,mpi,memory,plate")
+    parser.add_argument("--quick", action="store_true", help="small sizes, a smoke run")
+    parser.add_argument("--cells", type=int, default=None, help="cells of the step benchmark")
+    parser.add_argument("--kernel-cells", type=int, default=100_000)
+    parser.add_argument("--scaling", default="10000,100000,400000")
+    parser.add_argument("--mpi-cells", type=int, default=200_000)
+    parser.add_argument("--plate-end-time", type=float, default=3.0e-4, help="s")
+    parser.add_argument("--steps", type=int, default=20, help="explicit steps per repetition")
+    parser.add_argument("--repeat", type=int, default=5)
+    parser.add_argument("--case", default="esl")
+    parser.add_argument("--out", default=ROOT / "benchmarks" / "results")
+    args = parser.parse_args()
+    cells = args.cells or 100_000
+    if args.quick:
+        cells = args.cells or 2_000
+        args.kernel_cells, args.scaling, args.mpi_cells, args.plate_end_time = (
+            2_000,
+            "1000,4000",
+            4_000,
+            2.0e-5,
+        )
+    only = args.only.split(",")
+    if only == ["mpi-worker"]:
+        return mpi_worker(cells, args.steps, args.repeat)
+    if only == ["memory-worker"]:
+        return memory_worker(args.case)
+
+    rows: list[dict] = []
+    started = time.perf_counter()
+    jobs = {
+        "kernels": lambda: bench_kernels(args.kernel_cells, args.repeat),
+        "step": lambda: bench_step(cells, args.steps, args.repeat),
+        "scaling": lambda: bench_scaling(
+            [int(n) for n in args.scaling.split(",")], args.steps, args.repeat
+        ),
+        "mpi": lambda: bench_mpi(args.mpi_cells, args.steps, args.repeat),
+        "memory": bench_memory,
+        "plate": lambda: bench_plate(args.plate_end_time),
+    }
+    for name in only:
+        if name not in jobs:
+            parser.error(f"--only: unknown benchmark {name!r} (choose from {', '.join(jobs)})")
+        print(f"running {name} ...", file=sys.stderr, flush=True)
+        rows += jobs[name]()
+        print(table(rows), file=sys.stderr, flush=True)
+    text = table(rows)
+    print(text)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    header = (
+        f"Machine: {machine()}. Median of {args.repeat} repetitions after a warm-up; "
+        f"total {time.perf_counter() - started:.0f} s.\n\n"
+    )
+    (out / "latest.md").write_text(header + text + "\n")
+    (out / "latest.json").write_text(
+        json.dumps({"machine": machine(), "rows": rows}, indent=2) + "\n"
+    )
+
+
+if __name__ == "__main__":
+    main()
