@@ -657,6 +657,10 @@ class Structure:
         fractions = self.laminate.ply_fractions
         stiffness = np.array(self.laminate.ply_stiffnesses())
         density = np.array([p.material.rho for p in self.laminate.plies])
+        # mm/s; each ply's wave speed inverts its compliance: once, not per subelement
+        self._ply_speeds = np.array(
+            [p.material.dilatational_wave_speed() for p in self.laminate.plies]
+        )
         for first in range(n):
             for stop in range(first + 1, n + 1):
                 zeta = sublaminate_ply_zeta(fractions, first, stop)
@@ -678,12 +682,7 @@ class Structure:
                 rule.append(self._rules_index[(sub.first, sub.stop)])
                 cell_of.append(cell)
                 plies_of.append((sub.first, sub.stop))
-                speeds.append(
-                    max(
-                        p.material.dilatational_wave_speed()
-                        for p in self.laminate.plies[sub.first : sub.stop]
-                    )
-                )
+                speeds.append(self._ply_speeds[sub.first : sub.stop].max())
             columns = self._columns(cell)
             for interface in np.flatnonzero(row == enr.STRONG) + 1:
                 coh_nodes.append(
@@ -795,20 +794,23 @@ class Structure:
     def _update_masses(self, cells: np.ndarray, old_state: np.ndarray) -> None:
         """Take each changed cell's old (sub)element masses off its nodes, put the new ones on;
         sums on shared nodes are completed by reverse scatters."""
-        delta_base = np.zeros(self.n_base)
-        delta_extra = np.zeros(self.extra.n_local)
-        m = np.zeros(8)
+        elements, rules, signs = [], [], []
         for cell in cells:
             for state, sign in ((old_state[cell], -1.0), (self.interface_state[cell], 1.0)):
                 for sub in enr.subelements(state):
-                    nodes = self._subelement_nodes(state, sub, cell)
-                    X = self._gather(nodes[None, :], "X")[0]
-                    solid_shell_lumped_mass(X, *self._mass_rules[(sub.first, sub.stop)], m)
-                    for a, node in enumerate(nodes):
-                        if node < self.n_base:
-                            delta_base[node] += sign * m[a]
-                        else:
-                            delta_extra[node - self.n_base] += sign * m[a]
+                    elements.append(self._subelement_nodes(state, sub, cell))
+                    rules.append((sub.first, sub.stop))
+                    signs.append(sign)
+        delta = np.zeros(self.n_base + self.extra.n_local)  # combined local nodes
+        if elements:
+            nodes = np.array(elements)
+            X = self._gather(nodes, "X")
+            masses = np.empty((len(nodes), 8))
+            for e, rule in enumerate(rules):
+                solid_shell_lumped_mass(X[e], *self._mass_rules[rule], masses[e])
+                masses[e] *= signs[e]
+            np.add.at(delta, nodes.ravel(), masses.ravel())  # in order, as a loop would
+        delta_base, delta_extra = delta[: self.n_base], delta[self.n_base :]
         for delta, target in ((delta_base, self.mass_base), (delta_extra, self.mass_extra)):
             scratch = la.vector(target.index_map, bs=3)
             scratch.array.reshape(-1, 3)[:] = delta[:, None]
@@ -819,11 +821,10 @@ class Structure:
 
     def _gather(self, nodes: np.ndarray, name: str) -> np.ndarray:
         """Values (n, 8, 3) of vector ``name`` ("u", "v", "X") at combined node indices."""
-        base = {
-            "u": self.base.u.x.array.reshape(-1, 3),
-            "v": self.v_base.array.reshape(-1, 3),
-            "X": self.X_base,
-        }[name]
+        if name == "X":
+            base = self.X_base
+        else:
+            base = (self.base.u.x if name == "u" else self.v_base).array.reshape(-1, 3)
         extra = self.extra.vectors[name].array.reshape(-1, 3)
         is_base = nodes < self.n_base
         out = np.empty((*nodes.shape, 3))
