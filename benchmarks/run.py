@@ -7,8 +7,8 @@
 Each figure is the median of ``--repeat`` (default 5) timed repetitions after a warm-up call;
 numba's first-call compile time is measured separately and reported in its own column, never in
 a timing. Problem sizes are flags. The table goes to the terminal and, with the machine it ran
-on, to ``benchmarks/results/latest.md`` and ``latest.json``. CI does not run this: timings are
-not tests.
+on, to ``benchmarks/results/latest.md`` and ``latest.json`` (``quick.*`` with ``--quick``).
+CI does not run this: timings are not tests.
 
 Rows (issue 5's targets in brackets):
 
@@ -56,6 +56,7 @@ from fenics_adaptive import explicit  # noqa: E402
 from fenics_adaptive.assembly import SubelementSet, add_subelement_forces  # noqa: E402
 from fenics_adaptive.config import parse_config  # noqa: E402
 from fenics_adaptive.runner import build_structure, execute  # noqa: E402
+from fenics_adaptive.timing import time_call, time_per_step  # noqa: E402
 
 POINTS_PER_CELL = 8 * 2 * 2  # plies x in-plane points of the layered rule
 FAILURE = {"XT": 1500.0, "XC": 1200.0, "YT": 50.0, "YC": 200.0, "S12": 80.0, "G2c": 0.3, "G6c": 0.8}
@@ -99,15 +100,7 @@ def deform(structure, seed: int = 0) -> None:
 
 def timed(call, repeat: int) -> tuple[float, float]:
     """(median seconds of ``repeat`` calls after a first one, first-call seconds)."""
-    start = time.perf_counter()
-    call()
-    first = time.perf_counter() - start
-    times = []
-    for _ in range(repeat):
-        start = time.perf_counter()
-        call()
-        times.append(time.perf_counter() - start)
-    return statistics.median(times), first
+    return time_call(call, repeat, statistic=statistics.median)
 
 
 # ------------------------------------------------------------------------------ benchmarks
@@ -159,22 +152,10 @@ def _kernel_row(name: str, n_cells: int, seconds: float, first: float) -> dict:
 
 def step_time(structure, steps: int, repeat: int) -> tuple[float, float]:
     """(seconds per explicit step, seconds per internal-force evaluation), medians."""
-    config_steps = explicit.SolverSettings(end_time=1.0, output_interval=1.0)
-    dt, _, _ = explicit.choose_time_step(structure, config_steps)
-    settings = explicit.SolverSettings(end_time=steps * dt, output_interval=steps * dt)
     probe = explicit.Probe("x1&top", "x1&top", "z")
-
-    def run():
-        stats = explicit.run(structure, settings, probe, time_step=dt)
-        per_step.append(stats.wall_time / max(stats.steps, 1))
-
-    per_step: list[float] = []
-    run()  # warm-up (compiles)
-    per_step.clear()
-    for _ in range(repeat):
-        run()
+    step, _ = time_per_step(structure, probe, steps, repeat, statistic=statistics.median)
     force, _ = timed(structure.internal_force, repeat)
-    return statistics.median(per_step), force
+    return step, force
 
 
 def bench_step(n_cells: int, steps: int, repeat: int) -> list[dict]:
@@ -464,8 +445,9 @@ def main() -> None:
         f"Machine: {machine()}. Median of {args.repeat} repetitions after a warm-up; "
         f"total {time.perf_counter() - started:.0f} s.\n\n"
     )
-    (out / "latest.md").write_text(header + text + "\n")
-    (out / "latest.json").write_text(
+    stem = "quick" if args.quick else "latest"  # a smoke run leaves the real table alone
+    (out / f"{stem}.md").write_text(header + text + "\n")
+    (out / f"{stem}.json").write_text(
         json.dumps({"machine": machine(), "rows": rows}, indent=2) + "\n"
     )
 

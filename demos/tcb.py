@@ -29,9 +29,9 @@ Writes ``results/tcb/<run>/`` (history.csv, summary.json, plots, ParaView fields
 import argparse
 import copy
 import json
-import time
 import tomllib
 from pathlib import Path
+from statistics import median
 
 import matplotlib
 import numpy as np
@@ -44,6 +44,7 @@ from fenics_adaptive import enrichment
 from fenics_adaptive.config import parse_config
 from fenics_adaptive.output import read_history
 from fenics_adaptive.runner import build_structure, execute
+from fenics_adaptive.timing import time_call
 
 HERE = Path(__file__).parent
 RUNS = ("reference", "refined_from_start", "adaptive", "late", "late_stabilised")
@@ -167,14 +168,8 @@ def cost_per_cell(base: dict, repeats: int = 20) -> dict:
         structure = build_structure(parse_config(data))
         rng = np.random.default_rng(0)
         structure.base.u.x.array[:] = 1e-4 * rng.standard_normal(structure.base.u.x.array.shape)
-        for _ in range(3):  # warm-up, compilation out of the timing
-            structure.internal_force()
-        times = []
-        for _ in range(repeats):
-            start = time.perf_counter()
-            structure.internal_force()
-            times.append(time.perf_counter() - start)
-        out[label] = float(np.median(times)) / structure.base.n_owned_cells
+        seconds, _ = time_call(structure.internal_force, repeats, warmups=3, statistic=median)
+        out[label] = seconds / structure.base.n_owned_cells
     return {
         "seconds_per_cell": out,
         "unrefined_over_strong": out["unrefined"] / out["strong"],

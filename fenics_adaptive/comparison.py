@@ -24,9 +24,6 @@ Units: N, mm, s, tonne (stress MPa, energy mJ, time per step s).
   line load: classical laminate theory in bending, transverse shear and normal stresses from
   integrating equilibrium through the thickness, Timoshenko deflection with the laminate's
   shear compliance.
-- ``time_per_force`` / ``time_per_step``: measured wall time of one internal-force evaluation /
-  one explicit step of a structure, compilation excluded (warm-up first), the best of several
-  repeats (as ``timeit`` does: other load on the machine only ever adds time).
 
 Stress vectors through the thickness are ordered (sigma_zz, tau_xz, tau_yz) ("out-of-plane"
 components, ``OUT_OF_PLANE``) at the n_plies + 1 ply boundaries, bottom face (0) to top face.
@@ -41,7 +38,6 @@ from dataclasses import dataclass
 import numpy as np
 from petsc4py import PETSc
 
-from fenics_adaptive import explicit
 from fenics_adaptive.assembly import SubelementSet, add_subelement_forces
 from fenics_adaptive.indicators import ply_stresses
 from fenics_adaptive.laminate import Laminate, reduced_plane_stress_stiffness
@@ -500,40 +496,6 @@ class CantileverBeamTheory:
         bending = self.q * self.length**4 / (8.0 * self.EI)
         shear = self.q * self.length**2 / 2.0 * self.shear_compliance()
         return {"bending_mm": bending, "shear_mm": shear, "total_mm": bending + shear}
-
-
-# ----------------------------------------------------------------------------- cost
-def time_per_force(structure: Structure, repeats: int = 50) -> float:
-    """Wall time (s) of one ``Structure.internal_force`` call, the best of ``repeats``, after a
-    warm-up (numba and FFCx compilation excluded)."""
-    for _ in range(3):
-        structure.internal_force()
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        structure.internal_force()
-        times.append(time.perf_counter() - start)
-    return float(np.min(times))
-
-
-def time_per_step(
-    structure: Structure, probe: explicit.Probe, steps: int = 200, repeats: int = 3
-) -> tuple[float, float]:
-    """(wall time of one explicit step (s), the stable time step used (s)): the best of
-    ``repeats`` runs of ``steps`` central-difference steps at the stable step from rest, each
-    timed by the solver itself (its clock starts after set-up) and divided by its steps; a
-    short run first compiles everything. The structure's displacement is overwritten."""
-    dt, _, _ = explicit.choose_time_step(
-        structure, explicit.SolverSettings(end_time=1.0, output_interval=1.0)
-    )
-    warm = explicit.SolverSettings(end_time=5 * dt, output_interval=5 * dt)
-    explicit.run(structure, warm, probe)
-    settings = explicit.SolverSettings(end_time=steps * dt, output_interval=steps * dt)
-    per_step = []
-    for _ in range(repeats):
-        stats = explicit.run(structure, settings, probe)
-        per_step.append(stats.wall_time / max(stats.steps, 1))
-    return float(np.min(per_step)), float(dt)
 
 
 def first_bending_period(theory: CantileverBeamTheory) -> float:
