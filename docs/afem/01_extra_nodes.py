@@ -35,6 +35,7 @@ Units: N, mm, s, tonne.
 
 # %%
 import tomllib
+from pathlib import Path
 
 import numpy as np
 from mpi4py import MPI
@@ -46,71 +47,18 @@ from fenics_adaptive.runner import build_structure
 # %% [markdown]
 # ## The model
 #
-# Seven plies of unequal thickness, so that the fractions alpha_i are not evenly spaced. Two
-# cells side by side along x. Every interface may refine; interface 4 may also turn strong. The
-# clamp, solver and output sections are required by the config parser but unused here: nothing
-# is time-integrated.
+# The seven plies of unequal thickness of `seven_plies.toml` (the Figure 2 cell of the next two
+# scripts), so that the fractions alpha_i are not evenly spaced. Here two cells side by side
+# along x, and every interface may refine; interface 4 may also turn strong. The clamp, solver
+# and output sections are required by the config parser but unused: nothing is time-integrated.
 
 # %%
-CONFIG = """
-[model]
-kind = "adaptive"
-
-[mesh]
-length = 2.0
-width = 0.5
-nx = 2
-ny = 1
-
-[materials.ply]
-E1 = 100000.0
-E2 = 10000.0
-G12 = 5000.0
-G23 = 4000.0
-nu12 = 0.25
-nu23 = 0.25
-rho = 1.6e-9
-
-[laminate]
-plies = [
-    {material = "ply", angle = 0, thickness = 0.15},
-    {material = "ply", angle = 90, thickness = 0.15},
-    {material = "ply", angle = 0, thickness = 0.30},
-    {material = "ply", angle = 90, thickness = 0.30},
-    {material = "ply", angle = 0, thickness = 0.20},
-    {material = "ply", angle = 90, thickness = 0.20},
-    {material = "ply", angle = 0, thickness = 0.20},
-]
-
-[interfaces]
-refine = [1, 2, 3, 5, 6]
-delaminate = [4]
-
-[cohesive]
-K_n = 1.0e5
-K_s = 1.0e5
-N = 20.0
-S = 40.0
-GIc = 0.4
-GIIc = 1.0
-law = "bk"
-exponent = 2.0
-
-[[clamp]]
-face = "x0"
-
-[solver]
-end_time = 1.0e-5
-
-[output]
-interval = 1.0e-6
-displacement_face = "x0"
-reaction_face = "x0"
-component = "z"
-"""
+data = tomllib.loads((Path(__file__).parent / "seven_plies.toml").read_text())
+data["mesh"].update(length=2.0, nx=2)  # two cells side by side
+data["interfaces"]["refine"] = [1, 2, 3, 5, 6]  # and 4 (delaminate): every interface
 
 assert MPI.COMM_WORLD.size == 1, "run this script in serial"
-structure = build_structure(parse_config(tomllib.loads(CONFIG), source="01_extra_nodes"))
+structure = build_structure(parse_config(data, source="01_extra_nodes"))
 laminate = structure.laminate
 
 # %% [markdown]

@@ -14,6 +14,7 @@ Units: N, mm, s, tonne.
 
 # %%
 import tomllib
+from pathlib import Path
 
 import numpy as np
 from mpi4py import MPI
@@ -75,65 +76,10 @@ for number, sub in enumerate(subelements, start=1):
 # nodes; the others are extra nodes, named by interface and set (`i2A`: interface 2, set A).
 
 # %%
-CONFIG = """
-[model]
-kind = "adaptive"
-
-[mesh]
-length = 1.0
-width = 0.5
-nx = 1
-ny = 1
-
-[materials.ply]
-E1 = 100000.0
-E2 = 10000.0
-G12 = 5000.0
-G23 = 4000.0
-nu12 = 0.25
-nu23 = 0.25
-rho = 1.6e-9
-
-[laminate]
-plies = [
-    {material = "ply", angle = 0, thickness = 0.15},
-    {material = "ply", angle = 90, thickness = 0.15},
-    {material = "ply", angle = 0, thickness = 0.30},
-    {material = "ply", angle = 90, thickness = 0.30},
-    {material = "ply", angle = 0, thickness = 0.20},
-    {material = "ply", angle = 90, thickness = 0.20},
-    {material = "ply", angle = 0, thickness = 0.20},
-]
-
-[interfaces]
-refine = [2]
-delaminate = [4]
-
-[cohesive]
-K_n = 1.0e5
-K_s = 1.0e5
-N = 20.0
-S = 40.0
-GIc = 0.4
-GIIc = 1.0
-law = "bk"
-exponent = 2.0
-
-[[clamp]]
-face = "x0"
-
-[solver]
-end_time = 1.0e-5
-
-[output]
-interval = 1.0e-6
-displacement_face = "x0"
-reaction_face = "x0"
-component = "z"
-"""
+data = tomllib.loads((Path(__file__).parent / "seven_plies.toml").read_text())  # Figure 2
 
 assert MPI.COMM_WORLD.size == 1, "run this script in serial"
-structure = build_structure(parse_config(tomllib.loads(CONFIG), source="02_figure2_maps"))
+structure = build_structure(parse_config(data, source="02_figure2_maps"))
 cell = 0
 structure.refine([(cell, 2, enr.WEAK), (cell, 4, enr.WEAK)])
 print("\n" + structure.cell_maps(cell))
