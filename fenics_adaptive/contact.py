@@ -46,10 +46,10 @@ class Impactor:
 
 
 @njit(cache=True)
-def penalty_forces(x, centre, radius, cylinder, penalty, f_out):
-    """Contact forces (n, 3) on nodes at x (n, 3) into f_out; returns (force on the impactor
-    (3,), penalty energy)."""
-    total = np.zeros(3)
+def penalty_forces(x, centre, radius, cylinder, penalty, f_out, total):
+    """Contact forces (n, 3) on nodes at x (n, 3) into f_out and their reaction on the impactor
+    into total (3,), both overwritten; returns the penalty energy."""
+    total[:] = 0.0
     energy = 0.0
     for i in range(x.shape[0]):
         dx = x[i, 0] - centre[0]
@@ -67,7 +67,7 @@ def penalty_forces(x, centre, radius, cylinder, penalty, f_out):
         for d in range(3):
             total[d] -= f_out[i, d]
         energy += 0.5 * penalty * gap * gap
-    return total, energy
+    return energy
 
 
 class Contact:
@@ -109,8 +109,11 @@ class Contact:
         self.acceleration = np.zeros(3)
         self.force = np.zeros(3)  # on the impactor, global
         self.energy_penalty = 0.0  # global
+        # work arrays: the step allocates nothing
+        self.u = np.empty(len(self.dofs))
         self.x = np.empty((len(self.nodes), 3))
         self.f = np.empty((len(self.nodes), 3))
+        self.totals = np.empty(4)  # force on the impactor, penalty energy
         self.cylinder = impactor.shape == "cylinder"
 
     def initial_gap(self) -> float:
@@ -128,18 +131,27 @@ class Contact:
         if self.impactor.penalty is None:
             self.penalty = min(self.natural_penalty, cap)
 
-    def add_forces(self, u_base: np.ndarray, f_ext: np.ndarray) -> None:
+    def set_forces(self, u_base: np.ndarray, forces: np.ndarray) -> None:
         """Collective: the contact forces at the current displacement (u_base: local base DOFs,
-        flat) added into f_ext (owned base DOFs, flat); the impactor's force and acceleration."""
-        np.add(self.X, u_base[self.dofs].reshape(-1, 3), out=self.x)
-        local_force, local_energy = penalty_forces(
-            self.x, self.centre, self.impactor.radius, self.cylinder, self.penalty, self.f
+        flat) written into ``forces`` (owned base DOFs, flat) at the top-face DOFs; its other
+        entries are left alone (zero, in the solver's array). Also the impactor's force and
+        acceleration."""
+        np.take(u_base, self.dofs, out=self.u)
+        np.add(self.X, self.u.reshape(-1, 3), out=self.x)
+        self.totals[3] = penalty_forces(
+            self.x,
+            self.centre,
+            self.impactor.radius,
+            self.cylinder,
+            self.penalty,
+            self.f,
+            self.totals[:3],
         )
-        f_ext[self.dofs] += self.f.ravel()
-        totals = self.comm.allreduce(np.append(local_force, local_energy), op=MPI.SUM)
-        self.force[:] = totals[:3]
-        self.energy_penalty = float(totals[3])
-        self.acceleration[:] = self.force / self.impactor.mass
+        np.put(forces, self.dofs, self.f)
+        self.comm.Allreduce(MPI.IN_PLACE, self.totals, op=MPI.SUM)
+        self.force[:] = self.totals[:3]
+        self.energy_penalty = float(self.totals[3])
+        np.divide(self.force, self.impactor.mass, out=self.acceleration)
 
     def advance(self, mean_dt: float, dt: float) -> None:
         """v_{n-1/2} -> v_{n+1/2}, c_n -> c_{n+1}."""

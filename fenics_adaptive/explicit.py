@@ -281,8 +281,7 @@ def run(
             tied[0] = bool(structure.ties)
         mean_dt = 0.5 * (dt_prev + dt)
         if contact is not None:
-            contact_force.fill(0.0)
-            contact.add_forces(base.block.u.array, contact_force)
+            contact.set_forces(base.block.u.array, contact_force)
         for state in states:
             np.subtract(state.f_ext, state.f, out=state.acc)
             if contact is not None and state is base:
