@@ -7,7 +7,8 @@
 Each figure is the median of ``--repeat`` (default 5) timed repetitions after a warm-up call;
 numba's first-call compile time is measured separately and reported in its own column, never in
 a timing. Problem sizes are flags. The table goes to the terminal and, with the machine it ran
-on, to ``benchmarks/results/latest.md`` and ``latest.json`` (``quick.*`` with ``--quick``).
+on, to ``benchmarks/results/latest.md`` and ``latest.json`` (``quick.*`` with ``--quick``); a
+run with ``--only`` replaces the rows of its benchmarks there and keeps the others.
 CI does not run this: timings are not tests.
 
 Rows (issue 5's targets in brackets):
@@ -437,19 +438,49 @@ def main() -> None:
         print(f"running {name} ...", file=sys.stderr, flush=True)
         rows += jobs[name]()
         print(table(rows), file=sys.stderr, flush=True)
-    text = table(rows)
-    print(text)
+    print(table(rows))
+    for row in rows:
+        row["date"] = time.strftime("%Y-%m-%d")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    header = (
-        f"Machine: {machine()}. Median of {args.repeat} repetitions after a warm-up; "
-        f"total {time.perf_counter() - started:.0f} s.\n\n"
-    )
     stem = "quick" if args.quick else "latest"  # a smoke run leaves the real table alone
-    (out / f"{stem}.md").write_text(header + text + "\n")
+    if not args.quick:
+        rows = merged_rows(out / "latest.json", rows, list(jobs))
+    dates = sorted({row.get("date", "earlier") for row in rows})
+    header = (
+        f"Machine: {machine()}. Median of {args.repeat} repetitions after a warm-up. "
+        f"Rows measured on {', '.join(dates)}; the last run ({', '.join(only)}) took "
+        f"{time.perf_counter() - started:.0f} s.\n\n"
+    )
+    (out / f"{stem}.md").write_text(header + table(rows) + "\n")
     (out / f"{stem}.json").write_text(
         json.dumps({"machine": machine(), "rows": rows}, indent=2) + "\n"
     )
+
+
+# row["benchmark"] of each job
+JOB_ROWS = {
+    "kernels": "kernel",
+    "step": "step",
+    "scaling": "scaling",
+    "mpi": "mpi",
+    "memory": "memory",
+    "plate": "plate",
+}
+
+
+def merged_rows(previous: Path, rows: list[dict], job_order: list[str]) -> list[dict]:
+    """``rows`` plus the rows of ``previous`` (a latest.json) for the benchmarks this run did
+    not repeat, in the jobs' order: ``--only kernels`` updates the kernel rows and keeps the
+    rest of the committed table."""
+    if not previous.exists():
+        return rows
+    fresh = {row["benchmark"] for row in rows}
+    kept = [
+        row for row in json.loads(previous.read_text())["rows"] if row["benchmark"] not in fresh
+    ]
+    order = [JOB_ROWS[job] for job in job_order]
+    return sorted(kept + rows, key=lambda row: order.index(row["benchmark"]))
 
 
 if __name__ == "__main__":

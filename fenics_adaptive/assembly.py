@@ -27,6 +27,7 @@ from numba import njit
 
 from fenics_adaptive.cohesive import cohesive_element_force
 from fenics_adaptive.subelement import (
+    KERNEL_OPTIONS,
     PackedRules,
     _element_force,
     gather_nodes,
@@ -136,12 +137,12 @@ def add_cohesive_forces(
     )
 
 
-@njit(cache=True)
+@njit(cache=True, **KERNEL_OPTIONS)
 def _add_subelement_forces(
     element_nodes,
     rule_of_element,
     rule_offsets,
-    points,
+    zeta,
     weights,
     terms,
     ply_of_point,
@@ -157,10 +158,8 @@ def _add_subelement_forces(
     finite,
 ):
     n_base = X_base.shape[0]
-    n_pos = positions.shape[0]
     work = np.empty((2, 8, 3))
-    lines = np.empty((n_pos, 4, 3, 3))
-    sums = np.empty((n_pos, 2, 3, 3))
+    line = np.empty((4, 3, 3))
     X = np.empty((8, 3))
     u = np.empty((8, 3))
     f = np.empty((8, 3))
@@ -169,27 +168,51 @@ def _add_subelement_forces(
         nodes = element_nodes[e]
         gather_nodes(nodes, n_base, X_base, X_extra, X)
         gather_nodes(nodes, n_base, u_base, u_extra, u)
-        r = rule_of_element[e]
-        energy += _element_force(
-            X,
-            u,
-            rule_offsets[r],
-            rule_offsets[r + 1],
-            points,
-            weights,
-            terms,
-            ply_of_point,
-            position_of_point,
-            positions,
-            stiffness,
-            work,
-            lines,
-            sums,
-            f,
-            None,
-            None,
-            finite,
-        )
+        start = rule_offsets[rule_of_element[e]]
+        stop = rule_offsets[rule_of_element[e] + 1]
+        # a constant ``finite`` per call: each kinematics gets its own vectorised loops
+        if finite:
+            energy += _element_force(
+                X,
+                u,
+                start,
+                stop,
+                zeta,
+                weights,
+                terms,
+                ply_of_point,
+                position_of_point,
+                positions,
+                stiffness,
+                work,
+                line,
+                f,
+                None,
+                None,
+                None,
+                True,
+            )
+        else:
+            energy += _element_force(
+                X,
+                u,
+                start,
+                stop,
+                zeta,
+                weights,
+                terms,
+                ply_of_point,
+                position_of_point,
+                positions,
+                stiffness,
+                work,
+                line,
+                f,
+                None,
+                None,
+                None,
+                False,
+            )
         scatter_add_nodes(nodes, n_base, f, 1.0, f_base, f_extra)
     return energy
 

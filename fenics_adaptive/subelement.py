@@ -34,14 +34,16 @@ How the kernel is organised (for speed). The trilinear map is written in monomia
 x = sum_m b_m xi^(m & 1) eta^((m >> 1) & 1) zeta^((m >> 2) & 1) (b = Moebius transform of the
 vertex values, 3 butterfly stages), and likewise u. At fixed (xi, eta), J = dx/d(xi, eta, zeta)
 and the reference displacement gradient are then affine in zeta. Every point of the rule sits on
-one of a few in-plane positions (the 3 x 3 grid of the selective rule), so per element the kernel
-forms intercept and slope of J and of du/d(xi, eta, zeta) on each position's vertical line once,
-evaluates them per point with one multiply-add per entry, accumulates the per-point
-P = w |det J| sigma J^-T into two moments per position (sum P, sum zeta P), turns those into the
-derivatives with respect to the monomial coefficients and transforms back to the 8 vertices
-(the transposed butterfly) at the end. With finite kinematics the per-point P is
-w |det J| F S J^-T (first Piola-Kirchhoff stress times the reference gradient map: the
-derivative of 1/2 S : E), F = I + H; the rest is unchanged.
+one of a few in-plane positions (the 3 x 3 grid of the selective rule), and each position
+carries one energy term. The packed rule lists the points line by line, so per element the
+kernel takes one line at a time: it forms intercept and slope of J and of du/d(xi, eta, zeta)
+on it, then runs one branch-free loop over the line's points (one or two per ply), which the
+compiler vectorises: evaluate both maps with one multiply-add per entry, invert J, accumulate
+P = w |det J| sigma J^-T into two moments (sum P, sum zeta P). The moments become derivatives
+with respect to the monomial coefficients, and the transposed butterfly takes them back to the
+8 vertices at the end. With finite kinematics the per-point P is w |det J| F S J^-T (first
+Piola-Kirchhoff stress times the reference gradient map: the derivative of 1/2 S : E),
+F = I + H; the rest is unchanged.
 """
 
 from __future__ import annotations
@@ -123,15 +125,24 @@ def sublaminate_ply_zeta(ply_fractions: np.ndarray, first: int, stop: int) -> np
 
 class PackedRule(NamedTuple):
     """Integration rule of the internal force of one (sub)element, as flat arrays; the fields are
-    the kernel's arguments in order: ``solid_shell_force(X, u, *rule, f_out)``."""
+    the kernel's arguments in order: ``solid_shell_force(X, u, *rule, f_out)``.
 
-    points: np.ndarray  # (n, 3) reference points (xi, eta, zeta) on [0, 1]^3
+    The points are ordered by vertical line (in-plane position), and bottom to top along each
+    line; every line carries every ply, so the first point is on the lowest ply and the last on
+    the highest. The kernels are correct in any order but fast only in this one (a line's
+    points are one vectorised loop)."""
+
+    zeta: np.ndarray  # (n,) reference thickness coordinate of the points on [0, 1]
     weights: np.ndarray  # (n,) reference weights; those of each term sum to 1
     terms: np.ndarray  # (n,) int64 term code: 0 normal, 1 shear_xz, 2 shear_yz, 3 shear_cross
     ply_of_point: np.ndarray  # (n,) int64 index into ``stiffness``
     position_of_point: np.ndarray  # (n,) int64 index into ``positions``
     positions: np.ndarray  # (n_pos, 2) in-plane (xi, eta) of the points' vertical lines
     stiffness: np.ndarray  # (n_plies, 6, 6) shell-frame stiffness of each ply, MPa
+
+    def coordinates(self) -> np.ndarray:
+        """(n, 3) reference coordinates (xi, eta, zeta) of the points on [0, 1]^3."""
+        return np.column_stack([self.positions[self.position_of_point], self.zeta])
 
 
 def pack_rule(ply_zeta: np.ndarray, ply_stiffness: np.ndarray, points_per_ply: int) -> PackedRule:
@@ -163,14 +174,18 @@ def pack_rule(ply_zeta: np.ndarray, ply_stiffness: np.ndarray, points_per_ply: i
             weights.append(w)
             terms.append(np.full(len(w), TERM_CODES[term], dtype=np.int64))
             plies.append(np.full(len(w), k, dtype=np.int64))
-    points = np.ascontiguousarray(np.vstack(points), dtype=np.float64)
-    position_of_point = [position_index[(xi, eta)] for xi, eta in points[:, :2]]
+    points = np.vstack(points)
+    position_of_point = np.array(
+        [position_index[(xi, eta)] for xi, eta in points[:, :2]], dtype=np.int64
+    )
+    # line by line; the stable sort keeps each line bottom to top
+    order = np.argsort(position_of_point, kind="stable")
     return PackedRule(
-        points=points,
-        weights=np.concatenate(weights).astype(np.float64),
-        terms=np.concatenate(terms),
-        ply_of_point=np.concatenate(plies),
-        position_of_point=np.array(position_of_point, dtype=np.int64),
+        zeta=np.ascontiguousarray(points[order, 2], dtype=np.float64),
+        weights=np.concatenate(weights).astype(np.float64)[order],
+        terms=np.concatenate(terms)[order],
+        ply_of_point=np.concatenate(plies)[order],
+        position_of_point=position_of_point[order],
         positions=IN_PLANE_POSITIONS.copy(),
         stiffness=C,
     )
@@ -183,7 +198,7 @@ class PackedRules(NamedTuple):
     ``solid_shell_forces(X_all, u_all, rule_of_element, *rules, f_all)``."""
 
     rule_offsets: np.ndarray  # (n_rules + 1,) int64
-    points: np.ndarray
+    zeta: np.ndarray
     weights: np.ndarray
     terms: np.ndarray
     ply_of_point: np.ndarray
@@ -204,7 +219,7 @@ def concatenate_rules(rules: Sequence[PackedRule]) -> PackedRules:
     ply_offsets = np.cumsum([0] + [len(rule.stiffness) for rule in rules])
     return PackedRules(
         rule_offsets=np.concatenate([[0], np.cumsum(counts)]).astype(np.int64),
-        points=np.ascontiguousarray(np.vstack([r.points for r in rules])),
+        zeta=np.concatenate([r.zeta for r in rules]),
         weights=np.concatenate([r.weights for r in rules]),
         terms=np.concatenate([r.terms for r in rules]),
         ply_of_point=np.concatenate(
@@ -290,14 +305,233 @@ def _monomials(values, out):
                     out[m, i] -= out[m ^ bit, i]
 
 
-# Fast-math subset without "nnan"/"ninf": a degenerate element still gives inf/nan, not garbage.
-@njit(cache=True, error_model="numpy", fastmath={"contract", "reassoc", "nsz", "arcp"})
+# Compiler options of ``_element_force`` and of every kernel that calls it. The point kernels are
+# inlined at numba's IR level, where the caller's flags are the ones that apply, and inlining is
+# what turns ``finite`` into a constant (one loop per kinematics, each vectorised). Fast-math
+# subset without "nnan"/"ninf": a degenerate element still gives inf/nan, not garbage.
+KERNEL_OPTIONS = {"error_model": "numpy", "fastmath": {"contract", "reassoc", "nsz", "arcp"}}
+
+
+@njit(inline="always")
+def _fill_line(bx, bu, xi, eta, line):
+    """On the vertical line (xi, eta): J = line[0] + zeta line[1] (J[i, r] = dx_i/dX_r) and
+    G = line[2] + zeta line[3] (G[i, r] = du_i/dX_r), from the monomial coefficients ``bx`` and
+    ``bu`` (8, 3) of x and u; column r = 2 (d/dzeta) has no slope."""
+    for s in range(2):
+        b = bx if s == 0 else bu
+        for i in range(3):
+            line[2 * s, i, 0] = b[1, i] + eta * b[3, i]
+            line[2 * s + 1, i, 0] = b[5, i] + eta * b[7, i]
+            line[2 * s, i, 1] = b[2, i] + xi * b[3, i]
+            line[2 * s + 1, i, 1] = b[6, i] + xi * b[7, i]
+            line[2 * s, i, 2] = b[4, i] + xi * b[5, i] + eta * (b[6, i] + xi * b[7, i])
+            line[2 * s + 1, i, 2] = 0.0
+
+
+@njit(inline="always")
+def _inverse_jacobian(line, z):
+    """(det J, K) at height z of a vertical line (``_fill_line``); K = J^-1 (K[r, j] =
+    dX_r/dx_j) as a row-major 9-tuple."""
+    J00 = line[0, 0, 0] + z * line[1, 0, 0]
+    J01 = line[0, 0, 1] + z * line[1, 0, 1]
+    J02 = line[0, 0, 2]
+    J10 = line[0, 1, 0] + z * line[1, 1, 0]
+    J11 = line[0, 1, 1] + z * line[1, 1, 1]
+    J12 = line[0, 1, 2]
+    J20 = line[0, 2, 0] + z * line[1, 2, 0]
+    J21 = line[0, 2, 1] + z * line[1, 2, 1]
+    J22 = line[0, 2, 2]
+    c00 = J11 * J22 - J12 * J21
+    c01 = J12 * J20 - J10 * J22
+    c02 = J10 * J21 - J11 * J20
+    det = J00 * c00 + J01 * c01 + J02 * c02
+    inv_det = 1.0 / det
+    K = (
+        c00 * inv_det,
+        (J02 * J21 - J01 * J22) * inv_det,
+        (J01 * J12 - J02 * J11) * inv_det,
+        c01 * inv_det,
+        (J00 * J22 - J02 * J20) * inv_det,
+        (J02 * J10 - J00 * J12) * inv_det,
+        c02 * inv_det,
+        (J01 * J20 - J00 * J21) * inv_det,
+        (J00 * J11 - J01 * J10) * inv_det,
+    )
+    return det, K
+
+
+@njit(inline="always")
+def _displacement_gradient(line, z):
+    """G[i, r] = du_i/dX_r at height z of a vertical line, as a row-major 9-tuple."""
+    return (
+        line[2, 0, 0] + z * line[3, 0, 0],
+        line[2, 0, 1] + z * line[3, 0, 1],
+        line[2, 0, 2],
+        line[2, 1, 0] + z * line[3, 1, 0],
+        line[2, 1, 1] + z * line[3, 1, 1],
+        line[2, 1, 2],
+        line[2, 2, 0] + z * line[3, 2, 0],
+        line[2, 2, 1] + z * line[3, 2, 1],
+        line[2, 2, 2],
+    )
+
+
+@njit(inline="always")
+def _matmul3(A, B):
+    """A B of two row-major 3 x 3 9-tuples."""
+    return (
+        A[0] * B[0] + A[1] * B[3] + A[2] * B[6],
+        A[0] * B[1] + A[1] * B[4] + A[2] * B[7],
+        A[0] * B[2] + A[1] * B[5] + A[2] * B[8],
+        A[3] * B[0] + A[4] * B[3] + A[5] * B[6],
+        A[3] * B[1] + A[4] * B[4] + A[5] * B[7],
+        A[3] * B[2] + A[4] * B[5] + A[5] * B[8],
+        A[6] * B[0] + A[7] * B[3] + A[8] * B[6],
+        A[6] * B[1] + A[7] * B[4] + A[8] * B[7],
+        A[6] * B[2] + A[7] * B[5] + A[8] * B[8],
+    )
+
+
+@njit(inline="always")
+def _strain(H, finite):
+    """(exx, eyy, ezz, gyz, gxz, gxy) of the displacement gradient H (row-major 9-tuple): the
+    small strain, or with ``finite`` the Green-Lagrange strain (engineering shears 2 E_ij)."""
+    exx = H[0]
+    eyy = H[4]
+    ezz = H[8]
+    gyz = H[5] + H[7]
+    gxz = H[2] + H[6]
+    gxy = H[1] + H[3]
+    if finite:
+        exx += 0.5 * (H[0] * H[0] + H[3] * H[3] + H[6] * H[6])
+        eyy += 0.5 * (H[1] * H[1] + H[4] * H[4] + H[7] * H[7])
+        ezz += 0.5 * (H[2] * H[2] + H[5] * H[5] + H[8] * H[8])
+        gyz += H[1] * H[2] + H[4] * H[5] + H[7] * H[8]
+        gxz += H[0] * H[2] + H[3] * H[5] + H[6] * H[8]
+        gxy += H[0] * H[1] + H[3] * H[4] + H[6] * H[7]
+    return exx, eyy, ezz, gyz, gxz, gxy
+
+
+@njit(inline="always")
+def _point_kinematics(line, z, weight, maps, row, finite):
+    """(w |det J|, K = J^-1, H, strain) of a point (``_strain`` order): computed from its
+    line, or, when ``maps`` is given (small strain only), read from column ``row`` where the
+    damaged kernel's strain pass left them (H is then not needed and returned as zeros)."""
+    if maps is None:
+        det, K = _inverse_jacobian(line, z)
+        H = _matmul3(_displacement_gradient(line, z), K)
+        return weight * abs(det), K, H, _strain(H, finite)
+    K = (
+        maps[1, row],
+        maps[2, row],
+        maps[3, row],
+        maps[4, row],
+        maps[5, row],
+        maps[6, row],
+        maps[7, row],
+        maps[8, row],
+        maps[9, row],
+    )
+    strain = (
+        maps[10, row],
+        maps[11, row],
+        maps[12, row],
+        maps[13, row],
+        maps[14, row],
+        maps[15, row],
+    )
+    return maps[0, row], K, (0.0,) * 9, strain
+
+
+@njit(inline="always")
+def _normal_stress_map(sxx, syy, szz, sxy, K):
+    """P[i, r] = sum_j sigma_ij K[r, j] of a stress without transverse shear (the products
+    with its zeros are left out: without "nnan" the compiler may not drop them)."""
+    return (
+        sxx * K[0] + sxy * K[1],
+        sxx * K[3] + sxy * K[4],
+        sxx * K[6] + sxy * K[7],
+        sxy * K[0] + syy * K[1],
+        sxy * K[3] + syy * K[4],
+        sxy * K[6] + syy * K[7],
+        szz * K[2],
+        szz * K[5],
+        szz * K[8],
+    )
+
+
+@njit(inline="always")
+def _shear_stress_map(syz, sxz, K):
+    """P[i, r] = sum_j sigma_ij K[r, j] of a pure transverse shear stress."""
+    return (
+        sxz * K[2],
+        sxz * K[5],
+        sxz * K[8],
+        syz * K[2],
+        syz * K[5],
+        syz * K[8],
+        sxz * K[0] + syz * K[1],
+        sxz * K[3] + syz * K[4],
+        sxz * K[6] + syz * K[7],
+    )
+
+
+@njit(inline="always")
+def _first_piola(P, H, finite):
+    """With ``finite``: F P = P + H P (P was S J^-T, the first Piola-Kirchhoff stress mapped to
+    the reference gradient); else P."""
+    if finite:
+        HP = _matmul3(H, P)
+        return (
+            P[0] + HP[0],
+            P[1] + HP[1],
+            P[2] + HP[2],
+            P[3] + HP[3],
+            P[4] + HP[4],
+            P[5] + HP[5],
+            P[6] + HP[6],
+            P[7] + HP[7],
+            P[8] + HP[8],
+        )
+    return P
+
+
+@njit(inline="always")
+def _line_end(position_of_point, p, stop):
+    """End of the run of points from p on that share p's vertical line."""
+    end = p + 1
+    while end < stop and position_of_point[end] == position_of_point[p]:
+        end += 1
+    return end
+
+
+@njit(inline="always")
+def _add_line_moments(f_out, xi, eta, m, n):
+    """Add one line's moments m = sum P (9-tuple) and n = sum zeta P (the 6 entries of columns
+    0 and 1) to the derivatives F_m (8, 3) with respect to the monomial coefficients of u:
+    F_m = sum_points dphi_m/dX_r P[:, r], phi_m = xi^(m & 1) eta^((m >> 1) & 1) zeta^(m >> 2)."""
+    for i in range(3):
+        m0x = m[3 * i]
+        m0y = m[3 * i + 1]
+        m0z = m[3 * i + 2]
+        m1x = n[2 * i]
+        m1y = n[2 * i + 1]
+        f_out[1, i] += m0x
+        f_out[2, i] += m0y
+        f_out[3, i] += eta * m0x + xi * m0y
+        f_out[4, i] += m0z
+        f_out[5, i] += m1x + xi * m0z
+        f_out[6, i] += m1y + eta * m0z
+        f_out[7, i] += eta * m1x + xi * m1y + xi * eta * m0z
+
+
+@njit(inline="always", **KERNEL_OPTIONS)
 def _element_force(
     X,
     u,
     start,
     stop,
-    points,
+    zeta,
     weights,
     terms,
     ply_of_point,
@@ -305,236 +539,124 @@ def _element_force(
     positions,
     stiffness,
     work,
-    lines,
-    sums,
+    line,
     f_out,
-    opening=None,
-    opening_scale=None,
-    finite=False,
+    opening,
+    opening_scale,
+    maps,
+    finite,
 ):
     """Force of one element from points start:stop of the packed arrays into f_out (8, 3),
-    overwritten; returns the strain energy. Work arrays: ``work`` (2, 8, 3), ``lines``
-    (n_pos, 4, 3, 3), ``sums`` (n_pos, 2, 3, 3). ``finite``: Green-Lagrange strain and second
-    Piola-Kirchhoff stress instead of small strain (not combined with matrix cracks: the caller,
-    the damaged kernel, is small-strain only).
+    overwritten; returns the strain energy. Work arrays: ``work`` (2, 8, 3), ``line``
+    (4, 3, 3). ``finite``: Green-Lagrange strain and second Piola-Kirchhoff stress instead of
+    small strain (not combined with matrix cracks: the caller, the damaged kernel, is
+    small-strain only); pass it as a constant, and compile the caller with ``KERNEL_OPTIONS``.
 
-    Matrix cracks (damaged kernel only): where ``opening_scale[k]`` > 0, ply k's ``stiffness``
-    is its closed-crack stiffness and, point by point, the crack opens where the effective
-    transverse stress s = opening[k] . (exx, eyy, ezz, 0, 0, gxy) is positive: the stress loses
-    opening_scale[k] s opening[k] and the energy 1/2 opening_scale[k] s^2. Decided per point,
-    this keeps the material elastic between damage increments (a per-ply switch on the mean
-    stress pumps energy into a ringing cracked ply)."""
-    n_pos = positions.shape[0]
+    The points come in runs sharing a vertical line, and with it the energy term (the rule's
+    order, ``pack_rule``); each run is one loop without branches on the point, which the
+    compiler vectorises over the plies.
+
+    Matrix cracks (damaged kernel only; ``opening_scale`` None otherwise): where
+    ``opening_scale[k]`` > 0, ply k's ``stiffness`` is its closed-crack stiffness and, point by
+    point, the crack opens where the effective transverse stress s = opening[k] . (exx, eyy,
+    ezz, 0, 0, gxy) is positive: the stress loses opening_scale[k] s opening[k] and the energy
+    1/2 opening_scale[k] s^2. Decided per point, this keeps the material elastic between damage
+    increments (a per-ply switch on the mean stress pumps energy into a ringing cracked ply)."""
     bx = work[0]
     bu = work[1]
     _monomials(X, bx)
     _monomials(u, bu)
-    # On the vertical line of each position: J = lines[q, 0] + zeta lines[q, 1] (dx_i/dX_r) and
-    # G = lines[q, 2] + zeta lines[q, 3] (du_i/dX_r); column r = 2 (d/dzeta) has no slope.
-    for q in range(n_pos):
+    for a in range(8):
+        for i in range(3):
+            f_out[a, i] = 0.0
+    energy = 0.0
+    p = start
+    while p < stop:
+        end = _line_end(position_of_point, p, stop)
+        q = position_of_point[p]
         xi = positions[q, 0]
         eta = positions[q, 1]
-        for s in range(2):
-            b = work[s]
-            for i in range(3):
-                lines[q, 2 * s, i, 0] = b[1, i] + eta * b[3, i]
-                lines[q, 2 * s + 1, i, 0] = b[5, i] + eta * b[7, i]
-                lines[q, 2 * s, i, 1] = b[2, i] + xi * b[3, i]
-                lines[q, 2 * s + 1, i, 1] = b[6, i] + xi * b[7, i]
-                lines[q, 2 * s, i, 2] = b[4, i] + xi * b[5, i] + eta * (b[6, i] + xi * b[7, i])
-                lines[q, 2 * s + 1, i, 2] = 0.0
-        for s in range(2):
-            for i in range(3):
-                for r in range(3):
-                    sums[q, s, i, r] = 0.0
-    energy = 0.0
-    for p in range(start, stop):
-        q = position_of_point[p]
-        z = points[p, 2]
-        J00 = lines[q, 0, 0, 0] + z * lines[q, 1, 0, 0]
-        J01 = lines[q, 0, 0, 1] + z * lines[q, 1, 0, 1]
-        J02 = lines[q, 0, 0, 2]
-        J10 = lines[q, 0, 1, 0] + z * lines[q, 1, 1, 0]
-        J11 = lines[q, 0, 1, 1] + z * lines[q, 1, 1, 1]
-        J12 = lines[q, 0, 1, 2]
-        J20 = lines[q, 0, 2, 0] + z * lines[q, 1, 2, 0]
-        J21 = lines[q, 0, 2, 1] + z * lines[q, 1, 2, 1]
-        J22 = lines[q, 0, 2, 2]
-        G00 = lines[q, 2, 0, 0] + z * lines[q, 3, 0, 0]
-        G01 = lines[q, 2, 0, 1] + z * lines[q, 3, 0, 1]
-        G02 = lines[q, 2, 0, 2]
-        G10 = lines[q, 2, 1, 0] + z * lines[q, 3, 1, 0]
-        G11 = lines[q, 2, 1, 1] + z * lines[q, 3, 1, 1]
-        G12 = lines[q, 2, 1, 2]
-        G20 = lines[q, 2, 2, 0] + z * lines[q, 3, 2, 0]
-        G21 = lines[q, 2, 2, 1] + z * lines[q, 3, 2, 1]
-        G22 = lines[q, 2, 2, 2]
-        # inverse of J: K[r, j] = dX_r/dx_j = cofactor(J)[j, r] / det
-        c00 = J11 * J22 - J12 * J21
-        c01 = J12 * J20 - J10 * J22
-        c02 = J10 * J21 - J11 * J20
-        det = J00 * c00 + J01 * c01 + J02 * c02
-        inv_det = 1.0 / det
-        K00 = c00 * inv_det
-        K10 = c01 * inv_det
-        K20 = c02 * inv_det
-        K01 = (J02 * J21 - J01 * J22) * inv_det
-        K11 = (J00 * J22 - J02 * J20) * inv_det
-        K21 = (J01 * J20 - J00 * J21) * inv_det
-        K02 = (J01 * J12 - J02 * J11) * inv_det
-        K12 = (J02 * J10 - J00 * J12) * inv_det
-        K22 = (J00 * J11 - J01 * J10) * inv_det
-        wd = weights[p] * abs(det)
-        k = ply_of_point[p]
+        _fill_line(bx, bu, xi, eta, line)
         term = terms[p]
-        if finite:
-            # displacement gradient H[i, j] = du_i/dx_j (reference x) = G[i, r] K[r, j]; every
-            # term needs all of it (F = I + H maps its stress to the nodes)
-            H00 = G00 * K00 + G01 * K10 + G02 * K20
-            H01 = G00 * K01 + G01 * K11 + G02 * K21
-            H02 = G00 * K02 + G01 * K12 + G02 * K22
-            H10 = G10 * K00 + G11 * K10 + G12 * K20
-            H11 = G10 * K01 + G11 * K11 + G12 * K21
-            H12 = G10 * K02 + G11 * K12 + G12 * K22
-            H20 = G20 * K00 + G21 * K10 + G22 * K20
-            H21 = G20 * K01 + G21 * K11 + G22 * K21
-            H22 = G20 * K02 + G21 * K12 + G22 * K22
-        else:
-            H00 = H01 = H02 = H10 = H11 = H12 = H20 = H21 = H22 = 0.0
-        # stress of this point's energy term (times w |det J|): s_xx, s_yy, s_zz, s_yz, s_xz, s_xy
-        if term == 0:
-            if finite:
-                # E_ii = H_ii + 1/2 sum_k H_ki^2; 2 E_xy = H_xy + H_yx + sum_k H_kx H_ky
-                exx = H00 + 0.5 * (H00 * H00 + H10 * H10 + H20 * H20)
-                eyy = H11 + 0.5 * (H01 * H01 + H11 * H11 + H21 * H21)
-                ezz = H22 + 0.5 * (H02 * H02 + H12 * H12 + H22 * H22)
-                gxy = (H01 + H10) + (H00 * H01 + H10 * H11 + H20 * H21)
-            else:
-                exx = G00 * K00 + G01 * K10 + G02 * K20
-                eyy = G10 * K01 + G11 * K11 + G12 * K21
-                ezz = G20 * K02 + G21 * K12 + G22 * K22
-                gxy = (G00 * K01 + G01 * K11 + G02 * K21) + (G10 * K00 + G11 * K10 + G12 * K20)
-            sxx = stiffness[k, 0, 0] * exx + stiffness[k, 0, 1] * eyy
-            sxx += stiffness[k, 0, 2] * ezz + stiffness[k, 0, 5] * gxy
-            syy = stiffness[k, 1, 0] * exx + stiffness[k, 1, 1] * eyy
-            syy += stiffness[k, 1, 2] * ezz + stiffness[k, 1, 5] * gxy
-            szz = stiffness[k, 2, 0] * exx + stiffness[k, 2, 1] * eyy
-            szz += stiffness[k, 2, 2] * ezz + stiffness[k, 2, 5] * gxy
-            sxy = stiffness[k, 5, 0] * exx + stiffness[k, 5, 1] * eyy
-            sxy += stiffness[k, 5, 2] * ezz + stiffness[k, 5, 5] * gxy
-            energy += 0.5 * wd * (sxx * exx + syy * eyy + szz * ezz + sxy * gxy)
-            if opening_scale is not None and opening_scale[k] > 0.0:
-                s22 = (
-                    opening[k, 0] * exx
-                    + opening[k, 1] * eyy
-                    + opening[k, 2] * ezz
-                    + opening[k, 5] * gxy
-                )
-                if s22 > 0.0:
-                    scale = opening_scale[k] * s22
+        # sums over the line of P = w |det J| sigma J^-T (F S J^-T if finite) and of zeta P
+        m0 = m1 = m2 = m3 = m4 = m5 = m6 = m7 = m8 = 0.0
+        n0 = n1 = n3 = n4 = n6 = n7 = 0.0
+        if term == TERM_NORMAL:
+            for pp in range(p, end):
+                z = zeta[pp]
+                wd, K, H, strain = _point_kinematics(line, z, weights[pp], maps, pp - start, finite)
+                exx, eyy, ezz, _, _, gxy = strain
+                k = ply_of_point[pp]
+                sxx = stiffness[k, 0, 0] * exx + stiffness[k, 0, 1] * eyy
+                sxx += stiffness[k, 0, 2] * ezz + stiffness[k, 0, 5] * gxy
+                syy = stiffness[k, 1, 0] * exx + stiffness[k, 1, 1] * eyy
+                syy += stiffness[k, 1, 2] * ezz + stiffness[k, 1, 5] * gxy
+                szz = stiffness[k, 2, 0] * exx + stiffness[k, 2, 1] * eyy
+                szz += stiffness[k, 2, 2] * ezz + stiffness[k, 2, 5] * gxy
+                sxy = stiffness[k, 5, 0] * exx + stiffness[k, 5, 1] * eyy
+                sxy += stiffness[k, 5, 2] * ezz + stiffness[k, 5, 5] * gxy
+                density = 0.5 * (sxx * exx + syy * eyy + szz * ezz + sxy * gxy)
+                if opening_scale is not None:
+                    s22 = opening[k, 0] * exx + opening[k, 1] * eyy
+                    s22 += opening[k, 2] * ezz + opening[k, 5] * gxy
+                    # branch-free: zero for a closed crack and for an undamaged ply
+                    scale = opening_scale[k] * max(s22, 0.0)
                     sxx -= scale * opening[k, 0]
                     syy -= scale * opening[k, 1]
                     szz -= scale * opening[k, 2]
                     sxy -= scale * opening[k, 5]
-                    energy -= 0.5 * wd * scale * s22
-            sxx *= wd
-            syy *= wd
-            szz *= wd
-            sxy *= wd
-            syz = 0.0
-            sxz = 0.0
+                    density -= 0.5 * scale * s22
+                energy += wd * density
+                P = _first_piola(
+                    _normal_stress_map(wd * sxx, wd * syy, wd * szz, wd * sxy, K), H, finite
+                )
+                m0 += P[0]
+                m1 += P[1]
+                m2 += P[2]
+                m3 += P[3]
+                m4 += P[4]
+                m5 += P[5]
+                m6 += P[6]
+                m7 += P[7]
+                m8 += P[8]
+                n0 += z * P[0]
+                n1 += z * P[1]
+                n3 += z * P[3]
+                n4 += z * P[4]
+                n6 += z * P[6]
+                n7 += z * P[7]
         else:
-            gxz = 0.0
-            gyz = 0.0
-            if finite:
-                if term != 2:
-                    gxz = (H02 + H20) + (H00 * H02 + H10 * H12 + H20 * H22)
-                if term != 1:
-                    gyz = (H12 + H21) + (H01 * H02 + H11 * H12 + H21 * H22)
-            else:
-                if term != 2:
-                    gxz = (G00 * K02 + G01 * K12 + G02 * K22) + (G20 * K00 + G21 * K10 + G22 * K20)
-                if term != 1:
-                    gyz = (G10 * K02 + G11 * K12 + G12 * K22) + (G20 * K01 + G21 * K11 + G22 * K21)
-            if term == 1:
-                sxz = stiffness[k, 4, 4] * gxz
-                syz = 0.0
-                energy += 0.5 * wd * sxz * gxz
-            elif term == 2:
-                syz = stiffness[k, 3, 3] * gyz
-                sxz = 0.0
-                energy += 0.5 * wd * syz * gyz
-            else:
-                c34 = stiffness[k, 3, 4]
-                sxz = c34 * gyz
-                syz = c34 * gxz
-                energy += wd * c34 * gxz * gyz
-            sxz *= wd
-            syz *= wd
-            sxx = 0.0
-            syy = 0.0
-            szz = 0.0
-            sxy = 0.0
-        # P[i, r] = sum_j sigma_ij K[r, j]; moments sum P and sum zeta P per line
-        P00 = sxx * K00 + sxy * K01 + sxz * K02
-        P01 = sxx * K10 + sxy * K11 + sxz * K12
-        P02 = sxx * K20 + sxy * K21 + sxz * K22
-        P10 = sxy * K00 + syy * K01 + syz * K02
-        P11 = sxy * K10 + syy * K11 + syz * K12
-        P12 = sxy * K20 + syy * K21 + syz * K22
-        P20 = sxz * K00 + syz * K01 + szz * K02
-        P21 = sxz * K10 + syz * K11 + szz * K12
-        P22 = sxz * K20 + syz * K21 + szz * K22
-        if finite:
-            # first Piola-Kirchhoff: P <- F P = P + H P (P was S J^-T)
-            Q00 = P00 + (H00 * P00 + H01 * P10 + H02 * P20)
-            Q01 = P01 + (H00 * P01 + H01 * P11 + H02 * P21)
-            Q02 = P02 + (H00 * P02 + H01 * P12 + H02 * P22)
-            Q10 = P10 + (H10 * P00 + H11 * P10 + H12 * P20)
-            Q11 = P11 + (H10 * P01 + H11 * P11 + H12 * P21)
-            Q12 = P12 + (H10 * P02 + H11 * P12 + H12 * P22)
-            Q20 = P20 + (H20 * P00 + H21 * P10 + H22 * P20)
-            Q21 = P21 + (H20 * P01 + H21 * P11 + H22 * P21)
-            Q22 = P22 + (H20 * P02 + H21 * P12 + H22 * P22)
-            P00, P01, P02 = Q00, Q01, Q02
-            P10, P11, P12 = Q10, Q11, Q12
-            P20, P21, P22 = Q20, Q21, Q22
-        sums[q, 0, 0, 0] += P00
-        sums[q, 0, 0, 1] += P01
-        sums[q, 0, 0, 2] += P02
-        sums[q, 0, 1, 0] += P10
-        sums[q, 0, 1, 1] += P11
-        sums[q, 0, 1, 2] += P12
-        sums[q, 0, 2, 0] += P20
-        sums[q, 0, 2, 1] += P21
-        sums[q, 0, 2, 2] += P22
-        sums[q, 1, 0, 0] += z * P00
-        sums[q, 1, 0, 1] += z * P01
-        sums[q, 1, 1, 0] += z * P10
-        sums[q, 1, 1, 1] += z * P11
-        sums[q, 1, 2, 0] += z * P20
-        sums[q, 1, 2, 1] += z * P21
-    # derivatives of the energy with respect to the monomial coefficients of u:
-    # F_m = sum_points dphi_m/dX_r P[:, r], phi_m = xi^(m & 1) eta^((m >> 1) & 1) zeta^(m >> 2)
-    for a in range(8):
-        for i in range(3):
-            f_out[a, i] = 0.0
-    for q in range(n_pos):
-        xi = positions[q, 0]
-        eta = positions[q, 1]
-        for i in range(3):
-            m0x = sums[q, 0, i, 0]
-            m0y = sums[q, 0, i, 1]
-            m0z = sums[q, 0, i, 2]
-            m1x = sums[q, 1, i, 0]
-            m1y = sums[q, 1, i, 1]
-            f_out[1, i] += m0x
-            f_out[2, i] += m0y
-            f_out[3, i] += eta * m0x + xi * m0y
-            f_out[4, i] += m0z
-            f_out[5, i] += m1x + xi * m0z
-            f_out[6, i] += m1y + eta * m0z
-            f_out[7, i] += eta * m1x + xi * m1y + xi * eta * m0z
+            for pp in range(p, end):
+                z = zeta[pp]
+                wd, K, H, strain = _point_kinematics(line, z, weights[pp], maps, pp - start, finite)
+                _, _, _, gyz, gxz, _ = strain
+                k = ply_of_point[pp]
+                c_xz = stiffness[k, 4, 4] if term == TERM_SHEAR_XZ else 0.0
+                c_yz = stiffness[k, 3, 3] if term == TERM_SHEAR_YZ else 0.0
+                c_cross = stiffness[k, 3, 4] if term == TERM_SHEAR_CROSS else 0.0
+                sxz = c_xz * gxz + c_cross * gyz
+                syz = c_yz * gyz + c_cross * gxz
+                energy += 0.5 * wd * (sxz * gxz + syz * gyz)
+                P = _first_piola(_shear_stress_map(wd * syz, wd * sxz, K), H, finite)
+                m0 += P[0]
+                m1 += P[1]
+                m2 += P[2]
+                m3 += P[3]
+                m4 += P[4]
+                m5 += P[5]
+                m6 += P[6]
+                m7 += P[7]
+                m8 += P[8]
+                n0 += z * P[0]
+                n1 += z * P[1]
+                n3 += z * P[3]
+                n4 += z * P[4]
+                n6 += z * P[6]
+                n7 += z * P[7]
+        _add_line_moments(
+            f_out, xi, eta, (m0, m1, m2, m3, m4, m5, m6, m7, m8), (n0, n1, n3, n4, n6, n7)
+        )
+        p = end
     # back to the vertices: f_a = sum over m containing a of (-1)^|m - a| F_m (transposed
     # butterfly)
     for d in range(3):
@@ -546,11 +668,11 @@ def _element_force(
     return energy
 
 
-@njit(cache=True)
+@njit(cache=True, **KERNEL_OPTIONS)
 def solid_shell_force(
     X,
     u,
-    points,
+    zeta,
     weights,
     terms,
     ply_of_point,
@@ -567,16 +689,36 @@ def solid_shell_force(
     remaining inputs are the fields of a ``PackedRule`` (``pack_rule``), so the usual call is
     ``solid_shell_force(X, u, *rule, f_out)``. Small strain (or, ``finite=True``, total
     Lagrangian), selective (ANS-equivalent) rule; see the module docstring."""
-    n_pos = positions.shape[0]
     work = np.empty((2, 8, 3))
-    lines = np.empty((n_pos, 4, 3, 3))
-    sums = np.empty((n_pos, 2, 3, 3))
+    line = np.empty((4, 3, 3))
+    n = weights.shape[0]
+    if finite:
+        return _element_force(
+            X,
+            u,
+            0,
+            n,
+            zeta,
+            weights,
+            terms,
+            ply_of_point,
+            position_of_point,
+            positions,
+            stiffness,
+            work,
+            line,
+            f_out,
+            None,
+            None,
+            None,
+            True,
+        )
     return _element_force(
         X,
         u,
         0,
-        weights.shape[0],
-        points,
+        n,
+        zeta,
         weights,
         terms,
         ply_of_point,
@@ -584,22 +726,22 @@ def solid_shell_force(
         positions,
         stiffness,
         work,
-        lines,
-        sums,
+        line,
         f_out,
         None,
         None,
-        finite,
+        None,
+        False,
     )
 
 
-@njit(cache=True)
+@njit(cache=True, **KERNEL_OPTIONS)
 def solid_shell_forces(
     X_all,
     u_all,
     rule_of_element,
     rule_offsets,
-    points,
+    zeta,
     weights,
     terms,
     ply_of_point,
@@ -618,33 +760,54 @@ def solid_shell_forces(
     its own rule with ``rule_of_element = arange(ne)``). The remaining inputs are the fields of a
     ``PackedRules`` (``concatenate_rules``): ``solid_shell_forces(X, u, rule_of_element,
     *rules, f_all)``."""
-    n_pos = positions.shape[0]
     work = np.empty((2, 8, 3))
-    lines = np.empty((n_pos, 4, 3, 3))
-    sums = np.empty((n_pos, 2, 3, 3))
+    line = np.empty((4, 3, 3))
     energy = 0.0
     for e in range(X_all.shape[0]):
-        r = rule_of_element[e]
-        energy += _element_force(
-            X_all[e],
-            u_all[e],
-            rule_offsets[r],
-            rule_offsets[r + 1],
-            points,
-            weights,
-            terms,
-            ply_of_point,
-            position_of_point,
-            positions,
-            stiffness,
-            work,
-            lines,
-            sums,
-            f_all[e],
-            None,
-            None,
-            finite,
-        )
+        start = rule_offsets[rule_of_element[e]]
+        stop = rule_offsets[rule_of_element[e] + 1]
+        if finite:
+            energy += _element_force(
+                X_all[e],
+                u_all[e],
+                start,
+                stop,
+                zeta,
+                weights,
+                terms,
+                ply_of_point,
+                position_of_point,
+                positions,
+                stiffness,
+                work,
+                line,
+                f_all[e],
+                None,
+                None,
+                None,
+                True,
+            )
+        else:
+            energy += _element_force(
+                X_all[e],
+                u_all[e],
+                start,
+                stop,
+                zeta,
+                weights,
+                terms,
+                ply_of_point,
+                position_of_point,
+                positions,
+                stiffness,
+                work,
+                line,
+                f_all[e],
+                None,
+                None,
+                None,
+                False,
+            )
     return energy
 
 
@@ -695,7 +858,8 @@ def solid_shell_lumped_mass(X, points, weights, ply_of_point, density, m_out):
 # Layout. The plies of a packed rule are numbered k (``ply_of_point``, rows of ``stiffness``);
 # a ``ply_damage.PackedPlyDamage`` built for the same plies has the same rows. An element whose
 # points are start:stop holds the contiguous plies k0 = ply_of_point[start] .. k1 =
-# ply_of_point[stop - 1]; its rule-local ply j = k - k0 reads its crack band width and its
+# ply_of_point[stop - 1] (a rule's first line starts at its lowest ply, its last line ends at
+# its highest: ``PackedRule``); its rule-local ply j = k - k0 reads its crack band width and its
 # damage state (N_STATE floats, updated in place) from row j of the arrays given for that
 # element. The batched kernel takes them per element from ``band_width[state_row[e],
 # first_ply[e] + j]`` and ``damage_state[state_row[e], first_ply[e] + j]``: a cell's row holds
@@ -707,60 +871,79 @@ def solid_shell_lumped_mass(X, points, weights, ply_of_point, density, m_out):
 # the ply's "normal" points, gamma_xz over its shear_xz points, gamma_yz over its shear_yz
 # points, weighted by w |det J|); (2) its effective material-frame stress C0 T eps and the
 # damage update; (3) its shell-frame secant stiffness stiffness[k] - d (open A0 + A1) into a
-# scratch copy (a plain copy while d = 0); (4) ``_element_force`` with that copy: with no
-# damage the force is the elastic kernel's, bit for bit. The elastic kernels are untouched.
+# scratch copy (a plain copy while d = 0); (4) ``_element_force`` with that copy, which equals
+# the elastic kernel's force (to round-off) while nothing is damaged.
 #
 # Consequences of one secant stiffness per ply: the dissipation is exactly G_c per crack area
 # when the strain is uniform within the ply; a strain gradient inside a damaging ply (bending)
 # releases slightly more (sum over points of eps.A.eps >= that of the mean strain), and the
 # force jumps where a damaged ply's mean transverse stress changes sign (crack closing). Cost:
-# about 2.2x the elastic kernel (the strain pass repeats the Jacobian work of the force pass).
+# the strain pass repeats the Jacobian work of the force pass.
 
 
-@njit(cache=True)
-def _fill_lines(X, u, positions, work, lines):
-    """The per-position intercepts and slopes of J and of the displacement gradient, exactly as
-    in ``_element_force``."""
-    bx = work[0]
-    bu = work[1]
-    _monomials(X, bx)
-    _monomials(u, bu)
-    for q in range(positions.shape[0]):
-        xi = positions[q, 0]
-        eta = positions[q, 1]
-        for s in range(2):
-            b = work[s]
-            for i in range(3):
-                lines[q, 2 * s, i, 0] = b[1, i] + eta * b[3, i]
-                lines[q, 2 * s + 1, i, 0] = b[5, i] + eta * b[7, i]
-                lines[q, 2 * s, i, 1] = b[2, i] + xi * b[3, i]
-                lines[q, 2 * s + 1, i, 1] = b[6, i] + xi * b[7, i]
-                lines[q, 2 * s, i, 2] = b[4, i] + xi * b[5, i] + eta * (b[6, i] + xi * b[7, i])
-                lines[q, 2 * s + 1, i, 2] = 0.0
+# Rows of the per-point scratch of the damaged kernel (``maps``, (N_MAPS, >= points of a rule)):
+# w |det J|, then K = J^-1 row-major (rows 1..9), then the strain (rows 10..15, ``_strain``'s
+# order). The force pass reads them instead of recomputing.
+N_MAPS = 16
 
 
-@njit(cache=True, error_model="numpy", fastmath={"contract", "reassoc", "nsz", "arcp"})
+@njit(inline="always", **KERNEL_OPTIONS)
 def _ply_mean_strains(
     X,
     u,
     start,
     stop,
-    points,
+    zeta,
     weights,
     terms,
     ply_of_point,
     position_of_point,
     positions,
     work,
-    lines,
+    line,
+    maps,
     strains,
     volumes,
 ):
     """Mean shell-frame strain (xx, yy, zz, yz, xz, xy; engineering shears) of each ply of one
     element (points start:stop) into ``strains[j]``, j = ply_of_point[p] - ply_of_point[start]:
     xx, yy, zz, xy averaged over the ply's "normal" points, xz over its shear_xz points, yz over
-    its shear_yz points, each weighted by w |det J|. Scratch: ``volumes`` (>= n_plies, 3)."""
-    _fill_lines(X, u, positions, work, lines)
+    its shear_yz points, each weighted by w |det J|. Leaves w |det J|, J^-1 and the strain of
+    every point in ``maps`` (column p - start; layout at ``N_MAPS``) for the force pass. Scratch:
+    ``volumes`` (>= n_plies, 3)."""
+    bx = work[0]
+    bu = work[1]
+    _monomials(X, bx)
+    _monomials(u, bu)
+    p = start
+    while p < stop:
+        end = _line_end(position_of_point, p, stop)
+        q = position_of_point[p]
+        _fill_line(bx, bu, positions[q, 0], positions[q, 1], line)
+        # a vectorised loop into contiguous rows; the per-ply sums follow, scalar
+        for pp in range(p, end):
+            z = zeta[pp]
+            det, K = _inverse_jacobian(line, z)
+            strain = _strain(_matmul3(_displacement_gradient(line, z), K), False)
+            wd = weights[pp] * abs(det)
+            row = pp - start
+            maps[0, row] = wd
+            maps[1, row] = K[0]
+            maps[2, row] = K[1]
+            maps[3, row] = K[2]
+            maps[4, row] = K[3]
+            maps[5, row] = K[4]
+            maps[6, row] = K[5]
+            maps[7, row] = K[6]
+            maps[8, row] = K[7]
+            maps[9, row] = K[8]
+            maps[10, row] = strain[0]
+            maps[11, row] = strain[1]
+            maps[12, row] = strain[2]
+            maps[13, row] = strain[3]
+            maps[14, row] = strain[4]
+            maps[15, row] = strain[5]
+        p = end
     k0 = ply_of_point[start]
     n_local = ply_of_point[stop - 1] - k0 + 1
     for j in range(n_local):
@@ -768,63 +951,23 @@ def _ply_mean_strains(
             strains[j, a] = 0.0
         for a in range(3):
             volumes[j, a] = 0.0
-    for p in range(start, stop):
-        term = terms[p]
-        if term == 3:
-            continue
-        q = position_of_point[p]
-        z = points[p, 2]
-        J00 = lines[q, 0, 0, 0] + z * lines[q, 1, 0, 0]
-        J01 = lines[q, 0, 0, 1] + z * lines[q, 1, 0, 1]
-        J02 = lines[q, 0, 0, 2]
-        J10 = lines[q, 0, 1, 0] + z * lines[q, 1, 1, 0]
-        J11 = lines[q, 0, 1, 1] + z * lines[q, 1, 1, 1]
-        J12 = lines[q, 0, 1, 2]
-        J20 = lines[q, 0, 2, 0] + z * lines[q, 1, 2, 0]
-        J21 = lines[q, 0, 2, 1] + z * lines[q, 1, 2, 1]
-        J22 = lines[q, 0, 2, 2]
-        G00 = lines[q, 2, 0, 0] + z * lines[q, 3, 0, 0]
-        G01 = lines[q, 2, 0, 1] + z * lines[q, 3, 0, 1]
-        G02 = lines[q, 2, 0, 2]
-        G10 = lines[q, 2, 1, 0] + z * lines[q, 3, 1, 0]
-        G11 = lines[q, 2, 1, 1] + z * lines[q, 3, 1, 1]
-        G12 = lines[q, 2, 1, 2]
-        G20 = lines[q, 2, 2, 0] + z * lines[q, 3, 2, 0]
-        G21 = lines[q, 2, 2, 1] + z * lines[q, 3, 2, 1]
-        G22 = lines[q, 2, 2, 2]
-        c00 = J11 * J22 - J12 * J21
-        c01 = J12 * J20 - J10 * J22
-        c02 = J10 * J21 - J11 * J20
-        det = J00 * c00 + J01 * c01 + J02 * c02
-        inv_det = 1.0 / det
-        K00 = c00 * inv_det
-        K10 = c01 * inv_det
-        K20 = c02 * inv_det
-        K01 = (J02 * J21 - J01 * J22) * inv_det
-        K11 = (J00 * J22 - J02 * J20) * inv_det
-        K21 = (J01 * J20 - J00 * J21) * inv_det
-        K02 = (J01 * J12 - J02 * J11) * inv_det
-        K12 = (J02 * J10 - J00 * J12) * inv_det
-        K22 = (J00 * J11 - J01 * J10) * inv_det
-        wd = weights[p] * abs(det)
-        j = ply_of_point[p] - k0
-        if term == 0:
-            strains[j, 0] += wd * (G00 * K00 + G01 * K10 + G02 * K20)
-            strains[j, 1] += wd * (G10 * K01 + G11 * K11 + G12 * K21)
-            strains[j, 2] += wd * (G20 * K02 + G21 * K12 + G22 * K22)
-            strains[j, 5] += wd * (
-                (G00 * K01 + G01 * K11 + G02 * K21) + (G10 * K00 + G11 * K10 + G12 * K20)
-            )
+    # _strain's order is (xx, yy, zz, yz, xz, xy): maps rows 10..15 in the Voigt order
+    for pp in range(start, stop):
+        row = pp - start
+        j = ply_of_point[pp] - k0
+        term = terms[pp]
+        wd = maps[0, row]
+        if term == TERM_NORMAL:
+            strains[j, 0] += wd * maps[10, row]
+            strains[j, 1] += wd * maps[11, row]
+            strains[j, 2] += wd * maps[12, row]
+            strains[j, 5] += wd * maps[15, row]
             volumes[j, 0] += wd
-        elif term == 1:
-            strains[j, 4] += wd * (
-                (G00 * K02 + G01 * K12 + G02 * K22) + (G20 * K00 + G21 * K10 + G22 * K20)
-            )
+        elif term == TERM_SHEAR_XZ:
+            strains[j, 4] += wd * maps[14, row]
             volumes[j, 1] += wd
-        else:
-            strains[j, 3] += wd * (
-                (G10 * K02 + G11 * K12 + G12 * K22) + (G20 * K01 + G21 * K11 + G22 * K21)
-            )
+        elif term == TERM_SHEAR_YZ:
+            strains[j, 3] += wd * maps[13, row]
             volumes[j, 2] += wd
     for j in range(n_local):
         strains[j, 0] /= volumes[j, 0]
@@ -835,13 +978,13 @@ def _ply_mean_strains(
         strains[j, 3] /= volumes[j, 2]
 
 
-@njit(cache=True)
+@njit(inline="always", **KERNEL_OPTIONS)
 def _element_force_damaged(
     X,
     u,
     start,
     stop,
-    points,
+    zeta,
     weights,
     terms,
     ply_of_point,
@@ -857,8 +1000,8 @@ def _element_force_damaged(
     dirty,
     opening_scale,
     work,
-    lines,
-    sums,
+    line,
+    maps,
     strains,
     volumes,
     sigma,
@@ -869,20 +1012,22 @@ def _element_force_damaged(
     the element's plies' rows (rule-local); ``degraded`` is a scratch array shaped like
     ``stiffness`` (only the element's rows are written) and ``dirty`` (len(stiffness),) bool
     says which of its rows differ from ``stiffness`` (elements sharing a rule share rows).
-    Other scratch: ``strains`` (>= n_local, 6), ``volumes`` (>= n_local, 3), ``sigma`` (6,)."""
+    Other scratch: ``maps`` (N_MAPS, >= stop - start), ``strains`` (>= n_local, 6),
+    ``volumes`` (>= n_local, 3), ``sigma`` (6,)."""
     _ply_mean_strains(
         X,
         u,
         start,
         stop,
-        points,
+        zeta,
         weights,
         terms,
         ply_of_point,
         position_of_point,
         positions,
         work,
-        lines,
+        line,
+        maps,
         strains,
         volumes,
     )
@@ -916,7 +1061,7 @@ def _element_force_damaged(
         u,
         start,
         stop,
-        points,
+        zeta,
         weights,
         terms,
         ply_of_point,
@@ -924,19 +1069,20 @@ def _element_force_damaged(
         positions,
         degraded,
         work,
-        lines,
-        sums,
+        line,
         f_out,
         strain_to_stress[:, 1, :],
         opening_scale,
+        maps,
+        False,
     )
 
 
-@njit(cache=True)
+@njit(cache=True, **KERNEL_OPTIONS)
 def solid_shell_force_damaged(
     X,
     u,
-    points,
+    zeta,
     weights,
     terms,
     ply_of_point,
@@ -960,17 +1106,13 @@ def solid_shell_force_damaged(
     ``solid_shell_force_damaged(X, u, *rule, *ply_damage, band_width, state, f_out)``. For a
     subelement spanning laminate plies first:stop of cell row r, pass
     ``band_width[r, first:stop]`` and ``state[r, first:stop]`` (views: updated in place)."""
-    n_pos = positions.shape[0]
     n_plies = stiffness.shape[0]
-    work = np.empty((2, 8, 3))
-    lines = np.empty((n_pos, 4, 3, 3))
-    sums = np.empty((n_pos, 2, 3, 3))
     return _element_force_damaged(
         X,
         u,
         0,
         weights.shape[0],
-        points,
+        zeta,
         weights,
         terms,
         ply_of_point,
@@ -985,9 +1127,9 @@ def solid_shell_force_damaged(
         np.empty_like(stiffness),
         np.ones(n_plies, dtype=np.bool_),
         np.zeros(n_plies),
-        work,
-        lines,
-        sums,
+        np.empty((2, 8, 3)),
+        np.empty((4, 3, 3)),
+        np.empty((N_MAPS, weights.shape[0])),
         np.empty((n_plies, 6)),
         np.empty((n_plies, 3)),
         np.empty(6),
@@ -995,14 +1137,14 @@ def solid_shell_force_damaged(
     )
 
 
-@njit(cache=True)
+@njit(cache=True, **KERNEL_OPTIONS)
 def add_damaged_subelement_forces(
     element_nodes,
     rule_of_element,
     state_row,
     first_ply,
     rule_offsets,
-    points,
+    zeta,
     weights,
     terms,
     ply_of_point,
@@ -1036,14 +1178,16 @@ def add_damaged_subelement_forces(
     N_STATE), updated in place). Coordinates, displacements and forces are (n, 3) arrays;
     forces land on ghosts too (reverse scatter by the caller)."""
     n_base = X_base.shape[0]
-    n_pos = positions.shape[0]
     n_plies = damage_state.shape[1]
     work = np.empty((2, 8, 3))
-    lines = np.empty((n_pos, 4, 3, 3))
-    sums = np.empty((n_pos, 2, 3, 3))
+    line = np.empty((4, 3, 3))
     degraded = stiffness.copy()
     dirty = np.zeros(stiffness.shape[0], dtype=np.bool_)
     opening_scale = np.zeros(stiffness.shape[0])
+    longest = 0
+    for r in range(rule_offsets.shape[0] - 1):
+        longest = max(longest, rule_offsets[r + 1] - rule_offsets[r])
+    maps = np.empty((N_MAPS, longest))
     strains = np.empty((n_plies, 6))
     volumes = np.empty((n_plies, 3))
     sigma = np.empty(6)
@@ -1066,7 +1210,7 @@ def add_damaged_subelement_forces(
             u,
             start,
             stop,
-            points,
+            zeta,
             weights,
             terms,
             ply_of_point,
@@ -1082,8 +1226,8 @@ def add_damaged_subelement_forces(
             dirty,
             opening_scale,
             work,
-            lines,
-            sums,
+            line,
+            maps,
             strains,
             volumes,
             sigma,
@@ -1096,23 +1240,41 @@ def add_damaged_subelement_forces(
 def ply_mean_strains(X: np.ndarray, u: np.ndarray, rule: PackedRule) -> np.ndarray:
     """(n_plies, 6) mean shell-frame strain of each ply of one (sub)element, as the damaged
     kernels sample it (plain wrapper for tests and post-processing)."""
-    n_pos = rule.positions.shape[0]
     n_plies = rule.stiffness.shape[0]
     strains = np.empty((n_plies, 6))
-    _ply_mean_strains(
+    _ply_mean_strains_one(
         np.ascontiguousarray(X, dtype=np.float64),
         np.ascontiguousarray(u, dtype=np.float64),
-        0,
-        len(rule.weights),
-        rule.points,
+        rule.zeta,
         rule.weights,
         rule.terms,
         rule.ply_of_point,
         rule.position_of_point,
         rule.positions,
-        np.empty((2, 8, 3)),
-        np.empty((n_pos, 4, 3, 3)),
         strains,
         np.empty((n_plies, 3)),
     )
     return strains
+
+
+@njit(cache=True, **KERNEL_OPTIONS)
+def _ply_mean_strains_one(
+    X, u, zeta, weights, terms, ply_of_point, position_of_point, positions, strains, volumes
+):
+    _ply_mean_strains(
+        X,
+        u,
+        0,
+        weights.shape[0],
+        zeta,
+        weights,
+        terms,
+        ply_of_point,
+        position_of_point,
+        positions,
+        np.empty((2, 8, 3)),
+        np.empty((4, 3, 3)),
+        np.empty((N_MAPS, weights.shape[0])),
+        strains,
+        volumes,
+    )

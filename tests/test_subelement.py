@@ -150,9 +150,17 @@ def test_packed_rule_is_solid_shell_rule():
             for code, term in enumerate(solid_shell.TERMS):
                 p, w = solid_shell.ply_rules(f[k], f[k + 1], ppp)[term]
                 mine = (rule.ply_of_point == k) & (rule.terms == code)
-                np.testing.assert_array_equal(rule.points[mine], p)
-                np.testing.assert_array_equal(rule.weights[mine], w)
-        np.testing.assert_array_equal(rule.positions[rule.position_of_point], rule.points[:, :2])
+                # the same points and weights, in the rule's own order
+                points = rule.coordinates()[mine]
+                mine_order = np.lexsort(points.T[::-1])
+                theirs_order = np.lexsort(p.T[::-1])
+                np.testing.assert_array_equal(points[mine_order], p[theirs_order])
+                np.testing.assert_array_equal(rule.weights[mine][mine_order], w[theirs_order])
+        # line by line, bottom to top along each line (the order the kernel is fast in)
+        assert np.all(np.diff(rule.position_of_point) >= 0)
+        for q in range(len(rule.positions)):
+            on_line = rule.position_of_point == q
+            assert np.all(np.diff(rule.zeta[on_line]) > 0)
         assert len(rule.positions) == 9
 
 
