@@ -41,6 +41,7 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 from dolfinx import la
+from mpi4py import MPI
 
 from fenics_adaptive import enrichment as enr
 
@@ -70,19 +71,32 @@ class BorderConstraints:
 def column_counts(comm, base_map, bottom_local: np.ndarray, state: np.ndarray) -> np.ndarray:
     """Collective. For every local base node (owned and ghosts) used as a column bottom:
     (number of cells around it, cells weak or strong at each interface, cells strong at each
-    interface), summed over ranks: shape (n_local_base, 1 + 2 n_interfaces)."""
+    interface), summed over ranks: shape (n_local_base, 1 + 2 n_interfaces), int32.
+
+    Only the interfaces refined somewhere are counted (the others are zero): a 16-ply plate
+    refined at three interfaces sums 7 columns, not 31, and the transient memory shrinks
+    with it (60 MiB on a 40 000-cell plate before)."""
     n_interfaces = state.shape[1]
-    counts = la.vector(base_map, bs=1 + 2 * n_interfaces)
-    table = counts.array.reshape(-1, 1 + 2 * n_interfaces)
-    refined = (state >= enr.WEAK).astype(np.float64)
-    strong = (state == enr.STRONG).astype(np.float64)
+    local = (state >= enr.WEAK).any(axis=0).astype(np.int32)
+    used = np.empty_like(local)
+    comm.Allreduce(local, used, op=MPI.MAX)
+    active = np.flatnonzero(used)
+    n_active = len(active)
+    counts = la.vector(base_map, bs=1 + 2 * n_active)
+    table = counts.array.reshape(-1, 1 + 2 * n_active)
+    refined = (state[:, active] >= enr.WEAK).astype(np.float64)
+    strong = (state[:, active] == enr.STRONG).astype(np.float64)
     for a in range(bottom_local.shape[1]):
         np.add.at(table[:, 0], bottom_local[:, a], 1.0)
-        np.add.at(table[:, 1 : 1 + n_interfaces], bottom_local[:, a], refined)
-        np.add.at(table[:, 1 + n_interfaces :], bottom_local[:, a], strong)
+        np.add.at(table[:, 1 : 1 + n_active], bottom_local[:, a], refined)
+        np.add.at(table[:, 1 + n_active :], bottom_local[:, a], strong)
     counts.scatter_reverse(la.InsertMode.add)
     counts.scatter_forward()
-    return np.rint(table).astype(np.int64)
+    out = np.zeros((len(table), 1 + 2 * n_interfaces), dtype=np.int32)
+    out[:, 0] = np.rint(table[:, 0])
+    out[:, 1 + active] = np.rint(table[:, 1 : 1 + n_active])
+    out[:, 1 + n_interfaces + active] = np.rint(table[:, 1 + n_active :])
+    return out
 
 
 def border_constraints(

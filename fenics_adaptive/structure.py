@@ -842,16 +842,14 @@ class Structure:
         area_base = la.vector(self.mass_base.index_map, bs=3)
         area_extra = la.vector(self.mass_extra.index_map, bs=3)
         ab, ax = area_base.array.reshape(-1, 3), area_extra.array.reshape(-1, 3)
-        for e, lower in enumerate(self.cohesive.nodes[:, :4]):
-            for node in lower:
-                if node < self.n_base:
-                    ab[node, 0] += 0.25 * areas[e]
-                else:
-                    ax[node - self.n_base, 0] += 0.25 * areas[e]
+        lower = self.cohesive.nodes[:, :4].ravel()
+        shares = np.repeat(0.25 * areas, 4)
+        is_base = lower < self.n_base
+        np.add.at(ab[:, 0], lower[is_base], shares[is_base])
+        np.add.at(ax[:, 0], lower[~is_base] - self.n_base, shares[~is_base])
         for vector in (area_base, area_extra):
             vector.scatter_reverse(la.InsertMode.add)
             vector.scatter_forward()
-        lower = self.cohesive.nodes[:, :4].ravel()
         upper = self.cohesive.nodes[:, 4:].ravel()
 
         def nodal(values_base, values_extra, nodes):
