@@ -56,6 +56,14 @@ def extra_key(
     return (int(global_bottom_node) * n_interfaces + (interface - 1)) * 2 + node_set
 
 
+def extra_keys(
+    global_bottom_nodes: np.ndarray, interfaces, node_sets, n_interfaces: int
+) -> np.ndarray:
+    """``extra_key`` of arrays (broadcast against each other), int64."""
+    g = np.asarray(global_bottom_nodes, dtype=np.int64)
+    return (g * n_interfaces + (np.asarray(interfaces, dtype=np.int64) - 1)) * 2 + node_sets
+
+
 def key_parts(key: int, n_interfaces: int) -> tuple[int, int, int]:
     """(global bottom base node, interface, set) of an extra-node key."""
     node_set = int(key % 2)
@@ -84,6 +92,7 @@ class ExtraNodes:
     VECTOR_NAMES = ("u", "v", "X")
 
     def __post_init__(self) -> None:
+        self._sorted: tuple[np.ndarray, np.ndarray] | None = None
         self._global_to_local = _global_to_local(self.base_map)
         self._rebuild_index_map()
         self.vectors = {name: la.vector(self.index_map, bs=3) for name in self.VECTOR_NAMES}
@@ -103,6 +112,22 @@ class ExtraNodes:
 
     def local_base_node(self, global_node: int) -> int:
         return self._global_to_local[global_node]
+
+    def locate(self, keys: np.ndarray) -> np.ndarray:
+        """Local indices of active extra nodes given their keys (any shape); KeyError if one
+        is not active here. A sorted copy of ``index``, made on first use after a change."""
+        if self._sorted is None:
+            keys_ = np.fromiter(self.index.keys(), dtype=np.int64, count=len(self.index))
+            local = np.fromiter(self.index.values(), dtype=np.int64, count=len(self.index))
+            order = np.argsort(keys_)
+            self._sorted = (keys_[order], local[order])
+        known, local = self._sorted
+        keys = np.asarray(keys, dtype=np.int64)
+        where = np.minimum(np.searchsorted(known, keys), max(len(known) - 1, 0))
+        found = known[where] == keys if len(known) else np.zeros(keys.shape, dtype=bool)
+        if not found.all():
+            raise KeyError(int(keys[~found].flat[0]))
+        return local[where]
 
     def activate(self, requests: dict[int, tuple[int, np.ndarray]]) -> list[int]:
         """Collective. ``requests``: key -> (tie-break, initial values (k,) of the vectors
@@ -156,11 +181,12 @@ class ExtraNodes:
             old = old_vectors[name].array.reshape(-1, 3)
             new[:old_owned] = old[:old_owned]
             new[self.n_owned : self.n_owned + old_ghosts] = old[old_owned : old_owned + old_ghosts]
-        for key in new_owned:
-            values = np.asarray(best[key][1], dtype=np.float64).reshape(-1, 3)
-            local = self.index[key]
-            for name, row in zip(self.VECTOR_NAMES, values, strict=False):
-                self.vectors[name].array.reshape(-1, 3)[local] = row
+        if new_owned:
+            local = np.array([self.index[key] for key in new_owned], dtype=np.int64)
+            values = np.array([best[key][1] for key in new_owned], dtype=np.float64)
+            values = values.reshape(len(new_owned), -1, 3)
+            for k, name in enumerate(self.VECTOR_NAMES[: values.shape[1]]):
+                self.vectors[name].array.reshape(-1, 3)[local] = values[:, k]
         for vector in self.vectors.values():
             vector.scatter_forward()
         return [self.index[key] for key in new_owned]
@@ -176,6 +202,7 @@ class ExtraNodes:
         self.index_map = common.IndexMap(self.comm, self.n_owned, ghosts, owners, 4719)
         self.index = {key: i for i, key in enumerate(self.owned_keys)}
         self.index.update({key: self.n_owned + j for j, key in enumerate(self.ghost_keys)})
+        self._sorted = None
 
 
 def _global_to_local(index_map: common.IndexMap) -> dict[int, int]:
@@ -261,6 +288,66 @@ def cohesive_nodes(
     lower = interface_nodes(columns, interface, SET_A, n_interfaces)
     upper = interface_nodes(columns, interface, SET_B, n_interfaces)
     return np.array([n_base + local_extra[k] for k in lower + upper], dtype=np.int32)
+
+
+def subelement_table(states: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Every subelement of cells with interface states ``states`` (n, n_interfaces), as
+    (row of ``states``, first ply, stop ply) arrays: cells in order, each bottom to top, as
+    ``subelements`` lists them one cell at a time."""
+    n, n_interfaces = states.shape
+    bounds = np.ones((n, n_interfaces + 2), dtype=bool)
+    bounds[:, 1:-1] = states != NONE
+    rows, plies = np.nonzero(bounds)
+    same_cell = rows[:-1] == rows[1:]
+    return rows[:-1][same_cell], plies[:-1][same_cell], plies[1:][same_cell]
+
+
+def subelement_nodes_many(
+    states: np.ndarray,
+    first: np.ndarray,
+    stop: np.ndarray,
+    bottom_local: np.ndarray,
+    top_local: np.ndarray,
+    bottom_global: np.ndarray,
+    locate,
+    n_base: int,
+) -> np.ndarray:
+    """Combined local indices (m, 8) of m subelements at once: ``subelement_nodes`` for
+    subelement plies first[e]:stop[e] of a cell with interface states ``states[e]`` and column
+    nodes ``bottom_local[e]``, ``top_local[e]``, ``bottom_global[e]`` (each (m, 4));
+    ``locate`` maps extra-node keys to local indices (``ExtraNodes.locate``)."""
+    n_interfaces = states.shape[1]
+    n_plies = n_interfaces + 1
+    nodes = np.empty((len(first), 8), dtype=np.int32)
+    on_base = first == 0
+    nodes[on_base, :4] = bottom_local[on_base]
+    inner = np.flatnonzero(~on_base)
+    if len(inner):
+        below = first[inner]
+        strong = states[inner, below - 1] == STRONG
+        keys = extra_keys(
+            bottom_global[inner],
+            below[:, None],
+            np.where(strong, SET_B, SET_A)[:, None],
+            n_interfaces,
+        )
+        nodes[inner, :4] = n_base + locate(keys)
+    on_base = stop == n_plies
+    nodes[on_base, 4:] = top_local[on_base]
+    inner = np.flatnonzero(~on_base)
+    if len(inner):
+        keys = extra_keys(bottom_global[inner], stop[inner][:, None], SET_A, n_interfaces)
+        nodes[inner, 4:] = n_base + locate(keys)
+    return nodes
+
+
+def cohesive_nodes_many(
+    interfaces: np.ndarray, bottom_global: np.ndarray, n_interfaces: int, locate, n_base: int
+) -> np.ndarray:
+    """``cohesive_nodes`` of m strong interfaces at once (cells' ``bottom_global`` (m, 4))."""
+    lower = extra_keys(bottom_global, interfaces[:, None], SET_A, n_interfaces)
+    upper = extra_keys(bottom_global, interfaces[:, None], SET_B, n_interfaces)
+    return (n_base + locate(np.hstack([lower, upper]))).astype(np.int32)
 
 
 def describe_cell(

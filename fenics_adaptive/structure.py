@@ -68,7 +68,7 @@ from fenics_adaptive.subelement import (
     concatenate_rules,
     pack_mass_rule,
     pack_rule,
-    solid_shell_lumped_mass,
+    solid_shell_lumped_masses,
     sublaminate_ply_zeta,
 )
 from fenics_adaptive.timestep import characteristic_lengths, cohesive_pair_time_steps
@@ -581,53 +581,65 @@ class Structure:
         return True
 
     def _activate_weak(self, cells: np.ndarray, interface: int) -> None:
+        """New set-A nodes at ``interface`` of ``cells``, placed (u, v, X) on the straight line
+        through the subelement they split, then the interface made weak."""
+        cells = np.asarray(cells, dtype=np.int64)
+        states = self.interface_state[cells]
+        n_interfaces = states.shape[1]
+        # the active interfaces nearest below and above (0 and n_plies: the cell's faces)
+        levels = np.arange(1, n_interfaces + 1)
+        active = states != enr.NONE
+        below = np.where(active & (levels < interface), levels, 0).max(axis=1, initial=0)
+        above = np.where(active & (levels > interface), levels, n_interfaces + 1).min(
+            axis=1, initial=n_interfaces + 1
+        )
+        nodes = self._subelement_nodes_many(states, below, above, cells)
         fractions = self.laminate.ply_fractions
-        requests: dict[int, tuple[int, np.ndarray]] = {}
-        for cell in cells:
-            row = self.interface_state[cell]
-            below = max([j for j in range(1, interface) if row[j - 1] != enr.NONE], default=0)
-            above = min(
-                [j for j in range(interface + 1, len(row) + 1) if row[j - 1] != enr.NONE],
-                default=len(row) + 1,
+        w = (fractions[interface] - fractions[below]) / (fractions[above] - fractions[below])
+        values = {}
+        for name in ("u", "v", "X"):
+            gathered = self._gather(nodes, name)
+            values[name] = (1.0 - w[:, None, None]) * gathered[:, :4] + w[:, None, None] * (
+                gathered[:, 4:]
             )
-            sub = enr.Subelement(below, above)
-            nodes = self._subelement_nodes(row, sub, cell)
-            w = (fractions[interface] - fractions[below]) / (fractions[above] - fractions[below])
-            values = {}
-            for name in ("u", "v", "X"):
-                gathered = self._gather(nodes[None, :], name)[0]
-                values[name] = (1.0 - w) * gathered[:4] + w * gathered[4:]
-            self._add_requests(requests, cell, interface, enr.SET_A, values)
-            row[interface - 1] = enr.WEAK
+        requests: dict[int, tuple[int, np.ndarray]] = {}
+        self._add_requests(requests, cells, interface, enr.SET_A, values)
+        self.interface_state[cells, interface - 1] = enr.WEAK
         self.extra.activate(requests)
 
     def _activate_strong(self, cells: np.ndarray, interface: int) -> None:
-        requests: dict[int, tuple[int, np.ndarray]] = {}
+        """New set-B nodes at ``interface`` of ``cells``, where their set-A partners are, then
+        the interface made strong with a fresh cohesive damage row per cell."""
+        cells = np.asarray(cells, dtype=np.int64)
         n_interfaces = self.interface_state.shape[1]
-        for cell in cells:
-            keys = [
-                enr.extra_key(g, interface, enr.SET_A, n_interfaces)
-                for g in self.bottom_global[cell]
-            ]
-            local = np.array([self.extra.index[k] for k in keys])
-            values = {
-                name: self.extra.vectors[name].array.reshape(-1, 3)[local].copy()
-                for name in ("u", "v", "X")
-            }
-            self._add_requests(requests, cell, interface, enr.SET_B, values)
-            self.interface_state[cell, interface - 1] = enr.STRONG
-            self.damage_rows[(int(cell), interface)] = len(self.damage_rows)
+        keys = enr.extra_keys(self.bottom_global[cells], interface, enr.SET_A, n_interfaces)
+        local = self.extra.locate(keys)
+        values = {
+            name: self.extra.vectors[name].array.reshape(-1, 3)[local] for name in ("u", "v", "X")
+        }
+        requests: dict[int, tuple[int, np.ndarray]] = {}
+        self._add_requests(requests, cells, interface, enr.SET_B, values)
+        self.interface_state[cells, interface - 1] = enr.STRONG
+        for cell in cells.tolist():
+            self.damage_rows[(cell, interface)] = len(self.damage_rows)
         self.extra.activate(requests)
         grown = np.zeros((len(self.damage_rows), 4))
         grown[: len(self.cohesive.damage)] = self.cohesive.damage
         self.cohesive.damage = grown
 
-    def _add_requests(self, requests, cell, interface, node_set, values) -> None:
+    def _add_requests(self, requests, cells, interface, node_set, values) -> None:
+        """Requests for the 4 nodes of each of ``cells`` at an interface, with their values
+        (u, v, X, each (n, 4, 3)): where cells share a node, the one with the lowest original
+        cell number sets its values (the same on every rank)."""
         n_interfaces = self.interface_state.shape[1]
-        tie = int(self.original_cell[cell])
-        for a in range(4):
-            key = enr.extra_key(self.bottom_global[cell, a], interface, node_set, n_interfaces)
-            row = np.concatenate([values["u"][a], values["v"][a], values["X"][a]])
+        keys = enr.extra_keys(self.bottom_global[cells], interface, node_set, n_interfaces)
+        ties = np.repeat(self.original_cell[cells].astype(np.int64), 4)
+        rows = np.concatenate([values["u"], values["v"], values["X"]], axis=2).reshape(-1, 9)
+        keys = keys.ravel()
+        order = np.lexsort((ties, keys))
+        lowest = order[np.concatenate([[True], keys[order][1:] != keys[order][:-1]])[: len(keys)]]
+        chosen = zip(keys[lowest].tolist(), ties[lowest].tolist(), rows[lowest], strict=True)
+        for key, tie, row in chosen:
             if key not in requests or tie < requests[key][0]:
                 requests[key] = (tie, row)
 
@@ -640,6 +652,21 @@ class Structure:
     def _subelement_nodes(self, row: np.ndarray, sub: enr.Subelement, cell: int) -> np.ndarray:
         return enr.subelement_nodes(
             row, sub, self._columns(cell), self.laminate.n_plies, self.extra.index, self.n_base
+        )
+
+    def _subelement_nodes_many(
+        self, states: np.ndarray, first: np.ndarray, stop: np.ndarray, cells: np.ndarray
+    ) -> np.ndarray:
+        """(m, 8) nodes of subelements plies first:stop of ``cells`` in states ``states``."""
+        return enr.subelement_nodes_many(
+            states,
+            first,
+            stop,
+            self.bottom_local[cells],
+            self.top_local[cells],
+            self.bottom_global[cells],
+            self.extra.locate,
+            self.n_base,
         )
 
     def cell_maps(self, cell: int) -> str:
@@ -661,9 +688,14 @@ class Structure:
         self._ply_speeds = np.array(
             [p.material.dilatational_wave_speed() for p in self.laminate.plies]
         )
+        # rule and fastest wave speed of each sublaminate [first, stop), for whole arrays of them
+        self._rule_of_plies = np.full((n + 1, n + 1), -1, dtype=np.int64)
+        self._speed_of_plies = np.zeros((n + 1, n + 1))
         for first in range(n):
             for stop in range(first + 1, n + 1):
                 zeta = sublaminate_ply_zeta(fractions, first, stop)
+                self._rule_of_plies[first, stop] = len(self._rules)
+                self._speed_of_plies[first, stop] = self._ply_speeds[first:stop].max()
                 self._rules_index[(first, stop)] = len(self._rules)
                 # a one-ply subelement with one point through its thickness would bend with
                 # zero energy (an hourglass mode through the thickness): it gets two
@@ -673,43 +705,34 @@ class Structure:
         return concatenate_rules(self._rules)
 
     def _rebuild_maps(self) -> None:
-        nodes, rule, cell_of, plies_of, speeds = [], [], [], [], []
-        coh_nodes, coh_rows, coh_interface = [], [], []
-        for cell in np.flatnonzero((self.interface_state != enr.NONE).any(axis=1)):
-            row = self.interface_state[cell]
-            for sub in enr.subelements(row):
-                nodes.append(self._subelement_nodes(row, sub, cell))
-                rule.append(self._rules_index[(sub.first, sub.stop)])
-                cell_of.append(cell)
-                plies_of.append((sub.first, sub.stop))
-                speeds.append(self._ply_speeds[sub.first : sub.stop].max())
-            columns = self._columns(cell)
-            for interface in np.flatnonzero(row == enr.STRONG) + 1:
-                coh_nodes.append(
-                    enr.cohesive_nodes(
-                        columns,
-                        int(interface),
-                        self.laminate.n_plies,
-                        self.extra.index,
-                        self.n_base,
-                    )
-                )
-                coh_rows.append(self.damage_rows[(int(cell), int(interface))])
-                coh_interface.append(int(interface))
+        refined = np.flatnonzero((self.interface_state != enr.NONE).any(axis=1))
+        states = self.interface_state[refined]
+        rows, first, stop = enr.subelement_table(states)
+        cells = refined[rows]
+        nodes = self._subelement_nodes_many(states[rows], first, stop, cells)
         self.subelements = SubelementSet(
-            np.array(nodes, dtype=np.int32).reshape(-1, 8),
-            np.array(rule, dtype=np.int64),
-            self.subelements.rules,
+            nodes, self._rule_of_plies[first, stop].astype(np.int64), self.subelements.rules
         )
-        self._subelement_cell = np.array(cell_of, dtype=np.int64)
-        self._subelement_plies = np.array(plies_of, dtype=np.int64).reshape(-1, 2)
-        self._subelement_speeds = np.array(speeds)
+        self._subelement_cell = cells.astype(np.int64)
+        self._subelement_plies = np.column_stack([first, stop]).astype(np.int64)
+        self._subelement_speeds = self._speed_of_plies[first, stop]
+        # cohesive elements: cells in order, interfaces bottom to top
+        rows, interface_index = np.nonzero(states == enr.STRONG)
+        cells, interfaces = refined[rows], interface_index + 1
+        pairs = zip(cells.tolist(), interfaces.tolist(), strict=True)
+        coh_rows = [self.damage_rows[pair] for pair in pairs]
         self.cohesive = CohesiveSet(
-            np.array(coh_nodes, dtype=np.int32).reshape(-1, 8),
+            enr.cohesive_nodes_many(
+                interfaces,
+                self.bottom_global[cells],
+                self.interface_state.shape[1],
+                self.extra.locate,
+                self.n_base,
+            ).reshape(-1, 8),
             np.array(coh_rows, dtype=np.int64),
             self.cohesive.damage,
             self.law_params if self.law_params is not None else self.cohesive.params,
-            np.array(coh_interface, dtype=np.int32),
+            interfaces.astype(np.int32),
         )
 
     def _resize_extra_vectors(self) -> None:
@@ -794,21 +817,27 @@ class Structure:
     def _update_masses(self, cells: np.ndarray, old_state: np.ndarray) -> None:
         """Take each changed cell's old (sub)element masses off its nodes, put the new ones on;
         sums on shared nodes are completed by reverse scatters."""
-        elements, rules, signs = [], [], []
-        for cell in cells:
-            for state, sign in ((old_state[cell], -1.0), (self.interface_state[cell], 1.0)):
-                for sub in enr.subelements(state):
-                    elements.append(self._subelement_nodes(state, sub, cell))
-                    rules.append((sub.first, sub.stop))
-                    signs.append(sign)
+        cells = np.asarray(cells, dtype=np.int64)
+        parts = []
+        for states, sign in ((old_state[cells], -1.0), (self.interface_state[cells], 1.0)):
+            rows, first, stop = enr.subelement_table(states)
+            nodes = self._subelement_nodes_many(states[rows], first, stop, cells[rows])
+            parts.append((rows, first, stop, nodes, np.full(len(rows), sign)))
+        # cell by cell, old then new: the order the sums have always been taken in
+        order = np.argsort(np.concatenate([parts[0][0], parts[1][0]]), kind="stable")
+        first, stop, nodes, signs = (
+            np.concatenate([parts[0][k], parts[1][k]])[order] for k in (1, 2, 3, 4)
+        )
         delta = np.zeros(self.n_base + self.extra.n_local)  # combined local nodes
-        if elements:
-            nodes = np.array(elements)
+        if len(nodes):
             X = self._gather(nodes, "X")
             masses = np.empty((len(nodes), 8))
-            for e, rule in enumerate(rules):
-                solid_shell_lumped_mass(X[e], *self._mass_rules[rule], masses[e])
-                masses[e] *= signs[e]
+            rules = first * (self.laminate.n_plies + 1) + stop
+            for rule in np.unique(rules):
+                members = np.flatnonzero(rules == rule)
+                span = divmod(int(rule), self.laminate.n_plies + 1)
+                masses[members] = solid_shell_lumped_masses(X[members], *self._mass_rules[span])
+            masses *= signs[:, None]
             np.add.at(delta, nodes.ravel(), masses.ravel())  # in order, as a loop would
         delta_base, delta_extra = delta[: self.n_base], delta[self.n_base :]
         for delta, target in ((delta_base, self.mass_base), (delta_extra, self.mass_extra)):

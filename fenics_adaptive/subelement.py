@@ -852,6 +852,16 @@ def solid_shell_lumped_mass(X, points, weights, ply_of_point, density, m_out):
             m_out[a] += scale * values[a]
 
 
+@njit(cache=True)
+def solid_shell_lumped_masses(X_all, points, weights, ply_of_point, density):
+    """(n, 8) row-sum lumped nodal masses (tonne) of n (sub)elements sharing one
+    ``PackedMassRule``: ``solid_shell_lumped_mass`` for each of ``X_all`` (n, 8, 3)."""
+    out = np.empty((X_all.shape[0], 8))
+    for e in range(X_all.shape[0]):
+        solid_shell_lumped_mass(X_all[e], points, weights, ply_of_point, density, out[e])
+    return out
+
+
 # ---------------------------------------------------------------------------------------------
 # damage-aware kernels (matrix damage of ``ply_damage``)
 #

@@ -204,3 +204,52 @@ def test_one_ply_subelements_have_no_zero_energy_modes():
     np.add.at(dense, (K.rows, K.cols), K.values)
     eigenvalues = np.linalg.eigvalsh(0.5 * (dense + dense.T)[np.ix_(free, free)])
     assert eigenvalues.min() > 1e-8 * eigenvalues.max()
+
+
+def test_vectorised_maps_equal_the_cell_by_cell_maps():
+    """The structure builds its subelement and cohesive node lists for all refined cells at
+    once (``enrichment.subelement_table`` / ``subelement_nodes_many``); the per-cell functions
+    the docs use are an independent path to the same lists."""
+    structure = structure_of(tcb(initial="none"))
+    rng = np.random.default_rng(7)
+    n_cells = structure.base.n_owned_cells
+    # random mixed refinement in three rounds: weak and strong, in any order of interfaces
+    for _ in range(3):
+        cells = rng.choice(n_cells, size=n_cells // 3, replace=False)
+        requests = [
+            (int(c), int(i), int(rng.choice([enr.WEAK, enr.STRONG])))
+            for c in cells
+            for i in rng.choice([2, 4, 6], size=rng.integers(1, 4), replace=False)
+            if i != 4
+        ] + [(int(c), 4, enr.WEAK) for c in cells[::2]]
+        structure.refine(requests)
+
+    n_plies = structure.laminate.n_plies
+    nodes, cells_of, plies, cohesive = [], [], [], []
+    for cell in range(n_cells):
+        row = structure.interface_state[cell]
+        columns = enr.CellColumns(
+            structure.bottom_local[cell], structure.top_local[cell], structure.bottom_global[cell]
+        )
+        for sub in enr.subelements(row):
+            nodes.append(
+                enr.subelement_nodes(
+                    row, sub, columns, n_plies, structure.extra.index, structure.n_base
+                )
+            )
+            cells_of.append(cell)
+            plies.append((sub.first, sub.stop))
+        for interface in np.flatnonzero(row == enr.STRONG) + 1:
+            cohesive.append(
+                enr.cohesive_nodes(
+                    columns, int(interface), n_plies, structure.extra.index, structure.n_base
+                )
+            )
+    refined = (structure.interface_state != enr.NONE).any(axis=1)
+    assert refined.sum() > n_cells // 2
+    assert (structure.interface_state == enr.STRONG).any() and len(cohesive) > 0
+    keep = refined[np.array(cells_of)]
+    np.testing.assert_array_equal(structure.subelements.nodes, np.array(nodes)[keep])
+    np.testing.assert_array_equal(structure._subelement_cell, np.array(cells_of)[keep])
+    np.testing.assert_array_equal(structure._subelement_plies, np.array(plies)[keep])
+    np.testing.assert_array_equal(structure.cohesive.nodes, np.array(cohesive))
