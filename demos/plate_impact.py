@@ -70,7 +70,7 @@ def interface_damage(structure) -> dict[int, tuple[np.ndarray, np.ndarray]]:
     cohesive = structure.cohesive
     if not len(cohesive):
         return {}
-    X = structure._gather(cohesive.nodes[:, :4], "X").mean(axis=1)[:, :2]
+    X = structure.gather(cohesive.nodes[:, :4], "X").mean(axis=1)[:, :2]
     damage = cohesive.damage[cohesive.damage_row].mean(axis=1)
     return {
         int(i): (X[cohesive.interface == i], damage[cohesive.interface == i])

@@ -332,7 +332,7 @@ class Structure:
         """Area (mm^2) of the cohesive elements whose four points have failed, over all ranks."""
         if not self.comm.allreduce(len(self.cohesive), op=MPI.SUM):
             return 0.0
-        X = self._gather(self.cohesive.nodes[:, :4], "X")
+        X = self.gather(self.cohesive.nodes[:, :4], "X")
         local = _quad_areas(X)[self.cohesive.failed()].sum()
         return self.comm.allreduce(local, op=MPI.SUM)
 
@@ -367,7 +367,7 @@ class Structure:
             cell = int(np.argmin(ratios))
             candidates.append((float(ratios[cell]), f"cell {self.original_cell[cell]}"))
         if len(self.subelements):
-            X = self._gather(self.subelements.nodes, "X")
+            X = self.gather(self.subelements.nodes, "X")
             sub_ratios = characteristic_lengths(X) / self._subelement_speeds
             s = int(np.argmin(sub_ratios))
             cell = self._subelement_cell[s]
@@ -598,7 +598,7 @@ class Structure:
         w = (fractions[interface] - fractions[below]) / (fractions[above] - fractions[below])
         values = {}
         for name in ("u", "v", "X"):
-            gathered = self._gather(nodes, name)
+            gathered = self.gather(nodes, name)
             values[name] = (1.0 - w[:, None, None]) * gathered[:, :4] + w[:, None, None] * (
                 gathered[:, 4:]
             )
@@ -830,7 +830,7 @@ class Structure:
         )
         delta = np.zeros(self.n_base + self.extra.n_local)  # combined local nodes
         if len(nodes):
-            X = self._gather(nodes, "X")
+            X = self.gather(nodes, "X")
             masses = np.empty((len(nodes), 8))
             rules = first * (self.laminate.n_plies + 1) + stop
             for rule in np.unique(rules):
@@ -848,8 +848,10 @@ class Structure:
             target.array[:n_owned] += scratch.array[:n_owned]
             target.scatter_forward()
 
-    def _gather(self, nodes: np.ndarray, name: str) -> np.ndarray:
-        """Values (n, 8, 3) of vector ``name`` ("u", "v", "X") at combined node indices."""
+    def gather(self, nodes: np.ndarray, name: str) -> np.ndarray:
+        """Values (*nodes.shape, 3) of ``name``: "u" (displacement, mm), "v" (velocity, mm/s)
+        or "X" (reference position, mm), at combined local node indices (i < n_base: base node
+        i, else extra node i - n_base), e.g. ``subelements.nodes`` or ``cohesive.nodes``."""
         if name == "X":
             base = self.X_base
         else:
@@ -865,7 +867,7 @@ class Structure:
         """Penalty springs of the cohesive elements against the masses they join."""
         params = self.cohesive.params
         stiffness = max(params[P_KN], params[P_KS])
-        X = self._gather(self.cohesive.nodes, "X")
+        X = self.gather(self.cohesive.nodes, "X")
         areas = _quad_areas(X[:, :4, :])
         # each node's share of the interface area, summed over the elements around it
         area_base = la.vector(self.mass_base.index_map, bs=3)
