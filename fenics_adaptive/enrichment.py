@@ -94,6 +94,10 @@ class ExtraNodes:
     def __post_init__(self) -> None:
         self._sorted: tuple[np.ndarray, np.ndarray] | None = None
         self._global_to_local = _global_to_local(self.base_map)
+        globals_ = np.fromiter(self._global_to_local.keys(), dtype=np.int64)
+        local = np.fromiter(self._global_to_local.values(), dtype=np.int64)
+        order = np.argsort(globals_)
+        self._base_sorted = (globals_[order], local[order])
         self._rebuild_index_map()
         self.vectors = {name: la.vector(self.index_map, bs=3) for name in self.VECTOR_NAMES}
 
@@ -115,65 +119,90 @@ class ExtraNodes:
 
     def locate(self, keys: np.ndarray) -> np.ndarray:
         """Local indices of active extra nodes given their keys (any shape); KeyError if one
-        is not active here. A sorted copy of ``index``, made on first use after a change."""
+        is not active here."""
+        found, local = self._find(keys)
+        if not found.all():
+            raise KeyError(int(np.asarray(keys)[~found].flat[0]))
+        return local
+
+    def _find(self, keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(active here?, local index where active) of ``keys``, from a sorted copy of
+        ``index`` made on first use after a change."""
         if self._sorted is None:
-            keys_ = np.fromiter(self.index.keys(), dtype=np.int64, count=len(self.index))
+            known = np.fromiter(self.index.keys(), dtype=np.int64, count=len(self.index))
             local = np.fromiter(self.index.values(), dtype=np.int64, count=len(self.index))
-            order = np.argsort(keys_)
-            self._sorted = (keys_[order], local[order])
+            order = np.argsort(known)
+            self._sorted = (known[order], local[order])
         known, local = self._sorted
         keys = np.asarray(keys, dtype=np.int64)
-        where = np.minimum(np.searchsorted(known, keys), max(len(known) - 1, 0))
-        found = known[where] == keys if len(known) else np.zeros(keys.shape, dtype=bool)
-        if not found.all():
-            raise KeyError(int(keys[~found].flat[0]))
-        return local[where]
+        if len(known) == 0:
+            return np.zeros(keys.shape, dtype=bool), np.zeros(keys.shape, dtype=np.int64)
+        where = np.minimum(np.searchsorted(known, keys), len(known) - 1)
+        return known[where] == keys, local[where]
 
-    def activate(self, requests: dict[int, tuple[int, np.ndarray]]) -> list[int]:
-        """Collective. ``requests``: key -> (tie-break, initial values (k,) of the vectors
-        ``VECTOR_NAMES[:k]`` flattened, u then v). Keys already known locally are ignored (an
-        active node keeps its state). Returns the local indices of this rank's newly owned
-        nodes."""
+    def _base_owners(self, global_nodes: np.ndarray) -> np.ndarray:
+        """``base_owner`` of an array of global base nodes."""
+        globals_, local = self._base_sorted
+        where = np.minimum(np.searchsorted(globals_, global_nodes), len(globals_) - 1)
+        if not np.array_equal(globals_[where], global_nodes):
+            raise KeyError("extra nodes requested on base nodes this rank does not hold")
+        local = local[where]
+        size = self.base_map.size_local
+        owners = np.full(len(local), self.comm.rank, dtype=np.int64)
+        ghost = local >= size
+        owners[ghost] = self.base_map.owners[local[ghost] - size]
+        return owners
+
+    def activate(self, keys: np.ndarray, ties: np.ndarray, values: np.ndarray) -> np.ndarray:
+        """Collective. Make the extra nodes ``keys`` (unique, int64) active with the initial
+        ``values`` (n, 9): u, v, X of each, in mm and mm/s. Where ranks ask for the same node,
+        the request with the lowest ``ties`` wins (the same on every rank); keys already active
+        here are ignored (an active node keeps its state). Each node is created by the owner of
+        its column's base node; the others get it as a ghost. Returns the local indices of this
+        rank's newly owned nodes."""
         rank, size = self.comm.rank, self.comm.size
-        outgoing: list[list] = [[] for _ in range(size)]
-        for key in sorted(requests):
-            if key in self.index:
-                continue
-            tie, values = requests[key]
-            g = key_parts(key, self.n_interfaces)[0]
-            outgoing[self.base_owner(g)].append((key, tie, values))
+        width = 3 * len(self.VECTOR_NAMES)
+        keys = np.asarray(keys, dtype=np.int64)
+        order = np.argsort(keys)
+        keys = keys[order]
+        ties = np.asarray(ties, dtype=np.int64)[order]
+        values = np.asarray(values, dtype=np.float64).reshape(len(keys), width)[order]
+        fresh = ~self._find(keys)[0]
+        keys, ties, values = keys[fresh], ties[fresh], values[fresh]
+        owner = self._base_owners(keys // 2 // self.n_interfaces)
+        outgoing = [(keys[owner == r], ties[owner == r], values[owner == r]) for r in range(size)]
         incoming = self.comm.alltoall(outgoing)
 
         # owners create what is asked of them: the lowest tie-break wins
-        best: dict[int, tuple[int, np.ndarray]] = {}
+        asked = np.concatenate([batch[0] for batch in incoming])
+        asked_ties = np.concatenate([batch[1] for batch in incoming])
+        asked_values = np.concatenate([batch[2] for batch in incoming]).reshape(-1, width)
+        fresh = ~self._find(asked)[0]
+        asked, asked_ties, asked_values = asked[fresh], asked_ties[fresh], asked_values[fresh]
+        order = np.lexsort((asked_ties, asked))
+        first_of_key = np.ones(len(order), dtype=bool)
+        first_of_key[1:] = asked[order][1:] != asked[order][:-1]
+        chosen = order[first_of_key]
+        new_keys, new_values = asked[chosen], asked_values[chosen]  # keys ascending
+        start = self.n_owned
+        self.owned_keys.extend(new_keys.tolist())
+        # tell each requester where its nodes live on the owner (known nodes are owned here)
+        positions = []
         for batch in incoming:
-            for key, tie, values in batch:
-                if key not in self.index and (key not in best or tie < best[key][0]):
-                    best[key] = (tie, values)
-        position = dict(self.index)
-        new_owned = []
-        for key in sorted(best):
-            position[key] = len(self.owned_keys)
-            self.owned_keys.append(key)
-            new_owned.append(key)
-        # tell each requester where its nodes live on the owner
-        answers = self.comm.alltoall(
-            [[(key, position[key]) for key, _, _ in batch] for batch in incoming]
-        )
-        new_ghosts = set()
-        for owner, batch in enumerate(answers):
-            if owner == rank:
-                continue
-            for key, owner_index in batch:
-                if key not in self.index and key not in new_ghosts:
-                    new_ghosts.add(key)
-                    self.ghost_keys.append(key)
-                    self.ghost_owner.append(owner)
-                    self.ghost_owner_index.append(owner_index)
+            found, local = self._find(batch[0])
+            positions.append(np.where(found, local, start + np.searchsorted(new_keys, batch[0])))
+        answers = self.comm.alltoall(positions)
+        new_ghosts = 0
+        for r in range(size):
+            if r != rank and len(outgoing[r][0]):
+                self.ghost_keys.extend(outgoing[r][0].tolist())
+                self.ghost_owner.extend([r] * len(outgoing[r][0]))
+                self.ghost_owner_index.extend(answers[r].tolist())
+                new_ghosts += len(outgoing[r][0])
 
-        old_owned = self.n_owned - len(new_owned)
+        old_owned = start
         old_vectors = self.vectors
-        old_ghosts = len(self.ghost_keys) - len(new_ghosts)
+        old_ghosts = len(self.ghost_keys) - new_ghosts
         self._rebuild_index_map()
         self.vectors = {name: la.vector(self.index_map, bs=3) for name in self.VECTOR_NAMES}
         for name, vector in self.vectors.items():
@@ -181,15 +210,12 @@ class ExtraNodes:
             old = old_vectors[name].array.reshape(-1, 3)
             new[:old_owned] = old[:old_owned]
             new[self.n_owned : self.n_owned + old_ghosts] = old[old_owned : old_owned + old_ghosts]
-        if new_owned:
-            local = np.array([self.index[key] for key in new_owned], dtype=np.int64)
-            values = np.array([best[key][1] for key in new_owned], dtype=np.float64)
-            values = values.reshape(len(new_owned), -1, 3)
-            for k, name in enumerate(self.VECTOR_NAMES[: values.shape[1]]):
-                self.vectors[name].array.reshape(-1, 3)[local] = values[:, k]
+        created = np.arange(start, start + len(new_keys))
+        for k, name in enumerate(self.VECTOR_NAMES):
+            self.vectors[name].array.reshape(-1, 3)[created] = new_values[:, 3 * k : 3 * k + 3]
         for vector in self.vectors.values():
             vector.scatter_forward()
-        return [self.index[key] for key in new_owned]
+        return created
 
     def _rebuild_index_map(self) -> None:
         counts = self.comm.allgather(self.n_owned)

@@ -602,10 +602,8 @@ class Structure:
             values[name] = (1.0 - w[:, None, None]) * gathered[:, :4] + w[:, None, None] * (
                 gathered[:, 4:]
             )
-        requests: dict[int, tuple[int, np.ndarray]] = {}
-        self._add_requests(requests, cells, interface, enr.SET_A, values)
         self.interface_state[cells, interface - 1] = enr.WEAK
-        self.extra.activate(requests)
+        self.extra.activate(*self._requests(cells, interface, enr.SET_A, values))
 
     def _activate_strong(self, cells: np.ndarray, interface: int) -> None:
         """New set-B nodes at ``interface`` of ``cells``, where their set-A partners are, then
@@ -617,31 +615,31 @@ class Structure:
         values = {
             name: self.extra.vectors[name].array.reshape(-1, 3)[local] for name in ("u", "v", "X")
         }
-        requests: dict[int, tuple[int, np.ndarray]] = {}
-        self._add_requests(requests, cells, interface, enr.SET_B, values)
         self.interface_state[cells, interface - 1] = enr.STRONG
         for cell in cells.tolist():
             self.damage_rows[(cell, interface)] = len(self.damage_rows)
-        self.extra.activate(requests)
+        self.extra.activate(*self._requests(cells, interface, enr.SET_B, values))
         grown = np.zeros((len(self.damage_rows), 4))
         grown[: len(self.cohesive.damage)] = self.cohesive.damage
         self.cohesive.damage = grown
 
-    def _add_requests(self, requests, cells, interface, node_set, values) -> None:
-        """Requests for the 4 nodes of each of ``cells`` at an interface, with their values
-        (u, v, X, each (n, 4, 3)): where cells share a node, the one with the lowest original
-        cell number sets its values (the same on every rank)."""
+    def _requests(
+        self, cells: np.ndarray, interface: int, node_set: int, values: dict[str, np.ndarray]
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(keys, tie-breaks, values (n, 9)) of the 4 nodes of each of ``cells`` at an
+        interface, one per node, from their u, v, X (each (n_cells, 4, 3)): where cells share a
+        node, the one with the lowest original cell number sets its values (the same on every
+        rank, as ``ExtraNodes.activate`` also breaks ties across ranks)."""
         n_interfaces = self.interface_state.shape[1]
         keys = enr.extra_keys(self.bottom_global[cells], interface, node_set, n_interfaces)
+        keys = keys.ravel()
         ties = np.repeat(self.original_cell[cells].astype(np.int64), 4)
         rows = np.concatenate([values["u"], values["v"], values["X"]], axis=2).reshape(-1, 9)
-        keys = keys.ravel()
         order = np.lexsort((ties, keys))
-        lowest = order[np.concatenate([[True], keys[order][1:] != keys[order][:-1]])[: len(keys)]]
-        chosen = zip(keys[lowest].tolist(), ties[lowest].tolist(), rows[lowest], strict=True)
-        for key, tie, row in chosen:
-            if key not in requests or tie < requests[key][0]:
-                requests[key] = (tie, row)
+        first_of_key = np.ones(len(order), dtype=bool)
+        first_of_key[1:] = keys[order][1:] != keys[order][:-1]
+        chosen = order[first_of_key]
+        return keys[chosen], ties[chosen], rows[chosen]
 
     # ------------------------------------------------------------------ maps and bookkeeping
     def _columns(self, cell: int) -> enr.CellColumns:
