@@ -71,6 +71,28 @@ def key_parts(key: int, n_interfaces: int) -> tuple[int, int, int]:
     return rest // n_interfaces, rest % n_interfaces + 1, node_set
 
 
+def sorted_lookup(
+    table: tuple[np.ndarray, np.ndarray], queries: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """(found?, value) of each of ``queries`` (int64, any shape) in ``table`` = (sorted keys,
+    their values); the value is meaningless where not found."""
+    keys, values = table
+    queries = np.asarray(queries, dtype=np.int64)
+    if len(keys) == 0:
+        return np.zeros(queries.shape, dtype=bool), np.zeros(queries.shape, dtype=np.int64)
+    where = np.minimum(np.searchsorted(keys, queries), len(keys) - 1)
+    return keys[where] == queries, values[where]
+
+
+def lowest_tie_per_key(keys: np.ndarray, ties: np.ndarray) -> np.ndarray:
+    """Indices of one entry per distinct key, the one with the lowest tie-break, in ascending
+    key order."""
+    order = np.lexsort((ties, keys))
+    first_of_key = np.ones(len(order), dtype=bool)
+    first_of_key[1:] = keys[order][1:] != keys[order][:-1]
+    return order[first_of_key]
+
+
 @dataclass
 class ExtraNodes:
     """The active extra nodes of this rank (owned, then ghosts) and their distributed vectors.
@@ -109,11 +131,6 @@ class ExtraNodes:
     def n_local(self) -> int:
         return len(self.owned_keys) + len(self.ghost_keys)
 
-    def base_owner(self, global_node: int) -> int:
-        local = self._global_to_local[global_node]
-        size = self.base_map.size_local
-        return self.comm.rank if local < size else int(self.base_map.owners[local - size])
-
     def local_base_node(self, global_node: int) -> int:
         return self._global_to_local[global_node]
 
@@ -133,20 +150,14 @@ class ExtraNodes:
             local = np.fromiter(self.index.values(), dtype=np.int64, count=len(self.index))
             order = np.argsort(known)
             self._sorted = (known[order], local[order])
-        known, local = self._sorted
-        keys = np.asarray(keys, dtype=np.int64)
-        if len(known) == 0:
-            return np.zeros(keys.shape, dtype=bool), np.zeros(keys.shape, dtype=np.int64)
-        where = np.minimum(np.searchsorted(known, keys), len(known) - 1)
-        return known[where] == keys, local[where]
+        return sorted_lookup(self._sorted, keys)
 
     def _base_owners(self, global_nodes: np.ndarray) -> np.ndarray:
-        """``base_owner`` of an array of global base nodes."""
-        globals_, local = self._base_sorted
-        where = np.minimum(np.searchsorted(globals_, global_nodes), len(globals_) - 1)
-        if not np.array_equal(globals_[where], global_nodes):
+        """Rank owning each of an array of global base nodes (this rank or a ghost's owner):
+        the rank that owns the extra nodes of their columns."""
+        found, local = sorted_lookup(self._base_sorted, global_nodes)
+        if not found.all():
             raise KeyError("extra nodes requested on base nodes this rank does not hold")
-        local = local[where]
         size = self.base_map.size_local
         owners = np.full(len(local), self.comm.rank, dtype=np.int64)
         ghost = local >= size
@@ -179,10 +190,7 @@ class ExtraNodes:
         asked_values = np.concatenate([batch[2] for batch in incoming]).reshape(-1, width)
         fresh = ~self._find(asked)[0]
         asked, asked_ties, asked_values = asked[fresh], asked_ties[fresh], asked_values[fresh]
-        order = np.lexsort((asked_ties, asked))
-        first_of_key = np.ones(len(order), dtype=bool)
-        first_of_key[1:] = asked[order][1:] != asked[order][:-1]
-        chosen = order[first_of_key]
+        chosen = lowest_tie_per_key(asked, asked_ties)
         new_keys, new_values = asked[chosen], asked_values[chosen]  # keys ascending
         start = self.n_owned
         self.owned_keys.extend(new_keys.tolist())
