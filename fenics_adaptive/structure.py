@@ -418,7 +418,7 @@ class Structure:
 
     def _rebuild_damaged_elements(self) -> None:
         nodes, cells, plies = self.elements()
-        rules = np.array([self._rules_index[(int(a), int(b))] for a, b in plies], dtype=np.int64)
+        rules = self._rule_of_plies[plies[:, 0], plies[:, 1]]
         self._damaged_elements = (
             nodes,
             rules.reshape(-1),
@@ -635,10 +635,7 @@ class Structure:
         keys = keys.ravel()
         ties = np.repeat(self.original_cell[cells].astype(np.int64), 4)
         rows = np.concatenate([values["u"], values["v"], values["X"]], axis=2).reshape(-1, 9)
-        order = np.lexsort((ties, keys))
-        first_of_key = np.ones(len(order), dtype=bool)
-        first_of_key[1:] = keys[order][1:] != keys[order][:-1]
-        chosen = order[first_of_key]
+        chosen = enr.lowest_tie_per_key(keys, ties)
         return keys[chosen], ties[chosen], rows[chosen]
 
     # ------------------------------------------------------------------ maps and bookkeeping
@@ -683,9 +680,7 @@ class Structure:
         stiffness = np.array(self.laminate.ply_stiffnesses())
         density = np.array([p.material.rho for p in self.laminate.plies])
         # mm/s; each ply's wave speed inverts its compliance: once, not per subelement
-        self._ply_speeds = np.array(
-            [p.material.dilatational_wave_speed() for p in self.laminate.plies]
-        )
+        ply_speeds = np.array([p.material.dilatational_wave_speed() for p in self.laminate.plies])
         # rule and fastest wave speed of each sublaminate [first, stop), for whole arrays of them
         self._rule_of_plies = np.full((n + 1, n + 1), -1, dtype=np.int64)
         self._speed_of_plies = np.zeros((n + 1, n + 1))
@@ -693,7 +688,7 @@ class Structure:
             for stop in range(first + 1, n + 1):
                 zeta = sublaminate_ply_zeta(fractions, first, stop)
                 self._rule_of_plies[first, stop] = len(self._rules)
-                self._speed_of_plies[first, stop] = self._ply_speeds[first:stop].max()
+                self._speed_of_plies[first, stop] = ply_speeds[first:stop].max()
                 self._rules_index[(first, stop)] = len(self._rules)
                 # a one-ply subelement with one point through its thickness would bend with
                 # zero energy (an hourglass mode through the thickness): it gets two
