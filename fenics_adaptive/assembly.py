@@ -170,49 +170,26 @@ def _add_subelement_forces(
         gather_nodes(nodes, n_base, u_base, u_extra, u)
         start = rule_offsets[rule_of_element[e]]
         stop = rule_offsets[rule_of_element[e] + 1]
-        # a constant ``finite`` per call: each kinematics gets its own vectorised loops
-        if finite:
-            energy += _element_force(
-                X,
-                u,
-                start,
-                stop,
-                zeta,
-                weights,
-                terms,
-                ply_of_point,
-                position_of_point,
-                positions,
-                stiffness,
-                work,
-                line,
-                f,
-                None,
-                None,
-                None,
-                True,
-            )
-        else:
-            energy += _element_force(
-                X,
-                u,
-                start,
-                stop,
-                zeta,
-                weights,
-                terms,
-                ply_of_point,
-                position_of_point,
-                positions,
-                stiffness,
-                work,
-                line,
-                f,
-                None,
-                None,
-                None,
-                False,
-            )
+        energy += _element_force(
+            X,
+            u,
+            start,
+            stop,
+            zeta,
+            weights,
+            terms,
+            ply_of_point,
+            position_of_point,
+            positions,
+            stiffness,
+            work,
+            line,
+            f,
+            None,
+            None,
+            None,
+            finite,
+        )
         scatter_add_nodes(nodes, n_base, f, 1.0, f_base, f_extra)
     return energy
 

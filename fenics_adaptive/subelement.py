@@ -506,6 +506,30 @@ def _line_end(position_of_point, p, stop):
 
 
 @njit(inline="always")
+def _add_point_moments(m, n, P, z):
+    """(m + P, n + z P[:, :2]): a point's P (row-major 9-tuple) added to its line's moments
+    m = sum P and n = sum zeta P (the 6 entries of columns 0 and 1, row by row)."""
+    return (
+        m[0] + P[0],
+        m[1] + P[1],
+        m[2] + P[2],
+        m[3] + P[3],
+        m[4] + P[4],
+        m[5] + P[5],
+        m[6] + P[6],
+        m[7] + P[7],
+        m[8] + P[8],
+    ), (
+        n[0] + z * P[0],
+        n[1] + z * P[1],
+        n[2] + z * P[3],
+        n[3] + z * P[4],
+        n[4] + z * P[6],
+        n[5] + z * P[7],
+    )
+
+
+@njit(inline="always")
 def _add_line_moments(f_out, xi, eta, m, n):
     """Add one line's moments m = sum P (9-tuple) and n = sum zeta P (the 6 entries of columns
     0 and 1) to the derivatives F_m (8, 3) with respect to the monomial coefficients of u:
@@ -526,7 +550,7 @@ def _add_line_moments(f_out, xi, eta, m, n):
 
 
 @njit(inline="always", **KERNEL_OPTIONS)
-def _element_force(
+def _element_force_kinematics(
     X,
     u,
     start,
@@ -550,7 +574,7 @@ def _element_force(
     overwritten; returns the strain energy. Work arrays: ``work`` (2, 8, 3), ``line``
     (4, 3, 3). ``finite``: Green-Lagrange strain and second Piola-Kirchhoff stress instead of
     small strain (not combined with matrix cracks: the caller, the damaged kernel, is
-    small-strain only); pass it as a constant, and compile the caller with ``KERNEL_OPTIONS``.
+    small-strain only); a constant here, see ``_element_force``.
 
     The points come in runs sharing a vertical line, and with it the energy term (the rule's
     order, ``pack_rule``); each run is one loop without branches on the point, which the
@@ -579,8 +603,8 @@ def _element_force(
         _fill_line(bx, bu, xi, eta, line)
         term = terms[p]
         # sums over the line of P = w |det J| sigma J^-T (F S J^-T if finite) and of zeta P
-        m0 = m1 = m2 = m3 = m4 = m5 = m6 = m7 = m8 = 0.0
-        n0 = n1 = n3 = n4 = n6 = n7 = 0.0
+        m = (0.0,) * 9
+        n = (0.0,) * 6
         if term == TERM_NORMAL:
             for pp in range(p, end):
                 z = zeta[pp]
@@ -610,21 +634,7 @@ def _element_force(
                 P = _first_piola(
                     _normal_stress_map(wd * sxx, wd * syy, wd * szz, wd * sxy, K), H, finite
                 )
-                m0 += P[0]
-                m1 += P[1]
-                m2 += P[2]
-                m3 += P[3]
-                m4 += P[4]
-                m5 += P[5]
-                m6 += P[6]
-                m7 += P[7]
-                m8 += P[8]
-                n0 += z * P[0]
-                n1 += z * P[1]
-                n3 += z * P[3]
-                n4 += z * P[4]
-                n6 += z * P[6]
-                n7 += z * P[7]
+                m, n = _add_point_moments(m, n, P, z)
         else:
             for pp in range(p, end):
                 z = zeta[pp]
@@ -638,24 +648,8 @@ def _element_force(
                 syz = c_yz * gyz + c_cross * gxz
                 energy += 0.5 * wd * (sxz * gxz + syz * gyz)
                 P = _first_piola(_shear_stress_map(wd * syz, wd * sxz, K), H, finite)
-                m0 += P[0]
-                m1 += P[1]
-                m2 += P[2]
-                m3 += P[3]
-                m4 += P[4]
-                m5 += P[5]
-                m6 += P[6]
-                m7 += P[7]
-                m8 += P[8]
-                n0 += z * P[0]
-                n1 += z * P[1]
-                n3 += z * P[3]
-                n4 += z * P[4]
-                n6 += z * P[6]
-                n7 += z * P[7]
-        _add_line_moments(
-            f_out, xi, eta, (m0, m1, m2, m3, m4, m5, m6, m7, m8), (n0, n1, n3, n4, n6, n7)
-        )
+                m, n = _add_point_moments(m, n, P, z)
+        _add_line_moments(f_out, xi, eta, m, n)
         p = end
     # back to the vertices: f_a = sum over m containing a of (-1)^|m - a| F_m (transposed
     # butterfly)
@@ -666,6 +660,74 @@ def _element_force(
                 for i in range(3):
                     f_out[m ^ bit, i] -= f_out[m, i]
     return energy
+
+
+@njit(inline="always", **KERNEL_OPTIONS)
+def _element_force(
+    X,
+    u,
+    start,
+    stop,
+    zeta,
+    weights,
+    terms,
+    ply_of_point,
+    position_of_point,
+    positions,
+    stiffness,
+    work,
+    line,
+    f_out,
+    opening,
+    opening_scale,
+    maps,
+    finite,
+):
+    """``_element_force_kinematics`` with ``finite`` turned into a constant: inlined (numba IR),
+    each kinematics gets its own vectorised loops, and a constant ``finite`` at the call site
+    leaves only one of them. Compile every caller with ``KERNEL_OPTIONS``: inlined code takes
+    the caller's flags."""
+    if finite:
+        return _element_force_kinematics(
+            X,
+            u,
+            start,
+            stop,
+            zeta,
+            weights,
+            terms,
+            ply_of_point,
+            position_of_point,
+            positions,
+            stiffness,
+            work,
+            line,
+            f_out,
+            opening,
+            opening_scale,
+            maps,
+            True,
+        )
+    return _element_force_kinematics(
+        X,
+        u,
+        start,
+        stop,
+        zeta,
+        weights,
+        terms,
+        ply_of_point,
+        position_of_point,
+        positions,
+        stiffness,
+        work,
+        line,
+        f_out,
+        opening,
+        opening_scale,
+        maps,
+        False,
+    )
 
 
 @njit(cache=True, **KERNEL_OPTIONS)
@@ -692,27 +754,6 @@ def solid_shell_force(
     work = np.empty((2, 8, 3))
     line = np.empty((4, 3, 3))
     n = weights.shape[0]
-    if finite:
-        return _element_force(
-            X,
-            u,
-            0,
-            n,
-            zeta,
-            weights,
-            terms,
-            ply_of_point,
-            position_of_point,
-            positions,
-            stiffness,
-            work,
-            line,
-            f_out,
-            None,
-            None,
-            None,
-            True,
-        )
     return _element_force(
         X,
         u,
@@ -731,7 +772,7 @@ def solid_shell_force(
         None,
         None,
         None,
-        False,
+        finite,
     )
 
 
@@ -766,48 +807,26 @@ def solid_shell_forces(
     for e in range(X_all.shape[0]):
         start = rule_offsets[rule_of_element[e]]
         stop = rule_offsets[rule_of_element[e] + 1]
-        if finite:
-            energy += _element_force(
-                X_all[e],
-                u_all[e],
-                start,
-                stop,
-                zeta,
-                weights,
-                terms,
-                ply_of_point,
-                position_of_point,
-                positions,
-                stiffness,
-                work,
-                line,
-                f_all[e],
-                None,
-                None,
-                None,
-                True,
-            )
-        else:
-            energy += _element_force(
-                X_all[e],
-                u_all[e],
-                start,
-                stop,
-                zeta,
-                weights,
-                terms,
-                ply_of_point,
-                position_of_point,
-                positions,
-                stiffness,
-                work,
-                line,
-                f_all[e],
-                None,
-                None,
-                None,
-                False,
-            )
+        energy += _element_force(
+            X_all[e],
+            u_all[e],
+            start,
+            stop,
+            zeta,
+            weights,
+            terms,
+            ply_of_point,
+            position_of_point,
+            positions,
+            stiffness,
+            work,
+            line,
+            f_all[e],
+            None,
+            None,
+            None,
+            finite,
+        )
     return energy
 
 
