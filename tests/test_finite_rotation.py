@@ -33,6 +33,7 @@ from test_subelement import (
     laminate_rule,
     random_laminate,
     relative_difference,
+    subelement_vertices,
 )
 
 from fenics_adaptive import enrichment as enr
@@ -118,10 +119,7 @@ def test_numba_subelement_equals_ufl_of_sublaminate_finite():
     first, stop = 1, 4
     f = laminate.ply_fractions
     X_parent = distorted_hex(rng, BOX * [1.0, 1.0, laminate.thickness])
-    bottom, top = X_parent[:4], X_parent[4:]
-    X = np.vstack(
-        [(1 - f[first]) * bottom + f[first] * top, (1 - f[stop]) * bottom + f[stop] * top]
-    )
+    X = subelement_vertices(X_parent, f, first, stop)
     sublaminate = Laminate(laminate.plies[first:stop])
     C = np.array(laminate.ply_stiffnesses()[first:stop])
     cell = SingleCell(X)

@@ -76,6 +76,16 @@ def distorted_hex(rng: np.random.Generator, size: np.ndarray = BOX, amount: floa
     return X
 
 
+def subelement_vertices(X_parent: np.ndarray, fractions: np.ndarray, first: int, stop: int):
+    """Vertices (8, 3) of the subelement holding plies first:stop of a parent element: on the
+    parent's vertical edges at the thickness fractions of its bounding interfaces."""
+    bottom, top = X_parent[:4], X_parent[4:]
+    f = fractions
+    return np.vstack(
+        [(1 - f[first]) * bottom + f[first] * top, (1 - f[stop]) * bottom + f[stop] * top]
+    )
+
+
 def random_displacement(rng: np.random.Generator, scale: float = 1e-2) -> np.ndarray:
     return rng.normal(scale=scale, size=(8, 3))
 
@@ -208,10 +218,7 @@ def test_subelement_matches_ufl_of_sublaminate():
     first, stop = 2, 5
     f = laminate.ply_fractions
     X_parent = distorted_hex(rng, BOX * [1.0, 1.0, laminate.thickness])
-    bottom, top = X_parent[:4], X_parent[4:]
-    X = np.vstack(
-        [(1 - f[first]) * bottom + f[first] * top, (1 - f[stop]) * bottom + f[stop] * top]
-    )
+    X = subelement_vertices(X_parent, f, first, stop)
     sublaminate = Laminate(laminate.plies[first:stop])
     zeta = se.sublaminate_ply_zeta(f, first, stop)
     np.testing.assert_allclose(zeta[:, 0], sublaminate.ply_fractions[:-1], rtol=0, atol=1e-15)
@@ -374,11 +381,8 @@ def test_lumped_mass_matches_ufl_and_is_invariant_under_refinement():
     m_ufl = SingleCell(X).lumped_mass(laminate)
     assert relative_difference(m, m_ufl) < TOL
     # refined at interfaces 2 and 4: three subelements, same total mass
-    bottom, top = X[:4], X[4:]
     total = 0.0
     for first, stop in ((0, 2), (2, 4), (4, 5)):
-        X_sub = np.vstack(
-            [(1 - f[first]) * bottom + f[first] * top, (1 - f[stop]) * bottom + f[stop] * top]
-        )
+        X_sub = subelement_vertices(X, f, first, stop)
         total += _kernel_mass(X_sub, se.sublaminate_ply_zeta(f, first, stop), rho[first:stop]).sum()
     assert total == pytest.approx(m.sum(), rel=1e-13)
