@@ -1,4 +1,17 @@
-"""The one exception type for bad user input (configs, layups, mesh parameters)."""
+"""The one exception type for bad user input (configs, layups, mesh parameters), and the way an
+error found on some ranks reaches all of them.
+
+Under MPI an exception raised on one rank only leaves the others waiting in their next
+collective for ever. Code that can fail on part of the ranks (rank 0 makes a folder, Gmsh
+meshes on rank 0, a face lies on one rank's cells) runs inside ``shared_errors(comm)``: the
+block's exception, if any, is exchanged once, collectively, and every rank raises the same
+error (the lowest failing rank's), so all ranks exit alike and the message is printed once.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from contextlib import contextmanager
 
 
 class InputError(ValueError):
@@ -9,3 +22,46 @@ class InputError(ValueError):
         self.key = key
         self.problem = problem
         super().__init__(f"{key}: {problem}" if key else problem)
+
+
+class RemoteError(RuntimeError):
+    """The error another rank raised inside ``shared_errors``, raised on this rank: the run
+    cannot go on without the failing rank."""
+
+    def __init__(self, rank: int, kind: str, message: str):
+        self.rank, self.kind = rank, kind
+        super().__init__(f"{kind} on rank {rank}: {message}")
+
+
+@contextmanager
+def shared_errors(comm) -> Iterator[None]:
+    """Run a block whose exception may occur on some ranks only; collective (one allgather on
+    every rank, whether the block failed or not).
+
+    Every rank then raises: the failing rank its own exception, every other rank the lowest
+    failing rank's ``InputError`` as an ``InputError`` with the same key and text (so that the
+    command line exits 2 on all ranks), or any other exception as a ``RemoteError``.
+
+    Parameters:
+        comm: the MPI communicator of the ranks that must agree (mpi4py ``Comm``).
+    """
+    failure: BaseException | None = None
+    try:
+        yield
+    except Exception as error:  # KeyboardInterrupt and SystemExit are not shared: they end the rank
+        failure = error
+    summary = None
+    if failure is not None:
+        key = failure.key if isinstance(failure, InputError) else None
+        problem = failure.problem if isinstance(failure, InputError) else str(failure)
+        summary = (type(failure).__name__, key, problem)
+    reports = comm.allgather(summary) if comm.size > 1 else [summary]
+    if failure is not None:
+        raise failure
+    for rank, report in enumerate(reports):
+        if report is None:
+            continue
+        kind, key, problem = report
+        if key is not None:
+            raise InputError(key, problem)
+        raise RemoteError(rank, kind, problem)
