@@ -48,6 +48,10 @@ class SolverSettings:
     mass_damping: float = 0.0  # 1/s, on every free DOF
     field_interval: float | None = None  # s between field outputs (None: none)
     checkpoint_interval: int | None = None  # steps between checkpoints (None: none)
+    # The run stops as failed when |energy balance| exceeds this share of the largest energy
+    # of the run (see explicit.energy_guard; the default is chosen from the demos' worst case).
+    energy_error_limit: float = 0.05
+    max_steps: int = 10**9  # a run (and `check`) refuses to take more steps than this
 
 
 @dataclass(frozen=True)
