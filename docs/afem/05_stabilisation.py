@@ -315,9 +315,7 @@ assert rms_damped < 0.1 * rms_abrupt
 # band), and the column weak from the start (black).
 
 # %%
-fig, axes = plt.subplots(
-    2, 2, figsize=(11, 6), sharex=True, gridspec_kw={"height_ratios": [2, 1]}
-)
+fig, axes = plt.subplots(2, 2, figsize=(11, 6), sharex=True, gridspec_kw={"height_ratios": [2, 1]})
 (ax_strong, ax_weak), (diff_strong, diff_weak) = axes
 us = 1e6 * time  # s -> us
 for ax, diff, reference, abrupt, remedy, name, window in (
