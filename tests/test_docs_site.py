@@ -26,7 +26,8 @@ DOCS = ROOT / "docs"
 # The options `make docs` uses too: nitpicky, every warning an error, report them all.
 SPHINX_OPTIONS = ["-b", "html", "-n", "-W", "--keep-going"]
 BUILD_TIMEOUT = 900  # s
-BROWSER_PAGES = {"index": 1, "afem/05_stabilisation": 2}  # page -> figures it must show at least
+# page -> (figures it must show at least, screenshot height in px: tall enough to hold them)
+BROWSER_PAGES = {"index": (1, 2000), "afem/05_stabilisation": (2, 9000)}
 
 pytestmark = pytest.mark.docs
 
@@ -214,12 +215,14 @@ def test_page_renders_in_a_browser_with_its_figures(site, page):
     shown = [
         src for src, width, height, complete in figures if complete and width > 100 and height > 100
     ]
-    assert len(shown) >= BROWSER_PAGES[page], f"{page}: the browser shows only {shown}"
+    assert len(shown) >= BROWSER_PAGES[page][0], f"{page}: the browser shows only {shown}"
     assert len(shown) == len(figures), f"{page}: images not decoded: {figures}"
 
     screenshot = site / "screenshots" / f"{page.replace('/', '_')}.png"
     screenshot.parent.mkdir(exist_ok=True)
-    result = run_browser("--window-size=1280,2000", f"--screenshot={screenshot}", html.as_uri())
+    result = run_browser(
+        f"--window-size=1280,{BROWSER_PAGES[page][1]}", f"--screenshot={screenshot}", html.as_uri()
+    )
     assert screenshot.is_file(), f"no screenshot of {page}: {result.stderr[-2000:]}"
     import matplotlib.image
 
