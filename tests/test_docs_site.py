@@ -230,3 +230,16 @@ def test_page_renders_in_a_browser_with_its_figures(site, page):
     ink = np.mean(pixels.min(axis=2) < 0.9)  # share of pixels that are not (near) white
     colours = len(np.unique((pixels[::4, ::4] * 15).round().reshape(-1, 3), axis=0))
     assert ink > 0.02 and colours > 20, f"{screenshot} looks blank ({ink:.1%} ink, {colours})"
+
+
+def test_make_docs_builds_the_same_way_where_the_readme_says():
+    """`make docs` runs the build of these tests (same options) into the folder the README
+    names."""
+    makefile = (ROOT / "Makefile").read_text()
+    recipe = re.search(r"^docs:.*\n((?:\t.*\n?)+)", makefile, re.MULTILINE)
+    assert recipe, "the Makefile has no docs target"
+    command = next(line for line in recipe.group(1).splitlines() if "sphinx" in line).split()
+    assert command[command.index("sphinx") + 1 :] == [*SPHINX_OPTIONS, "docs", "docs/_build/html"]
+    assert "make docs" in (ROOT / "README.md").read_text()
+    assert "docs/_build/html" in (ROOT / "README.md").read_text()
+    assert "docs/_build/" in (ROOT / ".gitignore").read_text().splitlines()

@@ -191,12 +191,16 @@ for sub in enr.subelements(structure.interface_state[cell]):
 # %% [markdown]
 # ## The maps as the paper's matrices
 #
-# The paper writes the gather as X^sublam,i = P^sublam,i X and the scatter as
-# P^sublam,i^T f^sublam,i. With one row per local node and one column per node of the cell,
-# P^sublam,i has a single 1 in each row. (On degrees of freedom each 1 becomes a 3 x 3
-# identity.) The code never forms these matrices: the index list above holds the same
-# information. Here we print them once. The mesh has one cell, so the nodes of the cell are
-# all the nodes of the structure: 8 base nodes, then the extra nodes.
+# The paper writes the gather as
+#
+# $$X^{\mathrm{sublam},i} = P^{\mathrm{sublam},i} X$$
+#
+# and the scatter as $P^{\mathrm{sublam},i\,T} f^{\mathrm{sublam},i}$. With one row per local
+# node and one column per node of the cell, $P^{\mathrm{sublam},i}$ has a single 1 in each row.
+# (On degrees of freedom each 1 becomes a 3 x 3 identity.) The code never forms these
+# matrices: the index list above holds the same information. Here we print them once. The
+# mesh has one cell, so the nodes of the cell are all the nodes of the structure: 8 base
+# nodes, then the extra nodes.
 
 # %%
 cell_nodes = np.concatenate(

@@ -148,9 +148,11 @@ def build(initial="none", stabilisation=None):
 #
 # T is computed once, at the moment of refinement, from the refined structure's forces (this
 # cancels the jump; Menouillard and Belytschko 2010). Afterwards it is scaled by
-# s(t) = max(0, 1 - (t - t_0) / T_release), so the cohesive element takes over the load
-# gradually. `Structure.start_stabilisation(t_0)` computes T; `Structure.add_tie_forces(t, f)`
-# adds s(t) T to an external force vector.
+#
+# $$s(t) = \max\left(0,\ 1 - \frac{t - t_0}{T_{\mathrm{release}}}\right),$$
+#
+# so the cohesive element takes over the load gradually. `Structure.start_stabilisation(t_0)`
+# computes T; `Structure.add_tie_forces(t, f)` adds s(t) T to an external force vector.
 #
 # We check it on the column, weakly refined and stretched through its thickness by hand
 # (u_z = 1e-3 z). At the same strain the stiff half carries about four times the stress of the
