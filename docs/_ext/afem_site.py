@@ -13,8 +13,8 @@
   text without a link (the site holds no copy of them).
 - Docstrings of the package are plain text written for ``help()`` (formulas such as
   ``|det J|`` or ``f_ext - f_int(u)``, indented tables), not reStructuredText. The API pages show
-  them as written: the summary line escaped as text, the rest as a literal block, so that no
-  docstring is misread as markup.
+  them as written: the summary paragraph as text (its ``code`` spans as inline literals, all
+  else escaped), the rest as a literal block, so that no docstring is misread as markup.
 - The notebook kernels import this checkout's package (PYTHONPATH), whatever else the virtual
   environment holds.
 """
@@ -99,6 +99,15 @@ def include_read(app: Sphinx, relative_path: Path, parent_docname: str, content:
 
 
 RST_SPECIAL = re.compile(r"([\\*`|_\[\]<>])")
+INLINE_LITERAL = re.compile(r"(``[^`]+``)")  # the docstrings' one piece of markup: ``code``
+
+
+def escape_text(text: str) -> str:
+    """reST for plain text: ``code`` spans kept as inline literals, all else escaped."""
+    return "".join(
+        piece if INLINE_LITERAL.fullmatch(piece) else RST_SPECIAL.sub(r"\\\1", piece)
+        for piece in INLINE_LITERAL.split(text)
+    )
 
 
 def plain_docstring(app: Sphinx, what: str, name: str, obj, options, lines: list[str]) -> None:
@@ -113,7 +122,7 @@ def plain_docstring(app: Sphinx, what: str, name: str, obj, options, lines: list
         summary, rest = "", text
     lines[:] = []
     if summary:
-        lines += [RST_SPECIAL.sub(r"\\\1", " ".join(s.strip() for s in summary_lines)), ""]
+        lines += [escape_text(" ".join(s.strip() for s in summary_lines)), ""]
     if rest.strip():
         lines += ["::", ""] + [f"    {line}" if line.strip() else "" for line in rest.splitlines()]
         lines.append("")
