@@ -3,7 +3,8 @@ AFEM tutorials (their own checks pass inside the build and their figures are on 
 shows the config reference generated from the schema the parser uses, has no dead internal link
 or anchor, and renders in a real headless browser (Debian's Chromium) with its figures.
 
-One build (about 2 min on 2 cores, most of it executing the tutorials) serves every test here.
+One build (2-3 min on 2 busy cores, a good part of it executing the tutorials) serves every test
+here.
 """
 
 from __future__ import annotations
