@@ -29,7 +29,7 @@ RUN apt-get update \
 # where DOLFINx's Python packages live.
 WORKDIR /opt/fenics-adaptive
 COPY requirements/ requirements/
-RUN python3 -m pip install --no-cache-dir -r requirements/common.txt
+RUN python3 -m pip install --no-cache-dir -r requirements/common.txt -r requirements/docs.txt
 COPY . .
 RUN python3 -m pip install --no-cache-dir --no-deps . \
     && cd / \

@@ -1,5 +1,5 @@
 # The two commands of the README. Each installs what it needs first (idempotently).
-.PHONY: demo test install lint
+.PHONY: demo test install lint docs
 
 install:
 	@scripts/install.sh
@@ -12,3 +12,8 @@ test: install
 
 lint: install
 	.venv/bin/ruff check .
+
+# The documentation site, warnings as errors; the tutorials are executed. HTML: docs/_build/html/
+docs: install
+	.venv/bin/python -m sphinx -b html -n -W --keep-going docs docs/_build/html
+	@echo "docs: open docs/_build/html/index.html"

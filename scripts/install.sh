@@ -1,8 +1,11 @@
 #!/usr/bin/env bash
 # Creates (or refreshes) the virtualenv .venv at the repository root with DOLFINx 0.11 (real PETSc,
-# mpich), numba, gmsh, matplotlib, pytest and ruff at the versions pinned in requirements/, and
-# installs fenics-adaptive into it in editable mode. Idempotent: when nothing it depends on has
-# changed since the last successful install, it does nothing and exits in well under a second.
+# mpich), numba, gmsh, matplotlib, pytest and ruff at the versions pinned in requirements/, the
+# documentation tools of requirements/docs.txt (Sphinx, MyST-NB), and installs fenics-adaptive
+# into it in editable mode. Idempotent: when nothing it depends on has changed since the last
+# successful install, it does nothing and exits in well under a second.
+# It also makes Debian's Chromium available for the documentation's browser test: installed with
+# apt-get when missing and the script runs as root; otherwise it says so and that test skips.
 set -euo pipefail
 
 root=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
@@ -10,9 +13,24 @@ venv="$root/.venv"
 stamp="$venv/.fenics-adaptive-install"
 
 fingerprint() {
-    cat "$root/requirements/native.txt" "$root/requirements/common.txt" "$root/pyproject.toml" \
+    cat "$root/requirements/native.txt" "$root/requirements/common.txt" \
+        "$root/requirements/docs.txt" "$root/pyproject.toml" \
         | sha256sum | cut -d' ' -f1
 }
+
+# Chromium (the headless browser of tests/test_docs_site.py) is a system package.
+if ! command -v chromium >/dev/null 2>&1 && ! command -v chromium-browser >/dev/null 2>&1; then
+    if [[ $(id -u) -eq 0 ]] && command -v apt-get >/dev/null 2>&1; then
+        echo "install: installing Debian's chromium (headless browser for the docs test)"
+        if ! { DEBIAN_FRONTEND=noninteractive apt-get update -qq \
+                && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium; } >/dev/null; then
+            echo "install: apt-get could not install chromium; the browser test will skip" >&2
+        fi
+    else
+        echo "install: chromium is missing and this is not root with apt-get: install it" \
+             "(apt-get install chromium) or the docs browser test skips" >&2
+    fi
+fi
 
 if [[ -x "$venv/bin/python" && -f "$stamp" && "$(cat "$stamp")" == "$(fingerprint)" ]]; then
     exit 0
@@ -56,6 +74,7 @@ fi
 echo "install: installing pinned dependencies into $venv"
 "$venv/bin/python" -m pip install --quiet --upgrade pip
 "$venv/bin/python" -m pip install --quiet -r "$root/requirements/native.txt"
+"$venv/bin/python" -m pip install --quiet -r "$root/requirements/docs.txt"
 "$venv/bin/python" -m pip install --quiet --no-deps -e "$root"
 # Fail here, not in the first test, if the stack does not import.
 "$venv/bin/python" -c 'from mpi4py import MPI; import dolfinx, numba, gmsh, matplotlib' \

@@ -1,16 +1,16 @@
-"""# 1. Where the extra nodes go: Eq. (1) of the paper
-
-An adaptive cell is one 8-node solid-shell hexahedron through the whole laminate. Refining it at
-ply interface i adds four *extra nodes*, one on each vertical edge of the cell, at the height of
-that interface. This script refines a two-cell strip and checks that every extra node sits where
-Eq. (1) of the paper puts it.
-
-Run it from the repository root (serial, about 2 s):
-
-    .venv/bin/python docs/afem/01_extra_nodes.py
-
-Units: N, mm, s, tonne.
-"""
+# %% [markdown]
+# # 1. Where the extra nodes go: Eq. (1) of the paper
+#
+# An adaptive cell is one 8-node solid-shell hexahedron through the whole laminate. Refining it
+# at ply interface i adds four *extra nodes*, one on each vertical edge of the cell, at the
+# height of that interface. This script refines a two-cell strip, checks that every extra node
+# sits where Eq. (1) of the paper puts it, and draws the strip with its extra nodes.
+#
+# Run it from the repository root (serial, about 2 s):
+#
+#     .venv/bin/python docs/afem/01_extra_nodes.py
+#
+# Units: N, mm, s, tonne.
 
 # %% [markdown]
 # ## The rule
@@ -19,13 +19,14 @@ Units: N, mm, s, tonne.
 # above node a. The pair (a, a + 4) is a *column*. Ply interface i (1-based) lies between ply i
 # and ply i + 1. Its thickness fraction is
 #
-#     alpha_i = (t_1 + ... + t_i) / (t_1 + ... + t_n)
+# $$\alpha_i = \frac{t_1 + \dots + t_i}{t_1 + \dots + t_n}$$
 #
-# with t_k the ply thicknesses. The extra node of column a at interface i sits at
+# with $t_k$ the ply thicknesses. The extra node of column a at interface i sits at
 #
-#     X = X_hat_a + alpha_i (X_hat_{a+4} - X_hat_a)                      (paper, Eq. 1)
+# $$X = \hat{X}_a + \alpha_i \left(\hat{X}_{a+4} - \hat{X}_a\right)
+# \qquad \text{(paper, Eq. 1)}$$
 #
-# where X_hat are the reference positions of the base nodes. The rule uses only the column, so
+# where $\hat{X}$ are the reference positions of the base nodes. The rule uses only the column, so
 # it holds for tapered or skewed cells too.
 #
 # The paper numbers the nodes of an element subelement by subelement, so each interface point
@@ -35,9 +36,10 @@ Units: N, mm, s, tonne.
 
 # %%
 import tomllib
-from pathlib import Path
 
+import matplotlib.pyplot as plt
 import numpy as np
+from afem_figures import SET_COLOURS, TUTORIAL_DIR, draw_plies, finish
 from mpi4py import MPI
 
 from fenics_adaptive import enrichment as enr
@@ -53,7 +55,7 @@ from fenics_adaptive.runner import build_structure
 # and output sections are required by the config parser but unused: nothing is time-integrated.
 
 # %%
-data = tomllib.loads((Path(__file__).parent / "seven_plies.toml").read_text())
+data = tomllib.loads((TUTORIAL_DIR / "seven_plies.toml").read_text())
 data["mesh"].update(length=2.0, nx=2)  # two cells side by side
 data["interfaces"]["refine"] = [1, 2, 3, 5, 6]  # and 4 (delaminate): every interface
 
@@ -168,4 +170,55 @@ for key, local in structure.extra.index.items():
         pairs += 1
 print(f"set-B nodes after the strong refinement of the left cell: {pairs}, each on its set-A twin")
 assert pairs == 4
+
+# %% [markdown]
+# ## The picture: the strip seen from the side
+#
+# The front face (y = 0) of the two cells, plies to scale. Black squares are the base nodes,
+# blue circles the set-A extra nodes, red crosses the set-B nodes (drawn a little to the right
+# of their twins, with which they coincide). The dashed lines are the heights alpha_i h of
+# Eq. (1): every extra node is on one. The left cell is refined at interfaces 2, 4 (weak, then
+# strong) and 6; the right one at interface 4 only, and the two share the extra node of their
+# common column at x = 1 mm.
+
+# %%
+h = laminate.thickness
+X_extra = structure.extra.vectors["X"].array.reshape(-1, 3)  # now with the set-B nodes
+front_base = np.flatnonzero(np.isclose(structure.X_base[:, 1], 0.0))
+fig, ax = plt.subplots(figsize=(8, 3.6))
+draw_plies(ax, (0.0, 2.0), laminate.ply_fractions, h)
+for i, a in enumerate(alpha, start=1):
+    ax.axhline(a * h, color="0.4", ls="--", lw=0.6)
+    ax.text(2.03, a * h, f"$\\alpha_{i}$ = {a:.3f}", va="center", fontsize=7)
+for x in (0.0, 1.0, 2.0):
+    ax.plot([x, x], [0.0, h], color="k", lw=1.2)  # the columns
+ax.plot(*structure.X_base[front_base][:, [0, 2]].T, "ks", ms=7, label="base node")
+drawn = {"A": 0, "B": 0}
+for key, local in structure.extra.index.items():
+    _, interface, node_set = enr.key_parts(key, n_interfaces)
+    x, y, z = X_extra[local]
+    if abs(y) > 1e-12:
+        continue
+    name = "AB"[node_set]
+    assert abs(z - alpha[interface - 1] * h) < 1e-14  # on its dashed line: Eq. (1)
+    ax.plot(
+        x + (0.04 if name == "B" else 0.0),
+        z,
+        "o" if name == "A" else "x",
+        color=SET_COLOURS[name],
+        ms=7,
+        mew=2,
+        label=None if drawn[name] else f"extra node, set {name}",
+    )
+    drawn[name] += 1
+# front face: the left cell's two columns have interfaces 2, 4 and 6 (the shared one's 4 is
+# also the right cell's), the right cell's outer column has interface 4; set B only on the
+# left cell's two columns
+assert drawn == {"A": 3 + 3 + 1, "B": 2}
+ax.set(xlabel="x (mm)", ylabel="z (mm)", xlim=(-0.1, 2.45), ylim=(-0.05, h + 0.05))
+ax.set_title("two cells, extra nodes at the interface heights of Eq. (1)", fontsize=10)
+ax.legend(loc="upper center", bbox_to_anchor=(0.45, -0.2), ncol=3, fontsize=8)
+finish(fig, "01_strip_side_view")
+
+# %%
 print("01_extra_nodes: all checks passed")

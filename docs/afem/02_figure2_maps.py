@@ -1,27 +1,29 @@
-"""# 2. Figure 2 of the paper: subelements, plies and the gather/scatter maps
-
-A cell with seven plies is refined at interfaces 2 and 4. It splits into three subelements:
-plies 1-2, plies 3-4 and plies 5-7. This script shows that assignment, shows that the
-integration points of the plies do not move, and prints the maps that tell each subelement
-which nodes are its eight nodes (the paper's projection matrices P).
-
-Run it from the repository root (serial, about 2 s):
-
-    .venv/bin/python docs/afem/02_figure2_maps.py
-
-Units: N, mm, s, tonne.
-"""
+# %% [markdown]
+# # 2. Figure 2 of the paper: subelements, plies and the gather/scatter maps
+#
+# A cell with seven plies is refined at interfaces 2 and 4. It splits into three subelements:
+# plies 1-2, plies 3-4 and plies 5-7. This script shows that assignment, shows that the
+# integration points of the plies do not move, prints the maps that tell each subelement
+# which nodes are its eight nodes (the paper's projection matrices P), and draws both.
+#
+# Run it from the repository root (serial, about 2 s):
+#
+#     .venv/bin/python docs/afem/02_figure2_maps.py
+#
+# Units: N, mm, s, tonne.
 
 # %%
 import tomllib
-from pathlib import Path
 
+import matplotlib.pyplot as plt
 import numpy as np
+from afem_figures import TUTORIAL_DIR, draw_plies, finish
 from mpi4py import MPI
 
 from fenics_adaptive import enrichment as enr
 from fenics_adaptive.config import parse_config
 from fenics_adaptive.runner import build_structure
+from fenics_adaptive.solid_shell import gauss_legendre_01
 from fenics_adaptive.subelement import sublaminate_ply_zeta
 
 # %% [markdown]
@@ -67,6 +69,65 @@ for number, sub in enumerate(subelements, start=1):
         assert abs(lo - fractions[k]) < 1e-15 and abs(hi - fractions[k + 1]) < 1e-15
 
 # %% [markdown]
+# ### The picture: Figure 2
+#
+# Left, the cell before refinement: seven plies, each with its two Gauss points through the
+# thickness (`points_per_ply = 2`; the crosses). Right, the same cell cut at interfaces 2 and
+# 4 and drawn apart: three subelements, each with its own thickness coordinate zeta from 0 to
+# 1. Each ply keeps its colour and its points. The dotted lines join a point in the cell to
+# the same point in its subelement: they are horizontal because the heights are equal, which
+# the loop below also asserts.
+
+# %%
+gauss, _ = gauss_legendre_01(2)
+sub_colours = ["#9ecae1", "#fdd0a2", "#c7e9c0"]
+fig, (ax_cell, ax_sub) = plt.subplots(1, 2, figsize=(8, 4), sharey=True)
+draw_plies(ax_cell, (0.0, 1.0), fractions, 1.0)
+gap = 0.06  # drawing gap between the subelements, as a thickness fraction
+for number, sub in enumerate(subelements):
+    lo, hi = fractions[sub.first], fractions[sub.stop]
+    shift = gap * number
+    ax_sub.fill_between([0, 1], lo + shift, hi + shift, color=sub_colours[number], lw=0)
+    ax_sub.plot([0, 1, 1, 0, 0], [lo + shift, lo + shift, hi + shift, hi + shift, lo + shift], "k")
+    ax_sub.text(
+        1.03,
+        0.5 * (lo + hi) + shift,
+        f"subelement {number + 1}\nplies {sub.first + 1}-{sub.stop}",
+        va="center",
+        fontsize=8,
+    )
+    zeta = sublaminate_ply_zeta(fractions, sub.first, sub.stop)
+    for k, (z_lo, z_hi) in zip(range(sub.first, sub.stop), zeta, strict=True):
+        in_cell = fractions[k] + (fractions[k + 1] - fractions[k]) * gauss
+        in_sub = lo + (z_lo + (z_hi - z_lo) * gauss) * (hi - lo)  # zeta -> fraction of the cell
+        assert np.allclose(in_sub, in_cell, rtol=0.0, atol=1e-15)
+        ax_cell.plot([0.5] * 2, in_cell, "kx", ms=5)
+        ax_sub.plot([0.5] * 2, in_sub + shift, "kx", ms=5)
+        ax_sub.text(
+            0.04,
+            0.5 * (fractions[k] + fractions[k + 1]) + shift,
+            f"ply {k + 1}",
+            va="center",
+            fontsize=7,
+            color="0.3",
+        )
+        for z_point in in_cell:
+            ax_cell.annotate(
+                "",
+                xy=(1.0, z_point),
+                xytext=(0.5, z_point),
+                arrowprops={"arrowstyle": "-", "ls": ":", "color": "0.5"},
+            )
+for interface in (2, 4):
+    ax_cell.axhline(fractions[interface], color="k", lw=2.5)
+    ax_cell.text(1.02, fractions[interface], f"interface {interface}", va="center", fontsize=8)
+ax_cell.set(xlim=(0, 1.35), ylabel="thickness fraction of the cell", xticks=[])
+ax_cell.set_title("the cell: 7 plies, cuts at interfaces 2 and 4", fontsize=10)
+ax_sub.set(xlim=(0, 1.45), xticks=[])
+ax_sub.set_title("three subelements, drawn apart", fontsize=10)
+finish(fig, "02_figure2_subelements")
+
+# %% [markdown]
 # ## A real cell and its maps
 #
 # One cell, 1 x 0.5 mm in-plane, with the same seven plies. Interface 2 may refine, interface 4
@@ -76,7 +137,7 @@ for number, sub in enumerate(subelements, start=1):
 # nodes; the others are extra nodes, named by interface and set (`i2A`: interface 2, set A).
 
 # %%
-data = tomllib.loads((Path(__file__).parent / "seven_plies.toml").read_text())  # Figure 2
+data = tomllib.loads((TUTORIAL_DIR / "seven_plies.toml").read_text())  # Figure 2
 
 assert MPI.COMM_WORLD.size == 1, "run this script in serial"
 structure = build_structure(parse_config(data, source="02_figure2_maps"))
@@ -130,12 +191,16 @@ for sub in enr.subelements(structure.interface_state[cell]):
 # %% [markdown]
 # ## The maps as the paper's matrices
 #
-# The paper writes the gather as X^sublam,i = P^sublam,i X and the scatter as
-# P^sublam,i^T f^sublam,i. With one row per local node and one column per node of the cell,
-# P^sublam,i has a single 1 in each row. (On degrees of freedom each 1 becomes a 3 x 3
-# identity.) The code never forms these matrices: the index list above holds the same
-# information. Here we print them once. The mesh has one cell, so the nodes of the cell are
-# all the nodes of the structure: 8 base nodes, then the extra nodes.
+# The paper writes the gather as
+#
+# $$X^{\mathrm{sublam},i} = P^{\mathrm{sublam},i} X$$
+#
+# and the scatter as $P^{\mathrm{sublam},i\,T} f^{\mathrm{sublam},i}$. With one row per local
+# node and one column per node of the cell, $P^{\mathrm{sublam},i}$ has a single 1 in each row.
+# (On degrees of freedom each 1 becomes a 3 x 3 identity.) The code never forms these
+# matrices: the index list above holds the same information. Here we print them once. The
+# mesh has one cell, so the nodes of the cell are all the nodes of the structure: 8 base
+# nodes, then the extra nodes.
 
 # %%
 cell_nodes = np.concatenate(
@@ -174,4 +239,54 @@ assert [(s.first, s.stop) for s in enr.subelements(structure.interface_state[cel
 third = maps.split("subelement 3")[1].split("cohesive")[0]
 assert "i4B" in third and "i4A" not in third
 assert "cohesive element at interface 4" in maps
+
+# %% [markdown]
+# ### The picture: the projection matrices
+#
+# The matrices of the strongly refined cell drawn as grids, one row per local node of the
+# subelement or cohesive element, one column per node of the cell. A filled square is a 1.
+# The extra nodes are named by interface, set and column (`4B2`: interface 4, set B, column
+# 2). Each row has one 1. Subelement 3 takes its bottom face from set B of interface 4 and
+# subelement 2 its top face from set A, and P^coh,4 joins the two.
+
+# %%
+cell_nodes = np.concatenate(
+    [np.arange(structure.n_base), structure.n_base + np.arange(structure.extra.n_local)]
+)
+names = [str(n) for n in range(structure.n_base)] + [""] * structure.extra.n_local
+n_interfaces = n_plies - 1
+bottom_column = {int(b): c for c, b in enumerate(structure.bottom_global[cell])}
+for key, local in structure.extra.index.items():
+    global_bottom, interface, node_set = enr.key_parts(key, n_interfaces)
+    names[structure.n_base + local] = f"{interface}{'AB'[node_set]}{bottom_column[global_bottom]}"
+state = structure.interface_state[cell]
+maps = [
+    (f"$P^{{\\mathrm{{sublam}},{n}}}$", nodes_of(structure, cell, sub))
+    for n, sub in enumerate(enr.subelements(state), start=1)
+]
+maps.append(
+    (
+        "$P^{\\mathrm{coh},4}$",
+        enr.cohesive_nodes(
+            cell_columns(structure, cell), 4, n_plies, structure.extra.index, structure.n_base
+        ),
+    )
+)
+fig, axes = plt.subplots(len(maps), 1, figsize=(8, 9), sharex=True)
+for ax, (title, nodes) in zip(axes, maps, strict=True):
+    P = np.zeros((8, len(cell_nodes)))
+    P[np.arange(8), nodes] = 1.0
+    assert np.all(P.sum(axis=1) == 1.0)
+    ax.imshow(P, cmap="Greys", vmin=0, vmax=1.4, aspect="equal")
+    ax.set_xticks(np.arange(len(cell_nodes)) - 0.5, minor=True)
+    ax.set_yticks(np.arange(8) - 0.5, minor=True)
+    ax.grid(which="minor", color="0.75", lw=0.5)
+    ax.tick_params(which="minor", length=0)
+    ax.set_yticks(range(8))
+    ax.set_ylabel(title, fontsize=9)
+axes[-1].set_xticks(range(len(cell_nodes)), names, rotation=90, fontsize=8)
+axes[-1].set_xlabel("nodes of the cell: base nodes 0-7, then extra nodes")
+finish(fig, "02_projection_matrices")
+
+# %%
 print("02_figure2_maps: all checks passed")

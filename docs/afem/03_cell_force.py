@@ -1,29 +1,32 @@
-"""# 3. The internal force of one refined cell: f = f_lam - f_coh
-
-The internal force of a refined cell is assembled from its subelements and its cohesive
-elements (paper, Eqs. (3)-(7)):
-
-    f = f_lam - f_coh,   f_lam = sum_i P_i^T f_sublam_i,   f_coh = sum_j P_j^T f_coh_j
-
-This script computes that force twice for the cell of Figure 2 (seven plies, weak at interface
-2, strong at interface 4). Once by the package (`Structure.internal_force`, numba loops over
-index lists), once here by the formula itself, with dense 0/1 matrices P and the element
-kernels called one by one. The two must agree to round-off. It then checks the physics: the
-force is the gradient of the stored energy, it has no resultant, and a rigid translation
-produces none.
-
-Run it from the repository root (serial, about 2 s):
-
-    .venv/bin/python docs/afem/03_cell_force.py
-
-Units: N, mm, s, tonne (forces in N, energies in mJ = N mm).
-"""
+# %% [markdown]
+# # 3. The internal force of one refined cell: f = f_lam - f_coh
+#
+# The internal force of a refined cell is assembled from its subelements and its cohesive
+# elements (paper, Eqs. (3)-(7)):
+#
+# $$f = f^{\mathrm{lam}} - f^{\mathrm{coh}}, \qquad
+# f^{\mathrm{lam}} = \sum_i P^{\mathrm{sublam},i\,T} f^{\mathrm{sublam},i}, \qquad
+# f^{\mathrm{coh}} = \sum_j P^{\mathrm{coh},j\,T} f^{\mathrm{coh},j}$$
+#
+# This script computes that force twice for the cell of Figure 2 (seven plies, weak at
+# interface 2, strong at interface 4). Once by the package (`Structure.internal_force`, numba
+# loops over index lists), once here by the formula itself, with dense 0/1 matrices P and the
+# element kernels called one by one. The two must agree to round-off. It then draws the three
+# forces as arrows and checks the physics: the force is the gradient of the stored energy, it
+# has no resultant, and a rigid translation produces none.
+#
+# Run it from the repository root (serial, about 2 s):
+#
+#     .venv/bin/python docs/afem/03_cell_force.py
+#
+# Units: N, mm, s, tonne (forces in N, energies in mJ = N mm).
 
 # %%
 import tomllib
-from pathlib import Path
 
+import matplotlib.pyplot as plt
 import numpy as np
+from afem_figures import SET_COLOURS, TUTORIAL_DIR, draw_plies, finish
 from mpi4py import MPI
 
 from fenics_adaptive import enrichment as enr
@@ -39,7 +42,7 @@ from fenics_adaptive.subelement import pack_rule, solid_shell_force, sublaminate
 # other cell adds to its nodes, and there is no border of a refined region (see `06_border.py`).
 
 # %%
-data = tomllib.loads((Path(__file__).parent / "seven_plies.toml").read_text())  # Figure 2
+data = tomllib.loads((TUTORIAL_DIR / "seven_plies.toml").read_text())  # Figure 2
 
 assert MPI.COMM_WORLD.size == 1, "run this script in serial"
 config = parse_config(data, source="03_cell_force")
@@ -178,6 +181,55 @@ assert abs(f_coh[set_b, 2].sum() + expected) < 1e-3 * expected
 assert abs(f_coh[set_a, 2].sum() - expected) < 1e-3 * expected
 
 # %% [markdown]
+# ### The picture: f = f_lam - f_coh as arrows
+#
+# The front face (y = 0) of the cell seen from the side, with the x and z components of the
+# nodal forces as arrows. Set-B nodes (red) are drawn a little to the right of their set-A twins
+# (blue). f_lam comes from the subelements, f_coh from the cohesive element at interface 4: it
+# pulls the two faces of the opened interface towards each other, so it acts on the set-A and
+# set-B nodes only. Their difference f is what the solver uses. Each panel has its own arrow
+# scale (the longest arrow is 0.25 mm long); the largest force of the panel is in its title.
+
+# %%
+node_colour = np.array(["k"] * n_nodes, dtype=object)
+x_shift = np.zeros(n_nodes)
+for key, local in structure.extra.index.items():
+    _, interface, node_set = enr.key_parts(key, n_interfaces)
+    node_colour[structure.n_base + local] = SET_COLOURS["AB"[node_set]]
+    x_shift[structure.n_base + local] = 0.05 * node_set
+front = np.flatnonzero(np.isclose(X_all[:, 1], 0.0))
+fig, axes = plt.subplots(1, 3, figsize=(10, 3.8), sharey=True)
+for ax, (name, force) in zip(
+    axes, (("f_lam", f_lam), ("f_coh", f_coh), ("f", f_package)), strict=True
+):
+    draw_plies(ax, (0.0, 1.0), fractions, structure.laminate.thickness, labels=False)
+    largest = np.abs(force[front][:, [0, 2]]).max()
+    ax.quiver(
+        X_all[front, 0] + x_shift[front],
+        X_all[front, 2],
+        force[front, 0],
+        force[front, 2],
+        color=list(node_colour[front]),
+        angles="xy",
+        scale_units="xy",
+        scale=largest / 0.25,
+        width=0.012,
+    )
+    ax.scatter(
+        X_all[front, 0] + x_shift[front],
+        X_all[front, 2],
+        c=list(node_colour[front]),
+        s=12,
+        zorder=3,
+    )
+    ax.set(xlim=(-0.35, 1.35), xlabel="x (mm)", title=f"{name} (largest {largest:.2g} N)")
+axes[0].set_ylabel("z (mm)")
+# f_coh acts on the interface-4 nodes only, and f = f_lam - f_coh node by node
+assert np.all(f_coh[: structure.n_base] == 0.0)
+assert np.allclose(f_package, f_lam - f_coh, rtol=0.0, atol=1e-12 * scale)
+finish(fig, "03_cell_force_arrows")
+
+# %% [markdown]
 # ## Why the minus sign: f is the gradient of the stored energy
 #
 # The stored energy is W = W_solid + W_coh. The internal force is f = dW/du. The subelement
@@ -225,4 +277,6 @@ f_translated = np.vstack(
 largest = max(np.abs(f_translated).max(), np.abs(formula_force(u_all())[0]).max())
 print(f"rigid translation: largest nodal force {largest:.1e} N")
 assert largest < 1e-12 * scale
+
+# %%
 print("03_cell_force: all checks passed")

@@ -1,22 +1,25 @@
-"""# 4. From weak to strong refinement
-
-A weak refinement lets the strain jump at a ply interface; a strong refinement lets the
-displacement jump there (a delamination). Neither may change the state of the structure at the
-moment it happens: the displacement field, the velocity field, the mass and the momentum stay
-the same, and a new cohesive element starts closed, with zero traction. This script refines a
-region of a beam weakly, then strongly, and checks all of that.
-
-Run it from the repository root (serial, about 2 s):
-
-    .venv/bin/python docs/afem/04_weak_to_strong.py
-
-Units: N, mm, s, tonne (energies in mJ = N mm, momentum in tonne mm/s).
-"""
+# %% [markdown]
+# # 4. From weak to strong refinement
+#
+# A weak refinement lets the strain jump at a ply interface; a strong refinement lets the
+# displacement jump there (a delamination). Neither may change the state of the structure at the
+# moment it happens: the displacement field, the velocity field, the mass and the momentum stay
+# the same, and a new cohesive element starts closed, with zero traction. This script refines a
+# region of a beam weakly, then strongly, checks all of that, and draws one column through the
+# thickness in the three states.
+#
+# Run it from the repository root (serial, about 2 s):
+#
+#     .venv/bin/python docs/afem/04_weak_to_strong.py
+#
+# Units: N, mm, s, tonne (energies in mJ = N mm, momentum in tonne mm/s).
 
 # %%
 import tomllib
 
+import matplotlib.pyplot as plt
 import numpy as np
+from afem_figures import finish
 from mpi4py import MPI
 
 from fenics_adaptive import enrichment as enr
@@ -131,6 +134,25 @@ def report(title, now, before):
     print(f"  kinetic energy              {now['kinetic']:.9e} mJ (before {before['kinetic']:.9e})")
 
 
+def column_profile(structure, x, y):
+    """Heights z (mm), u and v (mm, mm/s) of the active nodes of the column at (x, y), bottom
+    to top, and each node's set ("base", "A" or "B")."""
+    X_extra = structure.extra.vectors["X"].array.reshape(-1, 3)
+    u_extra = structure.extra.vectors["u"].array.reshape(-1, 3)
+    v_extra = structure.extra.vectors["v"].array.reshape(-1, 3)
+    rows = []
+    base = np.flatnonzero(np.isclose(X[:, 0], x) & np.isclose(X[:, 1], y))
+    rows += [(X[n, 2], u_base[n], v_base[n], "base") for n in base]
+    for key, local in structure.extra.index.items():
+        if np.allclose(X_extra[local, :2], (x, y)):
+            name = "AB"[enr.key_parts(key, n_interfaces)[2]]
+            rows.append((X_extra[local, 2], u_extra[local].copy(), v_extra[local].copy(), name))
+    rows.sort(key=lambda row: (row[0], row[3]))
+    return rows
+
+
+COLUMN = (4.5, 0.0)  # mm: a column inside the refined region
+profiles = {"before refinement": column_profile(structure, *COLUMN)}
 start = snapshot(structure)
 
 # %% [markdown]
@@ -141,7 +163,9 @@ start = snapshot(structure)
 # interpolation between the active nodes below and above it. Along a vertical edge the field of
 # an unrefined cell is linear in the thickness, so the node lands exactly on the old field:
 #
-#     u_extra = u_bottom + alpha_i (u_top - u_bottom)      (likewise v)
+# $$u_{\mathrm{extra}} = u_{\mathrm{bottom}}
+# + \alpha_i \left(u_{\mathrm{top}} - u_{\mathrm{bottom}}\right)
+# \qquad \text{(likewise } v\text{)}$$
 #
 # This holds for any nodal field, not only for the simple one chosen above: whatever the base
 # nodes carry, the field of a cell is linear along each of its columns. Every subelement then
@@ -168,6 +192,7 @@ def largest_deviation_from_old_field(structure, name, base_values):
     return worst
 
 
+profiles["after weak refinement"] = column_profile(structure, *COLUMN)
 du = largest_deviation_from_old_field(structure, "u", u_base)
 dv = largest_deviation_from_old_field(structure, "v", v_base)
 weak = snapshot(structure)
@@ -281,4 +306,69 @@ print(f"    f on B after            {f_extra[B]} N")
 print(f"    traction x node area    {traction * node_area} N")
 assert np.allclose(f_extra[A, [0, 2]], traction[[0, 2]] * node_area, rtol=1e-10)
 assert np.allclose(f_extra[B, [0, 2]], -traction[[0, 2]] * node_area, rtol=1e-10)
+
+# %% [markdown]
+# ## The picture: one column before and after
+#
+# The column at x = 4.5 mm, y = 0 through the thickness, in the three states: its active nodes
+# and the displacement and velocity they carry (x and z components). The weak refinement adds
+# nodes at interfaces 2, 4 and 6 on the straight line of the old field; the strong one adds the
+# set-B twins at 2 and 6 on top of set A. The lines do not move (here u_x and u_z happen to
+# coincide: shear and stretch are both 2e-4). The right panel shows the z force of interface 6
+# at this column. Before the split the node sits in a uniform stress field and its force is
+# zero: the subelements below and above cancel. After it, A and B each carry the whole
+# interface stress, with opposite signs; their sum is still the old, zero force.
+
+# %%
+profiles["after strong refinement"] = column_profile(structure, *COLUMN)
+styles = {
+    "before refinement": ("k", "s", 9),
+    "after weak refinement": ("tab:blue", "o", 6),
+    "after strong refinement": ("tab:red", "x", 7),
+}
+fig, axes = plt.subplots(1, 3, figsize=(11, 4), gridspec_kw={"width_ratios": [1, 1, 1.1]})
+for state, rows in profiles.items():
+    colour, marker, size = styles[state]
+    z = np.array([row[0] for row in rows])
+    for ax, field in zip(axes[:2], (1, 2), strict=True):
+        values = np.array([row[field] for row in rows])
+        for component, fill in ((0, "full"), (2, "none")):
+            ax.plot(
+                values[:, component],
+                z,
+                marker=marker,
+                color=colour,
+                ms=size,
+                ls="-",
+                lw=0.8,
+                fillstyle=fill,
+                label=f"{state}, {'xyz'[component]}",
+            )
+    assert (
+        len(rows)
+        == {"before refinement": 2, "after weak refinement": 5, "after strong refinement": 7}[state]
+    )
+for ax, title in zip(axes[:2], ("displacement u (mm)", "velocity v (mm/s)"), strict=True):
+    for fraction in alpha[[1, 3, 5]]:
+        ax.axhline(fraction * structure.laminate.thickness, color="0.8", lw=0.6, zorder=0)
+    ax.set(xlabel=title, ylabel="z (mm)")
+axes[0].legend(fontsize=6, loc="lower right")
+# the force on the pair at interface 6 of this column (z components)
+pair6 = [p for p in range(len(a_nodes)) if np.allclose(X_extra[a_nodes[p]], (*COLUMN, 6 * 0.256))]
+assert len(pair6) == 1
+A6, B6, before6 = a_nodes[pair6[0]], b_nodes[pair6[0]], a_before[pair6[0]]
+bars = {
+    "A before": f_extra_before[before6, 2],
+    "A after": f_extra[A6, 2],
+    "B after": f_extra[B6, 2],
+    "A + B after": f_extra[A6, 2] + f_extra[B6, 2],
+}
+axes[2].bar(list(bars), list(bars.values()), color=["k", "tab:blue", "tab:red", "0.6"])
+axes[2].axhline(0.0, color="k", lw=0.6)
+axes[2].set(ylabel="internal force f_z (N)", title="interface 6, x = 4.5 mm")
+axes[2].tick_params(axis="x", labelsize=8)
+assert abs(bars["A + B after"] - bars["A before"]) < 1e-12 * abs(bars["A after"])
+finish(fig, "04_column_fields_and_force_split")
+
+# %%
 print("04_weak_to_strong: all checks passed")

@@ -1,30 +1,33 @@
-"""# 5. Why refinement needs stabilisation in an explicit run
-
-Refinement keeps the displacement and velocity fields (`04_weak_to_strong.py`), but not the
-internal forces. The accelerations therefore jump at the moment of refinement, and an explicit
-run answers with waves that have no physical cause. The paper (section "Numerical
-stabilisation") gives two remedies, both implemented here:
-
-- after a weak refinement, mass-proportional damping on the nodes of the refined cells for a
-  short window T_damp;
-- after a strong refinement, a tie force on each new node pair that keeps the pair moving as
-  the continuous interface did, released linearly to zero over T_release.
-
-This script works out the tie force on one node pair, then runs a one-cell column through the
-thickness (a few hundred explicit steps) with and without each remedy.
-
-Run it from the repository root (serial, about 3 s):
-
-    .venv/bin/python docs/afem/05_stabilisation.py
-
-Units: N, mm, s, tonne (stress MPa, acceleration mm/s^2).
-"""
+# %% [markdown]
+# # 5. Why refinement needs stabilisation in an explicit run
+#
+# Refinement keeps the displacement and velocity fields (`04_weak_to_strong.py`), but not the
+# internal forces. The accelerations therefore jump at the moment of refinement, and an
+# explicit run answers with waves that have no physical cause. The paper (section "Numerical
+# stabilisation") gives two remedies, both implemented here:
+#
+# - after a weak refinement, mass-proportional damping on the nodes of the refined cells for a
+#   short window T_damp;
+# - after a strong refinement, a tie force on each new node pair that keeps the pair moving as
+#   the continuous interface did, released linearly to zero over T_release.
+#
+# This script works out the tie force on one node pair, then runs a one-cell column through
+# the thickness (a few hundred explicit steps) with and without each remedy, and plots the
+# reaction force of each run against time.
+#
+# Run it from the repository root (serial, about 3 s):
+#
+#     .venv/bin/python docs/afem/05_stabilisation.py
+#
+# Units: N, mm, s, tonne (stress MPa, acceleration mm/s^2).
 
 # %%
 import copy
 import tomllib
 
+import matplotlib.pyplot as plt
 import numpy as np
+from afem_figures import finish
 from mpi4py import MPI
 
 from fenics_adaptive import enrichment as enr
@@ -137,17 +140,19 @@ def build(initial="none", stabilisation=None):
 # subelement above), with m_A + m_B = m and f_A + f_B = f. Left alone they would accelerate at
 # -f_A / m_A and -f_B / m_B: apart, at once. A tie force T, +T on A and -T on B, gives
 #
-#     a_A = (T - f_A) / m_A,      a_B = (-T - f_B) / m_B.
+# $$a_A = \frac{T - f_A}{m_A}, \qquad a_B = \frac{-T - f_B}{m_B}.$$
 #
-# Asking a_A = a_B = a = -(f_A + f_B) / (m_A + m_B) gives
+# Asking $a_A = a_B = a = -(f_A + f_B) / (m_A + m_B)$ gives
 #
-#     T = (m_B f_A - m_A f_B) / (m_A + m_B).
+# $$T = \frac{m_B f_A - m_A f_B}{m_A + m_B}.$$
 #
 # T is computed once, at the moment of refinement, from the refined structure's forces (this
 # cancels the jump; Menouillard and Belytschko 2010). Afterwards it is scaled by
-# s(t) = max(0, 1 - (t - t_0) / T_release), so the cohesive element takes over the load
-# gradually. `Structure.start_stabilisation(t_0)` computes T; `Structure.add_tie_forces(t, f)`
-# adds s(t) T to an external force vector.
+#
+# $$s(t) = \max\left(0,\ 1 - \frac{t - t_0}{T_{\mathrm{release}}}\right),$$
+#
+# so the cohesive element takes over the load gradually. `Structure.start_stabilisation(t_0)`
+# computes T; `Structure.add_tie_forces(t, f)` adds s(t) T to an external force vector.
 #
 # We check it on the column, weakly refined and stretched through its thickness by hand
 # (u_z = 1e-3 z). At the same strain the stiff half carries about four times the stress of the
@@ -169,6 +174,7 @@ index_weak = dict(structure.extra.index)
 t0 = 2.0e-5  # s, any time will do
 structure.refine([(0, 4, enr.STRONG)], t0)
 structure.start_stabilisation(t0)
+ties_at_t0 = copy.deepcopy(structure.ties)  # kept for the plot below
 structure.internal_force()
 f = structure.f_extra.array.reshape(-1, 3)
 m = structure.extra_block.mass.reshape(-1, 3)[:, 0]
@@ -300,11 +306,71 @@ print(f"  abrupt {rms_abrupt:.4f} N, damped {rms_damped:.4f} N")
 assert rms_damped < 0.1 * rms_abrupt
 
 # %% [markdown]
+# ## The picture: the force jump and its two remedies
+#
+# The reaction force on the pulled face against time (top) and its difference to the run
+# refined from the start (bottom). Left, the strong refinement at 20 us:
+# inserted abruptly (red) the column rings about the column strong from the start (black);
+# with the tie force (green) it joins it without ringing. The shaded band is the release
+# window, in which the tie force falls linearly to zero (inset, z component of T on one node
+# of set A). Right, the weak refinement: abrupt (red) against damped for 10 us (green, shaded
+# band), and the column weak from the start (black).
+
+# %%
+fig, axes = plt.subplots(2, 2, figsize=(11, 6), sharex=True, gridspec_kw={"height_ratios": [2, 1]})
+(ax_strong, ax_weak), (diff_strong, diff_weak) = axes
+us = 1e6 * time  # s -> us
+for ax, diff, reference, abrupt, remedy, name, window in (
+    (ax_strong, diff_strong, strong_reference, strong_abrupt, strong_tied, "tie force", 1.0e-5),
+    (ax_weak, diff_weak, weak_reference, weak_abrupt, weak_damped, "damping", 1.0e-5),
+):
+    for a in (ax, diff):
+        a.axvspan(1e6 * T_REFINE, 1e6 * (T_REFINE + window), color="tab:green", alpha=0.12)
+        a.axvline(1e6 * T_REFINE, color="0.4", ls=":", lw=1)
+    ax.plot(us, reference, "k", lw=2.2, label="refined from the start")
+    ax.plot(us, abrupt, "tab:red", lw=1.0, label="refined at 20 us, abrupt")
+    ax.plot(us, remedy, "tab:green", lw=1.2, label=f"refined at 20 us, {name} for 10 us")
+    diff.plot(us, abrupt - reference, "tab:red", lw=1.0)
+    diff.plot(us, remedy - reference, "tab:green", lw=1.2)
+    diff.set(xlabel="time (us)", xlim=(10, 50))
+    ax.legend(fontsize=8, loc="upper left")
+diff_strong.set_ylabel("difference to the\nreference (N)")
+diff_weak.set_ylabel("(N)")
+ax_strong.set(ylabel="reaction force (N)", title="strong refinement: the tie force")
+ax_weak.set(title="weak refinement: the damping window")
+inset = ax_strong.inset_axes((0.64, 0.12, 0.33, 0.32))
+window_time = t0 + np.linspace(0.0, 1.5e-5, 61)  # s, increasing: index 0 is t_0
+# add_tie_forces drops a tie once released: start again from the ties made at t_0
+structure.ties = copy.deepcopy(ties_at_t0)
+tie_z = []
+for t in window_time:
+    released = np.zeros_like(f)
+    structure.add_tie_forces(t, released.ravel())
+    tie_z.append(released[A, 2])
+tie_z = np.array(tie_z)
+inset.plot(1e6 * (window_time - t0), tie_z, "tab:green")
+inset.set_xlabel("t - t_0 (us)", fontsize=7)
+inset.set_ylabel("T_z (N)", fontsize=7)
+inset.tick_params(labelsize=6)
+# the tie force is T at t_0 and falls linearly to zero at t_0 + T_release, zero after
+print(
+    f"tie force T_z on node A: {tie_z[0]:+.4f} N at t_0, {tie_z[20]:+.4f} N at t_0 + T_release / 2"
+)
+assert abs(tie_z[0] - tie[A, 2]) < 1e-12 * abs(tie[A, 2])
+assert abs(tie_z[20] - 0.5 * tie[A, 2]) < 1e-12 * abs(tie[A, 2])
+assert np.all(tie_z[window_time >= t0 + 1.0e-5] == 0.0)
+finish(fig, "05_force_jump_and_remedies")
+
+# %% [markdown]
 # ## The full-size case: the paper's triple cantilever beam
 #
 # `demos/tcb.py` runs the paper's TCB example (its Figures 6 and 7) and draws
-# `docs/images/tcb_force_displacement.png` (shown in `README.md` of this folder). The zoom in the
-# right panel shows the same effects at full size. The black line is the layerwise reference.
+# `docs/images/tcb_force_displacement.png` (below, and in `README.md` of this folder). The zoom
+# in the right panel shows the same effects at full size. The black line is the layerwise
+# reference.
+#
+# ![TCB force-displacement: the layerwise reference, the adaptive runs and the late refinement
+# with and without the tie force](../images/tcb_force_displacement.png)
 #
 # - `late` (red): weakly refined from the start, strong at an arm opening of 0.005 mm, after
 #   the cohesive onset (the `adaptive` run refines at the onset, 0.0023 mm). Until 0.005 mm the
@@ -321,4 +387,6 @@ assert rms_damped < 0.1 * rms_abrupt
 #
 # The paper's conclusion holds here too: refine before the interface should have started to
 # fail, and keep stabilisation for the cases where that is not possible.
+
+# %%
 print("05_stabilisation: all checks passed")

@@ -1,21 +1,24 @@
-"""# 6. The border of a refined region
-
-Refinement is local: some cells refine, their neighbours do not. An extra node on a column
-shared by a refined and an unrefined cell is a *border node*. This script shows why a border
-node may not move freely, how it is tied to its unrefined neighbour instead (like a hanging
-node), and that nothing is lost when the neighbour refines later.
-
-Run it from the repository root (serial, about 2 s):
-
-    .venv/bin/python docs/afem/06_border.py
-
-Units: N, mm, s, tonne (energies in mJ).
-"""
+# %% [markdown]
+# # 6. The border of a refined region
+#
+# Refinement is local: some cells refine, their neighbours do not. An extra node on a column
+# shared by a refined and an unrefined cell is a *border node*. This script shows why a border
+# node may not move freely, how it is tied to its unrefined neighbour instead (like a hanging
+# node), draws the border with and without that constraint, and checks that nothing is lost
+# when the neighbour refines later.
+#
+# Run it from the repository root (serial, about 2 s):
+#
+#     .venv/bin/python docs/afem/06_border.py
+#
+# Units: N, mm, s, tonne (energies in mJ).
 
 # %%
 import tomllib
 
+import matplotlib.pyplot as plt
 import numpy as np
+from afem_figures import finish
 from mpi4py import MPI
 
 from fenics_adaptive import enrichment as enr
@@ -44,7 +47,8 @@ from fenics_adaptive.structure import cells_in_x_range
 # cells have refined. The node sits on the straight line between the nearest master below and
 # the nearest master above. For interface i between masters at fractions f_lo and f_hi:
 #
-#     u = (1 - s) u_lo + s u_hi,        s = (alpha_i - f_lo) / (f_hi - f_lo)
+# $$u = (1 - s)\, u_{\mathrm{lo}} + s\, u_{\mathrm{hi}}, \qquad
+# s = \frac{\alpha_i - f_{\mathrm{lo}}}{f_{\mathrm{hi}} - f_{\mathrm{lo}}}$$
 #
 # Its force and its lumped mass are handed to the masters with the same weights (1 - s, s).
 
@@ -156,6 +160,7 @@ u_base = structure.base.u.x.array.reshape(-1, 3)
 u_extra = structure.extra.vectors["u"].array.reshape(-1, 3)
 u_base[:] = 1e-4 * rng.standard_normal(u_base.shape)
 u_extra[:] = 1e-4 * rng.standard_normal(u_extra.shape)
+u_free_base, u_free_extra = u_base.copy(), u_extra.copy()  # for the picture below
 structure.follow_border()
 
 print("\ncolumn (x, y)  extra node u_x   mean of base nodes u_x   difference")
@@ -177,6 +182,64 @@ for key, local in by_position:
         assert difference < 1e-15
     else:
         assert difference > 1e-6
+
+# %% [markdown]
+# ### The picture: the border column with and without the constraint
+#
+# The front face (y = 0) of the four cells, deformed by the random field above and magnified
+# 2000 times. Each cell is drawn through its own nodes: the refined cells (blue) through their
+# extra nodes, the unrefined ones (grey) straight from bottom to top. Left, the field as it
+# was set, with every extra node free: at x = 2 mm the refined cell's edge has a kink that the
+# unrefined cell's straight edge does not follow, so the two overlap on one side of the
+# interface and leave a gap on the other. Right, after `follow_border`: the border node sits
+# on the straight edge of its unrefined neighbour, and the two cells meet again. The free
+# extra nodes (x = 0 and 1 mm) keep their kinks: inside the refined region the strain may jump.
+
+# %%
+MAGNIFY = 2000.0
+
+
+def front_face_outline(cell, u_base_values, u_extra_values):
+    """Deformed (x, z) outline of a cell's front face: bottom-left, [extra], top-left,
+    top-right, [extra], bottom-right, as drawn (u magnified)."""
+    X_all = np.vstack([structure.X_base, X_extra])
+    u_all = np.vstack([u_base_values, u_extra_values])
+    refined = structure.interface_state[cell][4 - 1] != enr.NONE
+    columns = []
+    for corner in range(4):
+        bottom = structure.bottom_local[cell][corner]
+        if not np.isclose(structure.X_base[bottom, 1], 0.0):
+            continue
+        nodes = [bottom]
+        if refined:
+            key = enr.extra_key(structure.bottom_global[cell][corner], 4, enr.SET_A, n_interfaces)
+            nodes.append(structure.n_base + structure.extra.index[key])
+        nodes.append(structure.top_local[cell][corner])
+        columns.append(np.array(nodes))
+    columns.sort(key=lambda nodes: X_all[nodes[0], 0])
+    outline = np.concatenate([columns[0], columns[1][::-1], columns[0][:1]])
+    deformed = X_all[outline] + MAGNIFY * u_all[outline]
+    return deformed[:, [0, 2]], refined
+
+
+fig, axes = plt.subplots(1, 2, figsize=(11, 3.6), sharey=True)
+for ax, (title, u_b, u_e) in zip(
+    axes,
+    (
+        ("extra nodes free: gap and overlap at x = 2 mm", u_free_base, u_free_extra),
+        ("border node constrained (follow_border)", u_base, u_extra),
+    ),
+    strict=True,
+):
+    for cell in range(structure.X_base[structure.bottom_local].shape[0]):
+        outline, refined = front_face_outline(cell, u_b, u_e)
+        colour = "tab:blue" if refined else "0.5"
+        ax.fill(*outline.T, color=colour, alpha=0.25, lw=0)
+        ax.plot(*outline.T, color=colour, lw=1.5, marker="o", ms=3)
+    ax.axvline(2.0, color="tab:red", ls=":", lw=1)
+    ax.set(xlabel="x (mm)", title=title)
+axes[0].set_ylabel("z (mm)")
+finish(fig, "06_border_constraint")
 
 # %% [markdown]
 # ## Forces and masses go to the masters
@@ -272,4 +335,6 @@ for key, local in structure.extra.index.items():
         else:
             assert len(rows) == 3 and np.all(border.weights[rows] == [1.0, 0.0])
             print(f"set-B node at x = {x:.0f}: follows its set-A twin (weights 1, 0)")
+
+# %%
 print("06_border: all checks passed")
