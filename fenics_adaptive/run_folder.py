@@ -188,6 +188,18 @@ class RunFolder:
             raise self._in_use(holder)
         if fresh:
             self._removals()
+            library = path / "displacement.bp"
+            foreign = [
+                e.name
+                for e in (sorted(library.iterdir()) if library.is_dir() else ())
+                if not is_own_name(f"{library.name}/{e.name}")
+            ]
+            if foreign:
+                raise InputError(
+                    "--out",
+                    f"{library} holds files this program did not write ({', '.join(foreign[:3])})"
+                    "; the field writer (ADIOS2) replaces that folder whole: move them first",
+                )
 
     def _in_use(self, info: dict) -> InputError:
         return InputError(
