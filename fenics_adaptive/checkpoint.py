@@ -183,13 +183,23 @@ def write(
             _sync_folder(folder)  # the new files exist before the commit names them
             partial = folder / (MANIFEST + ".partial")
             _write_durably(partial, (json.dumps(manifest, indent=2) + "\n").encode())
-            os.replace(partial, folder / MANIFEST)  # the commit
-            _sync_folder(folder)
-            for old in folder.iterdir():  # earlier generations (and the unnumbered format)
-                match = _GENERATION.fullmatch(old.name)
-                if (match and int(match.group(2)) != sequence) or _LEGACY.fullmatch(old.name):
-                    old.unlink()
+            _commit(partial, folder / MANIFEST)
+            _remove_superseded(folder, sequence)
     return folder
+
+
+def _commit(partial: Path, final: Path) -> None:
+    """The one step that makes a checkpoint current: an atomic rename, made durable."""
+    os.replace(partial, final)
+    _sync_folder(final.parent)
+
+
+def _remove_superseded(folder: Path, sequence: int) -> None:
+    """Remove the files of every generation but ``sequence`` (and of the unnumbered format)."""
+    for old in folder.iterdir():
+        match = _GENERATION.fullmatch(old.name)
+        if (match and int(match.group(2)) != sequence) or _LEGACY.fullmatch(old.name):
+            old.unlink()
 
 
 _LEGACY = re.compile(r"rank\d+\.npz")  # the files of the earlier, unnumbered format
