@@ -12,6 +12,7 @@ import time
 import tomllib
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from fenics_adaptive import explicit, runner
@@ -303,3 +304,47 @@ def test_run_folder_refuses_a_second_holder_in_the_same_process(tmp_path):
     second.open(fresh=True)
     second.close()
     assert not (tmp_path / "out" / LOCK).exists()
+
+
+# ------------------------------------------------------------------ MPI
+MPIEXEC = Path(sys.executable).parent / "mpiexec"
+
+
+def mpi_run(*args, ranks: int = 2) -> subprocess.CompletedProcess:
+    command = [str(MPIEXEC), "-n", str(ranks), *CLI, "run", *map(str, args), "--quiet"]
+    return subprocess.run(command, env=ENV, capture_output=True, text=True, timeout=300)
+
+
+@pytest.mark.mpi
+def test_under_mpi_the_lock_refuses_every_rank_and_a_restart_continues(tmp_path):
+    """Two ranks: a held lock makes both exit with status 2 and one line; a checkpointed
+    two-rank run extended with --restart gives the serial history; the manifest names every
+    rank's files."""
+    out = tmp_path / "out"
+    config = tmp_path / "first.toml"
+    text = SMALL.read_text().replace("[output]", "[output]\ncheckpoint_interval = 500")
+    config.write_text(text.replace("end_time = 2.0e-4", "end_time = 1.0e-4"))
+    first = mpi_run(config, "--out", out)
+    assert first.returncode == 0, first.stderr
+    listed = read_manifest(out)
+    assert any(e.startswith("checkpoint/rank1-") for e in listed), listed
+    assert "elements/elements_000001_r1.vtu" in listed
+    other = subprocess.Popen(["sleep", "60"])
+    try:
+        (out / LOCK).write_text(lock_of(other.pid, process_start(other.pid)))
+        refused = mpi_run(SMALL, "--out", out, "--restart", out)
+    finally:
+        other.kill()
+        other.wait()
+    assert refused.returncode == 2, refused.stderr
+    lines = refused.stderr.strip().splitlines()
+    assert len(lines) == 1 and f"PID {other.pid}" in lines[0], lines
+    (out / LOCK).unlink()
+    extended = mpi_run(SMALL, "--out", out, "--restart", out)
+    assert extended.returncode == 0, extended.stderr
+    run(tomllib.loads(SMALL.read_text()), tmp_path / "serial")
+    serial, parallel = (read_history(p / "history.csv") for p in (tmp_path / "serial", out))
+    assert serial["time"] == parallel["time"]
+    for column in ("reaction_force", "displacement", "internal_energy", "kinetic_energy"):
+        a, b = np.array(serial[column]), np.array(parallel[column])
+        assert np.abs(a - b).max() <= 1e-10 * np.abs(a).max(), column
