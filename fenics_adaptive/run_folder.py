@@ -172,13 +172,18 @@ class RunFolder:
 
     def _check(self, fresh: bool) -> None:
         path = self.path
+        longest = max(len(os.fsencode(part)) for part in path.absolute().parts)
+        if longest > 255 or len(os.fsencode(path.absolute())) > 4095:  # NAME_MAX, PATH_MAX
+            raise InputError("--out", f"{str(path)[:60]}...: the name is too long for a folder")
         if path.exists() and not path.is_dir():
             raise InputError("--out", f"{path} exists and is not a folder")
         if not path.exists():
             parent = path.absolute().parent
             while not parent.exists():
                 parent = parent.parent
-            if not parent.is_dir() or not os.access(parent, os.W_OK | os.X_OK):
+            if not parent.is_dir():
+                raise InputError("--out", f"cannot create {path}: {parent} is not a folder")
+            if not os.access(parent, os.W_OK | os.X_OK):
                 raise InputError("--out", f"cannot create {path}: {parent} is not writable")
             return
         if not os.access(path, os.W_OK | os.X_OK):

@@ -364,8 +364,10 @@ def execute(
         if interrupted:
             summary["checkpoint"] = str(out_dir / checkpoint.FOLDER)
         summary["wall_time_s"] = time.perf_counter() - start
-        output.write_summary(out_dir, summary, comm, record)
-        folder.close()
+        try:
+            output.write_summary(out_dir, summary, comm, record)
+        finally:
+            folder.close()
         raise
     finally:
         stop.release()

@@ -158,6 +158,10 @@ def test_out_is_checked_before_the_model_is_built(tmp_path, monkeypatch):
     with pytest.raises(InputError, match="not a folder") as caught:
         run(small(), tmp_path / "a_file")
     assert caught.value.key == "--out"
+    with pytest.raises(InputError, match="not a folder"):
+        run(small(), tmp_path / "a_file" / "below")
+    with pytest.raises(InputError, match="too long"):
+        run(small(), tmp_path / ("x" * 300))
     put(tmp_path / "full", {"data.csv": "1,2"})
     with pytest.raises(InputError, match="not a fenics-adaptive run folder"):
         run(small(), tmp_path / "full")
