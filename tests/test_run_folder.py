@@ -352,3 +352,38 @@ def test_under_mpi_the_lock_refuses_every_rank_and_a_restart_continues(tmp_path)
     for column in ("reaction_force", "displacement", "internal_energy", "kinetic_energy"):
         a, b = np.array(serial[column]), np.array(parallel[column])
         assert np.abs(a - b).max() <= 1e-10 * np.abs(a).max(), column
+
+
+def test_every_file_is_listed_before_it_is_written(tmp_path, monkeypatch):
+    """So that a run killed at any moment leaves no file of its own that its manifest does
+    not name (and that the next run would refuse or keep)."""
+    from fenics_adaptive import checkpoint, output
+
+    out = tmp_path / "out"
+    checked = []
+
+    def listed_first(original):
+        def write(path, *args, **kwargs):
+            relative = Path(path).relative_to(out).as_posix()
+            assert relative in read_manifest(out), f"{relative} written before it is listed"
+            checked.append(relative)
+            return original(path, *args, **kwargs)
+
+        return write
+
+    monkeypatch.setattr(output, "_write_vtu", listed_first(output._write_vtu))
+    monkeypatch.setattr(checkpoint, "_write_durably", listed_first(checkpoint._write_durably))
+    original_run = explicit.run
+
+    def spy(*args, **kwargs):
+        for name in ("history.partial.csv", "history.csv", "displacement.bp/"):
+            assert name in read_manifest(out), name
+        return original_run(*args, **kwargs)
+
+    monkeypatch.setattr(explicit, "run", spy)
+    run(small(output__checkpoint_interval=300), out)
+    assert any(c.startswith("checkpoint/rank0-") for c in checked)
+    assert any(c.startswith("plies/plies_") for c in checked)
+    assert "checkpoint/checkpoint.json.partial" in checked
+    files = {str(p.relative_to(out)) for p in out.rglob("*") if p.is_file()} - {MANIFEST}
+    assert files <= set(read_manifest(out))
