@@ -308,7 +308,11 @@ class RunFolder:
                 held = self._read_lock()
                 if held is None:
                     continue  # released meanwhile
-                if not self._stale(held):
+                try:
+                    stale = self._stale(held)
+                except FileNotFoundError:
+                    continue  # released meanwhile
+                if not stale:
                     raise self._in_use(held) from None
                 self._take_over(held)
                 continue
@@ -379,7 +383,12 @@ class RunFolder:
                         self._remove(files, folders)
                         self.entries = set()
                     else:
-                        self.entries = set(read_manifest(self.path) or [])
+                        try:
+                            self.entries = set(read_manifest(self.path) or [])
+                        except InputError:
+                            if not self.overwrite:
+                                raise
+                            self.entries = set()  # --overwrite: an unreadable one replaced
                     self._write_manifest()
                 except BaseException:
                     self._release()
