@@ -132,11 +132,13 @@ def write(
     config: RunConfig,
     history_csv: str = "",
     record: Callable[..., None] | None = None,
+    forget: Callable[..., None] | None = None,
 ) -> Path:
     """Collective: write the checkpoint of this moment into ``out_dir/checkpoint``; returns
     that folder. ``history_csv``: the run's history so far (rank 0's; CSV text), kept with the
     state so that a restart continues exactly this history. ``record(path, folder=...)`` is
-    told every name before it is written (the run folder's manifest).
+    told every name before it is written (the run folder's manifest), ``forget(path, ...)``
+    the names of the superseded generation once they are removed.
 
     Protocol (see the module): the new generation's files, fsync'ed, then ``checkpoint.json``
     replaced atomically (the commit), then the older generation's files removed."""
@@ -184,7 +186,9 @@ def write(
             partial = folder / (MANIFEST + ".partial")
             _write_durably(partial, (json.dumps(manifest, indent=2) + "\n").encode())
             _commit(partial, folder / MANIFEST)
-            _remove_superseded(folder, sequence)
+            removed = _remove_superseded(folder, sequence)
+            if forget is not None:
+                forget(*removed)
     return folder
 
 
@@ -194,12 +198,16 @@ def _commit(partial: Path, final: Path) -> None:
     _sync_folder(final.parent)
 
 
-def _remove_superseded(folder: Path, sequence: int) -> None:
-    """Remove the files of every generation but ``sequence`` (and of the unnumbered format)."""
+def _remove_superseded(folder: Path, sequence: int) -> list[Path]:
+    """Remove the files of every generation but ``sequence`` (and of the unnumbered format);
+    returns them."""
+    removed = []
     for old in folder.iterdir():
         match = _GENERATION.fullmatch(old.name)
         if (match and int(match.group(2)) != sequence) or _LEGACY.fullmatch(old.name):
             old.unlink()
+            removed.append(old)
+    return removed
 
 
 _LEGACY = re.compile(r"rank\d+\.npz")  # the files of the earlier, unnumbered format

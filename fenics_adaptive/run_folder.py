@@ -449,6 +449,16 @@ class RunFolder:
             self.entries |= new
             self._write_manifest()
 
+    def forget(self, *paths: str | Path) -> None:
+        """Drop files the run has removed itself from the manifest (rank 0; a no-op on the
+        other ranks)."""
+        if not self.root:
+            return
+        names = {Path(os.path.relpath(p, self.path)).as_posix() for p in paths}
+        if names & self.entries:
+            self.entries -= names
+            self._write_manifest()
+
     def _write_manifest(self) -> None:
         data = {
             "program": "fenics-adaptive",

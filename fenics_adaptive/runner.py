@@ -330,8 +330,9 @@ def execute(
     def write_checkpoint(solver_state: dict) -> None:
         hook_now = hook.state() if hook else {}
         checkpoint.write(
-            out_dir, comm, solver_state, structure, hook_now, config, history.text(), record
-        )
+            out_dir, comm, solver_state, structure, hook_now, config, history.text(), record,
+            folder.forget,
+        )  # fmt: skip
 
     stop = _StopOnSignal()
     start = time.perf_counter()

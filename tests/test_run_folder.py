@@ -71,6 +71,10 @@ def test_a_new_run_removes_what_the_last_run_wrote_and_nothing_else(tmp_path):
     # the manifest names every file the run left, and only names of this program
     assert sorted(set(first) - {MANIFEST}) == sorted(f for f in files if (out / f).exists())
     assert all(is_own_name(f) for f in files), files
+    # the superseded checkpoint generation was removed and forgotten
+    gone = [e for e in files if e.startswith("checkpoint/") and not (out / e).exists()]
+    assert gone == ["checkpoint/checkpoint.json.partial"], gone
+    assert json.loads((out / "checkpoint" / "checkpoint.json").read_text())["sequence"] == 2
     put(out, USER_FILES)
     # fewer field outputs this time: the earlier run's later files must go, not stay behind
     run(small(output__fields_interval=2.0e-5), out)
