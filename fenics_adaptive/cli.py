@@ -1,5 +1,5 @@
-"""Command line: ``fenics-adaptive run CONFIG.toml --out DIR [--restart CHECKPOINT]`` and
-``fenics-adaptive check``.
+"""Command line: ``fenics-adaptive run CONFIG.toml --out DIR [--restart CHECKPOINT]
+[--overwrite]`` and ``fenics-adaptive check``.
 
 Exit status: 0 done, 2 bad input (one line on stderr naming the key), 1 the run failed, 130 the
 run was interrupted (SIGINT or SIGTERM) after writing a checkpoint to continue from.
@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import shlex
 import sys
 import traceback
 
@@ -26,7 +27,19 @@ def main(argv: list[str] | None = None) -> int:
     commands = parser.add_subparsers(dest="command", required=True)
     run = commands.add_parser("run", help="run a config and write its results")
     run.add_argument("config", help="TOML run configuration")
-    run.add_argument("--out", required=True, help="output folder (created if needed)")
+    run.add_argument(
+        "--out",
+        required=True,
+        help="output folder (created if needed); a folder that is not empty must be one a "
+        "run wrote (it holds .fenics-adaptive-run.json): a new run removes only what that run "
+        "wrote",
+    )
+    run.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="use a non-empty folder that is not a run folder: only this program's own result "
+        "files are removed from it, never other files",
+    )
     run.add_argument("--quiet", action="store_true", help="no progress and no log lines")
     run.add_argument(
         "--restart",
@@ -61,12 +74,14 @@ def main(argv: list[str] | None = None) -> int:
             show_progress=not args.quiet,
             log=None if args.quiet else print,
             restart=args.restart,
+            overwrite=args.overwrite,
         )
     except Interrupted as error:
         if comm.rank == 0:
+            again = ["fenics-adaptive", "run", args.config, "--out", args.out]
             print(
-                f"fenics-adaptive: {error}; continue with: fenics-adaptive run {args.config} "
-                f"--out {args.out} --restart {args.out}",
+                f"fenics-adaptive: {error}; continue with: "
+                f"{shlex.join([*again, '--restart', args.out])}",
                 file=sys.stderr,
             )
         return 130

@@ -10,20 +10,24 @@ A run writes into its output folder
   elements.pvd, elements/  the enriched mesh as computed: subelements, extra and cohesive elements
   plies.pvd, plies/        every ply of every cell as a slab: stress, Hashin indices, damage
   checkpoint/              the state to restart from (``checkpoint``)
-The field files come every ``fields_interval``; a fresh run first removes all of these.
-While running, the history is written to history.partial.csv and only renamed to history.csv
-when the run completes: a file named history.csv is always a finished run.
+The field files come every ``fields_interval``. Every name is added to the folder's run
+manifest before it is written (``run_folder``): a fresh run into the folder removes what the
+manifest lists and nothing else. While running, the history is written to
+history.partial.csv and only renamed to history.csv when the run completes: a file named
+history.csv is always a finished run.
 """
 
 from __future__ import annotations
 
 import base64
 import csv
+import io
 import json
+import math
 import os
-import shutil
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import TextIO
 
@@ -55,17 +59,44 @@ COLUMN_UNITS = {
     "energy_balance": "mJ",
 }
 
-RESULT_FILES = ("history.csv", "summary.json", "force_displacement.png", "energies.png")
-RESULT_FOLDERS = ("displacement.bp", "elements", "plies", "checkpoint", "checkpoint.partial")
+Recorder = Callable[..., None]  # RunFolder.record: told each path before it is written
+
+
+def _cells(row: HistoryRow) -> list[str]:
+    """A history row as CSV cells: full double precision, so a restart reads it back exactly."""
+    return [repr(float(getattr(row, name))) for name in COLUMNS]
+
+
+def history_text(rows: list[HistoryRow]) -> str:
+    """History rows as the CSV text of history.csv (header and rows)."""
+    buffer = io.StringIO(newline="")
+    writer = csv.writer(buffer)
+    writer.writerow(COLUMNS)
+    writer.writerows(_cells(row) for row in rows)
+    return buffer.getvalue()
+
+
+def parse_history(text: str, source: str) -> list[HistoryRow]:
+    """History rows from CSV text (as ``history_text`` writes it). Raises InputError naming
+    ``source`` if it is not such a table."""
+    try:
+        table = list(csv.reader(io.StringIO(text, newline="")))
+        header, body = table[0], table[1:]
+        index = {name: header.index(name) for name in HistoryRow.__dataclass_fields__}
+        return [HistoryRow(**{n: float(r[i]) for n, i in index.items()}) for r in body]
+    except (IndexError, ValueError) as error:
+        raise InputError("restart", f"{source} is not a history table ({error})") from None
 
 
 class HistoryWriter:
-    """CSV history, full double precision, flushed every row (rank 0 only)."""
+    """CSV history, full double precision, flushed every row (rank 0 only). Keeps the rows
+    (rank 0) for the checkpoints (``text``)."""
 
     def __init__(self, out_dir: Path, comm: MPI.Comm, rows: list[HistoryRow] = ()):
         self.partial = out_dir / "history.partial.csv"
         self.final = out_dir / "history.csv"
         self.file: TextIO | None = None
+        self.rows: list[HistoryRow] = []
         if comm.rank == 0:
             self.file = open(self.partial, "w", newline="")
             self.writer = csv.writer(self.file)
@@ -76,9 +107,13 @@ class HistoryWriter:
     def __call__(self, row: HistoryRow) -> None:
         if self.file is None:
             return
-        values = [getattr(row, name) for name in COLUMNS]
-        self.writer.writerow([repr(float(x)) for x in values])
+        self.rows.append(row)
+        self.writer.writerow(_cells(row))
         self.file.flush()
+
+    def text(self) -> str:
+        """The rows so far as CSV text (rank 0; empty elsewhere)."""
+        return history_text(self.rows) if self.file is not None else ""
 
     def close(self, completed: bool) -> None:
         if self.file is None:
@@ -97,40 +132,45 @@ def read_history(path: str | Path) -> dict[str, list[float]]:
 
 
 def history_until(out_dir: Path, t: float) -> list[HistoryRow]:
-    """The rows of the run in ``out_dir`` (complete or partial history) before time t (s): a
-    run resumed at t writes its row at t itself if t is an output time."""
-    for name in ("history.csv", "history.partial.csv"):
+    """The rows before time t (s) of the history in ``out_dir``, for a checkpoint of the
+    earlier format that kept no history of its own. ``history.partial.csv`` first: when both
+    exist it is the newer (a later run that has not completed), and ``history.csv`` the run
+    before it. A run resumed at t writes its row at t itself if t is an output time."""
+    for name in ("history.partial.csv", "history.csv"):
         if (out_dir / name).exists():
-            table = read_history(out_dir / name)
-            break
-    else:
-        raise InputError("restart", f"no history.csv in {out_dir} to continue")
-    names = [n for n in HistoryRow.__dataclass_fields__]
-    rows = []
-    for k, time_k in enumerate(table["time"]):
-        if time_k < t:
-            rows.append(HistoryRow(**{n: table[n][k] for n in names}))
-    return rows
+            rows = parse_history((out_dir / name).read_text(), str(out_dir / name))
+            return [row for row in rows if row.time < t]
+    raise InputError("restart", f"no history.csv in {out_dir} to continue")
 
 
-def write_summary(out_dir: Path, summary: dict, comm: MPI.Comm) -> None:
+def json_safe(value):
+    """``value`` with every non-finite float as the string "inf", "-inf" or "nan" (JSON has
+    no such numbers; Python's ``float()`` reads these strings back) and NumPy scalars and
+    arrays as Python numbers and lists."""
+    if isinstance(value, dict):
+        return {str(k): json_safe(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [json_safe(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return json_safe(value.tolist())
+    if isinstance(value, np.generic):
+        value = value.item()
+    if isinstance(value, float) and not math.isfinite(value):
+        return "nan" if math.isnan(value) else ("inf" if value > 0 else "-inf")
+    return value
+
+
+def write_summary(
+    out_dir: Path, summary: dict, comm: MPI.Comm, record: Recorder | None = None
+) -> None:
+    """summary.json, written whole (to summary.json.partial, then renamed): always valid
+    JSON (``json_safe``; ``allow_nan=False`` so that a value it misses fails here)."""
     if comm.rank == 0:
         tmp = out_dir / "summary.json.partial"
-        tmp.write_text(json.dumps(summary, indent=2, sort_keys=False) + "\n")
+        if record is not None:
+            record(tmp, out_dir / "summary.json")
+        tmp.write_text(json.dumps(json_safe(summary), indent=2, allow_nan=False) + "\n")
         os.replace(tmp, out_dir / "summary.json")
-
-
-def clear_previous_results(out_dir: Path, comm: MPI.Comm) -> None:
-    """Remove the results of an earlier run in the same folder so that none of them can be
-    mistaken for this run's."""
-    if comm.rank == 0:
-        for name in (*RESULT_FILES, "history.partial.csv", "elements.pvd", "plies.pvd"):
-            (out_dir / name).unlink(missing_ok=True)
-        for folder in RESULT_FOLDERS:
-            shutil.rmtree(out_dir / folder, ignore_errors=True)
-        for folder in out_dir.glob("restart_step*"):
-            shutil.rmtree(folder, ignore_errors=True)
-    comm.barrier()
 
 
 def pyplot():
@@ -175,21 +215,29 @@ def plot_history(history: list[HistoryRow], out_dir: Path, title: str) -> None:
 
 
 class FieldWriter:
-    """Displacement field over time for ParaView (VTX: ADIOS2 .bp folder)."""
+    """Displacement field over time for ParaView (VTX: ADIOS2 .bp folder). ADIOS2 names the
+    files in the folder itself; the run manifest lists the folder (and, after each write,
+    the files it holds)."""
 
-    def __init__(self, out_dir: Path, functions: list):
-        self.writer = dolfinx.io.VTXWriter(
-            functions[0].function_space.mesh.comm,
-            out_dir / "displacement.bp",
-            functions,
-            engine="BP4",
-        )
+    def __init__(self, out_dir: Path, functions: list, record: Recorder | None = None):
+        self.folder = out_dir / "displacement.bp"
+        self.comm = functions[0].function_space.mesh.comm
+        self.record = record
+        if record is not None and self.comm.rank == 0:
+            record(self.folder, folder=True)
+        self.writer = dolfinx.io.VTXWriter(self.comm, self.folder, functions, engine="BP4")
 
     def __call__(self, t: float) -> None:
         self.writer.write(t)
+        self._record_files()
+
+    def _record_files(self) -> None:
+        if self.record is not None and self.comm.rank == 0 and self.folder.is_dir():
+            self.record(*sorted(self.folder.iterdir()))
 
     def close(self) -> None:
         self.writer.close()
+        self._record_files()
 
 
 # DOLFINx hexahedron vertex order -> VTK_HEXAHEDRON order (cyclic faces)
@@ -201,21 +249,25 @@ class _VtuSeries:
     """One .vtu per output time in ``<out>/<name>/`` (per rank, with a .pvtu in parallel),
     collected with its times in ``<out>/<name>.pvd`` for ParaView."""
 
-    def __init__(self, out_dir: Path, name: str, comm: MPI.Comm):
+    def __init__(self, out_dir: Path, name: str, comm: MPI.Comm, record: Recorder | None = None):
         self.name, self.comm = name, comm
         self.folder = out_dir / name
+        self.record = record if record is not None else (lambda *paths, folder=False: None)
+        self.pvd = out_dir / f"{name}.pvd"
         if comm.rank == 0:
+            self.record(self.folder, folder=True)
             self.folder.mkdir(parents=True, exist_ok=True)
-            for old in self.folder.glob("*.*vtu"):
-                old.unlink()
         comm.barrier()
         self.steps: list[tuple[float, str]] = []
-        self.pvd = out_dir / f"{name}.pvd"
 
     def write(self, t: float, X, connectivity, offsets, types, point_data, cell_data) -> None:
         stem = f"{self.name}_{len(self.steps):06d}"
         parallel = self.comm.size > 1
         piece = f"{stem}_r{self.comm.rank}.vtu" if parallel else f"{stem}.vtu"
+        if self.comm.rank == 0:  # every rank's file names, before any is written
+            pieces = [f"{stem}_r{r}.vtu" for r in range(self.comm.size)] + [f"{stem}.pvtu"]
+            names = pieces if parallel else [piece]
+            self.record(self.pvd, *(self.folder / n for n in names))
         _write_vtu(self.folder / piece, X, connectivity, offsets, types, point_data, cell_data)
         if parallel and self.comm.rank == 0:
             _write_pvtu(self.folder / f"{stem}.pvtu", stem, self.comm.size, point_data, cell_data)
@@ -244,10 +296,10 @@ class ElementWriter:
     paper's Figure 4), the cohesive elements as quads with their damage, displacements on all
     nodes (base and extra). Written to ``elements/`` and ``elements.pvd``."""
 
-    def __init__(self, out_dir: Path, structure):
+    def __init__(self, out_dir: Path, structure, record: Recorder | None = None):
         self.structure = structure
         self.comm = structure.comm
-        self.series = _VtuSeries(out_dir, "elements", self.comm)
+        self.series = _VtuSeries(out_dir, "elements", self.comm, record)
 
     def __call__(self, t: float) -> None:
         s = self.structure
@@ -292,9 +344,9 @@ class PlyWriter:
     the current stress; only for materials with failure data) and the matrix damage. Written to
     ``plies/`` and ``plies.pvd``; threshold on ``ply`` to look at one ply of the laminate."""
 
-    def __init__(self, out_dir: Path, structure):
+    def __init__(self, out_dir: Path, structure, record: Recorder | None = None):
         self.structure = structure
-        self.series = _VtuSeries(out_dir, "plies", structure.comm)
+        self.series = _VtuSeries(out_dir, "plies", structure.comm, record)
 
     def __call__(self, t: float) -> None:
         s = self.structure
@@ -394,13 +446,13 @@ def _write_pvtu(path, name, ranks, point_data, cell_data) -> None:
 
 class FieldOutputs:
     """All field outputs of a run: the base displacement (VTX), the enriched mesh and the
-    ply-by-ply results (VTU series)."""
+    ply-by-ply results (VTU series). ``record``: the run folder's ``RunFolder.record``."""
 
-    def __init__(self, out_dir: Path, structure):
+    def __init__(self, out_dir: Path, structure, record: Recorder | None = None):
         self.writers = [
-            FieldWriter(out_dir, [structure.base.u]),
-            ElementWriter(out_dir, structure),
-            PlyWriter(out_dir, structure),
+            FieldWriter(out_dir, [structure.base.u], record),
+            ElementWriter(out_dir, structure, record),
+            PlyWriter(out_dir, structure, record),
         ]
 
     def __call__(self, t: float) -> None:

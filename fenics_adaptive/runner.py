@@ -30,6 +30,7 @@ from fenics_adaptive.indicators import front_requests, indicator_requests, sprea
 from fenics_adaptive.layerwise import cohesive_pairs
 from fenics_adaptive.loading import Amplitude, PrescribedMotion, face_dofs, resolve
 from fenics_adaptive.model import LayeredModel, build_model
+from fenics_adaptive.run_folder import RunFolder
 from fenics_adaptive.structure import Structure, cells_in_x_range
 from meshes.beam import BeamMesh, layered_mesh
 
@@ -199,9 +200,10 @@ def run_config(
     show_progress: bool = True,
     log: Callable[[str], None] | None = print,
     restart: str | Path | None = None,
+    overwrite: bool = False,
 ) -> dict:
     """Run a config and write its results into ``out_dir``; returns the summary."""
-    return execute(config, out_dir, comm, show_progress, log, restart)[0]
+    return execute(config, out_dir, comm, show_progress, log, restart, overwrite)[0]
 
 
 def execute(
@@ -211,25 +213,35 @@ def execute(
     show_progress: bool = True,
     log: Callable[[str], None] | None = print,
     restart: str | Path | None = None,
+    overwrite: bool = False,
 ) -> tuple[dict, Structure]:
     """``run_config``, also handing back the structure in its final state (for pictures and
     further analysis). ``restart``: a checkpoint folder (or the output folder holding one) to
-    continue from; the history up to the checkpoint is kept, the rest is run again.
+    continue from; the history up to the checkpoint (kept in the checkpoint) is kept, the rest
+    is run again. ``out_dir`` is a run folder (``run_folder``): refused if another run holds it
+    or if it is not empty and not a run folder (unless ``overwrite``); a fresh run removes
+    only what the previous run there wrote, and only once the config and the model have been
+    checked.
 
     SIGINT and SIGTERM stop the run at the next poll (every 64 steps) with a checkpoint, a
     flushed ``history.partial.csv`` and a summary saying "interrupted"."""
     resume, hook_state, kept_rows = None, None, []
+    out_dir = Path(out_dir)
+    folder = RunFolder(out_dir, comm, overwrite)
+    # a restart into the folder of its checkpoint continues that run folder; else it is fresh
+    fresh = restart is None or not _same_folder(checkpoint.locate(restart).parent, out_dir)
+    folder.check(fresh)  # before the model is built: a wrong --out is refused at once
     if restart is None:
         problem = build_problem(config, comm)
     else:
-        manifest, arrays = checkpoint.read(restart, comm, config)
+        manifest, arrays, history_csv = checkpoint.read(restart, comm, config)
         structure = build_structure(config, comm, refine_initially=False)
         checkpoint.restore_structure(structure, arrays)
         resume = checkpoint.solver_state(arrays)
         hook_state = checkpoint.hook_state(arrays)
         where = structure.stable_time_step()[1]
         problem = Problem(config, structure, float(resume["dt"]), float(resume["stable"]), where)
-        kept_rows = output.history_until(Path(out_dir), manifest["time_s"])
+        kept_rows = _kept_history(restart, manifest, history_csv, resume, config)
     say = log if (log is not None and comm.rank == 0) else (lambda _: None)
     model = problem.model
     structure = problem.structure
@@ -260,21 +272,26 @@ def execute(
                 "impactor.position",
                 f"the impactor starts {-gap:.4g} mm inside the top face; place it above",
             )
-    out_dir = Path(out_dir)
-    if comm.rank == 0:
-        out_dir.mkdir(parents=True, exist_ok=True)
-    comm.barrier()
+    # the config and the model are checked: only now is anything in the folder removed
+    folder.open(fresh)
+    record = folder.record
     fields_dir = out_dir
-    if resume is None:
-        output.clear_previous_results(out_dir, comm)
-    else:
+    if resume is not None:
         say(f"restarted from the checkpoint at t = {float(resume['t']):.6e} s")
         fields_dir = out_dir / f"restart_step{int(resume['step'])}"  # earlier fields stay
-        if comm.rank == 0:
-            fields_dir.mkdir(exist_ok=True)
-        comm.barrier()
-    history = output.HistoryWriter(out_dir, comm, kept_rows)
-    fields = output.FieldOutputs(fields_dir, structure) if config.solver.field_interval else None
+        folder.remove_recorded(fields_dir.name)  # those of an earlier restart from here
+    try:
+        record(out_dir / "history.partial.csv", out_dir / "history.csv")
+        history = output.HistoryWriter(out_dir, comm, kept_rows)
+        fields = None
+        if config.solver.field_interval:
+            if comm.rank == 0:
+                record(fields_dir, folder=True)
+                fields_dir.mkdir(exist_ok=True)
+            fields = output.FieldOutputs(fields_dir, structure, record)
+    except BaseException:
+        folder.close()
+        raise
     progress = output.Progress(config.solver.end_time, comm) if show_progress else None
     summary = {
         "status": "running",
@@ -311,9 +328,11 @@ def execute(
         hook.restore(hook_state)
 
     def write_checkpoint(solver_state: dict) -> None:
+        hook_now = hook.state() if hook else {}
         checkpoint.write(
-            out_dir, comm, solver_state, structure, hook.state() if hook else {}, config
-        )
+            out_dir, comm, solver_state, structure, hook_now, config, history.text(), record,
+            folder.forget,
+        )  # fmt: skip
 
     stop = _StopOnSignal()
     start = time.perf_counter()
@@ -346,12 +365,36 @@ def execute(
         if interrupted:
             summary["checkpoint"] = str(out_dir / checkpoint.FOLDER)
         summary["wall_time_s"] = time.perf_counter() - start
-        output.write_summary(out_dir, summary, comm)
+        try:
+            output.write_summary(out_dir, summary, comm, record)
+        finally:
+            folder.close()
         raise
     finally:
         stop.release()
         if progress is not None:
             progress.done()
+    try:  # the lock is held until the last file is written
+        finished = (stats, history, fields, kept_rows, resume, summary)
+        return _finish(config, out_dir, comm, problem, finished, say, record)
+    finally:
+        folder.close()
+
+
+def _finish(
+    config: RunConfig,
+    out_dir: Path,
+    comm: MPI.Comm,
+    problem: Problem,
+    finished: tuple,
+    say: Callable[[str], None],
+    record: Callable[..., None],
+) -> tuple[dict, Structure]:
+    """The end of ``execute`` after a completed time loop: the history renamed complete, the
+    summary and the plots. ``finished``: (stats, history writer, field writers or None, rows
+    kept by a restart, resumed solver state or None, summary so far)."""
+    stats, history, fields, kept_rows, resume, summary = finished
+    structure = problem.structure
     history.close(completed=True)
     if fields is not None:
         fields.close()
@@ -388,14 +431,43 @@ def execute(
             "max_energy_balance_error_relative": max(abs(r.energy_balance) for r in rows) / scale,
         }
     )
-    output.write_summary(out_dir, summary, comm)
+    output.write_summary(out_dir, summary, comm, record)
     if comm.rank == 0:
+        record(out_dir / "force_displacement.png", out_dir / "energies.png")
         output.plot_history(rows, out_dir, title=Path(config.source).stem)
     say(
         f"done: {stats.steps} steps in {stats.wall_time:.1f} s "
         f"({1e6 * stats.wall_time / max(stats.steps, 1):.0f} us/step); results in {out_dir}"
     )
     return summary, structure
+
+
+def _same_folder(a: Path, b: Path) -> bool:
+    try:
+        return a.resolve() == b.resolve()
+    except OSError:
+        return False
+
+
+def _kept_history(restart, manifest: dict, history_csv: str | None, resume: dict, config):
+    """The history rows before the checkpoint's time: those kept in the checkpoint (or, for
+    the earlier format, those of its run folder). Raises InputError if they stop short of it
+    (the continued history would have a gap)."""
+    t = float(manifest["time_s"])
+    if history_csv is None:
+        rows = output.history_until(checkpoint.locate(restart).parent, t)
+    else:
+        rows = [r for r in output.parse_history(history_csv, str(restart)) if r.time < t]
+    interval = config.solver.output_interval
+    due = float(resume["next_output"]) - interval * (1.0 + 1e-9) - float(resume["dt"])
+    if t > 0.0 and (not rows or rows[-1].time < due):
+        last = f"ends at t = {rows[-1].time:.6g} s" if rows else "is empty"
+        raise InputError(
+            "restart",
+            f"the history kept for the checkpoint at t = {t:.6g} s {last}: the continued "
+            "history would have a gap",
+        )
+    return rows
 
 
 class _StopOnSignal:

@@ -2,6 +2,7 @@
 
 import json
 import os
+import shlex
 import subprocess
 import sys
 from pathlib import Path
@@ -101,3 +102,37 @@ def test_forced_time_step_below_the_stable_one_is_used(tmp_path):
     out = tmp_path / "out"
     assert run_cli("run", config, "--out", out, "--quiet").returncode == 0
     assert set(read_history(out / "history.csv")["time_step"]) == {5e-8}
+
+
+def test_the_restart_hint_is_shell_quoted(tmp_path, monkeypatch, capsys):
+    """On SIGINT/SIGTERM the program prints the command to continue; with spaces and quotes
+    in the paths it still splits back into exactly the program's arguments."""
+    from fenics_adaptive import cli, runner
+    from fenics_adaptive.explicit import Interrupted
+
+    config = tmp_path / "my case's dir" / "run 1.toml"
+    config.parent.mkdir()
+    config.write_text(SMALL.read_text())
+    out = tmp_path / "results; rm -rf x" / "out dir"
+    seen = {}
+
+    def interrupted(*args, **kwargs):
+        seen.update(kwargs)
+        raise Interrupted(1.0e-5, 64)
+
+    monkeypatch.setattr(runner, "run_config", interrupted)
+    assert cli.main(["run", str(config), "--out", str(out), "--overwrite"]) == 130
+    line = capsys.readouterr().err.strip().splitlines()[-1]
+    command = shlex.split(line.split("continue with: ")[1])
+    assert command == ["fenics-adaptive", "run", str(config), "--out", str(out), "--restart",
+                       str(out)]  # fmt: skip
+    assert seen["overwrite"] is True
+
+
+def test_out_that_is_a_file_is_refused_with_one_line(tmp_path):
+    (tmp_path / "taken").write_text("a file")
+    result = run_cli("run", SMALL, "--out", tmp_path / "taken")
+    assert result.returncode == 2
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and "--out" in lines[0] and "not a folder" in lines[0], lines
+    assert (tmp_path / "taken").read_text() == "a file"

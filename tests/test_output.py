@@ -1,16 +1,25 @@
-"""Output files: the enriched-mesh VTU (extra nodes and subelements visible) and the history
-columns' documentation."""
+"""Output files: the enriched-mesh VTU (extra nodes and subelements visible), the history
+columns' documentation, and summary.json as valid JSON whatever its values."""
 
 import base64
+import json
 import tomllib
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from fenics_adaptive.config import parse_config
 from fenics_adaptive.explicit import COLUMNS
-from fenics_adaptive.output import COLUMN_UNITS, STRESS_NAMES, ElementWriter, PlyWriter
+from fenics_adaptive.output import (
+    COLUMN_UNITS,
+    STRESS_NAMES,
+    ElementWriter,
+    PlyWriter,
+    json_safe,
+    write_summary,
+)
 from fenics_adaptive.ply_damage import strain_rotation
 from fenics_adaptive.runner import build_structure
 
@@ -88,3 +97,50 @@ def test_ply_file_holds_every_ply_as_a_slab_with_its_stress(tmp_path):
         for i, name in enumerate(STRESS_NAMES):
             values = decode(arrays[name], "<f8")[ply == k + 1]
             np.testing.assert_allclose(values, expected[i], rtol=1e-9, atol=1e-9)
+
+
+def test_summary_is_valid_json_whatever_the_values(tmp_path):
+    """Infinite and NaN values become the strings "inf", "-inf", "nan" (read back by float());
+    NumPy scalars and arrays become numbers and lists; the file parses under strict JSON."""
+    from mpi4py import MPI
+
+    summary = {
+        "peak_reaction_force_N": float("inf"),
+        "final": {"kinetic_energy_mJ": np.float64("nan"), "external_work_mJ": -np.inf},
+        "steps": np.int64(12),
+        "list": [1.0, float("-inf"), np.array([np.nan, 2.0])],
+        "fine": 1.5,
+    }
+    write_summary(tmp_path, summary, MPI.COMM_WORLD)
+    text = (tmp_path / "summary.json").read_text()
+
+    def refuse(constant):
+        raise AssertionError(f"bare {constant} in summary.json")
+
+    back = json.loads(text, parse_constant=refuse)
+    assert back["peak_reaction_force_N"] == "inf" and float(back["peak_reaction_force_N"]) > 0
+    assert back["final"] == {"kinetic_energy_mJ": "nan", "external_work_mJ": "-inf"}
+    assert back["steps"] == 12 and back["list"] == [1.0, "-inf", ["nan", 2.0]]
+    assert back["fine"] == 1.5
+    assert not (tmp_path / "summary.json.partial").exists()
+    # a regression that lets a bare non-finite number through fails loudly, not silently
+    with pytest.raises(ValueError):
+        json.dumps({"x": float("nan")}, allow_nan=False)
+    assert json_safe({"x": (float("nan"),)}) == {"x": ["nan"]}
+
+
+def test_a_run_with_an_infinite_value_writes_valid_json(tmp_path, monkeypatch):
+    """End to end: a run whose summary holds an infinite number (the structure's mass, made
+    infinite here) still writes a summary.json that strict JSON reads."""
+    from fenics_adaptive import structure
+    from fenics_adaptive.runner import run_config
+
+    monkeypatch.setattr(structure.Structure, "total_mass", lambda self: float("inf"))
+    data = tomllib.loads((DATA / "small_beam.toml").read_text())
+    data["solver"]["end_time"] = 2.0e-5
+    del data["output"]["fields_interval"]
+    run_config(parse_config(data), tmp_path / "out", show_progress=False, log=None)
+    text = (tmp_path / "out" / "summary.json").read_text()
+    summary = json.loads(text, parse_constant=lambda c: pytest.fail(f"bare {c}"))
+    assert summary["model"]["total_mass_tonne"] == "inf"
+    assert summary["status"] == "completed"

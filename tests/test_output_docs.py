@@ -86,6 +86,7 @@ def runner_summary_keys() -> set[str]:
     functions = [n for n in ast.walk(tree) if isinstance(n, ast.FunctionDef)]
     execute = next((f for f in functions if f.name == "execute"), None)
     assert execute is not None, "runner.py has no execute(): update this test"
+    finish = next((f for f in functions if f.name == "_finish"), None)  # execute's last part
     keys: set[str] = set()
 
     def add(literal: ast.AST, prefix: str = "") -> None:
@@ -99,7 +100,8 @@ def runner_summary_keys() -> set[str]:
             if isinstance(value, ast.Dict):
                 add(value, prefix + name + ".")
 
-    for node in ast.walk(execute):
+    nodes = [*ast.walk(execute), *(ast.walk(finish) if finish is not None else ())]
+    for node in nodes:
         if isinstance(node, ast.Assign):
             for target in node.targets:
                 if _is_summary(target):
