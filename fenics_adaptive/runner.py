@@ -20,7 +20,7 @@ import numpy as np
 from mpi4py import MPI
 
 import fenics_adaptive
-from fenics_adaptive import checkpoint, explicit, output
+from fenics_adaptive import checkpoint, explicit, output, watchdog
 from fenics_adaptive.assembly import CohesiveSet
 from fenics_adaptive.config import RunConfig
 from fenics_adaptive.contact import Contact
@@ -315,7 +315,7 @@ def execute(
             out_dir, comm, solver_state, structure, hook.state() if hook else {}, config
         )
 
-    stop = _StopOnSignal()
+    stop = _StopOnSignal(comm)
     start = time.perf_counter()
     try:
         stats = explicit.run(
@@ -400,25 +400,38 @@ def execute(
 
 class _StopOnSignal:
     """SIGINT / SIGTERM set a flag that the solver polls (then checkpoints and stops) instead
-    of killing the run mid-write. A second signal is not caught: it stops at once."""
+    of killing the run mid-write. A second signal is not caught: it stops at once. A rank that
+    makes no poll for ``FENICS_ADAPTIVE_STOP_TIMEOUT`` s after the signal (a hung collective)
+    aborts the MPI job (``fenics_adaptive.watchdog``)."""
 
     SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
-    def __init__(self):
+    def __init__(self, comm: MPI.Comm = MPI.COMM_WORLD):
         self.requested = False
         self.previous = {}
+        self.watchdog = None
         if threading.current_thread() is threading.main_thread():
             for number in self.SIGNALS:
                 self.previous[number] = signal.signal(number, self._handle)
+            timeout = watchdog.timeout_from_environment()
+            self.watchdog = watchdog.StopWatchdog(comm.rank, timeout) if timeout > 0 else None
 
     def _handle(self, number, frame) -> None:
         self.requested = True
-        self.release()
+        self._restore_handlers()
 
     def __call__(self) -> bool:
+        if self.watchdog is not None:
+            self.watchdog.beat()  # called at every poll: the solver is alive
         return self.requested
 
-    def release(self) -> None:
+    def _restore_handlers(self) -> None:
         for number, handler in self.previous.items():
             signal.signal(number, handler)
         self.previous = {}
+
+    def release(self) -> None:
+        self._restore_handlers()
+        if self.watchdog is not None:
+            self.watchdog.close()
+            self.watchdog = None
