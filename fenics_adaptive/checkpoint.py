@@ -34,7 +34,7 @@ import numpy as np
 from mpi4py import MPI
 
 from fenics_adaptive.config import RunConfig
-from fenics_adaptive.errors import InputError
+from fenics_adaptive.errors import InputError, shared_errors
 from fenics_adaptive.structure import DampingWindow, Structure, Ties
 
 FOLDER = "checkpoint"
@@ -87,31 +87,31 @@ def write(
     """Collective: write the checkpoint of this moment; returns its folder."""
     final = out_dir / FOLDER
     partial = out_dir / (FOLDER + ".partial")
-    if comm.rank == 0:
-        shutil.rmtree(partial, ignore_errors=True)
-        partial.mkdir(parents=True)
-    comm.barrier()
+    with shared_errors(comm):  # file errors on some ranks reach all (also below)
+        if comm.rank == 0:
+            shutil.rmtree(partial, ignore_errors=True)
+            partial.mkdir(parents=True)
     arrays = {f"solver_{k}": np.asarray(v) for k, v in solver_state.items()}
     arrays.update({f"structure_{k}": v for k, v in structure_state(structure).items()})
     arrays.update({f"hook_{k}": np.asarray(v) for k, v in hook_state.items()})
-    np.savez(partial / f"rank{comm.rank}.npz", **arrays)
-    comm.barrier()
-    if comm.rank == 0:
-        manifest = {
-            "time_s": float(solver_state["t"]),
-            "step": int(solver_state["step"]),
-            "mpi_ranks": comm.size,
-            "config_fingerprint": fingerprint(config),
-            "config": config.source,
-        }
-        (partial / MANIFEST).write_text(json.dumps(manifest, indent=2) + "\n")
-        old = out_dir / (FOLDER + ".old")
-        shutil.rmtree(old, ignore_errors=True)
-        if final.exists():
-            os.replace(final, old)
-        os.replace(partial, final)
-        shutil.rmtree(old, ignore_errors=True)
-    comm.barrier()
+    with shared_errors(comm):
+        np.savez(partial / f"rank{comm.rank}.npz", **arrays)
+    with shared_errors(comm):
+        if comm.rank == 0:
+            manifest = {
+                "time_s": float(solver_state["t"]),
+                "step": int(solver_state["step"]),
+                "mpi_ranks": comm.size,
+                "config_fingerprint": fingerprint(config),
+                "config": config.source,
+            }
+            (partial / MANIFEST).write_text(json.dumps(manifest, indent=2) + "\n")
+            old = out_dir / (FOLDER + ".old")
+            shutil.rmtree(old, ignore_errors=True)
+            if final.exists():
+                os.replace(final, old)
+            os.replace(partial, final)
+            shutil.rmtree(old, ignore_errors=True)
     return final
 
 

@@ -25,7 +25,7 @@ from fenics_adaptive.assembly import CohesiveSet
 from fenics_adaptive.config import RunConfig
 from fenics_adaptive.contact import Contact
 from fenics_adaptive.enrichment import STRONG, WEAK
-from fenics_adaptive.errors import InputError
+from fenics_adaptive.errors import InputError, shared_errors
 from fenics_adaptive.indicators import front_requests, indicator_requests, spread
 from fenics_adaptive.layerwise import cohesive_pairs
 from fenics_adaptive.loading import Amplitude, PrescribedMotion, face_dofs, resolve
@@ -222,14 +222,16 @@ def execute(
     if restart is None:
         problem = build_problem(config, comm)
     else:
-        manifest, arrays = checkpoint.read(restart, comm, config)
+        with shared_errors(comm):  # each rank reads its own file
+            manifest, arrays = checkpoint.read(restart, comm, config)
         structure = build_structure(config, comm, refine_initially=False)
         checkpoint.restore_structure(structure, arrays)
         resume = checkpoint.solver_state(arrays)
         hook_state = checkpoint.hook_state(arrays)
         where = structure.stable_time_step()[1]
         problem = Problem(config, structure, float(resume["dt"]), float(resume["stable"]), where)
-        kept_rows = output.history_until(Path(out_dir), manifest["time_s"])
+        with shared_errors(comm):
+            kept_rows = output.history_until(Path(out_dir), manifest["time_s"])
     say = log if (log is not None and comm.rank == 0) else (lambda _: None)
     model = problem.model
     structure = problem.structure
@@ -261,19 +263,20 @@ def execute(
                 f"the impactor starts {-gap:.4g} mm inside the top face; place it above",
             )
     out_dir = Path(out_dir)
-    if comm.rank == 0:
-        out_dir.mkdir(parents=True, exist_ok=True)
-    comm.barrier()
+    with shared_errors(comm):  # rank 0 makes the folder; its error reaches every rank
+        if comm.rank == 0:
+            out_dir.mkdir(parents=True, exist_ok=True)
     fields_dir = out_dir
     if resume is None:
         output.clear_previous_results(out_dir, comm)
     else:
         say(f"restarted from the checkpoint at t = {float(resume['t']):.6e} s")
         fields_dir = out_dir / f"restart_step{int(resume['step'])}"  # earlier fields stay
-        if comm.rank == 0:
-            fields_dir.mkdir(exist_ok=True)
-        comm.barrier()
-    history = output.HistoryWriter(out_dir, comm, kept_rows)
+        with shared_errors(comm):
+            if comm.rank == 0:
+                fields_dir.mkdir(exist_ok=True)
+    with shared_errors(comm):  # rank 0 opens the file
+        history = output.HistoryWriter(out_dir, comm, kept_rows)
     fields = output.FieldOutputs(fields_dir, structure) if config.solver.field_interval else None
     progress = output.Progress(config.solver.end_time, comm) if show_progress else None
     summary = {
