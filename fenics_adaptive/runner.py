@@ -76,7 +76,8 @@ def build_structure(
             top = f"top_layer{boundaries.index(interface)}"
             motions.append(PrescribedMotion(top, "z", "displacement", 0.0, Amplitude.constant(0)))
         if config.interfaces.delaminate:
-            pairs = cohesive_pairs(beam, model.V)
+            with shared_errors(comm):  # each rank checks its own columns
+                pairs = cohesive_pairs(beam, model.V)
             cohesive = CohesiveSet(
                 pairs.nodes,
                 np.arange(len(pairs), dtype=np.int64),
