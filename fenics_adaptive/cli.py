@@ -11,6 +11,7 @@ import argparse
 import os
 import shlex
 import sys
+import time
 import traceback
 
 from mpi4py import MPI
@@ -51,6 +52,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
 
     comm = MPI.COMM_WORLD
+    errors = comm.Dup() if comm.size > 1 else None  # for _fail only
     # Imported here so that `--help` answers without loading DOLFINx.
     from fenics_adaptive.config import load_config
     from fenics_adaptive.explicit import Interrupted
@@ -86,20 +88,43 @@ def main(argv: list[str] | None = None) -> int:
             )
         return 130
     except InputError as error:
-        if comm.rank == 0:
-            print(f"fenics-adaptive: {args.config}: {error}", file=sys.stderr)
-        return 2
+        return _fail(errors, 2, f"fenics-adaptive: {args.config}: {error}")
     except Exception as error:  # the run itself failed: say why in one line
-        if comm.rank == 0:
-            if os.environ.get("FENICS_ADAPTIVE_TRACEBACK"):
-                traceback.print_exc()
-            print(
-                f"fenics-adaptive: run failed: {type(error).__name__}: {error} "
-                "(FENICS_ADAPTIVE_TRACEBACK=1 shows where)",
-                file=sys.stderr,
-            )
-        return 1
+        if os.environ.get("FENICS_ADAPTIVE_TRACEBACK"):
+            traceback.print_exc()
+        return _fail(
+            errors,
+            1,
+            f"fenics-adaptive: run failed: {type(error).__name__}: {error} "
+            "(FENICS_ADAPTIVE_TRACEBACK=1 shows where)",
+        )
     return 0
+
+
+AGREE_TIMEOUT = 10.0  # s: how long a failed rank waits for the others to fail too
+
+
+def _fail(errors: MPI.Comm | None, status: int, line: str) -> int:
+    """Print ``line`` once (rank 0) and return ``status``, when every rank has failed: errors
+    are raised on every rank (a collective decision, or ``errors.shared_errors``). A rank that
+    fails alone, the others not arriving here within AGREE_TIMEOUT s (they wait in a collective
+    it will never enter), prints the line itself and aborts the MPI job with ``status``.
+
+    ``errors``: a duplicate of the run's communicator (None in serial), so that this check
+    never meets the run's own pending collectives."""
+    comm = MPI.COMM_WORLD
+    if errors is not None:
+        arrived = errors.Ibarrier()
+        deadline = time.monotonic() + AGREE_TIMEOUT
+        while not arrived.Test():
+            if time.monotonic() > deadline:
+                print(f"{line} [rank {comm.rank} alone; aborting the MPI job]", file=sys.stderr)
+                sys.stderr.flush()
+                comm.Abort(status)
+            time.sleep(0.01)
+    if comm.rank == 0:
+        print(line, file=sys.stderr)
+    return status
 
 
 if __name__ == "__main__":

@@ -81,12 +81,15 @@ class Contact:
     @classmethod
     def on(cls, impactor: Impactor, structure) -> Contact:
         base = structure.base
-        top = face_nodes(base, "top")
+        top = face_nodes(base, "top")  # collective
         owned = top[top < base.V.dofmap.index_map.size_local]
         X = structure.X_base[owned]
         corners = structure.X_base[structure.bottom_local]
         d1, d2 = corners[:, 3] - corners[:, 0], corners[:, 2] - corners[:, 1]
-        area = 0.5 * np.linalg.norm(np.cross(d1, d2), axis=1).mean()
+        # the mean cell area over all ranks: one penalty for the whole face, as in serial
+        local = np.array([0.5 * np.linalg.norm(np.cross(d1, d2), axis=1).sum(), len(corners)])
+        total, n_cells = structure.comm.allreduce(local, op=MPI.SUM)
+        area = total / n_cells
         C33 = max(p.material.stiffness()[2, 2] for p in structure.laminate.plies)
         mass = structure.mass_base.array[3 * owned]
         return cls(

@@ -19,6 +19,7 @@ import ufl
 from dolfinx import fem
 from mpi4py import MPI
 
+from fenics_adaptive.errors import InputError, shared_errors
 from fenics_adaptive.model import LayeredModel
 
 COMPONENTS = {"x": 0, "y": 1, "z": 2}
@@ -212,21 +213,31 @@ def face_area(model: LayeredModel, face: str) -> float:
 def resolve(
     model: LayeredModel, motions: Sequence[PrescribedMotion], loads: Sequence[FaceLoad]
 ) -> ResolvedLoads:
+    """The motions and loads on this rank's DOFs. Collective (``face_nodes``, the face areas
+    and the load vectors). Raises InputError on every rank for a motion's face without nodes and
+    for two faces that prescribe a shared DOF differently (found on the ranks holding it)."""
     owner: dict[int, int] = {}
     for k, motion in enumerate(motions):
         dofs = face_dofs(model, motion.face, motion.component, x_range=motion.x_range)
         if model.comm.allreduce(len(dofs), op=MPI.SUM) == 0:
             where = f" at x in {motion.x_range} mm" if motion.x_range is not None else ""
-            raise ValueError(f"face {motion.face!r}{where} has no nodes to prescribe")
-        for dof in dofs:
-            previous = owner.setdefault(int(dof), k)
-            if previous != k and motions[previous] != motion:
-                # the same DOF prescribed twice is fine only if both hold it at zero
-                if not (_is_zero(motions[previous]) and _is_zero(motion)):
-                    raise ValueError(
-                        f"faces {motions[previous].face!r} and {motion.face!r} both prescribe "
-                        f"component {motion.component} of the nodes they share, differently"
-                    )
+            raise InputError(
+                _motion_key(motion), f"face {motion.face!r}{where} has no nodes to prescribe"
+            )
+        # a conflict lies on the ranks that hold the shared DOF: every rank learns of it here,
+        # before the next motion's collective face lookup
+        with shared_errors(model.comm):
+            for dof in dofs:
+                previous = owner.setdefault(int(dof), k)
+                if previous != k and motions[previous] != motion:
+                    # the same DOF prescribed twice is fine only if both hold it at zero
+                    if not (_is_zero(motions[previous]) and _is_zero(motion)):
+                        raise InputError(  # one of them is not zero: a [[prescribed]] entry
+                            "prescribed",
+                            f"faces {motions[previous].face!r} and {motion.face!r} both "
+                            f"prescribe component {motion.component} of the nodes they share, "
+                            "differently",
+                        )
     fixed = np.array(sorted(owner), dtype=np.int32)
     fixed_motion = np.array([owner[int(d)] for d in fixed], dtype=np.int32)
 
@@ -235,7 +246,7 @@ def resolve(
     v = ufl.TestFunction(model.V)
     for load in loads:
         if "&" in load.face:
-            raise ValueError(f"load on {load.face!r}: loads act on one face, not an edge")
+            raise InputError("load.face", f"{load.face!r}: loads act on one face, not an edge")
         area = face_area(model, load.face)
         traction = ufl.as_vector([f / area for f in load.force])
         vec = fem.assemble_vector(
@@ -247,6 +258,12 @@ def resolve(
     return ResolvedLoads(
         list(motions), fixed, fixed_motion, vectors, [load.amplitude for load in loads]
     )
+
+
+def _motion_key(motion: PrescribedMotion) -> str:
+    """The config table a motion comes from, for messages: a clamp holds every component at
+    zero, the rest are [[prescribed]] entries (or a symmetry condition, also zero)."""
+    return "clamp" if _is_zero(motion) else "prescribed"
 
 
 def _is_zero(motion: PrescribedMotion) -> bool:

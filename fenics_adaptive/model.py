@@ -155,6 +155,8 @@ class LayeredModel:
         largest face area; c = fastest dilatational wave speed of the cell's plies."""
         ratios = characteristic_lengths(cell_vertex_coordinates(self.mesh))
         ratios /= self.cell_wave_speeds()
+        if len(ratios) == 0:  # a rank without cells still joins the reduction
+            return self.comm.allreduce((np.inf, -1), op=MPI.MIN)
         cell = int(np.argmin(ratios))
         return self.comm.allreduce((float(ratios[cell]), cell), op=MPI.MIN)
 

@@ -35,7 +35,7 @@ import dolfinx.io
 import numpy as np
 from mpi4py import MPI
 
-from fenics_adaptive.errors import InputError
+from fenics_adaptive.errors import InputError, shared_errors
 from fenics_adaptive.explicit import COLUMNS, HistoryRow
 from fenics_adaptive.indicators import ply_failure_indices, ply_strains
 from fenics_adaptive.ply_damage import S_D, S_FC, S_FT, S_MC, S_MT, nominal_ply_stresses
@@ -254,32 +254,35 @@ class _VtuSeries:
         self.folder = out_dir / name
         self.record = record if record is not None else (lambda *paths, folder=False: None)
         self.pvd = out_dir / f"{name}.pvd"
-        if comm.rank == 0:
-            self.record(self.folder, folder=True)
-            self.folder.mkdir(parents=True, exist_ok=True)
-        comm.barrier()
+        with shared_errors(comm):  # rank 0's file errors reach every rank
+            if comm.rank == 0:
+                self.record(self.folder, folder=True)
+                self.folder.mkdir(parents=True, exist_ok=True)
         self.steps: list[tuple[float, str]] = []
 
     def write(self, t: float, X, connectivity, offsets, types, point_data, cell_data) -> None:
         stem = f"{self.name}_{len(self.steps):06d}"
         parallel = self.comm.size > 1
         piece = f"{stem}_r{self.comm.rank}.vtu" if parallel else f"{stem}.vtu"
-        if self.comm.rank == 0:  # every rank's file names, before any is written
-            pieces = [f"{stem}_r{r}.vtu" for r in range(self.comm.size)] + [f"{stem}.pvtu"]
-            names = pieces if parallel else [piece]
-            self.record(self.pvd, *(self.folder / n for n in names))
-        _write_vtu(self.folder / piece, X, connectivity, offsets, types, point_data, cell_data)
-        if parallel and self.comm.rank == 0:
-            _write_pvtu(self.folder / f"{stem}.pvtu", stem, self.comm.size, point_data, cell_data)
-        self.steps.append((t, f"{self.name}/{stem}.{'pvtu' if parallel else 'vtu'}"))
-        if self.comm.rank == 0:
-            entries = "\n".join(
-                f'    <DataSet timestep="{time!r}" file="{path}"/>' for time, path in self.steps
-            )
-            self.pvd.write_text(
-                '<?xml version="1.0"?>\n<VTKFile type="Collection" version="0.1">\n'
-                f"  <Collection>\n{entries}\n  </Collection>\n</VTKFile>\n"
-            )
+        with shared_errors(self.comm):  # file errors on any rank reach every rank
+            if self.comm.rank == 0:  # every rank's file names, before any is written
+                pieces = [f"{stem}_r{r}.vtu" for r in range(self.comm.size)] + [f"{stem}.pvtu"]
+                names = pieces if parallel else [piece]
+                self.record(self.pvd, *(self.folder / n for n in names))
+            _write_vtu(self.folder / piece, X, connectivity, offsets, types, point_data, cell_data)
+            if parallel and self.comm.rank == 0:
+                _write_pvtu(
+                    self.folder / f"{stem}.pvtu", stem, self.comm.size, point_data, cell_data
+                )
+            self.steps.append((t, f"{self.name}/{stem}.{'pvtu' if parallel else 'vtu'}"))
+            if self.comm.rank == 0:
+                entries = "\n".join(
+                    f'    <DataSet timestep="{time!r}" file="{path}"/>' for time, path in self.steps
+                )
+                self.pvd.write_text(
+                    '<?xml version="1.0"?>\n<VTKFile type="Collection" version="0.1">\n'
+                    f"  <Collection>\n{entries}\n  </Collection>\n</VTKFile>\n"
+                )
 
 
 def _combined_nodes(structure) -> tuple[np.ndarray, np.ndarray]:

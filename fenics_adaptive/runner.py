@@ -20,12 +20,12 @@ import numpy as np
 from mpi4py import MPI
 
 import fenics_adaptive
-from fenics_adaptive import checkpoint, explicit, output
+from fenics_adaptive import checkpoint, explicit, output, watchdog
 from fenics_adaptive.assembly import CohesiveSet
 from fenics_adaptive.config import RunConfig
 from fenics_adaptive.contact import Contact
 from fenics_adaptive.enrichment import STRONG, WEAK
-from fenics_adaptive.errors import InputError
+from fenics_adaptive.errors import InputError, shared_errors
 from fenics_adaptive.indicators import front_requests, indicator_requests, spread
 from fenics_adaptive.layerwise import cohesive_pairs
 from fenics_adaptive.loading import Amplitude, PrescribedMotion, face_dofs, resolve
@@ -77,7 +77,8 @@ def build_structure(
             top = f"top_layer{boundaries.index(interface)}"
             motions.append(PrescribedMotion(top, "z", "displacement", 0.0, Amplitude.constant(0)))
         if config.interfaces.delaminate:
-            pairs = cohesive_pairs(beam, model.V)
+            with shared_errors(comm):  # each rank checks its own columns
+                pairs = cohesive_pairs(beam, model.V)
             cohesive = CohesiveSet(
                 pairs.nodes,
                 np.arange(len(pairs), dtype=np.int64),
@@ -241,7 +242,8 @@ def execute(
         hook_state = checkpoint.hook_state(arrays)
         where = structure.stable_time_step()[1]
         problem = Problem(config, structure, float(resume["dt"]), float(resume["stable"]), where)
-        kept_rows = _kept_history(restart, manifest, history_csv, resume, config)
+        with shared_errors(comm):  # the earlier format reads the folder's CSV on each rank
+            kept_rows = _kept_history(restart, manifest, history_csv, resume, config)
     say = log if (log is not None and comm.rank == 0) else (lambda _: None)
     model = problem.model
     structure = problem.structure
@@ -282,12 +284,14 @@ def execute(
         folder.remove_recorded(fields_dir.name)  # those of an earlier restart from here
     try:
         record(out_dir / "history.partial.csv", out_dir / "history.csv")
-        history = output.HistoryWriter(out_dir, comm, kept_rows)
+        with shared_errors(comm):  # rank 0 opens the file
+            history = output.HistoryWriter(out_dir, comm, kept_rows)
         fields = None
         if config.solver.field_interval:
-            if comm.rank == 0:
-                record(fields_dir, folder=True)
-                fields_dir.mkdir(exist_ok=True)
+            with shared_errors(comm):  # rank 0 makes the folder; its error reaches every rank
+                if comm.rank == 0:
+                    record(fields_dir, folder=True)
+                    fields_dir.mkdir(exist_ok=True)
             fields = output.FieldOutputs(fields_dir, structure, record)
     except BaseException:
         folder.close()
@@ -334,7 +338,7 @@ def execute(
             folder.forget,
         )  # fmt: skip
 
-    stop = _StopOnSignal()
+    stop = _StopOnSignal(comm)
     start = time.perf_counter()
     try:
         stats = explicit.run(
@@ -472,25 +476,38 @@ def _kept_history(restart, manifest: dict, history_csv: str | None, resume: dict
 
 class _StopOnSignal:
     """SIGINT / SIGTERM set a flag that the solver polls (then checkpoints and stops) instead
-    of killing the run mid-write. A second signal is not caught: it stops at once."""
+    of killing the run mid-write. A second signal is not caught: it stops at once. A rank that
+    makes no poll for ``FENICS_ADAPTIVE_STOP_TIMEOUT`` s after the signal (a hung collective)
+    aborts the MPI job (``fenics_adaptive.watchdog``)."""
 
     SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
-    def __init__(self):
+    def __init__(self, comm: MPI.Comm = MPI.COMM_WORLD):
         self.requested = False
         self.previous = {}
+        self.watchdog = None
         if threading.current_thread() is threading.main_thread():
             for number in self.SIGNALS:
                 self.previous[number] = signal.signal(number, self._handle)
+            timeout = watchdog.timeout_from_environment()
+            self.watchdog = watchdog.StopWatchdog(comm.rank, timeout) if timeout > 0 else None
 
     def _handle(self, number, frame) -> None:
         self.requested = True
-        self.release()
+        self._restore_handlers()
 
     def __call__(self) -> bool:
+        if self.watchdog is not None:
+            self.watchdog.beat()  # called at every poll: the solver is alive
         return self.requested
 
-    def release(self) -> None:
+    def _restore_handlers(self) -> None:
         for number, handler in self.previous.items():
             signal.signal(number, handler)
         self.previous = {}
+
+    def release(self) -> None:
+        self._restore_handlers()
+        if self.watchdog is not None:
+            self.watchdog.close()
+            self.watchdog = None

@@ -45,7 +45,7 @@ from fenics_adaptive.border import (
     transfer_masses,
 )
 from fenics_adaptive.cohesive import P_KN, P_KS
-from fenics_adaptive.errors import InputError
+from fenics_adaptive.errors import InputError, shared_errors
 from fenics_adaptive.laminate import Laminate
 from fenics_adaptive.loading import (
     COMPONENTS,
@@ -374,10 +374,9 @@ class Structure:
             candidates.append(
                 (float(sub_ratios[s]), f"subelement of cell {self.original_cell[cell]}")
             )
-        if len(self.cohesive):
-            candidates.append(self._cohesive_time_step())
-        local = min(candidates) if candidates else (np.inf, "")
-        return self.comm.allreduce(local, op=MPI.MIN)
+        # collective (vectors and scatters): on every rank, with or without cohesive elements
+        candidates.append(self._cohesive_time_step())
+        return self.comm.allreduce(min(candidates), op=MPI.MIN)
 
     def _setup_ply_damage(self) -> None:
         """Matrix damage per (cell, ply): every cell leaves the UFL form for the damage-aware
@@ -394,10 +393,12 @@ class Structure:
             in_cell = (self.cell_plies[:, 0] <= k) & (k < self.cell_plies[:, 1])
             for cell in np.flatnonzero(in_cell):
                 self.band_width[cell, k] = crack_band_width(X[cell], ply.angle)
-            if in_cell.any():
-                check_band_width(
-                    ply.material, self.failures[ply.material.name], self.band_width[:, k].max()
-                )
+            # the widest band over all ranks: every rank takes the same decision
+            widest = self.comm.allreduce(
+                self.band_width[:, k].max() if in_cell.any() else -1.0, op=MPI.MAX
+            )
+            if widest >= 0.0:
+                check_band_width(ply.material, self.failures[ply.material.name], widest)
         self.damage_state = new_state(n_cells, len(plies))
         self.base.set_ufl_cells([np.zeros(0, np.int32)] * len(self.base.layer_laminates))
         self._rebuild_damaged_elements()
@@ -451,9 +452,10 @@ class Structure:
                 self.damping_windows.append(
                     DampingWindow(block, dofs, settings.damping, t + settings.damping_window)
                 )
-        if settings.release_window > 0.0 and self._new_pairs:
-            self.internal_force()
-            pairs = np.array(self._new_pairs, dtype=np.int64)
+        new_pairs = self.comm.allreduce(len(self._new_pairs), op=MPI.SUM)
+        if settings.release_window > 0.0 and new_pairs:
+            self.internal_force()  # collective (reverse scatters): on every rank
+            pairs = np.array(self._new_pairs, dtype=np.int64).reshape(-1, 2)
             f = self.f_extra.array.reshape(-1, 3)
             m = self.extra_block.mass.reshape(-1, 3)[:, 0]  # after the border's transfer
             a, b = pairs[:, 0], pairs[:, 1]
@@ -513,14 +515,17 @@ class Structure:
         refine."""
         requests = list(requests)
         target = self.interface_state.copy()
-        for cell, interface, kind in requests:
-            allowed = set(self.interfaces.delaminate)
-            if kind != enr.STRONG:
-                allowed |= set(self.interfaces.refine)
-            if interface not in allowed:
-                what = "delaminate" if kind == enr.STRONG else "refine"
-                raise InputError("interfaces", f"interface {interface} is not allowed to {what}")
-            target[cell, interface - 1] = max(target[cell, interface - 1], kind)
+        with shared_errors(self.comm):  # the requests are this rank's: so may be the error
+            for cell, interface, kind in requests:
+                allowed = set(self.interfaces.delaminate)
+                if kind != enr.STRONG:
+                    allowed |= set(self.interfaces.refine)
+                if interface not in allowed:
+                    what = "delaminate" if kind == enr.STRONG else "refine"
+                    raise InputError(
+                        "interfaces", f"interface {interface} is not allowed to {what}"
+                    )
+                target[cell, interface - 1] = max(target[cell, interface - 1], kind)
         old_state = self.interface_state.copy()
         changed = np.flatnonzero((target != old_state).any(axis=1))
         if not self.comm.allreduce(len(changed), op=MPI.SUM):
@@ -741,7 +746,7 @@ class Structure:
         """Collective: border constraints, the masses the solver divides by (constrained masses
         moved to their masters), prescribed DOFs; constrained nodes put on their masters."""
         prescribed = self._extra_prescriptions()
-        if self.extra.n_local:
+        if self.extra.index_map.size_global:  # the same on every rank: column_counts is collective
             counts = column_counts(
                 self.comm, self.base.V.dofmap.index_map, self.bottom_local, self.interface_state
             )
@@ -787,18 +792,18 @@ class Structure:
         for none: a face motion holds an extra node when both base nodes of its column are on
         that face; a symmetry interface holds u_z of its nodes. The first motion listed wins."""
         prescribed = np.full(3 * self.extra.n_local, -1, dtype=np.int64)
-        if self.extra.n_local == 0:
+        if self.extra.index_map.size_global == 0:  # the same on every rank
             return prescribed
         n_interfaces = self.interface_state.shape[1]
         parts = [enr.key_parts(k, n_interfaces) for k in self.extra.index]
         local = np.fromiter(self.extra.index.values(), dtype=np.int64)
-        bottom = np.array([self.extra.local_base_node(g) for g, _, _ in parts])
-        top = np.array([self.column_top[b] for b in bottom])
-        interface = np.array([i for _, i, _ in parts])
+        bottom = np.array([self.extra.local_base_node(g) for g, _, _ in parts], dtype=np.int64)
+        top = np.array([self.column_top[b] for b in bottom], dtype=np.int64)
+        interface = np.array([i for _, i, _ in parts], dtype=np.int64)
         for m, motion in enumerate(self.motions):
             if motion.face.startswith("interface"):
                 on = interface == int(motion.face.removeprefix("interface"))
-            else:
+            else:  # face_nodes is collective: every rank, also one without extra nodes
                 mask = np.zeros(self.n_base, dtype=bool)
                 mask[face_nodes(self.base, motion.face, motion.x_range)] = True
                 on = mask[bottom] & mask[top]
@@ -857,7 +862,9 @@ class Structure:
         return out
 
     def _cohesive_time_step(self) -> tuple[float, str]:
-        """Penalty springs of the cohesive elements against the masses they join."""
+        """Penalty springs of this rank's cohesive elements against the masses they join: (the
+        smallest step, where), (inf, "") without any. Collective (the nodal interface areas
+        are summed over ranks), so every rank calls it, whatever it holds."""
         params = self.cohesive.params
         stiffness = max(params[P_KN], params[P_KS])
         X = self.gather(self.cohesive.nodes, "X")
@@ -891,6 +898,8 @@ class Structure:
             nodal(mb, mx, lower),
             nodal(mb, mx, upper),
         )
+        if len(steps) == 0:
+            return np.inf, ""
         k = int(np.argmin(steps))
         return float(steps[k]), f"cohesive element {k // 4} (penalty {stiffness:g} N/mm^3)"
 

@@ -43,6 +43,8 @@ import numpy as np
 from dolfinx.cpp.graph import AdjacencyList_int32
 from mpi4py import MPI
 
+from fenics_adaptive.errors import shared_errors
+
 SIDES = ("x0", "x1", "y0", "y1")
 
 
@@ -145,10 +147,15 @@ def layered_mesh(
     gmsh.model.add("fenics_adaptive_beam")
     try:
         partitioner = None
-        if comm.rank == 0:
-            _build_layers(length, width, nx, ny, thicknesses, split, layer_z)
+        nodes = None
+        # Gmsh meshes on rank 0 only: a failure there must reach every rank before the
+        # collective hand-over to DOLFINx
+        with shared_errors(comm):
+            if comm.rank == 0:
+                _build_layers(length, width, nx, ny, thicknesses, split, layer_z)
+                if len(thicknesses) > 1:
+                    nodes = dolfinx.io.gmsh.extract_geometry(gmsh.model)
         if len(thicknesses) > 1:
-            nodes = dolfinx.io.gmsh.extract_geometry(gmsh.model) if comm.rank == 0 else None
             partitioner = columnar_partitioner(nodes, 1e-6 * min(length / nx, width / ny))
         mesh_data = dolfinx.io.gmsh.model_to_mesh(
             gmsh.model, comm, 0, gdim=3, partitioner=partitioner
@@ -179,7 +186,8 @@ def layered_mesh(
         layer_z=layer_z,
         split=split,
     )
-    _check_orientation(beam)
+    with shared_errors(comm):  # each rank checks its own cells
+        _check_orientation(beam)
     return beam
 
 

@@ -1,35 +1,244 @@
-"""MPI: the same run on 1 and 2 ranks gives the same history (up to summation order)."""
+"""MPI: the same run on 1 and 2 ranks gives the same history (up to summation order), also when
+refinement, cohesive elements, border constraints, contact and ply damage happen on one rank
+only; an error on one rank ends the whole job with one message; a hung collective does not
+swallow SIGTERM.
 
+Every program runs under a timeout: a deadlock fails the test instead of hanging the suite.
+"""
+
+import json
+import os
+import signal
 import subprocess
 import sys
+import textwrap
+import time
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from fenics_adaptive.output import read_history
+from fenics_adaptive.output import COLUMN_UNITS, read_history
 
-SMALL = Path(__file__).parent / "data" / "small_beam.toml"
+ROOT = Path(__file__).parent.parent
+DATA = Path(__file__).parent / "data"
+SMALL = DATA / "small_beam.toml"
 MPIEXEC = Path(sys.executable).parent / "mpiexec"
+CASE = Path(__file__).parent / "mpi_case.py"
+TIMEOUT = 240  # s, for one program on this (shared, loaded) machine
+ENV = {**os.environ, "PYTHONPATH": f"{ROOT}{os.pathsep}{os.environ.get('PYTHONPATH', '')}"}
 
 
-def run(out: Path, ranks: int) -> dict:
-    command = [sys.executable, "-m", "fenics_adaptive", "run", str(SMALL), "--out", str(out)]
-    if ranks > 1:
-        command = [str(MPIEXEC), "-n", str(ranks), *command]
-    result = subprocess.run(command, capture_output=True, text=True, timeout=600)
+def launch(arguments: list[str], ranks: int) -> list[str]:
+    return [str(MPIEXEC), "-n", str(ranks), *arguments] if ranks > 1 else arguments
+
+
+def run_case(config: Path, out: Path, ranks: int) -> tuple[dict, list[dict]]:
+    """The history of a config run on ``ranks`` ranks, and what each rank held at the end
+    (``tests/mpi_case.py``)."""
+    command = launch([sys.executable, str(CASE), str(config), str(out)], ranks)
+    result = subprocess.run(command, capture_output=True, text=True, timeout=TIMEOUT, env=ENV)
     assert result.returncode == 0, result.stderr
-    return read_history(out / "history.csv")
+    return read_history(out / "history.csv"), json.loads(result.stdout.strip().splitlines()[-1])
+
+
+def assert_same_history(serial: dict, parallel: dict) -> None:
+    """Every column equal to 1e-10 of its scale: the column's largest magnitude, and for the
+    energies (mJ) the largest of any energy in the run (a balance or a dissipated energy is a
+    difference of larger terms, whose round-off it carries)."""
+    assert serial.keys() == parallel.keys()
+    assert len(serial["time"]) == len(parallel["time"]) > 10
+    energies = [name for name in serial if COLUMN_UNITS[name] == "mJ"]
+    energy_scale = max(np.abs(serial[name]).max() for name in energies)
+    assert energy_scale > 0
+    for name in serial:
+        a, b = np.array(serial[name]), np.array(parallel[name])
+        scale = energy_scale if name in energies else np.abs(a).max()
+        assert np.abs(a - b).max() <= 1e-10 * scale, name
+
+
+ONE_RANK_CASES = {
+    # manual weak then strong refinement near the clamp: extra nodes, cohesive elements and the
+    # border of the refined region on one rank
+    "mpi_one_rank_refinement": ("extra_nodes", "cohesive", "border"),
+    # an impactor, matrix cracking and the strong refinement the damage asks for, on one rank
+    "mpi_one_rank_impact": ("contact_force", "ply_damage", "cohesive"),
+}
+
+
+@pytest.mark.mpi
+@pytest.mark.parametrize("case", sorted(ONE_RANK_CASES))
+def test_events_on_one_rank_reproduce_the_serial_history(case, tmp_path):
+    config = DATA / f"{case}.toml"
+    serial, (whole,) = run_case(config, tmp_path / "serial", 1)
+    parallel, ranks = run_case(config, tmp_path / "parallel", 2)
+    assert len(ranks) == 2
+    # the partition the config is designed for: rank cells on either side of one x
+    low, high = sorted(ranks, key=lambda r: r["x_min"])
+    assert low["x_max"] < high["x_min"], ranks
+    for name in ONE_RANK_CASES[case]:
+        assert whole[name] > 0, (name, whole)  # it happens in the run
+        holders = [r for r in ranks if r[name] > 0]
+        assert len(holders) == 1, (name, ranks)  # and on one rank only
+    assert_same_history(serial, parallel)
 
 
 @pytest.mark.mpi
 def test_two_ranks_reproduce_the_serial_history(tmp_path):
-    serial = run(tmp_path / "serial", 1)
-    parallel = run(tmp_path / "parallel", 2)
-    assert serial["time"] == parallel["time"]
-    assert serial["time_step"] == parallel["time_step"]
-    for column in ("reaction_force", "displacement", "internal_energy", "kinetic_energy"):
-        a, b = np.array(serial[column]), np.array(parallel[column])
-        scale = np.abs(a).max()
-        assert scale > 0, column
-        assert np.abs(a - b).max() <= 1e-10 * scale, column
+    histories = []
+    for ranks in (1, 2):
+        out = tmp_path / f"ranks{ranks}"
+        command = [sys.executable, "-m", "fenics_adaptive", "run", str(SMALL), "--out", str(out)]
+        result = subprocess.run(
+            launch(command, ranks), capture_output=True, text=True, timeout=TIMEOUT, env=ENV
+        )
+        assert result.returncode == 0, result.stderr
+        histories.append(read_history(out / "history.csv"))
+    assert histories[0]["time_step"] == histories[1]["time_step"]
+    assert_same_history(*histories)
+
+
+# ---------------------------------------------------------------------------- errors
+def cli(*arguments: str) -> subprocess.CompletedProcess:
+    command = launch([sys.executable, "-m", "fenics_adaptive", *arguments], 2)
+    return subprocess.run(command, capture_output=True, text=True, timeout=TIMEOUT, env=ENV)
+
+
+def message_lines(stderr: str) -> list[str]:
+    return [line for line in stderr.splitlines() if line.startswith("fenics-adaptive:")]
+
+
+@pytest.mark.mpi
+def test_out_that_is_a_file_ends_every_rank_with_one_message(tmp_path):
+    """Rank 0 makes the output folder: its failure reaches rank 1, which would wait for it."""
+    taken = tmp_path / "taken"
+    taken.write_text("a user's file\n")
+    result = cli("run", str(SMALL), "--out", str(taken), "--quiet")
+    assert result.returncode in (1, 2), result.stderr
+    (line,) = message_lines(result.stderr)
+    assert str(taken) in line, line
+    assert taken.read_text() == "a user's file\n"
+
+
+@pytest.mark.mpi
+def test_clamp_and_motion_on_one_dof_is_an_input_error_on_every_rank(tmp_path):
+    """The clamped face x0 also pulled in z: the DOFs lie on one rank's cells only (the beam is
+    partitioned along x), which finds the conflict; every rank exits 2, one line names it."""
+    text = SMALL.read_text()
+    pulled = text.replace('[[prescribed]]\nface = "x1"', '[[prescribed]]\nface = "x0"')
+    pulled = pulled.replace('displacement_face = "x1"\nreaction_face = "x1"', "")
+    pulled = pulled.replace(
+        "[output]\n", '[output]\ndisplacement_face = "x1"\nreaction_face = "x0"\n'
+    )
+    assert pulled.count('\nface = "x0"') == 2  # the clamp and the motion
+    config = tmp_path / "pulled_clamp.toml"
+    config.write_text(pulled)
+    result = cli("run", str(config), "--out", str(tmp_path / "out"), "--quiet")
+    assert result.returncode == 2, result.stderr
+    (line,) = message_lines(result.stderr)
+    assert "prescribed: faces 'x0' and 'x0' both prescribe component z" in line, line
+
+
+def run_script(code: str, ranks: int = 2, **env) -> subprocess.CompletedProcess:
+    command = launch([sys.executable, "-c", textwrap.dedent(code)], ranks)
+    environment = {**ENV, **env}
+    return subprocess.run(command, capture_output=True, text=True, timeout=TIMEOUT, env=environment)
+
+
+@pytest.mark.mpi
+def test_a_gmsh_failure_on_rank_0_reaches_rank_1():
+    """Gmsh meshes on rank 0 only; a ply of 1e-300 mm makes its geometry degenerate there."""
+    result = run_script(
+        """
+        from mpi4py import MPI
+        from fenics_adaptive.errors import RemoteError
+        from meshes import layered_mesh
+        try:
+            layered_mesh(MPI.COMM_WORLD, 10.0, 1.0, 4, 1, [1e-300])
+        except RemoteError as error:
+            print(f"rank {MPI.COMM_WORLD.rank}: RemoteError from rank {error.rank}", flush=True)
+        except RuntimeError as error:
+            print(f"rank {MPI.COMM_WORLD.rank}: {error}", flush=True)
+        """
+    )
+    assert result.returncode == 0, result.stderr
+    lines = sorted(result.stdout.splitlines())
+    assert len(lines) == 2, result.stdout
+    assert lines[0].startswith("rank 0: gmsh:"), lines
+    assert lines[1] == "rank 1: RemoteError from rank 0", lines
+
+
+@pytest.mark.mpi
+def test_an_error_on_one_rank_alone_aborts_the_job_with_its_status():
+    """A rank that fails where the others wait in a collective (no shared_errors there) prints
+    its line once and aborts the job with its exit status, instead of hanging."""
+    start = time.monotonic()
+    result = run_script(
+        """
+        import sys
+        from mpi4py import MPI
+        from fenics_adaptive import cli
+        cli.AGREE_TIMEOUT = 1.0
+        comm = MPI.COMM_WORLD
+        errors = comm.Dup()
+        if comm.rank == 1:
+            sys.exit(cli._fail(errors, 2, "fenics-adaptive: x.toml: key: only rank 1 knows"))
+        comm.barrier()  # rank 0 waits for rank 1 for ever
+        """
+    )
+    assert time.monotonic() - start < 60
+    assert result.returncode == 2, result.stderr
+    (line,) = message_lines(result.stderr)
+    assert "only rank 1 knows" in line and "rank 1 alone" in line, line
+
+
+@pytest.mark.mpi
+def test_sigterm_ends_a_hung_collective_after_the_watchdog_timeout():
+    """Rank 0 hangs in a DOLFINx collective (vector creation, with the GIL held) that rank 1
+    never enters; rank 1 waits in a receive. SIGTERM to mpiexec reaches both, neither can run
+    its Python handler, and the watchdog ends the job 3 s later with one line per rank."""
+    code = textwrap.dedent(
+        """
+        from mpi4py import MPI
+        import dolfinx
+        from fenics_adaptive.runner import _StopOnSignal
+        comm = MPI.COMM_WORLD
+        mesh = dolfinx.mesh.create_unit_interval(comm, 8)
+        index_map = mesh.topology.index_map(0)
+        stop = _StopOnSignal(comm)
+        stop()  # a poll: the solver was alive
+        print(f"ready {comm.rank}", flush=True)
+        if comm.rank == 0:
+            dolfinx.la.vector(index_map)  # collective: rank 1 never joins
+        else:
+            comm.recv(source=0, tag=7)  # never sent
+        print("not reached", flush=True)
+        """
+    )
+    environment = {**ENV, "FENICS_ADAPTIVE_STOP_TIMEOUT": "3"}
+    job = subprocess.Popen(
+        launch([sys.executable, "-c", code], 2),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=environment,
+    )
+    try:
+        ready = [job.stdout.readline() for _ in range(2)]
+        assert sorted(ready) == ["ready 0\n", "ready 1\n"], ready
+        time.sleep(1.0)  # both are inside their calls now
+        signalled = time.monotonic()
+        job.send_signal(signal.SIGTERM)
+        stdout, stderr = job.communicate(timeout=60)
+    finally:
+        if job.poll() is None:
+            job.kill()
+            job.wait()
+    elapsed = time.monotonic() - signalled
+    assert 3.0 <= elapsed < 30.0, elapsed
+    assert job.returncode != 0
+    assert "not reached" not in stdout
+    lines = [line for line in message_lines(stderr) if "no progress" in line]
+    assert lines, stderr
+    for line in lines:
+        assert line.endswith("no progress for 3 s after SIGTERM; aborting the MPI job"), line

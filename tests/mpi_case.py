@@ -1,0 +1,57 @@
+"""Run a config on this MPI job (as ``fenics-adaptive run`` does) and print, from rank 0, one JSON
+line with what each rank held: the x range of its cells, its extra nodes, cohesive elements,
+border constraints, the largest ply damage and the largest contact force on its nodes.
+tests/test_mpi.py runs it under mpiexec to check that an event happened on one rank only.
+
+Usage: python tests/mpi_case.py CONFIG.toml OUT_DIR
+"""
+
+import json
+import sys
+
+import numpy as np
+from mpi4py import MPI
+
+from fenics_adaptive import contact as contact_module
+from fenics_adaptive.config import load_config
+from fenics_adaptive.ply_damage import S_D
+from fenics_adaptive.runner import execute
+from fenics_adaptive.structure import _cell_coordinates
+
+# the largest contact force on this rank's nodes over the run (N): recorded around set_forces
+peak_contact = [0.0]
+set_forces = contact_module.Contact.set_forces
+
+
+def recording_set_forces(self, u_base, forces):
+    set_forces(self, u_base, forces)
+    if len(self.f):
+        peak_contact[0] = max(peak_contact[0], float(np.abs(self.f).max()))
+
+
+contact_module.Contact.set_forces = recording_set_forces
+
+
+def main() -> None:
+    comm = MPI.COMM_WORLD
+    config = load_config(sys.argv[1])
+    _, structure = execute(config, sys.argv[2], comm, show_progress=False, log=None)
+    x = _cell_coordinates(structure)[:, :, 0].mean(axis=1)
+    held = {
+        "x_min": float(x.min()),
+        "x_max": float(x.max()),
+        "extra_nodes": structure.extra.n_owned,
+        "cohesive": len(structure.cohesive),
+        "border": len(structure.border),
+        "ply_damage": float(structure.damage_state[:, :, S_D].max())
+        if structure.ply_damage
+        else 0.0,
+        "contact_force": peak_contact[0],
+    }
+    ranks = comm.gather(held)
+    if comm.rank == 0:
+        print(json.dumps(ranks), flush=True)
+
+
+if __name__ == "__main__":
+    main()
