@@ -173,7 +173,7 @@ def stop_at_poll(monkeypatch, poll: int | None) -> None:
     steps), or never (None)."""
 
     class Stop:
-        def __init__(self):
+        def __init__(self, comm=None):
             self.polls = 0
 
         def __call__(self) -> bool:
@@ -299,7 +299,7 @@ def test_a_kill_at_any_point_of_the_write_leaves_one_complete_checkpoint(
     def remove(folder, sequence):
         if point.startswith("after the commit") and len(writes) > 3:
             raise Killed
-        original_remove(folder, sequence)
+        return original_remove(folder, sequence)
 
     original_commit, original_remove = checkpoint._commit, checkpoint._remove_superseded
     monkeypatch.setattr(checkpoint, "_write_durably", write)
