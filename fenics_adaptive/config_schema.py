@@ -206,7 +206,7 @@ _TIME_CURVE = (
         "curve",
         "time curve [[t0, s0], [t1, s1], ...]: piecewise linear, held after (times s, "
         f"0 .. {_g(MAX_TIME)}, not decreasing; scales dimensionless)",
-        "s, 1",
+        "",
         OPTIONAL,
         -1e6,
         1e6,

@@ -149,7 +149,7 @@ def test_malformed_impactor_names_the_key(key, value):
     data["impactor"] = {**IMPACTOR, key: value}
     with pytest.raises(InputError) as caught:
         parse_config(data)
-    assert caught.value.key == f"impactor.{key}", str(caught.value)
+    assert caught.value.key.split("[")[0] == f"impactor.{key}", str(caught.value)
 
 
 def test_impactor_parses_and_one_inside_the_plate_is_refused(tmp_path):
