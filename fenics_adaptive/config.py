@@ -1054,29 +1054,38 @@ def model_size(mesh: MeshConfig, laminate: Laminate, split: int = 0) -> ModelSiz
     return ModelSize(cells, nodes, laminate.n_plies, layers)
 
 
-# Peak memory of a run (resident set, one rank), fitted to two sizes of the plate-impact ESL
-# model measured here with `check` (see estimated_memory); per (cell x ply) and per node.
-MEMORY_BASE_BYTES = 4.0e8  # the interpreter, DOLFINx, numba and the compiled forms
-MEMORY_PER_CELL_PLY_BYTES = 2.0e2
-MEMORY_PER_NODE_BYTES = 2.0e3
-# Wall time of a step (serial), measured here on ESL plates: per cell and per (cell x ply).
-STEP_SECONDS_PER_CELL = 2.0e-6
-STEP_SECONDS_PER_CELL_PLY = 2.0e-7
+# Peak memory (resident set, one rank) and step time of an unrefined run, measured here on ESL
+# plates (the plate-impact material, 4 and 16 plies) of 20 x 20 and 200 x 200 cells:
+# 286 MB at 400 cells (16 plies), 365 MB at 40 000 cells with 4 plies and 372 MB with 16 plies,
+# i.e. 2.0 kB per cell and 16 B per (cell x ply) above the base. Step times on this shared
+# 2-vCPU machine (under load) ranged 5 .. 25 us per cell; the per-ply share from 4 to 16 plies
+# of 6400 cells: 0.3 us per (cell x ply). The wall-time estimate is good to a factor of ~3.
+MEMORY_BASE_BYTES = 2.9e8  # the interpreter, DOLFINx, numba and the compiled forms
+MEMORY_PER_CELL_BYTES = 2.0e3
+MEMORY_PER_CELL_PLY_BYTES = 16.0
+STEP_SECONDS_PER_CELL = 1.0e-5
+STEP_SECONDS_PER_CELL_PLY = 3.0e-7
 
 
-def estimated_memory(size: ModelSize) -> float:
-    """Estimated peak memory of a run in bytes (one rank; each further rank adds about
-    MEMORY_BASE_BYTES), before any refinement (an adaptive model's refined cells add more)."""
+def estimated_memory(size: ModelSize, ranks: int = 1) -> float:
+    """Estimated peak memory of a run in bytes, over all ``ranks``, of the unrefined model (an
+    adaptive model's refined cells add their extra nodes and subelements).
+
+    Parameters:
+        size: the model size (``model_size``).
+        ranks: MPI ranks (each holds its own interpreter and compiled forms).
+    """
     return (
-        MEMORY_BASE_BYTES
+        ranks * MEMORY_BASE_BYTES
+        + MEMORY_PER_CELL_BYTES * size.cells
         + MEMORY_PER_CELL_PLY_BYTES * size.cells * size.plies
-        + MEMORY_PER_NODE_BYTES * size.nodes
     )
 
 
-def estimated_step_seconds(size: ModelSize) -> float:
-    """Estimated wall time of one time step (s, one rank) of the unrefined model."""
-    return size.cells * (STEP_SECONDS_PER_CELL + STEP_SECONDS_PER_CELL_PLY * size.plies)
+def estimated_step_seconds(size: ModelSize, ranks: int = 1) -> float:
+    """Estimated wall time (s) of one time step of the unrefined model on ``ranks`` ranks
+    (refined cells cost 3 .. 7 x an unrefined one)."""
+    return size.cells * (STEP_SECONDS_PER_CELL + STEP_SECONDS_PER_CELL_PLY * size.plies) / ranks
 
 
 def step_count(end_time: float, time_step: float) -> int | float:
@@ -1104,3 +1113,17 @@ def check_step_count(solver: SolverSettings, time_step: float) -> int:
             "shorten end_time)",
         )
     return steps
+
+
+def output_counts(solver: SolverSettings, time_step: float) -> tuple[int, int]:
+    """History rows and field frames a run writes at a constant ``time_step`` (s): one at t = 0
+    and one at the first step at or after each further output time, at most one per step."""
+    steps = step_count(solver.end_time, time_step)
+    duration = steps * time_step
+
+    def count(interval: float | None) -> int:
+        if not interval:
+            return 0
+        return int(min(steps + 1, math.floor(duration / interval + 1e-9) + 1))
+
+    return count(solver.output_interval), count(solver.field_interval)
