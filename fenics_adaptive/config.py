@@ -476,7 +476,6 @@ def parse_config(data: dict, source: str = "<memory>", seen: set[str] | None = N
                 f"mesh layer {k} holds one ply with one integration point through the thickness:"
                 " its bending mode has no stiffness (group plies, or set model.points_per_ply = 2)",
             )
-    _check_geometry(mesh, laminate)
     size = model_size(mesh, laminate)
     memory = estimated_memory(size)
     if memory > max_memory * 1e9:
@@ -486,6 +485,7 @@ def parse_config(data: dict, source: str = "<memory>", seen: set[str] | None = N
             f"{size.cell_layers} cell layer(s), an estimated {memory / 1e9:.3g} GB, above "
             f"model.max_memory = {max_memory:g} GB (raise it to run this model)",
         )
+    _check_geometry(mesh, laminate)
     faces = face_names(len(mesh.layers))
     interfaces, refinements, cohesive = _interfaces(root, kind, laminate, mesh)
     split = _split_boundaries(kind, mesh, interfaces)
@@ -712,7 +712,8 @@ def _check_geometry(mesh: MeshConfig, laminate: Laminate) -> None:
         sides = {"nx": dx, "ny": dy, "laminate": height}
         longest, shortest = max(sides, key=sides.get), min(sides, key=sides.get)
         if sides[longest] > MAX_ASPECT * sides[shortest]:
-            key = f"mesh.{longest}" if shortest == "laminate" else f"mesh.{shortest}"
+            # more cells along a long side, or fewer along a short one
+            key = f"mesh.{longest}" if longest != "laminate" else f"mesh.{shortest}"
             raise InputError(
                 key,
                 f"cells of {dx:.4g} x {dy:.4g} x {height:.4g} mm (cell layer {k}): the longest "
@@ -1105,7 +1106,7 @@ def check_step_count(solver: SolverSettings, time_step: float) -> int:
     """
     steps = step_count(solver.end_time, time_step)
     if steps > solver.max_steps:
-        count = f"{steps:.3g}" if steps < math.inf else "more than 1e308"
+        count = str(steps) if steps < math.inf else "more than 1e308"
         raise InputError(
             "solver.max_steps",
             f"the run would take {count} steps of {time_step:.4g} s to solver.end_time = "
