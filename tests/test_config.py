@@ -485,3 +485,31 @@ def test_schema_module_imports_neither_dolfinx_nor_numba():
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert done.returncode == 0, done.stderr
     assert done.stdout.strip() == "[]"
+
+
+def test_face_node_sets_of_the_parser_are_the_meshs():
+    """The parser's node sets of faces (which it checks before meshing) against the nodes the
+    mesh really has on them, for every face and pair of faces of a layerwise model with split
+    (delaminating) and shared layer boundaries, with and without an x range."""
+    import itertools
+
+    from fenics_adaptive.config import _nodes_box, _split_boundaries
+    from fenics_adaptive.loading import face_nodes
+    from fenics_adaptive.runner import build_structure
+
+    data = tomllib.loads(TCB_LW.read_text())
+    data["mesh"].update(nx=4, ny=2)
+    config = parse_config(data)
+    split = _split_boundaries(config.kind, config.mesh, config.interfaces)
+    assert split == (True, False, True)
+    model = build_structure(config).base
+    faces = config.face_names
+    for face in [*faces, *(f"{a}&{b}" for a, b in itertools.combinations(faces, 2))]:
+        for x_range in (None, (2.5, 5.0), (0.1, 2.4)):
+            box = _nodes_box(face, x_range, config.mesh, split)
+            count = (
+                0
+                if box is None
+                else ((box[0][1] - box[0][0] + 1) * (box[1][1] - box[1][0] + 1) * len(box[2]))
+            )
+            assert count == len(face_nodes(model, face, x_range)), (face, x_range)
