@@ -574,8 +574,13 @@ def parse_config(data: dict, source: str = "<memory>", seen: set[str] | None = N
     _check_has_nodes(
         output.key("displacement_face"), probe.displacement_face, probe.displacement_x, mesh, split
     )
-    if interval > end_time:
-        raise InputError("output.interval", f"is longer than solver.end_time ({end_time:g} s)")
+    for key, value in (
+        ("output.interval", interval),
+        ("output.fields_interval", fields_interval),
+        ("indicators.interval", indicators.interval if indicators is not None else None),
+    ):
+        if value is not None and value > end_time:
+            raise InputError(key, f"is longer than solver.end_time ({end_time:g} s)")
     constrained_faces = {m.face for m in motions}
     if probe.reaction_face not in constrained_faces:
         raise InputError(
