@@ -52,6 +52,7 @@ from typing import Any
 from fenics_adaptive.cohesive import CohesiveLaw
 from fenics_adaptive.config_schema import (
     MAX_ASPECT,
+    MAX_PLIES,
     MAX_TIME,
     MIN_LENGTH,
     REQUIRED,
@@ -540,7 +541,7 @@ def parse_config(data: dict, source: str = "<memory>", seen: set[str] | None = N
                 key=table.key("face"),
             )
         )
-    _check_motions_agree(motions, mesh, split)
+    _check_motions_agree([*motions, *_symmetry_motions(kind, mesh, interfaces)], mesh, split)
     loads: list[FaceLoad] = []
     for table in root.tables("load"):
         face = table.face("face", faces, single=True)
@@ -660,6 +661,11 @@ def _laminate(table: _Table, materials: dict[str, PlyMaterial]) -> Laminate:
         mat = material(table.key("material"), table.string("material"))
         thickness = table.number("ply_thickness")
         plies = [Ply(mat, a, thickness) for a in table.numbers("angles")]
+    if len(plies) > MAX_PLIES:
+        raise InputError(
+            table.key("plies" if table.has("plies") else "angles"),
+            f"{len(plies)} plies, more than {MAX_PLIES} (group them into sublaminates)",
+        )
     return Laminate(tuple(plies))
 
 
@@ -851,6 +857,25 @@ def _check_motions_agree(motions: list[PrescribedMotion], mesh: MeshConfig, spli
                     f"{b.face!r} shares nodes with {a.key} = {a.face!r} and both prescribe "
                     f"component {b.component} there, differently (a node can follow only one)",
                 )
+
+
+def _symmetry_motions(kind: str, mesh: MeshConfig, interfaces: Interfaces) -> list:
+    """The u_z = 0 motions ``runner.build_structure`` adds at a layerwise model's symmetry
+    interfaces (an adaptive model holds its extra nodes there instead)."""
+    if kind != "layerwise":
+        return []
+    boundaries = list(itertools.accumulate(mesh.layers))[:-1]
+    return [
+        PrescribedMotion(
+            f"top_layer{boundaries.index(i)}",
+            "z",
+            "displacement",
+            0.0,
+            Amplitude.constant(0.0),
+            key="interfaces.symmetry",
+        )
+        for i in interfaces.symmetry
+    ]
 
 
 def _is_zero_motion(motion: PrescribedMotion) -> bool:

@@ -513,3 +513,12 @@ def test_face_node_sets_of_the_parser_are_the_meshs():
                 else ((box[0][1] - box[0][0] + 1) * (box[1][1] - box[1][0] + 1) * len(box[2]))
             )
             assert count == len(face_nodes(model, face, x_range)), (face, x_range)
+
+
+def test_too_many_plies_and_a_motion_against_a_symmetry_plane_are_refused():
+    error = refused(mutate("laminate.angles", [0.0] * 257))
+    assert error.key == "laminate.angles" and "257 plies" in error.problem
+    data = tomllib.loads(TCB_LW.read_text())  # symmetry at interface 4: top_layer1, u_z = 0
+    data["prescribed"][0]["face"] = "x1&top_layer1"
+    error = refused(data)
+    assert error.key == "interfaces.symmetry" and "prescribed[0].face" in error.problem
