@@ -44,6 +44,7 @@ from __future__ import annotations
 
 import itertools
 import math
+import re
 import tomllib
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -160,6 +161,12 @@ def _type_name(value: Any) -> str:
     )
 
 
+def _name(name: str) -> str:
+    """A key as an error message names it: as written if it is a plain name, else quoted (a
+    TOML key may hold any character, a newline too, and the message stays one line)."""
+    return name if re.fullmatch(r"[A-Za-z0-9_\-]+", name) else repr(name)
+
+
 def _shown(value: Any) -> str:
     """A value for an error message: its repr, cut short (one line, whatever the value)."""
     text = repr(value)
@@ -194,7 +201,7 @@ class _Table:
         for name in data:
             if name not in schema.by_name:
                 raise InputError(
-                    f"{path}.{name}", f"unknown key (allowed: {', '.join(schema.names)})"
+                    f"{path}.{_name(name)}", f"unknown key (allowed: {', '.join(schema.names)})"
                 )
         self.path = path
         self.data = data
@@ -395,7 +402,7 @@ class _Root:
             raise InputError("config", f"must be a table (got {_type_name(data)})")
         for name in data:
             if name not in TOP_LEVEL:
-                raise InputError(name, f"unknown section (allowed: {', '.join(TOP_LEVEL)})")
+                raise InputError(_name(name), f"unknown section (allowed: {', '.join(TOP_LEVEL)})")
         self.data = data
         self.reading = reading
 
@@ -623,6 +630,10 @@ def _materials(root: _Root) -> tuple[dict[str, PlyMaterial], dict[str, PlyFailur
     elastic_schema, failure_schema = section("materials.NAME"), section("materials.NAME.failure")
     materials, failures = {}, {}
     for name, values in data.items():
+        if _name(name) != name:
+            raise InputError(
+                f"materials.{_name(name)}", "a material name is letters, digits, _ and - only"
+            )
         table = _Table(f"materials.{name}", values, elastic_schema, root.reading)
         elastic = {k.name: table.number(k.name) for k in elastic_schema.keys if k.kind == "float"}
         materials[name] = PlyMaterial(name=name, **elastic)

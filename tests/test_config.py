@@ -522,3 +522,13 @@ def test_too_many_plies_and_a_motion_against_a_symmetry_plane_are_refused():
     data["prescribed"][0]["face"] = "x1&top_layer1"
     error = refused(data)
     assert error.key == "interfaces.symmetry" and "prescribed[0].face" in error.problem
+
+
+def test_odd_key_names_keep_the_message_on_one_line():
+    data = base()
+    data["solver"]["end\ntime"] = 1.0
+    assert refused(data).key == "solver.'end\\ntime'"
+    data = base()
+    data["materials"]["a\nb"] = data["materials"]["prototype"]
+    assert refused(data).key == "materials.'a\\nb'"
+    assert refused({**base(), "x\ny": {}}).key == "'x\\ny'"

@@ -50,7 +50,15 @@ BASES["plate_impact"] = plate_impact_like()
 OTHER_TYPES = ["text", "", [1, 2], [], {"a": 1}, {}, True, False, 7, -3, 2.5, [[0.0, 1.0]]]
 FACTORS = [1e300, 1e-300, 1e12, 1e-12, 1e9, 1e-9, 1e6, 1e-6, 1e3, 1e-3, 0.0, 2.0**63]
 NON_FINITE = [math.nan, math.inf, -math.inf]
-EXTRA_KEYS = {"bogus": 1.0, "x_min": 3.0, "x_max": 1.0, "face": "top", "nx": 4, "law": "bk"}
+EXTRA_KEYS = {
+    "bogus": 1.0,
+    "odd\nkey \u00e9": 1,
+    "x_min": 3.0,
+    "x_max": 1.0,
+    "face": "top",
+    "nx": 4,
+    "law": "bk",
+}
 
 tally: Counter = Counter()
 ran: set[tuple[str, str]] = set()
