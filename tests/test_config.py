@@ -532,3 +532,21 @@ def test_odd_key_names_keep_the_message_on_one_line():
     data["materials"]["a\nb"] = data["materials"]["prototype"]
     assert refused(data).key == "materials.'a\\nb'"
     assert refused({**base(), "x\ny": {}}).key == "'x\\ny'"
+
+
+def test_resolution_refuses_what_the_parser_would_with_the_key():
+    """The loads' resolution on the mesh (the backstop for motions made outside the parser,
+    such as a layerwise model's symmetry planes) names the config keys too."""
+    from fenics_adaptive.loading import Amplitude, PrescribedMotion
+    from fenics_adaptive.runner import build_structure
+
+    config = parse_config(base())
+    pull = PrescribedMotion("x1&top", "z", "displacement", 1.0, Amplitude.constant(1.0), key="k1")
+    with pytest.raises(InputError) as caught:
+        build_structure(replace(config, motions=(*config.motions, pull)))
+    assert caught.value.key == "k1" and "prescribed[0]" not in caught.value.key
+    assert "both prescribe component z" in caught.value.problem
+    nowhere = replace(pull, face="x0&x1", key="k2")
+    with pytest.raises(InputError) as caught:
+        build_structure(replace(config, motions=(*config.motions[:3], nowhere)))
+    assert caught.value.key == "k2" and "no nodes" in caught.value.problem
