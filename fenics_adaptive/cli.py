@@ -120,10 +120,10 @@ def _check(config_path: str, config, problem, comm) -> int:
     from mpi4py import MPI
 
     from fenics_adaptive.config import (
+        ModelSize,
         check_step_count,
         estimated_memory,
         estimated_step_seconds,
-        model_size,
         output_counts,
     )
 
@@ -132,8 +132,7 @@ def _check(config_path: str, config, problem, comm) -> int:
     cells = comm.allreduce(model.mesh.topology.index_map(3).size_local, op=MPI.SUM)
     nodes = model.V.dofmap.index_map.size_global
     cell_layers = len(problem.beam.layer_z) - 1
-    size = model_size(config.mesh, config.laminate)
-    size = type(size)(cells, nodes, size.plies, cell_layers)
+    size = ModelSize(cells, nodes, config.laminate.n_plies, cell_layers)  # as built
     rows, frames = output_counts(solver, problem.time_step)
     memory = estimated_memory(size, comm.size)
     wall = steps * estimated_step_seconds(size, comm.size)

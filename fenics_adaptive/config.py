@@ -1135,7 +1135,7 @@ def check_step_count(solver: SolverSettings, time_step: float) -> int:
     """
     steps = step_count(solver.end_time, time_step)
     if steps > solver.max_steps:
-        count = str(steps) if steps < math.inf else "more than 1e308"
+        count = str(steps) if steps < 1e15 else f"{steps:.3g}" if steps < math.inf else "over 1e308"
         raise InputError(
             "solver.max_steps",
             f"the run would take {count} steps of {time_step:.4g} s to solver.end_time = "

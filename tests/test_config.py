@@ -377,6 +377,12 @@ def test_step_count_is_the_runs_and_refused_above_max_steps():
         check_step_count(solver, 0.99e-7)
     assert caught.value.key == "solver.max_steps" and "2021 steps" in caught.value.problem
     assert output_counts(solver, 1e-7) == (21, 3)  # every 1e-5 s, fields every 1e-4 s
+    with pytest.raises(InputError, match=r"take 1e\+307 steps of 1e-07 s"):
+        check_step_count(replace(solver, end_time=1e300), 1e-7)
+    with pytest.raises(InputError, match=r"take 2e\+303 steps of 1e-307 s"):
+        check_step_count(solver, 1e-307)
+    with pytest.raises(InputError, match="over 1e308 steps of 1e-307 s"):
+        check_step_count(replace(solver, end_time=1e300), 1e-307)
 
 
 def test_non_utf8_and_bad_toml_name_the_file_once(tmp_path):
