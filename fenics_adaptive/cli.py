@@ -2,7 +2,13 @@
 [--overwrite]`` and ``fenics-adaptive check``.
 
 Exit status: 0 done, 2 bad input (one line on stderr naming the key), 1 the run failed, 130 the
-run was interrupted (SIGINT or SIGTERM) after writing a checkpoint to continue from.
+run was interrupted (SIGINT or SIGTERM) after writing a checkpoint to continue from, or by
+Ctrl-C during start-up (one line: nothing was run).
+
+``check`` builds the model without running it and reports its size, the time step, the number
+of steps (the count the run takes; refused above ``[solver] max_steps``), history rows and field
+frames, and estimates of peak memory and wall time (``config.estimated_memory``,
+``config.estimated_step_seconds``).
 """
 
 from __future__ import annotations
@@ -10,16 +16,32 @@ from __future__ import annotations
 import argparse
 import os
 import shlex
+import signal
 import sys
+import threading
 import time
 import traceback
-
-from mpi4py import MPI
+from pathlib import Path
+from typing import TYPE_CHECKING
 
 from fenics_adaptive.errors import InputError
 
+if TYPE_CHECKING:  # mpi4py is imported when a command runs, so that --help stays fast
+    from mpi4py import MPI
+
 
 def main(argv: list[str] | None = None) -> int:
+    """The command line (see the module docstring); returns the exit status."""
+    interrupt = _StartupInterrupt()
+    try:
+        return _command(argv, interrupt)
+    except KeyboardInterrupt as error:
+        return _interrupted(error)
+    finally:
+        interrupt.release()
+
+
+def _command(argv: list[str] | None, interrupt: _StartupInterrupt) -> int:
     parser = argparse.ArgumentParser(
         prog="fenics-adaptive",
         description="Explicit dynamics of laminated beams and plates with the adaptive "
@@ -51,6 +73,8 @@ def main(argv: list[str] | None = None) -> int:
     check.add_argument("config", help="TOML run configuration")
     args = parser.parse_args(argv)
 
+    from mpi4py import MPI
+
     comm = MPI.COMM_WORLD
     errors = comm.Dup() if comm.size > 1 else None  # for _fail only
     # Imported here so that `--help` answers without loading DOLFINx.
@@ -61,14 +85,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         config = load_config(args.config)
         if args.command == "check":
-            problem = build_problem(config, comm)
-            if comm.rank == 0:
-                steps = config.solver.end_time / problem.time_step
-                print(
-                    f"{args.config}: ok; time step {problem.time_step:.4e} s "
-                    f"(stable {problem.stable_time_step:.4e} s), {steps:.0f} steps"
-                )
-            return 0
+            return _check(args.config, config, build_problem(config, comm), comm)
         run_config(
             config,
             args.out,
@@ -88,8 +105,10 @@ def main(argv: list[str] | None = None) -> int:
             )
         return 130
     except InputError as error:
-        return _fail(errors, 2, f"fenics-adaptive: {args.config}: {error}")
+        return _fail(errors, 2, _input_error_line(args.config, error))
     except Exception as error:  # the run itself failed: say why in one line
+        if interrupt.fired:  # Ctrl-C killed a compiler or Gmsh under us: not a failure
+            return _interrupted(error)
         if os.environ.get("FENICS_ADAPTIVE_TRACEBACK"):
             traceback.print_exc()
         return _fail(
@@ -112,6 +131,8 @@ def _fail(errors: MPI.Comm | None, status: int, line: str) -> int:
 
     ``errors``: a duplicate of the run's communicator (None in serial), so that this check
     never meets the run's own pending collectives."""
+    from mpi4py import MPI
+
     comm = MPI.COMM_WORLD
     if errors is not None:
         arrived = errors.Ibarrier()
@@ -125,6 +146,128 @@ def _fail(errors: MPI.Comm | None, status: int, line: str) -> int:
     if comm.rank == 0:
         print(line, file=sys.stderr)
     return status
+
+
+def _input_error_line(config_path: str, error: InputError) -> str:
+    """The one line of a bad input: the config file, then the key and the problem (the file
+    named once, also when the problem is the file itself)."""
+    if error.key in (config_path, str(Path(config_path))):
+        return f"fenics-adaptive: {error}"
+    return f"fenics-adaptive: {config_path}: {error}"
+
+
+def _check(config_path: str, config, problem, comm) -> int:
+    """``check``: the model's size, time step, step count (refused above solver.max_steps),
+    output counts and estimates of memory and wall time, printed on rank 0; returns 0.
+
+    Raises:
+        InputError: a step count above ``solver.max_steps``.
+    """
+    from mpi4py import MPI
+
+    from fenics_adaptive.config import (
+        ModelSize,
+        check_step_count,
+        estimated_memory,
+        estimated_step_seconds,
+        output_counts,
+    )
+
+    model, solver = problem.model, config.solver
+    steps = check_step_count(solver, problem.time_step)
+    cells = comm.allreduce(model.mesh.topology.index_map(3).size_local, op=MPI.SUM)
+    nodes = model.V.dofmap.index_map.size_global
+    cell_layers = len(problem.beam.layer_z) - 1
+    size = ModelSize(cells, nodes, config.laminate.n_plies, cell_layers)  # as built
+    rows, frames = output_counts(solver, problem.time_step)
+    memory = estimated_memory(size, comm.size)
+    wall = steps * estimated_step_seconds(size, comm.size)
+    if comm.rank == 0:
+        refined = (
+            " (unrefined; refined cells cost 3 .. 7 x more)" if config.kind == "adaptive" else ""
+        )
+        checkpoints = (
+            f", a checkpoint every {solver.checkpoint_interval} steps"
+            if solver.checkpoint_interval
+            else ""
+        )
+        print(
+            f"{config_path}: ok\n"
+            f"  model: {config.kind}, {cells} cells, {nodes} nodes ({3 * nodes} DOFs), "
+            f"{config.laminate.n_plies} plies, {cell_layers} cell layer(s), {comm.size} MPI "
+            "rank(s)\n"
+            f"  time step {problem.time_step:.4e} s (stable {problem.stable_time_step:.4e} s with "
+            f"safety factor {solver.safety_factor}, limited by {problem.critical}), {steps} steps "
+            f"to {solver.end_time:.4e} s (solver.max_steps = {solver.max_steps})\n"
+            f"  output: {rows} history rows, {frames} field frames{checkpoints}\n"
+            f"  estimate: peak memory {memory / 1e9:.3g} GB (all ranks), wall time "
+            f"{_duration(wall)}{refined}"
+        )
+    return 0
+
+
+def _duration(seconds: float) -> str:
+    """A wall time for people: s, min, h or days."""
+    for unit, length in (("days", 86400.0), ("h", 3600.0), ("min", 60.0)):
+        if seconds >= length:
+            return f"{seconds / length:.3g} {unit}"
+    return f"{seconds:.2g} s"
+
+
+class _StartupInterrupt:
+    """SIGINT before the time loop: remember it (a Ctrl-C may kill a compiler or Gmsh under
+    the program, which then fails with some other error) and raise KeyboardInterrupt. The run
+    puts its own handler in place for the time loop (checkpoint, then stop)."""
+
+    def __init__(self):
+        self.fired = False
+        self.previous = None
+        if threading.current_thread() is threading.main_thread():
+            self.previous = signal.signal(signal.SIGINT, self._handle)
+
+    def _handle(self, number, frame) -> None:
+        self.fired = True
+        raise KeyboardInterrupt
+
+    def release(self) -> None:
+        if self.previous is not None:
+            signal.signal(signal.SIGINT, self.previous)
+            self.previous = None
+
+
+def _in_time_loop(error: BaseException) -> bool:
+    """Whether the interrupt came once the run had entered its time loop (``runner.execute``
+    sets up its signal handling, ``stop``, just before the loop)."""
+    tb = error.__traceback__
+    while tb is not None:
+        frame = tb.tb_frame
+        if frame.f_code.co_name == "execute" and "stop" in frame.f_locals:
+            return True
+        tb = tb.tb_next
+    return False
+
+
+def _rank() -> int:
+    """This process's MPI rank, without starting MPI if it has not been started."""
+    mpi = sys.modules.get("mpi4py.MPI")
+    if mpi is not None and mpi.Is_initialized() and not mpi.Is_finalized():
+        return mpi.COMM_WORLD.rank
+    for name in ("OMPI_COMM_WORLD_RANK", "PMI_RANK", "PMIX_RANK"):
+        if os.environ.get(name, "").isdigit():
+            return int(os.environ[name])
+    return 0
+
+
+def _interrupted(error: BaseException) -> int:
+    """One line for a Ctrl-C that the run's own handling did not turn into a checkpoint;
+    exit status 130."""
+    if _rank() == 0:
+        if _in_time_loop(error):
+            line = "interrupted at once (a second signal): no checkpoint; the results are partial"
+        else:
+            line = "interrupted during start-up; nothing was run"
+        print(f"fenics-adaptive: {line}", file=sys.stderr)
+    return 130
 
 
 if __name__ == "__main__":

@@ -38,6 +38,7 @@ MAX_DISPLACEMENT = 1.0e5  # mm: largest prescribed displacement
 MAX_SPEED = 1.0e8  # mm/s: largest prescribed or impactor velocity component
 MAX_TIME = 1.0e6  # s: largest time in a time curve, rise time or trigger
 MAX_RINGS = 1000  # largest number of rings of neighbours (indicators.spread, front)
+MAX_PLIES = 256  # most plies in a laminate (the compiled forms grow with them)
 DEFAULT_MAX_STEPS = 10**9  # solver.max_steps
 DEFAULT_MAX_MEMORY_GB = 16.0  # model.max_memory
 
@@ -206,7 +207,7 @@ _TIME_CURVE = (
         "curve",
         "time curve [[t0, s0], [t1, s1], ...]: piecewise linear, held after (times s, "
         f"0 .. {_g(MAX_TIME)}, not decreasing; scales dimensionless)",
-        "s, 1",
+        "",
         OPTIONAL,
         -1e6,
         1e6,
@@ -399,8 +400,22 @@ SECTIONS: tuple[Section, ...] = (
                 MIN_LENGTH,
                 MAX_LENGTH,
             ),
-            Key("angles", "floats", "ply angles, bottom to top", "deg", OPTIONAL, -360.0, 360.0),
-            Key("plies", "tables", "instead: one table per ply ([[laminate.plies]])", "", OPTIONAL),
+            Key(
+                "angles",
+                "floats",
+                f"ply angles, bottom to top (at most {MAX_PLIES} plies)",
+                "deg",
+                OPTIONAL,
+                -360.0,
+                360.0,
+            ),
+            Key(
+                "plies",
+                "tables",
+                f"instead: one table per ply ([[laminate.plies]], at most {MAX_PLIES})",
+                "",
+                OPTIONAL,
+            ),
         ),
         required=True,
     ),
@@ -903,8 +918,9 @@ def reference_markdown() -> str:
         "energy N/mm). Every number must be finite. Unknown keys are errors. A bad value stops "
         "the program before anything runs, with one line naming the key (exit status 2).",
         "",
-        f"Limits: lengths up to {_g(MAX_LENGTH)} mm; cells and plies at least {_g(MIN_LENGTH)} "
-        f"mm thick; a cell's longest side at most {_g(MAX_ASPECT)} x its shortest (plies alike); "
+        f"Limits: at most {MAX_PLIES} plies; lengths up to {_g(MAX_LENGTH)} mm; cells and plies "
+        f"at least {_g(MIN_LENGTH)} mm thick; a cell's longest side at most {_g(MAX_ASPECT)} x "
+        "its shortest (plies alike); "
         f"forces up to {_g(MAX_FORCE)} N, speeds up to {_g(MAX_SPEED)} mm/s; the estimated "
         "memory of the model up to `model.max_memory`; the number of time steps up to "
         "`solver.max_steps`.",

@@ -11,7 +11,7 @@ import functools
 import itertools
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import dolfinx
 import numpy as np
@@ -117,6 +117,7 @@ class PrescribedMotion:
     amplitude: Amplitude
     x_range: tuple[float, float] | None = None  # only the face's nodes with x in it (mm): a
     # line (x, x) or a pad (x_min, x_max) of a support or a load
+    key: str = field(default="", compare=False)  # the config key that made it (for errors)
 
     def displacement(self, t: float) -> float:
         if self.kind == "displacement":
@@ -131,6 +132,7 @@ class FaceLoad:
     face: str
     force: tuple[float, float, float]
     amplitude: Amplitude
+    key: str = field(default="", compare=False)  # the config key that made it (for errors)
 
 
 def clamp(face: str) -> list[PrescribedMotion]:
@@ -222,7 +224,7 @@ def resolve(
         if model.comm.allreduce(len(dofs), op=MPI.SUM) == 0:
             where = f" at x in {motion.x_range} mm" if motion.x_range is not None else ""
             raise InputError(
-                _motion_key(motion), f"face {motion.face!r}{where} has no nodes to prescribe"
+                motion.key or "clamp", f"face {motion.face!r}{where} has no nodes to prescribe"
             )
         # a conflict lies on the ranks that hold the shared DOF: every rank learns of it here,
         # before the next motion's collective face lookup
@@ -232,9 +234,11 @@ def resolve(
                 if previous != k and motions[previous] != motion:
                     # the same DOF prescribed twice is fine only if both hold it at zero
                     if not (_is_zero(motions[previous]) and _is_zero(motion)):
-                        raise InputError(  # one of them is not zero: a [[prescribed]] entry
-                            "prescribed",
-                            f"faces {motions[previous].face!r} and {motion.face!r} both "
+                        other = motions[previous]
+                        raise InputError(
+                            motion.key or other.key or "prescribed",
+                            f"{motion.face!r} ({motion.key or 'a symmetry interface'}) and "
+                            f"{other.face!r} ({other.key or 'a symmetry interface'}) both "
                             f"prescribe component {motion.component} of the nodes they share, "
                             "differently",
                         )
@@ -246,7 +250,9 @@ def resolve(
     v = ufl.TestFunction(model.V)
     for load in loads:
         if "&" in load.face:
-            raise InputError("load.face", f"{load.face!r}: loads act on one face, not an edge")
+            raise InputError(
+                load.key or "load", f"{load.face!r}: a load acts on one face, not on a&b"
+            )
         area = face_area(model, load.face)
         traction = ufl.as_vector([f / area for f in load.force])
         vec = fem.assemble_vector(

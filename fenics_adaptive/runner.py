@@ -22,7 +22,7 @@ from mpi4py import MPI
 import fenics_adaptive
 from fenics_adaptive import checkpoint, explicit, output, watchdog
 from fenics_adaptive.assembly import CohesiveSet
-from fenics_adaptive.config import RunConfig
+from fenics_adaptive.config import RunConfig, check_step_count
 from fenics_adaptive.contact import Contact
 from fenics_adaptive.enrichment import STRONG, WEAK
 from fenics_adaptive.errors import InputError, shared_errors
@@ -249,7 +249,7 @@ def execute(
     structure = problem.structure
     n_cells = comm.allreduce(model.mesh.topology.index_map(3).size_local, op=MPI.SUM)
     n_nodes = model.V.dofmap.index_map.size_global
-    n_steps = math.ceil(config.solver.end_time / problem.time_step - 1e-9)
+    n_steps = check_step_count(config.solver, problem.time_step)  # refused above max_steps
     say(
         f"{config.kind} model: {n_cells} cells, {n_nodes} nodes ({3 * n_nodes} DOFs), "
         f"{config.laminate.n_plies} plies, {len(problem.beam.layer_z) - 1} cell layer(s), "
