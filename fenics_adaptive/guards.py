@@ -1,0 +1,232 @@
+"""Physics guards of the explicit run: an inverted element and a broken energy balance stop it.
+
+Units: N, mm, s, tonne (energies in mJ).
+
+Inversion. An element inverts when the Jacobian of its CURRENT configuration, J = dx/dxi with
+x = X + u, changes sign at one of its integration points: det F = det J(x) / det J(X) <= 0 (for
+small strain the same test on the current geometry: a small-strain element that has inverted is
+as meaningless as a finite-strain one). One jitted check covers every solid (sub)element of
+the rank, whichever path computes its force (ESL cells through the UFL forms, LW cells,
+subelements of refined cells, damage-aware cells): it reads the nodes of each element
+(``Structure.elements``) and the points of its packed rule (``Structure.element_rules``), so
+it never drifts from the force kernels' point sets and costs the force kernels nothing. The
+solver runs it at its poll (every 64 steps) and on output steps.
+
+On one vertical line (xi, eta) of a trilinear hexahedron, dx/dxi and dx/deta are affine in zeta
+and dx/dzeta is constant, so det J is a quadratic in zeta: its three coefficients are formed once
+per line and evaluated at every point of the line (about 600 flops per element in all).
+
+Energy balance. The run stops when |energy_balance| exceeds ``limit`` times the largest energy
+of the run so far: the largest of |external work|, |impact work|, kinetic energy and |internal
+work| over every history row up to now. The floor: the guard only judges once that largest
+energy has reached ``ENERGY_FLOOR_SHARE`` of the largest energy seen so far (it always has, so
+this is not what keeps early rows from tripping it) AND the run has taken ``ENERGY_MIN_STEPS``
+steps: before that the balance of an impulsive start (a velocity jump of a prescribed motion, an
+impactor already touching) is dominated by the one-step start-up error of the staggered
+velocities, not by a fault.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+# the energy guard judges from this step on (see the module docstring)
+ENERGY_MIN_STEPS = 100
+
+
+@njit(cache=True)
+def _monomial_coefficients(x, b):
+    """b (8, 3): coefficients of x(xi, eta, zeta) = sum_m b_m xi^(m&1) eta^((m>>1)&1)
+    zeta^((m>>2)&1) from the vertex values x (8, 3) (vertex k at (k&1, (k>>1)&1, (k>>2)&1))."""
+    for i in range(3):
+        for k in range(8):
+            b[k, i] = x[k, i]
+        for bit in (1, 2, 4):
+            for k in range(8):
+                if k & bit:
+                    b[k, i] -= b[k - bit, i]
+
+
+@njit(cache=True)
+def _line_determinant(b, xi, eta):
+    """(c0, c1, c2) with det J(xi, eta, zeta) = c0 + c1 zeta + c2 zeta^2 for the map b."""
+    a0 = np.empty(3)
+    a1 = np.empty(3)
+    e0 = np.empty(3)
+    e1 = np.empty(3)
+    c = np.empty(3)
+    for i in range(3):
+        a0[i] = b[1, i] + eta * b[3, i]  # dx/dxi = a0 + zeta a1
+        a1[i] = b[5, i] + eta * b[7, i]
+        e0[i] = b[2, i] + xi * b[3, i]  # dx/deta = e0 + zeta e1
+        e1[i] = b[6, i] + xi * b[7, i]
+        c[i] = b[4, i] + xi * b[5, i] + eta * (b[6, i] + xi * b[7, i])  # dx/dzeta
+    c0 = _triple(a0, e0, c)
+    c1 = _triple(a0, e1, c) + _triple(a1, e0, c)
+    c2 = _triple(a1, e1, c)
+    return c0, c1, c2
+
+
+@njit(cache=True)
+def _triple(a, b, c):
+    """(a x b) . c"""
+    return (
+        (a[1] * b[2] - a[2] * b[1]) * c[0]
+        + (a[2] * b[0] - a[0] * b[2]) * c[1]
+        + (a[0] * b[1] - a[1] * b[0]) * c[2]
+    )
+
+
+@njit(cache=True)
+def reference_orientation(element_nodes, X_base, X_extra):
+    """Sign (+1 or -1) of det J of each element's reference geometry at its centre."""
+    n_base = X_base.shape[0]
+    out = np.empty(element_nodes.shape[0])
+    x = np.empty((8, 3))
+    b = np.empty((8, 3))
+    for e in range(element_nodes.shape[0]):
+        for a in range(8):
+            node = element_nodes[e, a]
+            for i in range(3):
+                x[a, i] = X_base[node, i] if node < n_base else X_extra[node - n_base, i]
+        _monomial_coefficients(x, b)
+        c0, c1, c2 = _line_determinant(b, 0.5, 0.5)
+        out[e] = 1.0 if c0 + 0.5 * c1 + 0.25 * c2 >= 0.0 else -1.0
+    return out
+
+
+@njit(cache=True)
+def first_inverted_point(
+    element_nodes,
+    rule_of_element,
+    orientation,
+    rule_offsets,
+    zeta,
+    position_of_point,
+    positions,
+    X_base,
+    X_extra,
+    u_base,
+    u_extra,
+    x,
+    b,
+):
+    """(element, point, det) of the first integration point with orientation * det J(X + u)
+    <= 0 (or not finite), (-1, -1, 0.0) if there is none. ``point`` indexes the packed rules'
+    arrays. Scratch x, b: (8, 3)."""
+    n_base = X_base.shape[0]
+    for e in range(element_nodes.shape[0]):
+        for a in range(8):
+            node = element_nodes[e, a]
+            if node < n_base:
+                for i in range(3):
+                    x[a, i] = X_base[node, i] + u_base[node, i]
+            else:
+                for i in range(3):
+                    x[a, i] = X_extra[node - n_base, i] + u_extra[node - n_base, i]
+        _monomial_coefficients(x, b)
+        r = rule_of_element[e]
+        sign = orientation[e]
+        p = rule_offsets[r]
+        stop = rule_offsets[r + 1]
+        while p < stop:
+            q = position_of_point[p]
+            c0, c1, c2 = _line_determinant(b, positions[q, 0], positions[q, 1])
+            while p < stop and position_of_point[p] == q:
+                z = zeta[p]
+                det = sign * (c0 + z * (c1 + z * c2))
+                if not det > 0.0:  # also NaN
+                    return e, p, det
+                p += 1
+    return -1, -1, 0.0
+
+
+class InversionGuard:
+    """The inversion check over every solid (sub)element of a structure (this rank).
+
+    ``refresh()`` after the structure changed (refinement); ``check(t)`` returns None or the
+    one-line message naming the cell, the point and the time."""
+
+    def __init__(self, structure):
+        self.structure = structure
+        self._x = np.empty((8, 3))
+        self._b = np.empty((8, 3))
+        self.refresh()
+
+    def refresh(self) -> None:
+        s = self.structure
+        self.nodes, self.cells, self.plies = s.elements()
+        self.rule_of_element = s.element_rules(self.plies)
+        self.rules = s.subelements.rules
+        X_extra = s.extra.vectors["X"].array.reshape(-1, 3)
+        self.orientation = reference_orientation(self.nodes, s.X_base, X_extra)
+
+    def check(self, t: float) -> str | None:
+        """This rank's first inverted point at time t (s) as a message, or None."""
+        s = self.structure
+        if not len(self.nodes):
+            return None
+        rules = self.rules
+        e, p, det = first_inverted_point(
+            self.nodes,
+            self.rule_of_element,
+            self.orientation,
+            rules.rule_offsets,
+            rules.zeta,
+            rules.position_of_point,
+            rules.positions,
+            s.X_base,
+            s.extra.vectors["X"].array.reshape(-1, 3),
+            s.base.u.x.array.reshape(-1, 3),
+            s.extra.vectors["u"].array.reshape(-1, 3),
+            self._x,
+            self._b,
+        )
+        if e < 0:
+            return None
+        return self.describe(t, int(e), int(p), float(det))
+
+    def describe(self, t: float, e: int, p: int, det: float) -> str:
+        """The message for point p (index into the packed rules) of element e."""
+        s = self.structure
+        cell = int(self.cells[e])
+        corners = np.concatenate([s.bottom_local[cell], s.top_local[cell]])
+        centroid = s.X_base[corners].mean(axis=0)
+        rules = self.rules
+        r = int(self.rule_of_element[e])
+        first, stop = int(self.plies[e, 0]), int(self.plies[e, 1])
+        ply = first + int(rules.ply_of_point[p] - rules.ply_of_point[rules.rule_offsets[r]])
+        xi, eta = rules.positions[rules.position_of_point[p]]
+        z = rules.zeta[p]
+        # det F = det J(x) / det J(X) at the point
+        X = s.gather(self.nodes[e], "X")
+        b = np.empty((8, 3))
+        _monomial_coefficients(X, b)
+        c0, c1, c2 = _line_determinant(b, xi, eta)
+        det_F = det / abs(c0 + z * (c1 + z * c2))
+        refined = bool((s.interface_state[cell] != 0).any())
+        kind = f"subelement (plies {first + 1}-{stop}) of cell" if refined else "cell"
+        return (
+            f"t = {t:.6g} s: element inverted: {kind} {s.original_cell[cell]} (centroid "
+            f"{centroid[0]:.4g}, {centroid[1]:.4g}, {centroid[2]:.4g} mm), ply {ply + 1}, "
+            f"integration point (xi, eta, zeta) = ({xi:.4g}, {eta:.4g}, {z:.4g}): "
+            f"det F = {det_F:.3g} <= 0"
+        )
+
+
+def largest_energy(
+    external_work: float, impact_work: float, kinetic: float, internal_work: float
+) -> float:
+    """The largest of |external work|, |impact work|, kinetic energy and |internal work| (mJ)."""
+    return max(abs(external_work), abs(impact_work), abs(kinetic), abs(internal_work))
+
+
+def energy_error(balance: float, largest_so_far: float, limit: float, step: int) -> bool:
+    """Whether |balance| (mJ) breaks the guard: beyond ``limit`` x the largest energy of the run
+    so far, from step ``ENERGY_MIN_STEPS`` on (a non-finite balance always does)."""
+    if not math.isfinite(balance):
+        return True
+    return step >= ENERGY_MIN_STEPS and abs(balance) > limit * largest_so_far
