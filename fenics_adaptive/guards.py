@@ -37,47 +37,49 @@ from numba import njit
 ENERGY_MIN_STEPS = 100
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _monomial_coefficients(x, b):
     """b (8, 3): coefficients of x(xi, eta, zeta) = sum_m b_m xi^(m&1) eta^((m>>1)&1)
     zeta^((m>>2)&1) from the vertex values x (8, 3) (vertex k at (k&1, (k>>1)&1, (k>>2)&1))."""
     for i in range(3):
-        for k in range(8):
-            b[k, i] = x[k, i]
-        for bit in (1, 2, 4):
-            for k in range(8):
-                if k & bit:
-                    b[k, i] -= b[k - bit, i]
+        # three butterfly stages (differences along xi, eta, zeta), written out
+        x0, x1, x2, x3 = x[0, i], x[1, i], x[2, i], x[3, i]
+        x4, x5, x6, x7 = x[4, i], x[5, i], x[6, i], x[7, i]
+        d1, d3, d5, d7 = x1 - x0, x3 - x2, x5 - x4, x7 - x6
+        b[0, i] = x0
+        b[1, i] = d1
+        b[2, i] = x2 - x0
+        b[3, i] = d3 - d1
+        b[4, i] = x4 - x0
+        b[5, i] = d5 - d1
+        b[6, i] = (x6 - x4) - (x2 - x0)
+        b[7, i] = (d7 - d5) - (d3 - d1)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _line_determinant(b, xi, eta):
     """(c0, c1, c2) with det J(xi, eta, zeta) = c0 + c1 zeta + c2 zeta^2 for the map b."""
-    a0 = np.empty(3)
-    a1 = np.empty(3)
-    e0 = np.empty(3)
-    e1 = np.empty(3)
-    c = np.empty(3)
-    for i in range(3):
-        a0[i] = b[1, i] + eta * b[3, i]  # dx/dxi = a0 + zeta a1
-        a1[i] = b[5, i] + eta * b[7, i]
-        e0[i] = b[2, i] + xi * b[3, i]  # dx/deta = e0 + zeta e1
-        e1[i] = b[6, i] + xi * b[7, i]
-        c[i] = b[4, i] + xi * b[5, i] + eta * (b[6, i] + xi * b[7, i])  # dx/dzeta
-    c0 = _triple(a0, e0, c)
-    c1 = _triple(a0, e1, c) + _triple(a1, e0, c)
-    c2 = _triple(a1, e1, c)
+    # dx/dxi = a0 + zeta a1, dx/deta = e0 + zeta e1, dx/dzeta = c (scalars: no allocation)
+    a00, a01, a02 = b[1, 0] + eta * b[3, 0], b[1, 1] + eta * b[3, 1], b[1, 2] + eta * b[3, 2]
+    a10, a11, a12 = b[5, 0] + eta * b[7, 0], b[5, 1] + eta * b[7, 1], b[5, 2] + eta * b[7, 2]
+    e00, e01, e02 = b[2, 0] + xi * b[3, 0], b[2, 1] + xi * b[3, 1], b[2, 2] + xi * b[3, 2]
+    e10, e11, e12 = b[6, 0] + xi * b[7, 0], b[6, 1] + xi * b[7, 1], b[6, 2] + xi * b[7, 2]
+    xe = xi * eta
+    c0_ = b[4, 0] + xi * b[5, 0] + eta * b[6, 0] + xe * b[7, 0]
+    c1_ = b[4, 1] + xi * b[5, 1] + eta * b[6, 1] + xe * b[7, 1]
+    c2_ = b[4, 2] + xi * b[5, 2] + eta * b[6, 2] + xe * b[7, 2]
+    c0 = _triple(a00, a01, a02, e00, e01, e02, c0_, c1_, c2_)
+    c1 = _triple(a00, a01, a02, e10, e11, e12, c0_, c1_, c2_) + _triple(
+        a10, a11, a12, e00, e01, e02, c0_, c1_, c2_
+    )
+    c2 = _triple(a10, a11, a12, e10, e11, e12, c0_, c1_, c2_)
     return c0, c1, c2
 
 
-@njit(cache=True)
-def _triple(a, b, c):
-    """(a x b) . c"""
-    return (
-        (a[1] * b[2] - a[2] * b[1]) * c[0]
-        + (a[2] * b[0] - a[0] * b[2]) * c[1]
-        + (a[0] * b[1] - a[1] * b[0]) * c[2]
-    )
+@njit(cache=True, inline="always")
+def _triple(a0, a1, a2, b0, b1, b2, c0, c1, c2):
+    """(a x b) . c of three vectors given by their components"""
+    return (a1 * b2 - a2 * b1) * c0 + (a2 * b0 - a0 * b2) * c1 + (a0 * b1 - a1 * b0) * c2
 
 
 @njit(cache=True)
@@ -103,7 +105,8 @@ def first_inverted_point(
     element_nodes,
     rule_of_element,
     orientation,
-    rule_offsets,
+    line_offsets,
+    line_points,
     zeta,
     position_of_point,
     positions,
@@ -116,7 +119,8 @@ def first_inverted_point(
 ):
     """(element, point, det) of the first integration point with orientation * det J(X + u)
     <= 0 (or not finite), (-1, -1, 0.0) if there is none. ``point`` indexes the packed rules'
-    arrays. Scratch x, b: (8, 3)."""
+    arrays; the lines of rule r are ``line_offsets[r]:line_offsets[r + 1]``, the points of line
+    l ``line_points[l]:line_points[l + 1]`` (``rule_lines``). Scratch x, b: (8, 3)."""
     n_base = X_base.shape[0]
     for e in range(element_nodes.shape[0]):
         for a in range(8):
@@ -130,18 +134,37 @@ def first_inverted_point(
         _monomial_coefficients(x, b)
         r = rule_of_element[e]
         sign = orientation[e]
-        p = rule_offsets[r]
-        stop = rule_offsets[r + 1]
-        while p < stop:
+        for line in range(line_offsets[r], line_offsets[r + 1]):
+            p, end = line_points[line], line_points[line + 1]
             q = position_of_point[p]
             c0, c1, c2 = _line_determinant(b, positions[q, 0], positions[q, 1])
-            while p < stop and position_of_point[p] == q:
-                z = zeta[p]
-                det = sign * (c0 + z * (c1 + z * c2))
+            c0, c1, c2 = sign * c0, sign * c1, sign * c2
+            # a lower bound of the quadratic over the line's zeta range first: one test per
+            # line; the points only when it fails
+            lo, hi = zeta[p], zeta[end - 1]
+            bound = min(c0 + lo * (c1 + lo * c2), c0 + hi * (c1 + hi * c2))
+            if c2 > 0.0:
+                vertex = -0.5 * c1 / c2
+                if lo < vertex < hi:
+                    bound = c0 - 0.25 * c1 * c1 / c2
+            if bound > 0.0:
+                continue
+            for pp in range(p, end):
+                z = zeta[pp]
+                det = c0 + z * (c1 + z * c2)
                 if not det > 0.0:  # also NaN
-                    return e, p, det
-                p += 1
+                    return e, pp, det
     return -1, -1, 0.0
+
+
+def rule_lines(rule_offsets: np.ndarray, position_of_point: np.ndarray):
+    """(line_offsets, line_points): the vertical lines of packed rules (runs of points on one
+    in-plane position, bottom to top, as ``subelement.pack_rule`` orders them), CSR style."""
+    starts = np.flatnonzero(np.diff(position_of_point, prepend=-1) != 0)
+    starts = np.union1d(starts, rule_offsets[:-1])  # a rule starts a line
+    line_points = np.append(starts, rule_offsets[-1]).astype(np.int64)
+    line_offsets = np.searchsorted(starts, rule_offsets).astype(np.int64)
+    return line_offsets, line_points
 
 
 class InversionGuard:
@@ -161,6 +184,7 @@ class InversionGuard:
         self.nodes, self.cells, self.plies = s.elements()
         self.rule_of_element = s.element_rules(self.plies)
         self.rules = s.subelements.rules
+        self.lines = rule_lines(self.rules.rule_offsets, self.rules.position_of_point)
         X_extra = s.extra.vectors["X"].array.reshape(-1, 3)
         self.orientation = reference_orientation(self.nodes, s.X_base, X_extra)
 
@@ -174,7 +198,7 @@ class InversionGuard:
             self.nodes,
             self.rule_of_element,
             self.orientation,
-            rules.rule_offsets,
+            *self.lines,
             rules.zeta,
             rules.position_of_point,
             rules.positions,

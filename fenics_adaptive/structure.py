@@ -310,7 +310,10 @@ class Structure:
         axis = "xyz"[component]
         if block == 0:
             x = self.X_base[node]
-            cells = np.flatnonzero((self.bottom_local == node) | (self.top_local == node))
+            # the cells (rows) holding the node
+            cells = np.flatnonzero(
+                ((self.bottom_local == node) | (self.top_local == node)).any(axis=1)
+            )
             cell = f"cell {self.original_cell[cells[0]]}, " if len(cells) else ""
             return f"{cell}base node at ({x[0]:.4g}, {x[1]:.4g}, {x[2]:.4g}) mm, u_{axis}"
         n_interfaces = self.interface_state.shape[1]
