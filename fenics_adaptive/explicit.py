@@ -20,7 +20,16 @@ and of prescribed motions (reaction forces); damping work; the mechanical energy
 refinement adds or removes (kinetic: it redistributes lumped masses; strain and cohesive: what
 new nodes change, also added to the internal work). Balance:
 kinetic + internal + damping - external - refinement = 0 up to the scheme's O(dt^2) error.
-Dissipated = internal work - solid strain energy - recoverable cohesive energy.
+Dissipated = internal work - solid strain energy - recoverable cohesive energy. A second
+balance from the states (``HistoryRow.state_energy_balance``) replaces the internal work by the
+strain and stored cohesive energy plus the dissipation the damage laws report themselves
+(``cohesive_dissipation``, ``ply_dissipation``): it checks the materials' bookkeeping too.
+
+Guards (``guards``): the run stops as failed (``ElementInverted``, ``EnergyBalanceError``, both
+``Diverged``) when an element inverts (checked every 64 steps and on output steps) or when
+|energy balance| exceeds ``energy_error_limit`` x the largest energy of the run so far (on
+output steps, from step ``guards.ENERGY_MIN_STEPS``); an explicit impactor penalty above the
+largest stable one for the step is refused (``Contact.check_penalty``).
 """
 
 from __future__ import annotations

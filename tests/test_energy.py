@@ -137,7 +137,7 @@ def tcb(damping: float = 0.0) -> dict:
     return data
 
 
-@pytest.mark.parametrize("damping", [0.0, 3.0e4])
+@pytest.mark.parametrize("damping", [0.0, 5.0e5])
 def test_balances_agree_on_a_mode_I_delamination(tmp_path, damping):
     """The short TCB delaminates (cohesive dissipation a large part of the work); the balance
     from the states equals the one from the work to 1e-3 of the largest energy, undamped and
@@ -149,7 +149,7 @@ def test_balances_agree_on_a_mode_I_delamination(tmp_path, damping):
     assert dissipated > 0.2 * h["external_work"][-1]
     assert h["ply_dissipation"][-1] == 0.0
     if damping:
-        assert h["damping_energy"][-1] > 0.05 * h["external_work"][-1]
+        assert h["damping_energy"][-1] > 0.01 * h["external_work"][-1]
     difference = np.abs(np.subtract(h["state_energy_balance"], h["energy_balance"]))
     assert difference.max() < 1e-3 * largest
     # and the dissipation the work implies is the law's
@@ -161,7 +161,7 @@ def cross_ply_pull() -> dict:
     """A [0/90]s beam pulled along its length to 1.5 % strain: the 90-degree plies crack."""
     data = tomllib.loads((DATA / "small_beam.toml").read_text())
     data["model"]["ply_damage"] = True
-    data["mesh"].update(length=10.0, width=1.0, nx=20, ny=1)
+    data["mesh"].update(length=10.0, width=1.0, nx=20, ny=2)
     data["materials"]["prototype"]["failure"] = {
         "XT": 2000.0,
         "XC": 1200.0,

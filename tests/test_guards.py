@@ -33,7 +33,7 @@ def small_beam(**changes) -> dict:
 
 
 def toml_text(data: dict) -> str:
-    """A TOML writer for the flat tables and arrays of tables of these configs."""
+    """A TOML writer for these configs: tables (nested), arrays of tables, flat values."""
     lines = []
 
     def value(v):
@@ -45,19 +45,20 @@ def toml_text(data: dict) -> str:
             return "[" + ", ".join(value(x) for x in v) + "]"
         return repr(v)
 
-    for name, table in data.items():
-        if isinstance(table, list):
-            for entry in table:
-                lines.append(f"[[{name}]]")
-                lines += [f"{k} = {value(v)}" for k, v in entry.items()]
-            continue
-        plain = {k: v for k, v in table.items() if not isinstance(v, dict)}
+    def table(name: str, entries: dict) -> None:
         lines.append(f"[{name}]")
-        lines += [f"{k} = {value(v)}" for k, v in plain.items()]
-        for sub, entries in table.items():
-            if isinstance(entries, dict):
-                lines.append(f"[{name}.{sub}]")
-                lines += [f"{k} = {value(v)}" for k, v in entries.items()]
+        lines.extend(f"{k} = {value(v)}" for k, v in entries.items() if not isinstance(v, dict))
+        for sub, nested in entries.items():
+            if isinstance(nested, dict):
+                table(f"{name}.{sub}", nested)
+
+    for name, entries in data.items():
+        if isinstance(entries, list):
+            for entry in entries:
+                lines.append(f"[[{name}]]")
+                lines.extend(f"{k} = {value(v)}" for k, v in entry.items())
+        else:
+            table(name, entries)
     return "\n".join(lines) + "\n"
 
 
