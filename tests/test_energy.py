@@ -140,8 +140,8 @@ def tcb(damping: float = 0.0) -> dict:
 @pytest.mark.parametrize("damping", [0.0, 5.0e5])
 def test_balances_agree_on_a_mode_I_delamination(tmp_path, damping):
     """The short TCB delaminates (cohesive dissipation a large part of the work); the balance
-    from the states equals the one from the work to 1e-3 of the largest energy, undamped and
-    with mass damping."""
+    from the states equals the one from the work to 1e-5 of the largest energy (measured:
+    1.6e-9 undamped), undamped and with mass damping."""
     h, summary = run_case(tmp_path, tcb(damping), "tcb")
     assert summary["status"] == "completed"
     largest = largest_energy(h)
@@ -151,10 +151,10 @@ def test_balances_agree_on_a_mode_I_delamination(tmp_path, damping):
     if damping:
         assert h["damping_energy"][-1] > 0.01 * h["external_work"][-1]
     difference = np.abs(np.subtract(h["state_energy_balance"], h["energy_balance"]))
-    assert difference.max() < 1e-3 * largest
+    assert difference.max() < 1e-5 * largest
     # and the dissipation the work implies is the law's
     implied = np.subtract(h["dissipated_energy"], h["cohesive_dissipation"])
-    assert np.abs(implied).max() < 1e-3 * largest
+    assert np.abs(implied).max() < 1e-5 * largest
 
 
 def cross_ply_pull() -> dict:
@@ -189,15 +189,15 @@ def cross_ply_pull() -> dict:
 
 def test_balances_agree_with_ply_damage(tmp_path):
     """Matrix cracking of the 90-degree plies: the law's summed ply dissipation accounts for
-    the work the materials did not store, and the two balances agree to 1e-3 of the largest
-    energy (they differ by what strain gradients within a damaging ply release beyond the
-    ply-mean law)."""
+    the work the materials did not store, and the two balances agree to 1e-4 of the largest
+    energy (measured 1.3e-6; they differ by what strain gradients within a damaging ply release
+    beyond the ply-mean law)."""
     h, summary = run_case(tmp_path, cross_ply_pull(), "pull")
     assert summary["status"] == "completed"
     largest = largest_energy(h)
     assert h["ply_dissipation"][-1] > 0.01 * h["external_work"][-1]
     difference = np.abs(np.subtract(h["state_energy_balance"], h["energy_balance"]))
-    assert difference.max() < 1e-3 * largest
+    assert difference.max() < 1e-4 * largest
 
 
 def test_dissipation_survives_a_restart(tmp_path):
