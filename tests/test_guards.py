@@ -5,6 +5,7 @@ Units: N, mm, s, tonne.
 """
 
 import json
+import re
 import subprocess
 import sys
 import tomllib
@@ -304,3 +305,23 @@ def test_an_impactor_penalty_the_step_cannot_carry_is_refused(tmp_path):
     assert "impactor.penalty" in line and "largest stable penalty is" in line
     assert len(line.splitlines()) == 1
     assert not (tmp_path / "out" / "history.csv").exists()
+
+
+def test_an_unstable_step_is_stopped_by_the_energy_guard_before_it_overflows():
+    """A step 1 % above the stability limit (forced past the check) makes the highest mode grow
+    from round-off by about 1.2 per step: the energy guard stops the run, with finite numbers,
+    before the runaway check (kinetic energy 100 x the work) would."""
+    from test_explicit import highest_frequency
+
+    model = esl_model([0, 90, 90, 0], 20.0, 1.0, 8, 1)
+    tip = loading.PrescribedMotion("x1", "z", "displacement", 0.05, loading.Amplitude.ramp(1e-4))
+    loads = loading.resolve(model, [*loading.clamp("x0"), tip], [])
+    dt = 1.01 * 2.0 / highest_frequency(model, loads.constrained)
+    settings = explicit.SolverSettings(end_time=2000 * dt, output_interval=dt)
+    with pytest.raises(explicit.EnergyBalanceError) as failure:
+        explicit.run(
+            Structure(model, loads), settings, explicit.Probe("x1", "x1", "z"), time_step=dt
+        )
+    message = str(failure.value)
+    error, largest = (float(x) for x in re.findall(r"(-?[\d.e+-]+) mJ", message)[:2])
+    assert abs(error) > 0.2 * largest and np.isfinite(error)
