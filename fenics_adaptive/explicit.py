@@ -155,6 +155,7 @@ SOLVER_SCALARS = (
     "refinements",
     "initial_potential",
     "largest_energy",
+    "initial_balance",
 )
 
 
@@ -289,6 +290,9 @@ def run(
     energy_limit = settings.energy_error_limit
     largest = [0.0]  # mJ: the largest energy of the run so far (energy guard)
     initial_potential = [0.0]  # mJ: strain + stored cohesive energy at t = 0
+    # mJ: energy_balance at t = 0, the initial kinetic energy (an initial velocity): the guard
+    # judges the change from it
+    initial_balance = [0.0]
 
     def raise_if_inverted(message: str | None, anywhere: bool) -> None:
         """``message``: this rank's; ``anywhere``: some rank has one (known to all ranks).
@@ -412,6 +416,7 @@ def run(
         initial_energy[0] = resume["initial_energy"]
         initial_potential[0] = float(resume["initial_potential"])
         largest[0] = float(resume["largest_energy"])
+        initial_balance[0] = float(resume["initial_balance"])
         tied[0] = bool(resume["tied"])
         stats.refinements = int(resume["refinements"])
         stats.time_step, stats.stable_time_step = dt, stable
@@ -434,7 +439,7 @@ def run(
     def write_checkpoint() -> None:
         scalars = (t, step, dt, dt_prev, stable, next_output, next_fields, work_int, work_ext)
         scalars += (work_damp, initial_energy[0], float(tied[0]), stats.refinements)
-        scalars += (initial_potential[0], largest[0])
+        scalars += (initial_potential[0], largest[0], initial_balance[0])
         state_now = dict(zip(SOLVER_SCALARS, scalars, strict=True))
         for index, state in enumerate(states):
             state_now[f"block{index}_u_all"] = state.block.u.array
@@ -593,6 +598,8 @@ def run(
                     - row.impact_work
                     - row.refinement_energy
                 )
+                if step == 0:
+                    initial_balance[0] = row.energy_balance
                 stats.history.append(row)
                 if on_history is not None:
                     on_history(row)
@@ -603,10 +610,11 @@ def run(
                         row.external_work, row.impact_work, row.kinetic_energy, row.internal_energy
                     ),
                 )
-                if guards.energy_error(row.energy_balance, largest[0], energy_limit, step):
+                error = row.energy_balance - initial_balance[0]
+                if guards.energy_error(error, largest[0], energy_limit, step):
                     raise EnergyBalanceError(
                         f"t = {t:.6g} s (step {step}): energy balance error "
-                        f"{row.energy_balance:.4g} mJ exceeds {energy_limit:g} x the largest "
+                        f"{error:.4g} mJ exceeds {energy_limit:g} x the largest "
                         f"energy of the run, {largest[0]:.4g} mJ (solver.energy_error_limit); "
                         f"fastest {where_fastest()}; {likely_cause()}"
                     )
