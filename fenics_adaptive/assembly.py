@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from fenics_adaptive.cohesive import cohesive_element_force
+from fenics_adaptive.cohesive import H_DISSIPATED, HISTORY, cohesive_element_force_tracked
 from fenics_adaptive.subelement import (
     KERNEL_OPTIONS,
     PackedRules,
@@ -63,6 +63,13 @@ class CohesiveSet:
     damage: np.ndarray  # (rows, 4)
     params: np.ndarray  # CohesiveLaw.as_array()
     interface: np.ndarray  # (n,) ply interface (1-based) of each element
+    # (rows, 4, cohesive.HISTORY) per point: last local opening and dissipated energy (mJ);
+    # persists with ``damage``
+    history: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        if self.history is None:
+            self.history = np.zeros((len(self.damage), 4, HISTORY))
 
     @classmethod
     def empty(cls, params: np.ndarray) -> CohesiveSet:
@@ -73,6 +80,10 @@ class CohesiveSet:
             params,
             np.zeros(0, np.int32),
         )
+
+    def dissipated_energy(self) -> float:
+        """Energy (mJ) the damage of this rank's cohesive points has dissipated so far."""
+        return float(self.history[:, :, H_DISSIPATED].sum())
 
     def failed(self) -> np.ndarray:
         """Elements whose four points are fully damaged (the delaminated area)."""
@@ -119,14 +130,16 @@ def add_cohesive_forces(
     f_base: np.ndarray,
     f_extra: np.ndarray,
 ) -> float:
-    """f -= sum_i P_i^T f^coh_i, updating the damage history; returns the stored (recoverable)
-    cohesive energy (mJ). Arrays (n, 3)."""
+    """f -= sum_i P_i^T f^coh_i, updating the damage history and the dissipated energy
+    (``CohesiveSet.history``); returns the stored (recoverable) cohesive energy (mJ). Arrays
+    (n, 3)."""
     if len(cohesive) == 0:
         return 0.0
     return _add_cohesive_forces(
         cohesive.nodes,
         cohesive.damage_row,
         cohesive.damage,
+        cohesive.history,
         cohesive.params,
         X_base,
         X_extra,
@@ -199,6 +212,7 @@ def _add_cohesive_forces(
     element_nodes,
     damage_row,
     damage,
+    history,
     params,
     X_base,
     X_extra,
@@ -216,7 +230,8 @@ def _add_cohesive_forces(
         nodes = element_nodes[e]
         gather_nodes(nodes, n_base, X_base, X_extra, X)
         gather_nodes(nodes, n_base, u_base, u_extra, u)
-        energy, _ = cohesive_element_force(X, u, params, damage[damage_row[e]], f)
+        row = damage_row[e]
+        energy, _ = cohesive_element_force_tracked(X, u, params, damage[row], history[row], f)
         stored += energy
         scatter_add_nodes(nodes, n_base, f, -1.0, f_base, f_extra)
     return stored

@@ -70,6 +70,7 @@ def structure_state(structure: Structure) -> dict[str, np.ndarray]:
         ).astype(np.int64),
         "refinement_energy": np.array(structure.refinement_energy),
         "cohesive_damage": structure.cohesive.damage,
+        "cohesive_history": structure.cohesive.history,
         "tie_counts": np.array([len(tie.a) for tie in ties], dtype=np.int64),
         "tie_a": np.concatenate([tie.a for tie in ties] or [np.zeros(0, np.int64)]),
         "tie_b": np.concatenate([tie.b for tie in ties] or [np.zeros(0, np.int64)]),
@@ -344,6 +345,7 @@ def restore_structure(structure: Structure, arrays: dict) -> None:
         structure.discard_stabilisation_requests()
     structure.refinement_energy = float(arrays["structure_refinement_energy"])
     structure.cohesive.damage[:] = arrays["structure_cohesive_damage"]
+    structure.cohesive.history[:] = arrays["structure_cohesive_history"]
     if structure.ply_damage:
         structure.damage_state[:] = arrays["structure_ply_damage"]
     ties, start = [], 0

@@ -48,6 +48,17 @@ density is
 
 so that the dissipated energy is the external work minus psi.
 
+Dissipation from the law's own increments. A secant law k(d) (k = (1 - d) K per damaged opening
+component) under the trapezoidal work of the solver, W = 1/2 (t_n + t_{n+1}) (x_{n+1} - x_n),
+stores psi = 1/2 k x^2, so the work not stored over a step is exactly
+
+    W - (psi_{n+1} - psi_n) = 1/2 (k_n - k_{n+1}) x_n x_{n+1} = 1/2 K (d_{n+1} - d_n) x_n x_{n+1}
+
+per component: the dissipation increment dD = 1/2 K delta^2 dd in its consistent (geometric
+mean) form, summed over the tangential components and the normal one while open at both
+calls. ``cohesive_element_force_tracked`` accumulates it per Gauss point (times the point's
+reference area); summed to full separation along a proportional path it is G_c per area.
+
 The element. Eight nodes: 0-3 the lower face, 4-7 the upper face, coincident in the reference
 configuration. Within a face, node a sits at face coordinates (a & 1, (a >> 1) & 1) on [0, 1]^2
 (tensor order: 0=(0,0), 1=(1,0), 2=(0,1), 3=(1,1)), with bilinear shape functions. 2 x 2 Gauss
@@ -77,6 +88,10 @@ from fenics_adaptive.errors import InputError
 # Slots of the parameter array given to the numba kernels (see CohesiveLaw.as_array).
 P_KN, P_KS, P_N, P_S, P_GIC, P_GIIC, P_LAW, P_EXPONENT = range(8)
 N_PARAMS = 8
+# Columns of a cohesive point's history (cohesive_element_force_tracked): the local opening of
+# the last call, and the energy the point has dissipated (mJ).
+H_D1, H_D2, H_D3, H_DISSIPATED = range(4)
+HISTORY = 4
 # Codes of the law in slot P_LAW.
 LAW_BK = 0.0
 LAW_POWER = 1.0
@@ -229,15 +244,10 @@ def _cross(a, b, out):
     out[2] = a[0] * b[1] - a[1] * b[0]
 
 
-@njit(cache=True)
-def cohesive_element_force(
-    X: np.ndarray, u: np.ndarray, params: np.ndarray, damage: np.ndarray, f_coh: np.ndarray
-) -> tuple[float, float]:
-    """Force of one 8-node cohesive element; see the module docstring for node order and sign.
-
-    X, u: (8, 3) reference coordinates and displacements. damage: (4,) per Gauss point, updated
-    in place. f_coh: (8, 3), overwritten. Returns (stored energy in mJ, reference area in mm^2).
-    """
+@njit(cache=True, inline="always")
+def _element_force(X, u, params, damage, history, track, f_coh):
+    """``cohesive_element_force``; with ``track`` also the dissipation of each point into
+    ``history`` (4, HISTORY) (``cohesive_element_force_tracked``)."""
     g = 0.5 / math.sqrt(3.0)
     shape = np.empty(4)
     dshape_xi = np.empty(4)
@@ -278,8 +288,20 @@ def cohesive_element_force(
         d1 = jump[0] * t1[0] + jump[1] * t1[1] + jump[2] * t1[2]
         d2 = jump[0] * t2[0] + jump[1] * t2[1] + jump[2] * t2[2]
         d3 = jump[0] * n[0] + jump[1] * n[1] + jump[2] * n[2]
-        tau1, tau2, tau3, damage[k], psi = _law(d1, d2, d3, params, damage[k])
+        damage_old = damage[k]
+        tau1, tau2, tau3, damage[k], psi = _law(d1, d2, d3, params, damage_old)
         c = 0.25 * dA
+        if track:
+            h = history[k]
+            if damage[k] > damage_old:
+                # consistent with the trapezoidal work of the secant law (module docstring)
+                released = params[P_KS] * (h[H_D1] * d1 + h[H_D2] * d2)
+                if d3 > 0.0 and h[H_D3] > 0.0:
+                    released += params[P_KN] * h[H_D3] * d3
+                h[H_DISSIPATED] += 0.5 * (damage[k] - damage_old) * released * c
+            h[H_D1] = d1
+            h[H_D2] = d2
+            h[H_D3] = d3
         for i in range(3):
             T = tau1 * t1[i] + tau2 * t2[i] + tau3 * n[i]
             for a in range(4):
@@ -288,6 +310,33 @@ def cohesive_element_force(
         energy += psi * c
         area += c
     return energy, area
+
+
+@njit(cache=True)
+def cohesive_element_force(
+    X: np.ndarray, u: np.ndarray, params: np.ndarray, damage: np.ndarray, f_coh: np.ndarray
+) -> tuple[float, float]:
+    """Force of one 8-node cohesive element; see the module docstring for node order and sign.
+
+    X, u: (8, 3) reference coordinates and displacements. damage: (4,) per Gauss point, updated
+    in place. f_coh: (8, 3), overwritten. Returns (stored energy in mJ, reference area in mm^2).
+    """
+    return _element_force(X, u, params, damage, np.empty((4, HISTORY)), False, f_coh)
+
+
+@njit(cache=True)
+def cohesive_element_force_tracked(
+    X: np.ndarray,
+    u: np.ndarray,
+    params: np.ndarray,
+    damage: np.ndarray,
+    history: np.ndarray,
+    f_coh: np.ndarray,
+) -> tuple[float, float]:
+    """``cohesive_element_force``, also accumulating the energy the damage of each point
+    dissipates: ``history`` (4, HISTORY) per Gauss point, updated in place: H_D1, H_D2, H_D3
+    the local opening (mm) of the last call, H_DISSIPATED the energy (mJ) dissipated so far."""
+    return _element_force(X, u, params, damage, history, True, f_coh)
 
 
 def traction_separation_curve(

@@ -529,7 +529,7 @@ SECTIONS: tuple[Section, ...] = (
                 "the run fails when |energy balance| exceeds this "
                 "share of the largest energy of the run",
                 "",
-                0.05,
+                0.2,
                 0.0,
                 open_min=True,
             ),

@@ -28,6 +28,7 @@ import numpy as np
 from mpi4py import MPI
 from numba import njit
 
+from fenics_adaptive.errors import InputError
 from fenics_adaptive.loading import face_nodes
 
 IMPACTOR_SHAPES = ("sphere", "cylinder")
@@ -126,6 +127,30 @@ class Contact:
             dx[:, 1] = 0.0
         local = float(np.min(np.linalg.norm(dx, axis=1))) if len(self.X) else np.inf
         return self.comm.allreduce(local, op=MPI.MIN) - self.impactor.radius
+
+    def largest_stable_penalty(self, dt: float, element_step: float) -> float:
+        """The largest penalty (N/mm) stable with the time step dt (s), for the lightest
+        top-face node of mass m and the impactor of mass M: the spring adds k (1/m + 1/M) to
+        the square of the node's highest frequency, which its elements already bring up to
+        (2 / element_step)^2 (element_step: the element limit without the safety factor), and
+        central differences need omega dt <= 2:
+        k <= (2/dt)^2 (1 - (dt/element_step)^2) / (1/m + 1/M)."""
+        share = max(1.0 - (dt / element_step) ** 2, 0.0)
+        return share * (2.0 / dt) ** 2 / (1.0 / self.node_mass_min + 1.0 / self.impactor.mass)
+
+    def check_penalty(self, dt: float, element_step: float) -> None:
+        """Refuse an explicit penalty above ``largest_stable_penalty`` (InputError naming
+        impactor.penalty)."""
+        if self.impactor.penalty is None:
+            return
+        largest = self.largest_stable_penalty(dt, element_step)
+        if self.penalty > largest:
+            raise InputError(
+                "impactor.penalty",
+                f"{self.penalty:.4g} N/mm is too stiff for the time step {dt:.4g} s (lightest "
+                f"top-face node {self.node_mass_min:.4g} t, impactor {self.impactor.mass:.4g} t): "
+                f"the largest stable penalty is {largest:.4g} N/mm (omit it for the default)",
+            )
 
     def limit_penalty(self, dt: float) -> None:
         """Cap the default penalty for the time step dt (an explicit penalty is kept and

@@ -20,7 +20,16 @@ and of prescribed motions (reaction forces); damping work; the mechanical energy
 refinement adds or removes (kinetic: it redistributes lumped masses; strain and cohesive: what
 new nodes change, also added to the internal work). Balance:
 kinetic + internal + damping - external - refinement = 0 up to the scheme's O(dt^2) error.
-Dissipated = internal work - solid strain energy - recoverable cohesive energy.
+Dissipated = internal work - solid strain energy - recoverable cohesive energy. A second
+balance from the states (``HistoryRow.state_energy_balance``) replaces the internal work by the
+strain and stored cohesive energy plus the dissipation the damage laws report themselves
+(``cohesive_dissipation``, ``ply_dissipation``): it checks the materials' bookkeeping too.
+
+Guards (``guards``): the run stops as failed (``ElementInverted``, ``EnergyBalanceError``, both
+``Diverged``) when an element inverts (checked every 64 steps and on output steps) or when
+|energy balance| exceeds ``energy_error_limit`` x the largest energy of the run so far (on
+output steps, from step ``guards.ENERGY_MIN_STEPS``); an explicit impactor penalty above the
+largest stable one for the step is refused (``Contact.check_penalty``).
 """
 
 from __future__ import annotations
@@ -33,6 +42,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from mpi4py import MPI
 
+from fenics_adaptive import guards
 from fenics_adaptive.contact import Contact
 from fenics_adaptive.errors import InputError
 from fenics_adaptive.loading import COMPONENTS, face_dofs
@@ -49,8 +59,10 @@ class SolverSettings:
     field_interval: float | None = None  # s between field outputs (None: none)
     checkpoint_interval: int | None = None  # steps between checkpoints (None: none)
     # The run stops as failed when |energy balance| exceeds this share of the largest energy
-    # of the run (see explicit.energy_guard; the default is chosen from the demos' worst case).
-    energy_error_limit: float = 0.05
+    # of the run so far (guards.energy_error). Default: 12 x the worst share of every demo and
+    # test case (1.6e-2, the TCB's adaptive run right after its refinement; most stay below
+    # 5e-4), a fifth of an error as large as the energies themselves.
+    energy_error_limit: float = 0.2
     max_steps: int = 10**9  # a run (and `check`) refuses to take more steps than this
 
 
@@ -83,6 +95,11 @@ class HistoryRow:
     contact_force: float = 0.0  # N, z component of the force the structure applies to the impactor
     impactor_displacement: float = 0.0  # mm, z displacement of the impactor
     impact_work: float = 0.0  # mJ, energy the impactor gave up (kinetic + penalty, from t = 0)
+    cohesive_dissipation: float = 0.0  # mJ, summed from the cohesive law's damage increments
+    ply_dissipation: float = 0.0  # mJ, summed from the ply damage law's increments
+    # mJ: kinetic + strain + stored cohesive + cohesive and ply dissipation + damping - external
+    # - impact - refinement energy - the strain and cohesive energy at t = 0 (from the states)
+    state_energy_balance: float = 0.0
 
     @property
     def energy_balance(self) -> float:
@@ -101,6 +118,14 @@ COLUMNS = [*HistoryRow.__dataclass_fields__, "energy_balance"]
 
 class Diverged(RuntimeError):
     pass
+
+
+class ElementInverted(Diverged):
+    """An element inverted (det F <= 0 at an integration point): the run stops as failed."""
+
+
+class EnergyBalanceError(Diverged):
+    """|energy_balance| beyond ``SolverSettings.energy_error_limit`` x the largest energy."""
 
 
 class Interrupted(RuntimeError):
@@ -128,6 +153,9 @@ SOLVER_SCALARS = (
     "initial_energy",
     "tied",
     "refinements",
+    "initial_potential",
+    "largest_energy",
+    "initial_balance",
 )
 
 
@@ -242,6 +270,12 @@ def run(
     if resume is None:
         base.block.u.array[:] = 0.0 if initial_displacement is None else initial_displacement
         base.block.v.array[:] = 0.0 if initial_velocity is None else initial_velocity
+        if initial_displacement is None and initial_velocity is None:
+            # from rest means the extra nodes too (a structure run before, e.g. by a timing
+            # harness, keeps their last motion otherwise: energy the balance never saw put in)
+            for state in states[1:]:
+                state.block.u.array[:] = 0.0
+                state.block.v.array[:] = 0.0
     n_motions = len(structure.motions)
     motion_now, motion_next = np.zeros(n_motions), np.zeros(n_motions)
     f_ext_full = np.zeros_like(base.block.u.array)
@@ -250,7 +284,24 @@ def run(
     impactor_initial = [0.0]  # mJ: the impactor's kinetic + penalty energy at t = 0
     if contact is not None:
         contact.limit_penalty(dt)
+        contact.check_penalty(dt, stable / settings.safety_factor)
         z0 = contact.centre[2]
+    inversion = guards.InversionGuard(structure)
+    energy_limit = settings.energy_error_limit
+    largest = [0.0]  # mJ: the largest energy of the run so far (energy guard)
+    initial_potential = [0.0]  # mJ: strain + stored cohesive energy at t = 0
+    # mJ: energy_balance at t = 0, the initial kinetic energy (an initial velocity): the guard
+    # judges the change from it
+    initial_balance = [0.0]
+
+    def raise_if_inverted(message: str | None, anywhere: bool) -> None:
+        """``message``: this rank's; ``anywhere``: some rank has one (known to all ranks).
+        Collective when anywhere (the message of the lowest rank that has one)."""
+        if not anywhere:
+            return
+        if comm.size > 1:
+            message = next(m for m in comm.allgather(message) if m is not None)
+        raise ElementInverted(message)
 
     component = COMPONENTS[probe.component]
     probe_dofs = face_dofs(
@@ -308,6 +359,20 @@ def run(
                 if contact is not None and state is base:
                     state.reaction -= np.take(contact_force, fixed, out=state.scratch)
 
+    def likely_cause() -> str:
+        """What most likely made a run with a stable element step blow up, for messages."""
+        causes = []
+        if contact is not None:
+            causes.append(
+                f"the contact penalty (impactor.penalty = {contact.penalty:.4g} N/mm) too stiff "
+                "for it?"
+            )
+        if structure.comm.allreduce(len(structure.cohesive), op=MPI.SUM):
+            causes.append("a cohesive penalty too stiff for it?")
+        if structure.ply_damage:
+            causes.append("a damaged material?")
+        return " ".join(causes) or "an unstable time step?"
+
     tied = [False]  # tie forces were applied last step (their f_ext must be cleared once)
     not_finite = [False]  # this rank has seen a non-finite internal work
 
@@ -349,6 +414,9 @@ def run(
         next_output, next_fields = resume["next_output"], resume["next_fields"]
         work_int, work_ext, work_damp = (resume[k] for k in ("work_int", "work_ext", "work_damp"))
         initial_energy[0] = resume["initial_energy"]
+        initial_potential[0] = float(resume["initial_potential"])
+        largest[0] = float(resume["largest_energy"])
+        initial_balance[0] = float(resume["initial_balance"])
         tied[0] = bool(resume["tied"])
         stats.refinements = int(resume["refinements"])
         stats.time_step, stats.stable_time_step = dt, stable
@@ -371,6 +439,7 @@ def run(
     def write_checkpoint() -> None:
         scalars = (t, step, dt, dt_prev, stable, next_output, next_fields, work_int, work_ext)
         scalars += (work_damp, initial_energy[0], float(tied[0]), stats.refinements)
+        scalars += (initial_potential[0], largest[0], initial_balance[0])
         state_now = dict(zip(SOLVER_SCALARS, scalars, strict=True))
         for index, state in enumerate(states):
             state_now[f"block{index}_u_all"] = state.block.u.array
@@ -428,6 +497,7 @@ def run(
                     for b, old in zip(structure.blocks, states, strict=True)
                 ]
                 base = states[0]
+                inversion.refresh()
                 limit, where = structure.stable_time_step()
                 stable = settings.safety_factor * limit
                 stats.stable_time_step, stats.critical = stable, where
@@ -447,6 +517,7 @@ def run(
 
             n_steps_done = step
             if t >= next_output - 1e-9 * dt or t >= settings.end_time - 1e-9 * dt:
+                inverted = inversion.check(t)
                 kinetic = 0.0
                 reaction = 0.0
                 for state in states:
@@ -463,19 +534,28 @@ def run(
                         work_int,
                         work_ext,
                         work_damp,
+                        float(inverted is not None),
                     ]
                 )
                 total = comm.allreduce(local, op=MPI.SUM)
+                raise_if_inverted(inverted, total[7] > 0.0)
                 if not np.all(np.isfinite(total)):
                     raise Diverged(
                         f"t = {t:.6g} s (step {step}): the solution is no longer finite "
                         f"{where_fastest()}; time step {dt:.4g} s, stable step {stable:.4g} s"
                     )
                 solid, cohesive = structure.energies()
+                cohesive_dissipation, ply_dissipation = structure.damage_dissipation()
                 impactor_energy = contact.energy(dt_prev) if contact is not None else 0.0
                 if step == 0:  # an initial velocity or displacement brings energy along
                     initial_energy[0] = total[3] + solid + cohesive + impactor_energy
                     impactor_initial[0] = impactor_energy
+                    initial_potential[0] = solid + cohesive
+                    # the energy the run starts with (an impactor's kinetic energy) sets the
+                    # scale of the energy guard too: impact_work is a difference of two values
+                    # of it, whose round-off would otherwise be judged against the little
+                    # energy transferred at the first contact
+                    largest[0] = abs(initial_energy[0])
                 # runaway: the motion holds far more energy than was ever put in
                 kinetic, put_in = total[3], abs(total[5]) + initial_energy[0]
                 if step > 0 and kinetic > RUNAWAY * max(put_in, 1e-300):
@@ -484,7 +564,7 @@ def run(
                         f"{RUNAWAY:g} x the work put in ({put_in:.4g} mJ), fastest "
                         f"{where_fastest()}: the run is unstable "
                         f"(time step {dt:.4g} s, stable step {stable:.4g} s, limited by {where}; "
-                        "a cohesive penalty or a damaged material too stiff for it?)"
+                        f"{likely_cause()})"
                     )
                 row = HistoryRow(
                     time=t,
@@ -504,9 +584,40 @@ def run(
                     row.contact_force = float(contact.force[2])
                     row.impactor_displacement = float(contact.centre[2] - z0)
                     row.impact_work = impactor_initial[0] - impactor_energy
+                row.cohesive_dissipation = cohesive_dissipation
+                row.ply_dissipation = ply_dissipation
+                row.state_energy_balance = (
+                    row.kinetic_energy
+                    + solid
+                    + cohesive
+                    - initial_potential[0]
+                    + cohesive_dissipation
+                    + ply_dissipation
+                    + row.damping_energy
+                    - row.external_work
+                    - row.impact_work
+                    - row.refinement_energy
+                )
+                if step == 0:
+                    initial_balance[0] = row.energy_balance
                 stats.history.append(row)
                 if on_history is not None:
                     on_history(row)
+                # the energy guard: the row that breaks it is in the history
+                largest[0] = max(
+                    largest[0],
+                    guards.largest_energy(
+                        row.external_work, row.impact_work, row.kinetic_energy, row.internal_energy
+                    ),
+                )
+                error = row.energy_balance - initial_balance[0]
+                if guards.energy_error(error, largest[0], energy_limit, step):
+                    raise EnergyBalanceError(
+                        f"t = {t:.6g} s (step {step}): energy balance error "
+                        f"{error:.4g} mJ exceeds {energy_limit:g} x the largest "
+                        f"energy of the run, {largest[0]:.4g} mJ (solver.energy_error_limit); "
+                        f"fastest {where_fastest()}; {likely_cause()}"
+                    )
                 while next_output <= t + 1e-9 * dt:
                     next_output += settings.output_interval
             if t >= next_fields - 1e-9 * dt:
@@ -558,8 +669,9 @@ def run(
                 if on_progress is not None:
                     on_progress(t)
                 stop = stop_requested is not None and stop_requested()
+                inverted = inversion.check(t)
                 if comm.size > 1:
-                    flags = np.array([stop, not_finite[0]], dtype=np.int32)
+                    flags = np.array([stop, not_finite[0], inverted is not None], dtype=np.int32)
                     comm.Allreduce(MPI.IN_PLACE, flags, op=MPI.MAX)
                     stop = bool(flags[0])
                     if flags[1]:
@@ -567,6 +679,9 @@ def run(
                             f"t = {t:.6g} s (step {step}): the solution is no longer finite "
                             f"{where_fastest()}; time step {dt:.4g} s, stable step {stable:.4g} s"
                         )
+                    raise_if_inverted(inverted, bool(flags[2]))
+                else:
+                    raise_if_inverted(inverted, inverted is not None)
                 if stop:
                     if checkpoint is not None:
                         write_checkpoint()

@@ -56,6 +56,9 @@ COLUMN_UNITS = {
     "contact_force": "N",
     "impactor_displacement": "mm",
     "impact_work": "mJ",
+    "cohesive_dissipation": "mJ",
+    "ply_dissipation": "mJ",
+    "state_energy_balance": "mJ",
     "energy_balance": "mJ",
 }
 

@@ -87,7 +87,18 @@ l_c y0 > G_c per area, as the cohesive law does.
 State of one ply of one element (``N_STATE`` floats, zero initially): S_D damage, S_Y0 onset
 energy (0 until initiation), S_FT, S_FC, S_MT, S_MC the largest fibre tension / fibre
 compression / matrix tension / matrix compression index seen so far, evaluated with the
-nominal stress C(d) eps (the effective one while d = 0).
+nominal stress C(d) eps (the effective one while d = 0), S_DISSIPATED the energy density (MPa =
+mJ/mm^3) the damage has dissipated so far, S_Y_LAST the energy release rate y of the last update.
+
+Dissipation from the law's own increments. The stiffness loses (1 - RESIDUAL) dd (A_open + A_1)
+per update, and y = 1/2 eps.(A_open + A_1).eps (the released part of the strain energy density),
+so under the solver's trapezoidal work the energy density not stored over an update is exactly
+(1 - RESIDUAL) dd 1/2 eps_n.A.eps_{n+1}: ``ply_damage_update`` accumulates (1 - RESIDUAL) dd
+sqrt(y_n y_{n+1}), equal to it on a proportional path (consistent, second order otherwise).
+It is the law's, at the ply-mean strain; the element, which softens every point of the ply with
+the one d, releases sum_points 1/2 eps_p.A.eps_p dd >= that (see ``subelement``: strain
+gradients within a damaging ply); the energy balances built from the work and from the states
+differ by that excess.
 """
 
 from __future__ import annotations
@@ -112,8 +123,8 @@ N_FAILURE = 8
 P_C21, P_C22, P_C23, P_G12, P_G23 = 8, 9, 10, 11, 12
 N_PLY_PARAMS = 13
 # Slots of a ply's damage state.
-S_D, S_Y0, S_FT, S_FC, S_MT, S_MC = range(6)
-N_STATE = 6
+S_D, S_Y0, S_FT, S_FC, S_MT, S_MC, S_DISSIPATED, S_Y_LAST = range(8)
+N_STATE = 8
 # A fully cracked ply keeps this fraction of the stiffness its matrix damage removes: the
 # stiffness uses (1 - RESIDUAL) d. Without it a cell whose plies have all cracked is a
 # zero-stiffness mechanism, and crack closure on such a cell has blown explicit runs up. The law
@@ -432,6 +443,8 @@ def ply_damage_update(sigma, params, band_width, state):
         2.0 * params[P_G23]
     )
     y = y_normal + y_shear
+    y_last = state[S_Y_LAST]
+    state[S_Y_LAST] = y
     y0 = state[S_Y0]
     if y0 == 0.0:  # not initiated, so d = 0: the effective stress is the nominal one
         matrix = _record_indices(
@@ -441,6 +454,7 @@ def ply_damage_update(sigma, params, band_width, state):
             return crack_open
         y0 = y / (matrix * matrix)
         state[S_Y0] = y0
+    d_old = state[S_D]
     if y > y0:
         G2c = params[F_G2C]
         Gc = (G2c + (params[F_G6C] - G2c) * (y_shear / y)) / (1.0 - RESIDUAL)
@@ -450,8 +464,10 @@ def ply_damage_update(sigma, params, band_width, state):
             d = 1.0
         else:
             d = (1.0 - 1.0 / rho) / (1.0 - 1.0 / rho_f)
-        if d > state[S_D]:
+        if d > d_old:
             state[S_D] = d
+            # the consistent increment (module docstring)
+            state[S_DISSIPATED] += (1.0 - RESIDUAL) * (d - d_old) * math.sqrt(y * y_last)
     d = state[S_D]
     if d > 0.0:
         opening = d * s22 / params[P_C22] if crack_open else 0.0

@@ -268,6 +268,9 @@ def execute(
     contact = None
     if config.impactor is not None:
         contact = Contact.on(config.impactor, structure)
+        contact.check_penalty(
+            problem.time_step, problem.stable_time_step / config.solver.safety_factor
+        )
         gap = contact.initial_gap()
         if gap <= 0.0:
             raise InputError(

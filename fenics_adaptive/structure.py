@@ -56,6 +56,7 @@ from fenics_adaptive.loading import (
 )
 from fenics_adaptive.model import LayeredModel
 from fenics_adaptive.ply_damage import (
+    S_DISSIPATED,
     S_Y0,
     check_band_width,
     concatenate_ply_damage,
@@ -71,7 +72,11 @@ from fenics_adaptive.subelement import (
     solid_shell_lumped_masses,
     sublaminate_ply_zeta,
 )
-from fenics_adaptive.timestep import characteristic_lengths, cohesive_pair_time_steps
+from fenics_adaptive.timestep import (
+    characteristic_lengths,
+    cohesive_pair_time_steps,
+    hexahedron_volumes,
+)
 
 
 @dataclass
@@ -305,7 +310,10 @@ class Structure:
         axis = "xyz"[component]
         if block == 0:
             x = self.X_base[node]
-            cells = np.flatnonzero((self.bottom_local == node) | (self.top_local == node))
+            # the cells (rows) holding the node
+            cells = np.flatnonzero(
+                ((self.bottom_local == node) | (self.top_local == node)).any(axis=1)
+            )
             cell = f"cell {self.original_cell[cells[0]]}, " if len(cells) else ""
             return f"{cell}base node at ({x[0]:.4g}, {x[1]:.4g}, {x[2]:.4g}) mm, u_{axis}"
         n_interfaces = self.interface_state.shape[1]
@@ -400,6 +408,25 @@ class Structure:
             if widest >= 0.0:
                 check_band_width(ply.material, self.failures[ply.material.name], widest)
         self.damage_state = new_state(n_cells, len(plies))
+        # reference volume (mm^3) of each ply of each cell: the ply's dissipation density
+        # (ply_damage S_DISSIPATED) times it is its dissipated energy
+        fractions = self.laminate.ply_fractions
+        self.ply_volumes = np.zeros((n_cells, len(plies)))
+        for k in range(len(plies)):
+            in_cell = np.flatnonzero((self.cell_plies[:, 0] <= k) & (k < self.cell_plies[:, 1]))
+            lo, hi = self.cell_plies[in_cell, 0], self.cell_plies[in_cell, 1]
+            # the ply's place in its cell's own thickness (an LW cell holds some plies)
+            w_lo = (fractions[k] - fractions[lo]) / (fractions[hi] - fractions[lo])
+            w_hi = (fractions[k + 1] - fractions[lo]) / (fractions[hi] - fractions[lo])
+            bottom, top = X[in_cell, :4], X[in_cell, 4:]
+            ply_X = np.concatenate(
+                [
+                    bottom + w_lo[:, None, None] * (top - bottom),
+                    bottom + w_hi[:, None, None] * (top - bottom),
+                ],
+                axis=1,
+            )
+            self.ply_volumes[in_cell, k] = hexahedron_volumes(ply_X)
         self.base.set_ufl_cells([np.zeros(0, np.int32)] * len(self.base.layer_laminates))
         self._rebuild_damaged_elements()
 
@@ -426,6 +453,23 @@ class Structure:
             cells.astype(np.int64),
             plies[:, 0].astype(np.int64),
         )
+
+    def element_rules(self, plies: np.ndarray) -> np.ndarray:
+        """Index into ``subelements.rules`` of the packed rule of each (sub)element spanning
+        laminate plies ``plies`` (n, 2) [first, stop), as ``elements`` gives them."""
+        return self._rule_of_plies[plies[:, 0], plies[:, 1]].astype(np.int64)
+
+    def damage_dissipation(self) -> tuple[float, float]:
+        """Collective: (cohesive, ply) energy (mJ) dissipated so far, summed from the damage
+        laws' own increments (``cohesive_element_force_tracked``, ``ply_damage_update``)."""
+        ply = 0.0
+        if self.ply_damage:
+            ply = float(
+                np.dot(self.damage_state[:, :, S_DISSIPATED].ravel(), self.ply_volumes.ravel())
+            )
+        local = np.array([self.cohesive.dissipated_energy(), ply])
+        cohesive, ply = self.comm.allreduce(local, op=MPI.SUM)
+        return float(cohesive), float(ply)
 
     def elements(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Every solid element of this rank: nodes (n, 8) in combined local indices, the owned
@@ -627,6 +671,9 @@ class Structure:
         grown = np.zeros((len(self.damage_rows), 4))
         grown[: len(self.cohesive.damage)] = self.cohesive.damage
         self.cohesive.damage = grown
+        history = np.zeros((len(self.damage_rows), *self.cohesive.history.shape[1:]))
+        history[: len(self.cohesive.history)] = self.cohesive.history
+        self.cohesive.history = history
 
     def _requests(
         self, cells: np.ndarray, interface: int, node_set: int, values: dict[str, np.ndarray]
@@ -731,6 +778,7 @@ class Structure:
             self.cohesive.damage,
             self.law_params if self.law_params is not None else self.cohesive.params,
             interfaces.astype(np.int32),
+            self.cohesive.history,
         )
 
     def _resize_extra_vectors(self) -> None:

@@ -110,7 +110,12 @@ def test_stable_time_step_estimate_is_safe_and_sharp():
         amplitude.append(np.abs(model.u.x.array).max())
 
     steps = 1500
-    below = explicit.SolverSettings(end_time=steps * 0.98 * critical, output_interval=1e-6)
+    # at 0.98 x the critical step the full-step kinetic energy v_n = v_{n-1/2} + dt/2 a_n of the
+    # highest modes (a random field excites them) is off by O(1): the energy guard would stop
+    # the run; only its stability is tested here
+    below = explicit.SolverSettings(
+        end_time=steps * 0.98 * critical, output_interval=1e-6, energy_error_limit=math.inf
+    )
     explicit.run(
         Structure(model, loads),
         below,

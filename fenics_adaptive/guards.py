@@ -1,0 +1,261 @@
+"""Physics guards of the explicit run: an inverted element and a broken energy balance stop it.
+
+Units: N, mm, s, tonne (energies in mJ).
+
+Inversion. An element inverts when the Jacobian of its CURRENT configuration, J = dx/dxi with
+x = X + u, changes sign at one of its integration points: det F = det J(x) / det J(X) <= 0 (for
+small strain the same test on the current geometry: a small-strain element that has inverted is
+as meaningless as a finite-strain one). One jitted check covers every solid (sub)element of
+the rank, whichever path computes its force (ESL cells through the UFL forms, LW cells,
+subelements of refined cells, damage-aware cells): it reads the nodes of each element
+(``Structure.elements``) and the points of its packed rule (``Structure.element_rules``), so
+it never drifts from the force kernels' point sets and costs the force kernels nothing. The
+solver runs it at its poll (every 64 steps) and on output steps.
+
+On one vertical line (xi, eta) of a trilinear hexahedron, dx/dxi and dx/deta are affine in zeta
+and dx/dzeta is constant, so det J is a quadratic in zeta: its three coefficients are formed once
+per line and evaluated at every point of the line (about 600 flops per element in all).
+
+Energy balance. The run stops when |energy_balance| exceeds ``limit`` times the largest energy
+of the run so far: the largest of the energy at t = 0 (kinetic + strain + stored cohesive +
+the impactor's kinetic and penalty energy) and, over every history row up to now, |external
+work|, |impact work|, kinetic energy and |internal work| (a scale that never decreases, so a
+run whose energies fall back, a rebound, is judged against what it held). The energy at t = 0
+is one floor: ``impact_work`` is the difference of two values of the impactor's energy (625 mJ
+in the plate impact demo), whose round-off, 1e-4 mJ there, is 98 % of the energy transferred
+at the first contact (step 24) and would trip the guard at the first touch. The other floor:
+rows before step ``ENERGY_MIN_STEPS`` are not judged: over the first steps every energy is a
+few steps' worth of work and the start-up error of the staggered velocities (v_{-1/2} = v_0,
+the one-sided first step of a prescribed velocity) is of its order (the TCB runs reach 1e-3 at
+step 18, below 1e-5 afterwards).
+A non-finite balance always trips it.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+# the energy guard judges from this step on (see the module docstring)
+ENERGY_MIN_STEPS = 100
+
+
+@njit(cache=True, inline="always")
+def _monomial_coefficients(x, b):
+    """b (8, 3): coefficients of x(xi, eta, zeta) = sum_m b_m xi^(m&1) eta^((m>>1)&1)
+    zeta^((m>>2)&1) from the vertex values x (8, 3) (vertex k at (k&1, (k>>1)&1, (k>>2)&1))."""
+    for i in range(3):
+        # three butterfly stages (differences along xi, eta, zeta), written out
+        x0, x1, x2, x3 = x[0, i], x[1, i], x[2, i], x[3, i]
+        x4, x5, x6, x7 = x[4, i], x[5, i], x[6, i], x[7, i]
+        d1, d3, d5, d7 = x1 - x0, x3 - x2, x5 - x4, x7 - x6
+        b[0, i] = x0
+        b[1, i] = d1
+        b[2, i] = x2 - x0
+        b[3, i] = d3 - d1
+        b[4, i] = x4 - x0
+        b[5, i] = d5 - d1
+        b[6, i] = (x6 - x4) - (x2 - x0)
+        b[7, i] = (d7 - d5) - (d3 - d1)
+
+
+@njit(cache=True, inline="always")
+def _line_determinant(b, xi, eta):
+    """(c0, c1, c2) with det J(xi, eta, zeta) = c0 + c1 zeta + c2 zeta^2 for the map b."""
+    # dx/dxi = a0 + zeta a1, dx/deta = e0 + zeta e1, dx/dzeta = c (scalars: no allocation)
+    a00, a01, a02 = b[1, 0] + eta * b[3, 0], b[1, 1] + eta * b[3, 1], b[1, 2] + eta * b[3, 2]
+    a10, a11, a12 = b[5, 0] + eta * b[7, 0], b[5, 1] + eta * b[7, 1], b[5, 2] + eta * b[7, 2]
+    e00, e01, e02 = b[2, 0] + xi * b[3, 0], b[2, 1] + xi * b[3, 1], b[2, 2] + xi * b[3, 2]
+    e10, e11, e12 = b[6, 0] + xi * b[7, 0], b[6, 1] + xi * b[7, 1], b[6, 2] + xi * b[7, 2]
+    xe = xi * eta
+    c0_ = b[4, 0] + xi * b[5, 0] + eta * b[6, 0] + xe * b[7, 0]
+    c1_ = b[4, 1] + xi * b[5, 1] + eta * b[6, 1] + xe * b[7, 1]
+    c2_ = b[4, 2] + xi * b[5, 2] + eta * b[6, 2] + xe * b[7, 2]
+    c0 = _triple(a00, a01, a02, e00, e01, e02, c0_, c1_, c2_)
+    c1 = _triple(a00, a01, a02, e10, e11, e12, c0_, c1_, c2_) + _triple(
+        a10, a11, a12, e00, e01, e02, c0_, c1_, c2_
+    )
+    c2 = _triple(a10, a11, a12, e10, e11, e12, c0_, c1_, c2_)
+    return c0, c1, c2
+
+
+@njit(cache=True, inline="always")
+def _triple(a0, a1, a2, b0, b1, b2, c0, c1, c2):
+    """(a x b) . c of three vectors given by their components"""
+    return (a1 * b2 - a2 * b1) * c0 + (a2 * b0 - a0 * b2) * c1 + (a0 * b1 - a1 * b0) * c2
+
+
+@njit(cache=True)
+def reference_orientation(element_nodes, X_base, X_extra):
+    """Sign (+1 or -1) of det J of each element's reference geometry at its centre."""
+    n_base = X_base.shape[0]
+    out = np.empty(element_nodes.shape[0])
+    x = np.empty((8, 3))
+    b = np.empty((8, 3))
+    for e in range(element_nodes.shape[0]):
+        for a in range(8):
+            node = element_nodes[e, a]
+            for i in range(3):
+                x[a, i] = X_base[node, i] if node < n_base else X_extra[node - n_base, i]
+        _monomial_coefficients(x, b)
+        c0, c1, c2 = _line_determinant(b, 0.5, 0.5)
+        out[e] = 1.0 if c0 + 0.5 * c1 + 0.25 * c2 >= 0.0 else -1.0
+    return out
+
+
+@njit(cache=True)
+def first_inverted_point(
+    element_nodes,
+    rule_of_element,
+    orientation,
+    line_offsets,
+    line_points,
+    zeta,
+    position_of_point,
+    positions,
+    X_base,
+    X_extra,
+    u_base,
+    u_extra,
+    x,
+    b,
+):
+    """(element, point, det) of the first integration point with orientation * det J(X + u)
+    <= 0 (or not finite), (-1, -1, 0.0) if there is none. ``point`` indexes the packed rules'
+    arrays; the lines of rule r are ``line_offsets[r]:line_offsets[r + 1]``, the points of line
+    l ``line_points[l]:line_points[l + 1]`` (``rule_lines``). Scratch x, b: (8, 3)."""
+    n_base = X_base.shape[0]
+    for e in range(element_nodes.shape[0]):
+        for a in range(8):
+            node = element_nodes[e, a]
+            if node < n_base:
+                for i in range(3):
+                    x[a, i] = X_base[node, i] + u_base[node, i]
+            else:
+                for i in range(3):
+                    x[a, i] = X_extra[node - n_base, i] + u_extra[node - n_base, i]
+        _monomial_coefficients(x, b)
+        r = rule_of_element[e]
+        sign = orientation[e]
+        for line in range(line_offsets[r], line_offsets[r + 1]):
+            p, end = line_points[line], line_points[line + 1]
+            q = position_of_point[p]
+            c0, c1, c2 = _line_determinant(b, positions[q, 0], positions[q, 1])
+            c0, c1, c2 = sign * c0, sign * c1, sign * c2
+            # a lower bound of the quadratic over the line's zeta range first: one test per
+            # line; the points only when it fails
+            lo, hi = zeta[p], zeta[end - 1]
+            bound = min(c0 + lo * (c1 + lo * c2), c0 + hi * (c1 + hi * c2))
+            if c2 > 0.0:
+                vertex = -0.5 * c1 / c2
+                if lo < vertex < hi:
+                    bound = c0 - 0.25 * c1 * c1 / c2
+            if bound > 0.0:
+                continue
+            for pp in range(p, end):
+                z = zeta[pp]
+                det = c0 + z * (c1 + z * c2)
+                if not det > 0.0:  # also NaN
+                    return e, pp, det
+    return -1, -1, 0.0
+
+
+def rule_lines(rule_offsets: np.ndarray, position_of_point: np.ndarray):
+    """(line_offsets, line_points): the vertical lines of packed rules (runs of points on one
+    in-plane position, bottom to top, as ``subelement.pack_rule`` orders them), CSR style."""
+    starts = np.flatnonzero(np.diff(position_of_point, prepend=-1) != 0)
+    starts = np.union1d(starts, rule_offsets[:-1])  # a rule starts a line
+    line_points = np.append(starts, rule_offsets[-1]).astype(np.int64)
+    line_offsets = np.searchsorted(starts, rule_offsets).astype(np.int64)
+    return line_offsets, line_points
+
+
+class InversionGuard:
+    """The inversion check over every solid (sub)element of a structure (this rank).
+
+    ``refresh()`` after the structure changed (refinement); ``check(t)`` returns None or the
+    one-line message naming the cell, the point and the time."""
+
+    def __init__(self, structure):
+        self.structure = structure
+        self._x = np.empty((8, 3))
+        self._b = np.empty((8, 3))
+        self.refresh()
+
+    def refresh(self) -> None:
+        s = self.structure
+        self.nodes, self.cells, self.plies = s.elements()
+        self.rule_of_element = s.element_rules(self.plies)
+        self.rules = s.subelements.rules
+        self.lines = rule_lines(self.rules.rule_offsets, self.rules.position_of_point)
+        X_extra = s.extra.vectors["X"].array.reshape(-1, 3)
+        self.orientation = reference_orientation(self.nodes, s.X_base, X_extra)
+
+    def check(self, t: float) -> str | None:
+        """This rank's first inverted point at time t (s) as a message, or None."""
+        s = self.structure
+        if not len(self.nodes):
+            return None
+        rules = self.rules
+        e, p, det = first_inverted_point(
+            self.nodes,
+            self.rule_of_element,
+            self.orientation,
+            *self.lines,
+            rules.zeta,
+            rules.position_of_point,
+            rules.positions,
+            s.X_base,
+            s.extra.vectors["X"].array.reshape(-1, 3),
+            s.base.u.x.array.reshape(-1, 3),
+            s.extra.vectors["u"].array.reshape(-1, 3),
+            self._x,
+            self._b,
+        )
+        if e < 0:
+            return None
+        return self.describe(t, int(e), int(p), float(det))
+
+    def describe(self, t: float, e: int, p: int, det: float) -> str:
+        """The message for point p (index into the packed rules) of element e."""
+        s = self.structure
+        cell = int(self.cells[e])
+        corners = np.concatenate([s.bottom_local[cell], s.top_local[cell]])
+        centroid = s.X_base[corners].mean(axis=0)
+        rules = self.rules
+        r = int(self.rule_of_element[e])
+        first, stop = int(self.plies[e, 0]), int(self.plies[e, 1])
+        ply = first + int(rules.ply_of_point[p] - rules.ply_of_point[rules.rule_offsets[r]])
+        xi, eta = rules.positions[rules.position_of_point[p]]
+        z = rules.zeta[p]
+        # det F = det J(x) / det J(X) at the point
+        X = s.gather(self.nodes[e], "X")
+        b = np.empty((8, 3))
+        _monomial_coefficients(X, b)
+        c0, c1, c2 = _line_determinant(b, xi, eta)
+        det_F = det / abs(c0 + z * (c1 + z * c2))
+        refined = bool((s.interface_state[cell] != 0).any())
+        kind = f"subelement (plies {first + 1}-{stop}) of cell" if refined else "cell"
+        return (
+            f"t = {t:.6g} s: element inverted: {kind} {s.original_cell[cell]} (centroid "
+            f"{centroid[0]:.4g}, {centroid[1]:.4g}, {centroid[2]:.4g} mm), ply {ply + 1}, "
+            f"integration point (xi, eta, zeta) = ({xi:.4g}, {eta:.4g}, {z:.4g}): "
+            f"det F = {det_F:.3g} <= 0"
+        )
+
+
+def largest_energy(
+    external_work: float, impact_work: float, kinetic: float, internal_work: float
+) -> float:
+    """The largest of |external work|, |impact work|, kinetic energy and |internal work| (mJ)."""
+    return max(abs(external_work), abs(impact_work), abs(kinetic), abs(internal_work))
+
+
+def energy_error(balance: float, largest_so_far: float, limit: float, step: int) -> bool:
+    """Whether |balance| (mJ) breaks the guard: beyond ``limit`` x the largest energy of the run
+    so far, from step ``ENERGY_MIN_STEPS`` on (a non-finite balance always does)."""
+    if not math.isfinite(balance):
+        return True
+    return step >= ENERGY_MIN_STEPS and abs(balance) > limit * largest_so_far
