@@ -62,8 +62,6 @@ COLUMN_UNITS = {
     "energy_balance": "mJ",
 }
 
-Recorder = Callable[..., None]  # RunFolder.record: told each path before it is written
-
 
 def _cells(row: HistoryRow) -> list[str]:
     """A history row as CSV cells: full double precision, so a restart reads it back exactly."""
@@ -164,7 +162,7 @@ def json_safe(value):
 
 
 def write_summary(
-    out_dir: Path, summary: dict, comm: MPI.Comm, record: Recorder | None = None
+    out_dir: Path, summary: dict, comm: MPI.Comm, record: Callable[..., None] | None = None
 ) -> None:
     """summary.json, written whole (to summary.json.partial, then renamed): always valid
     JSON (``json_safe``; ``allow_nan=False`` so that a value it misses fails here)."""
@@ -222,7 +220,7 @@ class FieldWriter:
     files in the folder itself; the run manifest lists the folder (and, after each write,
     the files it holds)."""
 
-    def __init__(self, out_dir: Path, functions: list, record: Recorder | None = None):
+    def __init__(self, out_dir: Path, functions: list, record: Callable[..., None] | None = None):
         self.folder = out_dir / "displacement.bp"
         self.comm = functions[0].function_space.mesh.comm
         self.record = record
@@ -252,7 +250,9 @@ class _VtuSeries:
     """One .vtu per output time in ``<out>/<name>/`` (per rank, with a .pvtu in parallel),
     collected with its times in ``<out>/<name>.pvd`` for ParaView."""
 
-    def __init__(self, out_dir: Path, name: str, comm: MPI.Comm, record: Recorder | None = None):
+    def __init__(
+        self, out_dir: Path, name: str, comm: MPI.Comm, record: Callable[..., None] | None = None
+    ):
         self.name, self.comm = name, comm
         self.folder = out_dir / name
         self.record = record if record is not None else (lambda *paths, folder=False: None)
@@ -302,7 +302,7 @@ class ElementWriter:
     paper's Figure 4), the cohesive elements as quads with their damage, displacements on all
     nodes (base and extra). Written to ``elements/`` and ``elements.pvd``."""
 
-    def __init__(self, out_dir: Path, structure, record: Recorder | None = None):
+    def __init__(self, out_dir: Path, structure, record: Callable[..., None] | None = None):
         self.structure = structure
         self.comm = structure.comm
         self.series = _VtuSeries(out_dir, "elements", self.comm, record)
@@ -350,7 +350,7 @@ class PlyWriter:
     the current stress; only for materials with failure data) and the matrix damage. Written to
     ``plies/`` and ``plies.pvd``; threshold on ``ply`` to look at one ply of the laminate."""
 
-    def __init__(self, out_dir: Path, structure, record: Recorder | None = None):
+    def __init__(self, out_dir: Path, structure, record: Callable[..., None] | None = None):
         self.structure = structure
         self.series = _VtuSeries(out_dir, "plies", structure.comm, record)
 
@@ -454,7 +454,7 @@ class FieldOutputs:
     """All field outputs of a run: the base displacement (VTX), the enriched mesh and the
     ply-by-ply results (VTU series). ``record``: the run folder's ``RunFolder.record``."""
 
-    def __init__(self, out_dir: Path, structure, record: Recorder | None = None):
+    def __init__(self, out_dir: Path, structure, record: Callable[..., None] | None = None):
         self.writers = [
             FieldWriter(out_dir, [structure.base.u], record),
             ElementWriter(out_dir, structure, record),

@@ -209,7 +209,7 @@ def test_dissipation_survives_a_restart(tmp_path):
     path = tmp_path / "full.toml"
     config = load_config(path)
     folder = tmp_path / "full"
-    manifest, arrays = checkpoint.read(folder, MPI.COMM_WORLD, config)
+    manifest, arrays, _ = checkpoint.read(folder, MPI.COMM_WORLD, config)
     assert manifest["time_s"] > 0.0 and "structure_cohesive_history" in arrays
     # restart from the last checkpoint with a later end time: the extension's dissipation
     # continues from the stored one
