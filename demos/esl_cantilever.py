@@ -27,6 +27,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 
 from fenics_adaptive.config import load_config
+from fenics_adaptive.errors import script_main
 from fenics_adaptive.output import read_history
 from fenics_adaptive.runner import run_config
 
@@ -50,12 +51,17 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--config", default=HERE / "esl_cantilever.toml")
     parser.add_argument("--out", default="results/esl_cantilever")
+    parser.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="reuse run folders that hold other files (only this program's own files go)",
+    )
     args = parser.parse_args()
 
     # 1. the run itself: the same function the command-line program calls
     config = load_config(args.config)
     out = Path(args.out)
-    summary = run_config(config, out)
+    summary = run_config(config, out, overwrite=args.overwrite)
 
     # 2. against beam theory
     theory = beam_theory(config)
@@ -88,4 +94,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    script_main(main, "demos/esl_cantilever.py")

@@ -135,6 +135,7 @@ import fenics_adaptive
 from fenics_adaptive import comparison as cmp
 from fenics_adaptive import explicit
 from fenics_adaptive.config import RunConfig, parse_config
+from fenics_adaptive.errors import script_main
 from fenics_adaptive.indicators import recovered_interface_stresses
 from fenics_adaptive.loading import Amplitude, FaceLoad
 from fenics_adaptive.runner import build_structure
@@ -674,4 +675,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    script_main(main, "demos/esl_vs_lw.py")

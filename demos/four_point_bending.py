@@ -43,6 +43,7 @@ import matplotlib.pyplot as plt
 
 from fenics_adaptive import enrichment
 from fenics_adaptive.config import parse_config
+from fenics_adaptive.errors import script_main
 from fenics_adaptive.explicit import Diverged
 from fenics_adaptive.output import read_history
 from fenics_adaptive.ply_damage import S_D
@@ -128,6 +129,11 @@ def main() -> None:
     parser.add_argument("--config", default=HERE / "four_point_bending.toml")
     parser.add_argument("--out", default="results/four_point_bending")
     parser.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="reuse run folders that hold other files (only this program's own files go)",
+    )
+    parser.add_argument(
         "--plot-only", action="store_true", help="redraw the plot from the results in --out"
     )
     args = parser.parse_args()
@@ -149,7 +155,7 @@ def main() -> None:
         print(f"--- {name}")
         config = parse_config(variant(base, name), source=f"four_point_bending.toml [{name}]")
         try:
-            summary, structure = execute(config, out / name)
+            summary, structure = execute(config, out / name, overwrite=args.overwrite)
         except Diverged as error:  # the run's own summary.json says so too
             print(f"{name}: {error}")
             histories[name] = read_history(out / name / "history.partial.csv")
@@ -176,4 +182,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    script_main(main, "demos/four_point_bending.py")

@@ -39,6 +39,7 @@ import matplotlib.pyplot as plt
 
 from fenics_adaptive import enrichment
 from fenics_adaptive.config import parse_config
+from fenics_adaptive.errors import script_main
 from fenics_adaptive.output import read_history
 from fenics_adaptive.runner import execute
 
@@ -167,6 +168,11 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--config", default=HERE / "plate_impact.toml")
     parser.add_argument("--out", default="results/plate_impact")
+    parser.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="reuse run folders that hold other files (only this program's own files go)",
+    )
     parser.add_argument("--runs", default=",".join(RUNS), help="which runs, comma separated")
     parser.add_argument("--end-time", type=float, default=None, help="s (default: the config's)")
     args = parser.parse_args()
@@ -180,7 +186,7 @@ def main() -> None:
     for name in args.runs.split(","):
         print(f"--- {name}")
         config = parse_config(variant(base, name), source=f"plate_impact.toml [{name}]")
-        summary, structure = execute(config, out / name)
+        summary, structure = execute(config, out / name, overwrite=args.overwrite)
         histories[name] = read_history(out / name / "history.csv")
         results[name] = facts(structure, summary, histories[name])
         maps[name] = interface_damage(structure)
@@ -205,4 +211,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    script_main(main, "demos/plate_impact.py")

@@ -42,6 +42,7 @@ from matplotlib.collections import PolyCollection
 
 from fenics_adaptive import enrichment
 from fenics_adaptive.config import parse_config
+from fenics_adaptive.errors import script_main
 from fenics_adaptive.output import read_history
 from fenics_adaptive.runner import build_structure, execute
 from fenics_adaptive.timing import time_call
@@ -101,13 +102,14 @@ def root_rotation_correction(config) -> float:
     return float(np.sqrt(m.E1 / (11.0 * m.G12) * (3.0 - 2.0 * (gamma / (1.0 + gamma)) ** 2)))
 
 
-def run_all(base: dict, out: Path, names) -> tuple[dict, dict]:
-    """Run every variant; returns (config, summary, history) and the final structures."""
+def run_all(base: dict, out: Path, names, overwrite: bool = False) -> tuple[dict, dict]:
+    """Run every variant; returns (config, summary, history) and the final structures.
+    ``overwrite``: as the command line's ``--overwrite`` for each run's folder."""
     results, structures = {}, {}
     for name in names:
         config = parse_config(variant(base, name), source=f"demos/tcb.toml [{name}]")
         print(f"--- {name}")
-        summary, structures[name] = execute(config, out / name)
+        summary, structures[name] = execute(config, out / name, overwrite=overwrite)
         results[name] = (config, summary, read_history(out / name / "history.csv"))
     return results, structures
 
@@ -248,6 +250,11 @@ def main() -> None:
     parser.add_argument("--config", default=HERE / "tcb.toml")
     parser.add_argument("--out", default="results/tcb")
     parser.add_argument("--quick", action="store_true", help="20 mm beam, for a fast look")
+    parser.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="reuse run folders that hold other files (only this program's own files go)",
+    )
     args = parser.parse_args()
     base = tomllib.loads(Path(args.config).read_text())
     if args.quick:
@@ -255,7 +262,7 @@ def main() -> None:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
 
-    results, structures = run_all(base, out, RUNS)
+    results, structures = run_all(base, out, RUNS, args.overwrite)
     comparison = compare(results)
     lefm = lefm_comparison(results["reference"][0], results["reference"][2])
     lefm_adaptive = lefm_comparison(results["adaptive"][0], results["adaptive"][2])
@@ -279,4 +286,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    script_main(main, "demos/tcb.py")

@@ -10,7 +10,7 @@ error (the lowest failing rank's), so all ranks exit alike and the message is pr
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 
 
@@ -65,3 +65,21 @@ def shared_errors(comm) -> Iterator[None]:
         if key is not None:
             raise InputError(key, problem)
         raise RemoteError(rank, kind, problem)
+
+
+def script_main(main: Callable[[], object], name: str) -> None:
+    """Run a script's ``main`` as the command line runs its commands: a bad input ends it
+    with one line on stderr (the script's name, then the key and the problem) and exit
+    status 2, not a traceback. For the demos' ``if __name__ == "__main__"`` blocks.
+
+    Parameters:
+        main: the script's entry point, called without arguments.
+        name: the script's name as the user typed it (e.g. ``demos/tcb.py``).
+    """
+    import sys
+
+    try:
+        main()
+    except InputError as error:
+        print(f"{name}: {error}", file=sys.stderr)
+        raise SystemExit(2) from None
