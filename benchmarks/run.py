@@ -53,12 +53,12 @@ from mpi4py import MPI
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from fenics_adaptive import enrichment as enr  # noqa: E402
-from fenics_adaptive import explicit  # noqa: E402
-from fenics_adaptive.assembly import SubelementSet, add_subelement_forces  # noqa: E402
-from fenics_adaptive.config import parse_config  # noqa: E402
+from fenics_adaptive.adaptivity import enrichment as enr  # noqa: E402
+from fenics_adaptive.analysis.timing import time_call, time_per_step  # noqa: E402
+from fenics_adaptive.model.assembly import SubelementSet, add_subelement_forces  # noqa: E402
 from fenics_adaptive.runner import build_structure, execute  # noqa: E402
-from fenics_adaptive.timing import time_call, time_per_step  # noqa: E402
+from fenics_adaptive.settings.config import parse_config  # noqa: E402
+from fenics_adaptive.solver import explicit  # noqa: E402
 
 POINTS_PER_CELL = 8 * 2 * 2  # plies x in-plane points of the layered rule
 FAILURE = {"XT": 1500.0, "XC": 1200.0, "YT": 50.0, "YC": 200.0, "S12": 80.0, "G2c": 0.3, "G6c": 0.8}

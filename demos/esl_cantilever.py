@@ -26,10 +26,10 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 
-from fenics_adaptive.config import load_config
 from fenics_adaptive.errors import script_main
-from fenics_adaptive.output import read_history
+from fenics_adaptive.io.output import read_history
 from fenics_adaptive.runner import run_config
+from fenics_adaptive.settings.config import load_config
 
 HERE = Path(__file__).parent
 

@@ -132,15 +132,15 @@ import dolfinx
 import matplotlib.pyplot as plt
 
 import fenics_adaptive
-from fenics_adaptive import comparison as cmp
-from fenics_adaptive import explicit
-from fenics_adaptive.config import RunConfig, parse_config
+from fenics_adaptive.adaptivity.indicators import recovered_interface_stresses
+from fenics_adaptive.analysis import comparison as cmp
+from fenics_adaptive.analysis.timing import time_call, time_per_step
 from fenics_adaptive.errors import script_main
-from fenics_adaptive.indicators import recovered_interface_stresses
-from fenics_adaptive.loading import Amplitude, FaceLoad
+from fenics_adaptive.model.loading import Amplitude, FaceLoad
+from fenics_adaptive.model.structure import Structure
 from fenics_adaptive.runner import build_structure
-from fenics_adaptive.structure import Structure
-from fenics_adaptive.timing import time_call, time_per_step
+from fenics_adaptive.settings.config import RunConfig, parse_config
+from fenics_adaptive.solver import explicit
 
 HERE = Path(__file__).parent
 MODELS = {

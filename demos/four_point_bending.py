@@ -14,7 +14,7 @@ all runs:
   refinement, the strong refinement released over 0.02 ms.
 
 The refined region grows ring by ring as the crack spreads. Extra nodes on its border follow
-the unrefined neighbours (``fenics_adaptive.border``), so the region does not end in a hinge.
+the unrefined neighbours (``fenics_adaptive.model.border``), so the region does not end in a hinge.
 
 Known difference: the ESL cell has one thickness strain per cell. In bending that puts a
 spurious through-thickness stress into the outer plies, about half of the bending stress. The
@@ -41,13 +41,13 @@ import numpy as np
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 
-from fenics_adaptive import enrichment
-from fenics_adaptive.config import parse_config
+from fenics_adaptive.adaptivity import enrichment
 from fenics_adaptive.errors import script_main
-from fenics_adaptive.explicit import Diverged
-from fenics_adaptive.output import read_history
-from fenics_adaptive.ply_damage import S_D
+from fenics_adaptive.io.output import read_history
+from fenics_adaptive.materials.ply_damage import S_D
 from fenics_adaptive.runner import execute
+from fenics_adaptive.settings.config import parse_config
+from fenics_adaptive.solver.explicit import Diverged
 
 HERE = Path(__file__).parent
 RUNS = ("reference", "adaptive_unstabilised", "adaptive")

@@ -37,11 +37,11 @@ import itertools
 
 import matplotlib.pyplot as plt
 
-from fenics_adaptive import enrichment
-from fenics_adaptive.config import parse_config
+from fenics_adaptive.adaptivity import enrichment
 from fenics_adaptive.errors import script_main
-from fenics_adaptive.output import read_history
+from fenics_adaptive.io.output import read_history
 from fenics_adaptive.runner import execute
+from fenics_adaptive.settings.config import parse_config
 
 HERE = Path(__file__).parent
 RUNS = ("esl", "adaptive", "layerwise")

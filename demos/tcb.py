@@ -40,12 +40,12 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 from matplotlib.collections import PolyCollection
 
-from fenics_adaptive import enrichment
-from fenics_adaptive.config import parse_config
+from fenics_adaptive.adaptivity import enrichment
+from fenics_adaptive.analysis.timing import time_call
 from fenics_adaptive.errors import script_main
-from fenics_adaptive.output import read_history
+from fenics_adaptive.io.output import read_history
 from fenics_adaptive.runner import build_structure, execute
-from fenics_adaptive.timing import time_call
+from fenics_adaptive.settings.config import parse_config
 
 HERE = Path(__file__).parent
 RUNS = ("reference", "refined_from_start", "adaptive", "late", "late_stabilised")

@@ -3,9 +3,10 @@
 The AFEM tutorials are the percent-format scripts of docs/afem/ themselves: MyST-NB reads them
 through Jupytext and executes them at build time, so the site shows the numbers and figures the
 scripts compute and check (the tests run the same files). The config reference is generated from
-fenics_adaptive.config_schema, the module the config parser reads its keys from.
+fenics_adaptive.settings.schema, the module the config parser reads its keys from.
 """
 
+import shutil
 import sys
 from pathlib import Path
 
@@ -45,7 +46,9 @@ nb_merge_streams = True
 myst_enable_extensions = ["dollarmath", "amsmath", "colon_fence", "deflist"]
 myst_heading_anchors = 3
 
-# API reference: one page per public module, from the docstrings.
+# API reference: one page per public module, from the docstrings. The pages are build output:
+# written afresh each build, so that a module moved or removed leaves no stale page behind.
+shutil.rmtree(DOCS / "api" / "generated", ignore_errors=True)
 autosummary_generate = True
 autodoc_default_options = {"members": True, "undoc-members": False, "show-inheritance": False}
 autodoc_typehints = "description"

@@ -78,9 +78,9 @@ def _command(argv: list[str] | None, interrupt: _StartupInterrupt) -> int:
     comm = MPI.COMM_WORLD
     errors = comm.Dup() if comm.size > 1 else None  # for _fail only
     # Imported here so that `--help` answers without loading DOLFINx.
-    from fenics_adaptive.config import load_config
-    from fenics_adaptive.explicit import Interrupted
     from fenics_adaptive.runner import build_problem, run_config
+    from fenics_adaptive.settings.config import load_config
+    from fenics_adaptive.solver.explicit import Interrupted
 
     try:
         config = load_config(args.config)
@@ -165,7 +165,7 @@ def _check(config_path: str, config, problem, comm) -> int:
     """
     from mpi4py import MPI
 
-    from fenics_adaptive.config import (
+    from fenics_adaptive.settings.config import (
         ModelSize,
         check_step_count,
         estimated_memory,

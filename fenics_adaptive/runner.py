@@ -20,19 +20,21 @@ import numpy as np
 from mpi4py import MPI
 
 import fenics_adaptive
-from fenics_adaptive import checkpoint, explicit, output, watchdog
-from fenics_adaptive.assembly import CohesiveSet
-from fenics_adaptive.config import RunConfig, check_step_count
-from fenics_adaptive.contact import Contact
-from fenics_adaptive.enrichment import STRONG, WEAK
+from fenics_adaptive import watchdog
+from fenics_adaptive.adaptivity.enrichment import STRONG, WEAK
+from fenics_adaptive.adaptivity.indicators import front_requests, indicator_requests, spread
 from fenics_adaptive.errors import InputError, shared_errors
-from fenics_adaptive.indicators import front_requests, indicator_requests, spread
-from fenics_adaptive.layerwise import cohesive_pairs
-from fenics_adaptive.loading import Amplitude, PrescribedMotion, face_dofs, resolve
-from fenics_adaptive.model import LayeredModel, build_model
-from fenics_adaptive.run_folder import RunFolder
-from fenics_adaptive.structure import Structure, cells_in_x_range
-from meshes.beam import BeamMesh, layered_mesh
+from fenics_adaptive.io import checkpoint, output
+from fenics_adaptive.io.run_folder import RunFolder
+from fenics_adaptive.meshes.beam import BeamMesh, layered_mesh
+from fenics_adaptive.model.assembly import CohesiveSet
+from fenics_adaptive.model.contact import Contact
+from fenics_adaptive.model.forms import LayeredModel, build_model
+from fenics_adaptive.model.layerwise import cohesive_pairs
+from fenics_adaptive.model.loading import Amplitude, PrescribedMotion, face_dofs, resolve
+from fenics_adaptive.model.structure import Structure, cells_in_x_range
+from fenics_adaptive.settings.config import RunConfig, check_step_count
+from fenics_adaptive.solver import explicit
 
 
 @dataclass

@@ -1,8 +1,7 @@
 """Gmsh mesh generators (flat laminated beams and plates) that hand their meshes to DOLFINx."""
 
 # mpi4py first: the DOLFINx wheel finds libmpi through it.
+from fenics_adaptive.meshes.beam import BeamMesh, esl_mesh, layered_mesh
 from mpi4py import MPI  # noqa: F401
-
-from meshes.beam import BeamMesh, esl_mesh, layered_mesh
 
 __all__ = ["BeamMesh", "esl_mesh", "layered_mesh"]

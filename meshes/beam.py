@@ -28,7 +28,7 @@ boundary) is complete on one rank. A single-layer mesh uses the DOLFINx default 
 
 Every hexahedron comes out of DOLFINx with its reference zeta axis along +z (vertices 0-3 on its
 bottom face, 4-7 on its top face, in the order of the reference cell): the layered integration
-of ``fenics_adaptive.solid_shell`` relies on it, so the generator checks it.
+of ``fenics_adaptive.element.solid_shell`` relies on it, so the generator checks it.
 """
 
 from __future__ import annotations

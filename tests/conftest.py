@@ -4,11 +4,11 @@ Units: N, mm, s, tonne.
 """
 
 import pytest
+from fenics_adaptive.meshes import esl_mesh
 from mpi4py import MPI
 
-from fenics_adaptive.laminate import Laminate, PlyMaterial
-from fenics_adaptive.model import LayeredModel, build_model
-from meshes import esl_mesh
+from fenics_adaptive.materials.laminate import Laminate, PlyMaterial
+from fenics_adaptive.model.forms import LayeredModel, build_model
 
 CROSS_PLY = [0, 90, 0, 90, 90, 0, 90, 0]
 

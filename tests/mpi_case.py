@@ -12,11 +12,11 @@ import sys
 import numpy as np
 from mpi4py import MPI
 
-from fenics_adaptive import contact as contact_module
-from fenics_adaptive.config import load_config
-from fenics_adaptive.ply_damage import S_D
+from fenics_adaptive.materials.ply_damage import S_D
+from fenics_adaptive.model import contact as contact_module
+from fenics_adaptive.model.structure import _cell_coordinates
 from fenics_adaptive.runner import execute
-from fenics_adaptive.structure import _cell_coordinates
+from fenics_adaptive.settings.config import load_config
 
 # the largest contact force on this rank's nodes over the run (N): recorded around set_forces
 peak_contact = [0.0]

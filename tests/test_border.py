@@ -1,4 +1,4 @@
-"""Extra nodes on the border of a refined region (``fenics_adaptive.border``): the cells on
+"""Extra nodes on the border of a refined region (``fenics_adaptive.model.border``): the cells on
 both sides of the border agree along their shared columns, the transferred forces are the
 gradient of the energy of the constrained structure, freeing a node when its last neighbour
 refines changes no energy, and a refined region inside an unrefined beam is neither softer nor
@@ -11,9 +11,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fenics_adaptive import enrichment as enr
-from fenics_adaptive.config import parse_config
+from fenics_adaptive.adaptivity import enrichment as enr
 from fenics_adaptive.runner import build_structure, run_config
+from fenics_adaptive.settings.config import parse_config
 
 DATA = Path(__file__).parent / "data"
 DEMOS = Path(__file__).parent.parent / "demos"

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from fenics_adaptive.output import read_history
+from fenics_adaptive.io.output import read_history
 
 SMALL = Path(__file__).parent / "data" / "small_beam.toml"
 CLI = [sys.executable, "-m", "fenics_adaptive"]
@@ -108,7 +108,7 @@ def test_the_restart_hint_is_shell_quoted(tmp_path, monkeypatch, capsys):
     """On SIGINT/SIGTERM the program prints the command to continue; with spaces and quotes
     in the paths it still splits back into exactly the program's arguments."""
     from fenics_adaptive import cli, runner
-    from fenics_adaptive.explicit import Interrupted
+    from fenics_adaptive.solver.explicit import Interrupted
 
     config = tmp_path / "my case's dir" / "run 1.toml"
     config.parent.mkdir()

@@ -13,7 +13,8 @@ import math
 import numpy as np
 import pytest
 
-from fenics_adaptive.cohesive import (
+from fenics_adaptive.errors import InputError
+from fenics_adaptive.materials.cohesive import (
     LAW_BK,
     LAW_POWER,
     P_EXPONENT,
@@ -29,7 +30,6 @@ from fenics_adaptive.cohesive import (
     critical_energy,
     traction_separation_curve,
 )
-from fenics_adaptive.errors import InputError
 
 BASE = {
     "K_n": 1e5,

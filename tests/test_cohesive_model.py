@@ -8,10 +8,14 @@ import math
 import numpy as np
 import pytest
 
-from fenics_adaptive import explicit
-from fenics_adaptive.cohesive import CohesiveLaw, critical_energy, traction_separation_curve
-from fenics_adaptive.config import parse_config
+from fenics_adaptive.materials.cohesive import (
+    CohesiveLaw,
+    critical_energy,
+    traction_separation_curve,
+)
 from fenics_adaptive.runner import build_structure
+from fenics_adaptive.settings.config import parse_config
+from fenics_adaptive.solver import explicit
 
 LAW = {
     "K_n": 1.0e5,

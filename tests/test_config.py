@@ -8,8 +8,8 @@ from pathlib import Path
 
 import pytest
 
-from fenics_adaptive.config import load_config, parse_config
 from fenics_adaptive.errors import InputError
+from fenics_adaptive.settings.config import load_config, parse_config
 
 SMALL = Path(__file__).parent / "data" / "small_beam.toml"
 
@@ -351,7 +351,7 @@ def test_unit_slips_of_strengths_and_fracture_energies():
 
 
 def test_max_steps_and_energy_error_limit_are_passed_through():
-    from fenics_adaptive.explicit import SolverSettings
+    from fenics_adaptive.solver.explicit import SolverSettings
 
     config = parse_config(base())
     defaults = SolverSettings(end_time=1.0, output_interval=1.0)
@@ -366,7 +366,7 @@ def test_max_steps_and_energy_error_limit_are_passed_through():
 
 
 def test_step_count_is_the_runs_and_refused_above_max_steps():
-    from fenics_adaptive.config import check_step_count, output_counts, step_count
+    from fenics_adaptive.settings.config import check_step_count, output_counts, step_count
 
     assert step_count(2e-4, 1e-7) == 2000  # 2e-4 / 1e-7 is 2000.0000000000002 in floats
     assert step_count(2e-4, 1.1289e-7) == 1772
@@ -432,7 +432,7 @@ def every_config() -> list[tuple[str, dict]]:
 
 
 def test_every_key_the_parser_reads_is_in_the_schema_and_back():
-    from fenics_adaptive.config_schema import all_keys
+    from fenics_adaptive.settings.schema import all_keys
 
     seen: set[str] = set()
     for name, data in every_config():
@@ -451,10 +451,10 @@ def test_unknown_keys_are_refused_with_the_schema_keys():
 
 
 def test_schema_defaults_are_the_dataclass_defaults():
-    from fenics_adaptive.config_schema import section
-    from fenics_adaptive.explicit import SolverSettings
-    from fenics_adaptive.indicators import IndicatorSettings
-    from fenics_adaptive.structure import Stabilisation
+    from fenics_adaptive.adaptivity.indicators import IndicatorSettings
+    from fenics_adaptive.model.structure import Stabilisation
+    from fenics_adaptive.settings.schema import section
+    from fenics_adaptive.solver.explicit import SolverSettings
 
     solver = SolverSettings(end_time=1.0, output_interval=1.0)
     for name in ("safety_factor", "mass_damping", "max_steps", "energy_error_limit"):
@@ -467,7 +467,7 @@ def test_schema_defaults_are_the_dataclass_defaults():
 
 
 def test_reference_markdown_has_a_table_per_section_with_every_key():
-    from fenics_adaptive.config_schema import SECTIONS, reference_markdown
+    from fenics_adaptive.settings.schema import SECTIONS, reference_markdown
 
     text = reference_markdown()
     for s in SECTIONS:
@@ -484,7 +484,7 @@ def test_schema_module_imports_neither_dolfinx_nor_numba():
     import sys
 
     code = (
-        "import sys; from fenics_adaptive.config_schema import reference_markdown; "
+        "import sys; from fenics_adaptive.settings.schema import reference_markdown; "
         "reference_markdown(); print(sorted(m for m in sys.modules if m.split('.')[0] in "
         "('dolfinx', 'numba', 'ufl')))"
     )
@@ -499,9 +499,9 @@ def test_face_node_sets_of_the_parser_are_the_meshs():
     (delaminating) and shared layer boundaries, with and without an x range."""
     import itertools
 
-    from fenics_adaptive.config import _nodes_box, _split_boundaries
-    from fenics_adaptive.loading import face_nodes
+    from fenics_adaptive.model.loading import face_nodes
     from fenics_adaptive.runner import build_structure
+    from fenics_adaptive.settings.config import _nodes_box, _split_boundaries
 
     data = tomllib.loads(TCB_LW.read_text())
     data["mesh"].update(nx=4, ny=2)
@@ -543,7 +543,7 @@ def test_odd_key_names_keep_the_message_on_one_line():
 def test_resolution_refuses_what_the_parser_would_with_the_key():
     """The loads' resolution on the mesh (the backstop for motions made outside the parser,
     such as a layerwise model's symmetry planes) names the config keys too."""
-    from fenics_adaptive.loading import Amplitude, PrescribedMotion
+    from fenics_adaptive.model.loading import Amplitude, PrescribedMotion
     from fenics_adaptive.runner import build_structure
 
     config = parse_config(base())

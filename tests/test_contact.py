@@ -7,10 +7,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fenics_adaptive import explicit
-from fenics_adaptive.config import parse_config
-from fenics_adaptive.contact import Contact, Impactor, penalty_forces
+from fenics_adaptive.model.contact import Contact, Impactor, penalty_forces
 from fenics_adaptive.runner import build_structure
+from fenics_adaptive.settings.config import parse_config
+from fenics_adaptive.solver import explicit
 
 DATA = Path(__file__).parent / "data"
 

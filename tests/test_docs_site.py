@@ -126,7 +126,7 @@ def test_tutorial_is_executed_with_its_figures(site, stem):
 
 
 def test_config_page_is_the_schema_reference(site):
-    from fenics_adaptive.config_schema import reference_markdown
+    from fenics_adaptive.settings.schema import reference_markdown
 
     reference = reference_markdown()
     text = re.sub(r"<[^>]+>", "", (site / "config.html").read_text(encoding="utf-8"))

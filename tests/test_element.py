@@ -9,14 +9,14 @@ import pytest
 from conftest import CROSS_PLY, esl_model, prototype_material
 from dolfinx import fem
 from dolfinx.fem import petsc as fem_petsc
+from fenics_adaptive.meshes import esl_mesh
 from petsc4py import PETSc
 
-from fenics_adaptive import loading
-from fenics_adaptive.laminate import VOIGT_PAIRS, Laminate, Ply
-from fenics_adaptive.loading import face_dofs
-from fenics_adaptive.model import build_model
-from fenics_adaptive.static import solve_static, stiffness_form
-from meshes import esl_mesh
+from fenics_adaptive.materials.laminate import VOIGT_PAIRS, Laminate, Ply
+from fenics_adaptive.model import loading
+from fenics_adaptive.model.forms import build_model
+from fenics_adaptive.model.loading import face_dofs
+from fenics_adaptive.solver.static import solve_static, stiffness_form
 
 
 def internal_force(model, u_nodes):

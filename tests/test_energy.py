@@ -13,17 +13,16 @@ import pytest
 from mpi4py import MPI
 from test_guards import toml_text
 
-from fenics_adaptive import checkpoint
-from fenics_adaptive.cohesive import (
+from fenics_adaptive.io import checkpoint
+from fenics_adaptive.io.output import read_history
+from fenics_adaptive.materials.cohesive import (
     H_DISSIPATED,
     HISTORY,
     CohesiveLaw,
     cohesive_element_force_tracked,
 )
-from fenics_adaptive.config import load_config
-from fenics_adaptive.laminate import PlyMaterial
-from fenics_adaptive.output import read_history
-from fenics_adaptive.ply_damage import (
+from fenics_adaptive.materials.laminate import PlyMaterial
+from fenics_adaptive.materials.ply_damage import (
     RESIDUAL,
     S_D,
     S_DISSIPATED,
@@ -32,6 +31,7 @@ from fenics_adaptive.ply_damage import (
     new_state,
 )
 from fenics_adaptive.runner import execute
+from fenics_adaptive.settings.config import load_config
 
 DATA = Path(__file__).parent / "data"
 

@@ -7,10 +7,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fenics_adaptive import enrichment as enr
-from fenics_adaptive import explicit
-from fenics_adaptive.config import parse_config
+from fenics_adaptive.adaptivity import enrichment as enr
 from fenics_adaptive.runner import build_structure
+from fenics_adaptive.settings.config import parse_config
+from fenics_adaptive.solver import explicit
 
 DATA = Path(__file__).parent / "data"
 
@@ -186,7 +186,7 @@ def test_one_ply_subelements_have_no_zero_energy_modes():
     """Refining every interface of a [0]8 beam with one point per ply leaves one-ply
     subelements; with one point through their thickness they would bend at zero energy. The
     stiffness of the clamped, fully refined beam has no zero eigenvalue."""
-    from fenics_adaptive.comparison import probe_stiffness
+    from fenics_adaptive.analysis.comparison import probe_stiffness
 
     data = tcb(initial="none")
     data["mesh"].update(nx=4, length=2.0)

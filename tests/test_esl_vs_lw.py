@@ -22,9 +22,9 @@ import numpy as np
 import pytest
 from mpi4py import MPI
 
-from fenics_adaptive import comparison as cmp
+from fenics_adaptive.analysis import comparison as cmp
 from fenics_adaptive.runner import build_structure
-from fenics_adaptive.static import solve_static
+from fenics_adaptive.solver.static import solve_static
 
 ROOT = Path(__file__).parents[1]
 spec = importlib.util.spec_from_file_location("esl_vs_lw_demo", ROOT / "demos" / "esl_vs_lw.py")

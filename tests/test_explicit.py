@@ -12,11 +12,12 @@ import pytest
 from conftest import CROSS_PLY, esl_model
 from dolfinx import fem
 
-from fenics_adaptive import explicit, loading
 from fenics_adaptive.errors import InputError
-from fenics_adaptive.loading import face_dofs
-from fenics_adaptive.static import solve_static
-from fenics_adaptive.structure import Structure
+from fenics_adaptive.model import loading
+from fenics_adaptive.model.loading import face_dofs
+from fenics_adaptive.model.structure import Structure
+from fenics_adaptive.solver import explicit
+from fenics_adaptive.solver.static import solve_static
 
 LENGTH, WIDTH = 50.0, 2.0
 

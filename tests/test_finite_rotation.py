@@ -36,17 +36,17 @@ from test_subelement import (
     subelement_vertices,
 )
 
-from fenics_adaptive import enrichment as enr
-from fenics_adaptive import solid_shell
-from fenics_adaptive import subelement as se
-from fenics_adaptive.assembly import add_cohesive_forces
-from fenics_adaptive.config import RunConfig, load_config, parse_config
+from fenics_adaptive.adaptivity import enrichment as enr
+from fenics_adaptive.element import solid_shell
+from fenics_adaptive.element import subelement as se
 from fenics_adaptive.errors import InputError
-from fenics_adaptive.laminate import Laminate
-from fenics_adaptive.loading import face_dofs
-from fenics_adaptive.model import JIT_OPTIONS
+from fenics_adaptive.materials.laminate import Laminate
+from fenics_adaptive.model.assembly import add_cohesive_forces
+from fenics_adaptive.model.forms import JIT_OPTIONS
+from fenics_adaptive.model.loading import face_dofs
+from fenics_adaptive.model.structure import Structure
 from fenics_adaptive.runner import build_structure
-from fenics_adaptive.structure import Structure
+from fenics_adaptive.settings.config import RunConfig, load_config, parse_config
 
 DATA = Path(__file__).parent / "data"
 ROUND_OFF = 1e-12

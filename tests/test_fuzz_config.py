@@ -23,8 +23,8 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from fenics_adaptive.config import load_config, parse_config
 from fenics_adaptive.errors import InputError
+from fenics_adaptive.settings.config import load_config, parse_config
 
 DATA = Path(__file__).parent / "data"
 FILES = {"small_beam": DATA / "small_beam.toml", "tcb_adaptive": DATA / "tcb_adaptive.toml"}

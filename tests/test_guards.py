@@ -16,10 +16,12 @@ import pytest
 from conftest import esl_model
 from mpi4py import MPI
 
-from fenics_adaptive import enrichment, explicit, guards, loading
-from fenics_adaptive.config import load_config
+from fenics_adaptive.adaptivity import enrichment
+from fenics_adaptive.model import loading
+from fenics_adaptive.model.structure import Interfaces, Structure
 from fenics_adaptive.runner import build_structure
-from fenics_adaptive.structure import Interfaces, Structure
+from fenics_adaptive.settings.config import load_config
+from fenics_adaptive.solver import explicit, guards
 
 DATA = Path(__file__).parent / "data"
 ROOT = Path(__file__).parents[1]

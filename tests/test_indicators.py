@@ -6,18 +6,19 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from fenics_adaptive.meshes import esl_mesh
 from mpi4py import MPI
 
-from fenics_adaptive import enrichment as enr
-from fenics_adaptive import explicit, loading
-from fenics_adaptive import indicators as ind
-from fenics_adaptive.config import parse_config
-from fenics_adaptive.laminate import Laminate, PlyMaterial
-from fenics_adaptive.model import build_model
+from fenics_adaptive.adaptivity import enrichment as enr
+from fenics_adaptive.adaptivity import indicators as ind
+from fenics_adaptive.materials.laminate import Laminate, PlyMaterial
+from fenics_adaptive.model import loading
+from fenics_adaptive.model.forms import build_model
+from fenics_adaptive.model.structure import Structure
 from fenics_adaptive.runner import RefinementHook, build_structure, probe_displacement
-from fenics_adaptive.static import solve_static
-from fenics_adaptive.structure import Structure
-from meshes import esl_mesh
+from fenics_adaptive.settings.config import parse_config
+from fenics_adaptive.solver import explicit
+from fenics_adaptive.solver.static import solve_static
 
 DATA = Path(__file__).parent / "data"
 PLY = PlyMaterial("ply", E1=1e5, E2=1e4, G12=5e3, nu12=0.25, nu23=0.25, rho=1.6e-9)
@@ -214,7 +215,7 @@ def test_ply_failure_indicator_refines_next_to_the_failing_ply():
 def test_matrix_damage_indicator_delaminates_next_to_a_cracked_ply():
     config = failure_cantilever(ply_damage=True)
     structure = build_structure(config)
-    from fenics_adaptive.ply_damage import S_D
+    from fenics_adaptive.materials.ply_damage import S_D
 
     structure.damage_state[3, 0, S_D] = 0.2  # cell 3: bottom 90-degree ply cracking
     structure.damage_state[7, 2, S_D] = 0.5  # cell 7: a ply away from interface 1

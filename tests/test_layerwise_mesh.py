@@ -14,10 +14,10 @@ import numpy as np
 import pytest
 import ufl
 from dolfinx import fem, mesh
+from fenics_adaptive.meshes import BeamMesh, layered_mesh
 from mpi4py import MPI
 
-from fenics_adaptive.layerwise import cohesive_pairs
-from meshes import BeamMesh, layered_mesh
+from fenics_adaptive.model.layerwise import cohesive_pairs
 
 MPIEXEC = Path(sys.executable).parent / "mpiexec"
 LENGTH, WIDTH, NX, NY = 10.0, 1.0, 5, 2
@@ -171,8 +171,8 @@ import numpy as np
 from mpi4py import MPI
 from dolfinx import fem
 
-from fenics_adaptive.layerwise import cohesive_pairs
-from meshes import layered_mesh
+from fenics_adaptive.model.layerwise import cohesive_pairs
+from fenics_adaptive.meshes import layered_mesh
 
 length, width, nx, ny = {length}, {width}, {nx}, {ny}
 comm = MPI.COMM_WORLD

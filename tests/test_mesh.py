@@ -4,9 +4,8 @@ import numpy as np
 import pytest
 import ufl
 from dolfinx import fem
+from fenics_adaptive.meshes import esl_mesh, layered_mesh
 from mpi4py import MPI
-
-from meshes import esl_mesh, layered_mesh
 
 
 def area(beam, name):

@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fenics_adaptive.output import COLUMN_UNITS, read_history
+from fenics_adaptive.io.output import COLUMN_UNITS, read_history
 
 ROOT = Path(__file__).parent.parent
 DATA = Path(__file__).parent / "data"
@@ -154,7 +154,7 @@ def test_a_gmsh_failure_on_rank_0_reaches_rank_1():
         """
         from mpi4py import MPI
         from fenics_adaptive.errors import RemoteError
-        from meshes import layered_mesh
+        from fenics_adaptive.meshes import layered_mesh
         try:
             layered_mesh(MPI.COMM_WORLD, 10.0, 1.0, 4, 1, [1e-300])
         except RemoteError as error:

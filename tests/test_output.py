@@ -10,9 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fenics_adaptive.config import parse_config
-from fenics_adaptive.explicit import COLUMNS
-from fenics_adaptive.output import (
+from fenics_adaptive.io.output import (
     COLUMN_UNITS,
     STRESS_NAMES,
     ElementWriter,
@@ -20,8 +18,10 @@ from fenics_adaptive.output import (
     json_safe,
     write_summary,
 )
-from fenics_adaptive.ply_damage import strain_rotation
+from fenics_adaptive.materials.ply_damage import strain_rotation
 from fenics_adaptive.runner import build_structure
+from fenics_adaptive.settings.config import parse_config
+from fenics_adaptive.solver.explicit import COLUMNS
 
 DATA = Path(__file__).parent / "data"
 
@@ -132,7 +132,7 @@ def test_summary_is_valid_json_whatever_the_values(tmp_path):
 def test_a_run_with_an_infinite_value_writes_valid_json(tmp_path, monkeypatch):
     """End to end: a run whose summary holds an infinite number (the structure's mass, made
     infinite here) still writes a summary.json that strict JSON reads."""
-    from fenics_adaptive import structure
+    from fenics_adaptive.model import structure
     from fenics_adaptive.runner import run_config
 
     monkeypatch.setattr(structure.Structure, "total_mass", lambda self: float("inf"))

@@ -17,8 +17,8 @@ from pathlib import Path
 import pytest
 from mpi4py import MPI  # noqa: F401  (before DOLFINx)
 
-from fenics_adaptive.explicit import COLUMNS
-from fenics_adaptive.output import COLUMN_UNITS
+from fenics_adaptive.io.output import COLUMN_UNITS
+from fenics_adaptive.solver.explicit import COLUMNS
 
 ROOT = Path(__file__).parents[1]
 DOC = ROOT / "docs" / "outputs.md"
@@ -142,8 +142,8 @@ def test_every_summary_key_of_the_runner_is_documented():
 @pytest.fixture(scope="module")
 def tiny_run(tmp_path_factory):
     """The small test beam for two output intervals, with field output."""
-    from fenics_adaptive.config import parse_config
     from fenics_adaptive.runner import run_config
+    from fenics_adaptive.settings.config import parse_config
 
     data = tomllib.loads(SMALL.read_text())
     data["solver"]["end_time"] = 2.0e-5

@@ -11,9 +11,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fenics_adaptive import enrichment as enr
-from fenics_adaptive.config import parse_config
+from fenics_adaptive.adaptivity import enrichment as enr
 from fenics_adaptive.runner import execute
+from fenics_adaptive.settings.config import parse_config
 
 ROOT = Path(__file__).parents[1]
 spec = importlib.util.spec_from_file_location("impact_demo", ROOT / "demos" / "plate_impact.py")

@@ -18,10 +18,10 @@ import math
 import numpy as np
 import pytest
 
-from fenics_adaptive import ply_damage as pd
-from fenics_adaptive import subelement as se
+from fenics_adaptive.element import subelement as se
 from fenics_adaptive.errors import InputError
-from fenics_adaptive.laminate import Laminate, Ply, PlyMaterial
+from fenics_adaptive.materials import ply_damage as pd
+from fenics_adaptive.materials.laminate import Laminate, Ply, PlyMaterial
 
 MATERIAL = PlyMaterial("proto", E1=1e5, E2=1e4, G12=5e3, G23=4e3, nu12=0.25, nu23=0.25, rho=1.6e-9)
 GLASS = PlyMaterial("glass", E1=45e3, E2=12e3, G12=4.5e3, nu12=0.28, nu23=0.4, rho=2e-9, G23=3.5e3)

@@ -20,12 +20,13 @@ import numpy as np
 import pytest
 from mpi4py import MPI
 
-from fenics_adaptive import checkpoint, runner
-from fenics_adaptive.config import parse_config
+from fenics_adaptive import runner
 from fenics_adaptive.errors import InputError
-from fenics_adaptive.explicit import Interrupted
-from fenics_adaptive.output import read_history
+from fenics_adaptive.io import checkpoint
+from fenics_adaptive.io.output import read_history
 from fenics_adaptive.runner import run_config
+from fenics_adaptive.settings.config import parse_config
+from fenics_adaptive.solver.explicit import Interrupted
 
 DATA = Path(__file__).parent / "data"
 

@@ -15,11 +15,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fenics_adaptive import explicit, runner
-from fenics_adaptive.config import parse_config
+from fenics_adaptive import runner
 from fenics_adaptive.errors import InputError
-from fenics_adaptive.output import read_history
-from fenics_adaptive.run_folder import LOCK, MANIFEST, RunFolder, is_own_name, read_manifest
+from fenics_adaptive.io.output import read_history
+from fenics_adaptive.io.run_folder import LOCK, MANIFEST, RunFolder, is_own_name, read_manifest
+from fenics_adaptive.settings.config import parse_config
+from fenics_adaptive.solver import explicit
 
 DATA = Path(__file__).parent / "data"
 SMALL = DATA / "small_beam.toml"
@@ -361,7 +362,7 @@ def test_under_mpi_the_lock_refuses_every_rank_and_a_restart_continues(tmp_path)
 def test_every_file_is_listed_before_it_is_written(tmp_path, monkeypatch):
     """So that a run killed at any moment leaves no file of its own that its manifest does
     not name (and that the next run would refuse or keep)."""
-    from fenics_adaptive import checkpoint, output
+    from fenics_adaptive.io import checkpoint, output
 
     out = tmp_path / "out"
     checked = []

@@ -8,8 +8,8 @@ from conftest import prototype_material
 from dolfinx import fem
 from mpi4py import MPI
 
-from fenics_adaptive import solid_shell
-from fenics_adaptive.laminate import Laminate, Ply
+from fenics_adaptive.element import solid_shell
+from fenics_adaptive.materials.laminate import Laminate, Ply
 
 
 def test_rule_weights_cover_the_reference_cell_for_every_term():

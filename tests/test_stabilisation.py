@@ -8,10 +8,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fenics_adaptive import enrichment as enr
-from fenics_adaptive import explicit
-from fenics_adaptive.config import parse_config
+from fenics_adaptive.adaptivity import enrichment as enr
 from fenics_adaptive.runner import RefinementHook, build_structure
+from fenics_adaptive.settings.config import parse_config
+from fenics_adaptive.solver import explicit
 
 DATA = Path(__file__).parent / "data"
 

@@ -19,9 +19,9 @@ import pytest
 import ufl
 from dolfinx import fem
 
-from fenics_adaptive import solid_shell
-from fenics_adaptive import subelement as se
-from fenics_adaptive.laminate import Laminate, Ply, PlyMaterial
+from fenics_adaptive.element import solid_shell
+from fenics_adaptive.element import subelement as se
+from fenics_adaptive.materials.laminate import Laminate, Ply, PlyMaterial
 
 CARBON = PlyMaterial("carbon", E1=140e3, E2=10e3, G12=5e3, nu12=0.3, nu23=0.45, rho=1.6e-9)
 GLASS = PlyMaterial(

@@ -14,18 +14,18 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from fenics_adaptive.meshes import esl_mesh
 from mpi4py import MPI
 
-from fenics_adaptive import enrichment as enr
-from fenics_adaptive import explicit
-from fenics_adaptive.cohesive import CohesiveLaw
-from fenics_adaptive.config import parse_config
-from fenics_adaptive.loading import resolve
-from fenics_adaptive.model import build_model
-from fenics_adaptive.output import read_history
+from fenics_adaptive.adaptivity import enrichment as enr
+from fenics_adaptive.io.output import read_history
+from fenics_adaptive.materials.cohesive import CohesiveLaw
+from fenics_adaptive.model.forms import build_model
+from fenics_adaptive.model.loading import resolve
+from fenics_adaptive.model.structure import Interfaces, Structure, cells_in_x_range
 from fenics_adaptive.runner import build_structure, run_config
-from fenics_adaptive.structure import Interfaces, Structure, cells_in_x_range
-from meshes import esl_mesh
+from fenics_adaptive.settings.config import parse_config
+from fenics_adaptive.solver import explicit
 
 DATA = Path(__file__).parent / "data"
 MPIEXEC = Path(sys.executable).parent / "mpiexec"

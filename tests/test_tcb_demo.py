@@ -8,9 +8,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fenics_adaptive import explicit
-from fenics_adaptive.config import parse_config
 from fenics_adaptive.runner import RefinementHook, build_structure
+from fenics_adaptive.settings.config import parse_config
+from fenics_adaptive.solver import explicit
 
 ROOT = Path(__file__).parents[1]
 spec = importlib.util.spec_from_file_location("tcb_demo", ROOT / "demos" / "tcb.py")

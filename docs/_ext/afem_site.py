@@ -4,7 +4,7 @@
   docs/afem/ into a notebook (Jupytext), so the script the tests run is the page the site
   executes, with no copy in between.
 - The config reference page is filled, at read time, with
-  ``fenics_adaptive.config_schema.reference_markdown()``: the same table of sections and keys
+  ``fenics_adaptive.settings.schema.reference_markdown()``: the same table of sections and keys
   the config parser checks against, so the page cannot drift from the parser.
 - Pages that include parts of files outside docs/ (README.md, benchmarks/results/latest.md)
   get their relative links rewritten for the page (``include-read``): links into docs/ point
@@ -32,7 +32,7 @@ from sphinx.errors import ExtensionError
 
 ROOT = Path(__file__).resolve().parents[2]
 # The line of docs/config.md that the generated reference replaces.
-CONFIG_MARKER = "<!-- config reference: fenics_adaptive.config_schema.reference_markdown() -->"
+CONFIG_MARKER = "<!-- config reference: fenics_adaptive.settings.schema.reference_markdown() -->"
 CONFIG_DOCNAME = "config"
 # Repository files outside docs/ that are pages of the site (in whole or in part).
 SITE_PAGES = {"README.md": "index.md", "benchmarks/results/latest.md": "performance.md"}
@@ -56,10 +56,10 @@ def fill_config_reference(app: Sphinx, docname: str, source: list[str]) -> None:
     if CONFIG_MARKER not in source[0]:
         raise ExtensionError(f"{docname}.md lost its marker line {CONFIG_MARKER!r}")
     try:
-        from fenics_adaptive import config_schema
+        from fenics_adaptive.settings import schema as config_schema
     except ImportError as error:
         raise ExtensionError(
-            f"the config reference needs fenics_adaptive.config_schema: {error}"
+            f"the config reference needs fenics_adaptive.settings.schema: {error}"
         ) from error
     # rebuild the page whenever the schema changes
     app.env.note_dependency(config_schema.__file__)

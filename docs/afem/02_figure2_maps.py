@@ -20,11 +20,11 @@ import numpy as np
 from afem_figures import TUTORIAL_DIR, draw_plies, finish
 from mpi4py import MPI
 
-from fenics_adaptive import enrichment as enr
-from fenics_adaptive.config import parse_config
+from fenics_adaptive.adaptivity import enrichment as enr
+from fenics_adaptive.element.solid_shell import gauss_legendre_01
+from fenics_adaptive.element.subelement import sublaminate_ply_zeta
 from fenics_adaptive.runner import build_structure
-from fenics_adaptive.solid_shell import gauss_legendre_01
-from fenics_adaptive.subelement import sublaminate_ply_zeta
+from fenics_adaptive.settings.config import parse_config
 
 # %% [markdown]
 # ## Interface states decide the subelements

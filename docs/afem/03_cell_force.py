@@ -29,11 +29,11 @@ import numpy as np
 from afem_figures import SET_COLOURS, TUTORIAL_DIR, draw_plies, finish
 from mpi4py import MPI
 
-from fenics_adaptive import enrichment as enr
-from fenics_adaptive.cohesive import cohesive_element_force
-from fenics_adaptive.config import parse_config
+from fenics_adaptive.adaptivity import enrichment as enr
+from fenics_adaptive.element.subelement import pack_rule, solid_shell_force, sublaminate_ply_zeta
+from fenics_adaptive.materials.cohesive import cohesive_element_force
 from fenics_adaptive.runner import build_structure
-from fenics_adaptive.subelement import pack_rule, solid_shell_force, sublaminate_ply_zeta
+from fenics_adaptive.settings.config import parse_config
 
 # %% [markdown]
 # ## One cell, refined as in Figure 2

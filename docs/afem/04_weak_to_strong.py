@@ -22,11 +22,11 @@ import numpy as np
 from afem_figures import finish
 from mpi4py import MPI
 
-from fenics_adaptive import enrichment as enr
-from fenics_adaptive.cohesive import cohesive_element_force
-from fenics_adaptive.config import parse_config
+from fenics_adaptive.adaptivity import enrichment as enr
+from fenics_adaptive.materials.cohesive import cohesive_element_force
+from fenics_adaptive.model.structure import cells_in_x_range
 from fenics_adaptive.runner import build_structure
-from fenics_adaptive.structure import cells_in_x_range
+from fenics_adaptive.settings.config import parse_config
 
 # %% [markdown]
 # ## The model

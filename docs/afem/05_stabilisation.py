@@ -30,10 +30,10 @@ import numpy as np
 from afem_figures import finish
 from mpi4py import MPI
 
-from fenics_adaptive import enrichment as enr
-from fenics_adaptive import explicit
-from fenics_adaptive.config import parse_config
+from fenics_adaptive.adaptivity import enrichment as enr
 from fenics_adaptive.runner import build_structure
+from fenics_adaptive.settings.config import parse_config
+from fenics_adaptive.solver import explicit
 
 # %% [markdown]
 # ## The model: a column pulled through its thickness

@@ -29,7 +29,7 @@ from mpi4py import MPI
 from numba import njit
 
 from fenics_adaptive.errors import InputError
-from fenics_adaptive.loading import face_nodes
+from fenics_adaptive.model.loading import face_nodes
 
 IMPACTOR_SHAPES = ("sphere", "cylinder")
 

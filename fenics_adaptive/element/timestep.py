@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from fenics_adaptive import solid_shell
+from fenics_adaptive.element import solid_shell
 
 # Local vertex lists of the six faces of a reference hexahedron (DOLFINx numbering).
 HEX_FACES = np.array(

@@ -42,11 +42,11 @@ from dataclasses import dataclass, field
 import numpy as np
 from mpi4py import MPI
 
-from fenics_adaptive import guards
-from fenics_adaptive.contact import Contact
 from fenics_adaptive.errors import InputError
-from fenics_adaptive.loading import COMPONENTS, face_dofs
-from fenics_adaptive.structure import Block, Structure
+from fenics_adaptive.model.contact import Contact
+from fenics_adaptive.model.loading import COMPONENTS, face_dofs
+from fenics_adaptive.model.structure import Block, Structure
+from fenics_adaptive.solver import guards
 
 
 @dataclass(frozen=True)

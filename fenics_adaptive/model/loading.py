@@ -1,8 +1,7 @@
 """Time curves, clamps, prescribed motions and face loads, resolved to DOFs of a model.
 
-Units: N, mm, s. A face is named by its group in the mesh (``meshes.beam``: x0, x1, top,
-x1_layer3, ...). Components are "x", "y", "z".
-"""
+Units: N, mm, s. A face is named by its group in the mesh (``fenics_adaptive.meshes.beam``: x0, x1,
+top, x1_layer3, ...). Components are "x", "y", "z"."""
 
 from __future__ import annotations
 
@@ -20,7 +19,7 @@ from dolfinx import fem
 from mpi4py import MPI
 
 from fenics_adaptive.errors import InputError, shared_errors
-from fenics_adaptive.model import LayeredModel
+from fenics_adaptive.model.forms import LayeredModel
 
 COMPONENTS = {"x": 0, "y": 1, "z": 2}
 

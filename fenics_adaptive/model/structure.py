@@ -29,33 +29,24 @@ import numpy as np
 from dolfinx import fem, la
 from mpi4py import MPI
 
-from fenics_adaptive import enrichment as enr
-from fenics_adaptive.assembly import (
-    CohesiveSet,
-    SubelementSet,
-    add_cohesive_forces,
-    add_subelement_forces,
+from fenics_adaptive.adaptivity import enrichment as enr
+from fenics_adaptive.element.subelement import (
+    add_damaged_subelement_forces,
+    concatenate_rules,
+    pack_mass_rule,
+    pack_rule,
+    solid_shell_lumped_masses,
+    sublaminate_ply_zeta,
 )
-from fenics_adaptive.border import (
-    BorderConstraints,
-    border_constraints,
-    column_counts,
-    follow_masters,
-    transfer_forces,
-    transfer_masses,
+from fenics_adaptive.element.timestep import (
+    characteristic_lengths,
+    cohesive_pair_time_steps,
+    hexahedron_volumes,
 )
-from fenics_adaptive.cohesive import P_KN, P_KS
 from fenics_adaptive.errors import InputError, shared_errors
-from fenics_adaptive.laminate import Laminate
-from fenics_adaptive.loading import (
-    COMPONENTS,
-    Amplitude,
-    PrescribedMotion,
-    ResolvedLoads,
-    face_nodes,
-)
-from fenics_adaptive.model import LayeredModel
-from fenics_adaptive.ply_damage import (
+from fenics_adaptive.materials.cohesive import P_KN, P_KS
+from fenics_adaptive.materials.laminate import Laminate
+from fenics_adaptive.materials.ply_damage import (
     S_DISSIPATED,
     S_Y0,
     check_band_width,
@@ -64,18 +55,27 @@ from fenics_adaptive.ply_damage import (
     new_state,
     pack_ply_damage,
 )
-from fenics_adaptive.subelement import (
-    add_damaged_subelement_forces,
-    concatenate_rules,
-    pack_mass_rule,
-    pack_rule,
-    solid_shell_lumped_masses,
-    sublaminate_ply_zeta,
+from fenics_adaptive.model.assembly import (
+    CohesiveSet,
+    SubelementSet,
+    add_cohesive_forces,
+    add_subelement_forces,
 )
-from fenics_adaptive.timestep import (
-    characteristic_lengths,
-    cohesive_pair_time_steps,
-    hexahedron_volumes,
+from fenics_adaptive.model.border import (
+    BorderConstraints,
+    border_constraints,
+    column_counts,
+    follow_masters,
+    transfer_forces,
+    transfer_masses,
+)
+from fenics_adaptive.model.forms import LayeredModel
+from fenics_adaptive.model.loading import (
+    COMPONENTS,
+    Amplitude,
+    PrescribedMotion,
+    ResolvedLoads,
+    face_nodes,
 )
 
 

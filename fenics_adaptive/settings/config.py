@@ -5,7 +5,7 @@ its header. Every problem is reported as one line naming the key, e.g.
 ``mesh.nx: must be an integer >= 1 (got 0)``; unknown keys are errors, never ignored.
 
 Every section and key, with its type, unit, default and bounds, is declared once in
-``fenics_adaptive.config_schema`` (rendered as the config reference of the documentation); this
+``fenics_adaptive.settings.schema`` (rendered as the config reference of the documentation); this
 module reads each key through the checked accessor of its declared kind (``_Table``). Every
 number must be finite. Besides each key's own bounds, the whole config is checked before
 meshing: degenerate cells (``config_schema.MIN_LENGTH``, ``MAX_ASPECT``), the estimated memory of
@@ -50,8 +50,16 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
-from fenics_adaptive.cohesive import CohesiveLaw
-from fenics_adaptive.config_schema import (
+from fenics_adaptive.adaptivity.enrichment import STRONG, WEAK
+from fenics_adaptive.adaptivity.indicators import IndicatorSettings, Manual
+from fenics_adaptive.errors import InputError
+from fenics_adaptive.materials.cohesive import CohesiveLaw
+from fenics_adaptive.materials.laminate import Laminate, Ply, PlyMaterial
+from fenics_adaptive.materials.ply_damage import PlyFailure
+from fenics_adaptive.model.contact import Impactor
+from fenics_adaptive.model.loading import Amplitude, FaceLoad, PrescribedMotion, clamp
+from fenics_adaptive.model.structure import Interfaces, Stabilisation
+from fenics_adaptive.settings.schema import (
     MAX_ASPECT,
     MAX_PLIES,
     MAX_TIME,
@@ -63,15 +71,7 @@ from fenics_adaptive.config_schema import (
     implausible,
     section,
 )
-from fenics_adaptive.contact import Impactor
-from fenics_adaptive.enrichment import STRONG, WEAK
-from fenics_adaptive.errors import InputError
-from fenics_adaptive.explicit import Probe, SolverSettings
-from fenics_adaptive.indicators import IndicatorSettings, Manual
-from fenics_adaptive.laminate import Laminate, Ply, PlyMaterial
-from fenics_adaptive.loading import Amplitude, FaceLoad, PrescribedMotion, clamp
-from fenics_adaptive.ply_damage import PlyFailure
-from fenics_adaptive.structure import Interfaces, Stabilisation
+from fenics_adaptive.solver.explicit import Probe, SolverSettings
 
 BASE_FACES = ("x0", "x1", "y0", "y1", "bottom", "top")
 SIDE_FACES = ("x0", "x1", "y0", "y1")

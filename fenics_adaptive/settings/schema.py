@@ -1,10 +1,10 @@
 """Every section and key of a run configuration, declared once: name, type, unit, default, bounds
 and a one-line description.
 
-The parser (``fenics_adaptive.config``) reads every key through this table (its unknown-key check
-and its typed accessors use it), and ``reference_markdown()`` renders it for the documentation,
-so the two cannot drift apart. This module imports neither DOLFINx nor numba (the documentation
-build and ``--help`` use it).
+The parser (``fenics_adaptive.settings.config``) reads every key through this table (its unknown-key
+check and its typed accessors use it), and ``reference_markdown()`` renders it for the
+documentation, so the two cannot drift apart. This module imports neither DOLFINx nor numba (the
+documentation build and ``--help`` use it).
 
 Units: N, mm, s, tonne (stress and moduli MPa, density tonne/mm^3, energy mJ, fracture energy
 N/mm, cohesive penalty N/mm^3).
@@ -961,5 +961,5 @@ def reference_markdown() -> str:
     return "\n".join(lines)
 
 
-if __name__ == "__main__":  # python -m fenics_adaptive.config_schema > reference.md
+if __name__ == "__main__":  # python -m fenics_adaptive.settings.schema > reference.md
     print(reference_markdown())

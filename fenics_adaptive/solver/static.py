@@ -15,8 +15,8 @@ from dolfinx import fem
 from dolfinx.fem import petsc as fem_petsc
 from petsc4py import PETSc
 
-from fenics_adaptive.loading import COMPONENTS, PrescribedMotion, ResolvedLoads, face_dofs
-from fenics_adaptive.model import LayeredModel
+from fenics_adaptive.model.forms import LayeredModel
+from fenics_adaptive.model.loading import COMPONENTS, PrescribedMotion, ResolvedLoads, face_dofs
 
 
 def stiffness_form(model: LayeredModel) -> ufl.Form:

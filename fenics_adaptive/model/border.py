@@ -43,7 +43,7 @@ import numpy as np
 from dolfinx import la
 from mpi4py import MPI
 
-from fenics_adaptive import enrichment as enr
+from fenics_adaptive.adaptivity import enrichment as enr
 
 
 @dataclass(frozen=True)

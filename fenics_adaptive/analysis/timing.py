@@ -13,8 +13,8 @@ from __future__ import annotations
 import time
 from collections.abc import Callable, Sequence
 
-from fenics_adaptive import explicit
-from fenics_adaptive.structure import Structure
+from fenics_adaptive.model.structure import Structure
+from fenics_adaptive.solver import explicit
 
 Statistic = Callable[[Sequence[float]], float]
 

@@ -113,7 +113,7 @@ import numpy as np
 from numba import njit
 
 from fenics_adaptive.errors import InputError
-from fenics_adaptive.laminate import VOIGT_PAIRS, Ply, PlyMaterial, rotation_about_z
+from fenics_adaptive.materials.laminate import VOIGT_PAIRS, Ply, PlyMaterial, rotation_about_z
 
 # Slots of PlyFailure.as_array() (the first N_FAILURE slots of a ply's parameter row).
 F_XT, F_XC, F_YT, F_YC, F_S12, F_S23, F_G2C, F_G6C = range(8)

@@ -22,10 +22,10 @@ from dolfinx import fem
 from mpi4py import MPI
 from numba import njit
 
-from fenics_adaptive import solid_shell
-from fenics_adaptive.laminate import Laminate
-from fenics_adaptive.timestep import characteristic_lengths
-from meshes.beam import BeamMesh
+from fenics_adaptive.element import solid_shell
+from fenics_adaptive.element.timestep import characteristic_lengths
+from fenics_adaptive.materials.laminate import Laminate
+from fenics_adaptive.meshes.beam import BeamMesh
 
 # FFCx kernels compiled for this CPU with reassociation allowed: lets the compiler vectorise the
 # quadrature loops (about 5x faster force assembly here). Results change only at round-off.

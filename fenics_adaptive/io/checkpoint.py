@@ -42,10 +42,10 @@ from pathlib import Path
 import numpy as np
 from mpi4py import MPI
 
-from fenics_adaptive.config import RunConfig
 from fenics_adaptive.errors import InputError, shared_errors
-from fenics_adaptive.explicit import SOLVER_SCALARS
-from fenics_adaptive.structure import DampingWindow, Structure, Ties
+from fenics_adaptive.model.structure import DampingWindow, Structure, Ties
+from fenics_adaptive.settings.config import RunConfig
+from fenics_adaptive.solver.explicit import SOLVER_SCALARS
 
 FOLDER = "checkpoint"
 MANIFEST = "checkpoint.json"

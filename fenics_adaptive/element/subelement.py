@@ -54,8 +54,8 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from fenics_adaptive import solid_shell
-from fenics_adaptive.ply_damage import P_C22, RESIDUAL, S_D, ply_damage_update
+from fenics_adaptive.element import solid_shell
+from fenics_adaptive.materials.ply_damage import P_C22, RESIDUAL, S_D, ply_damage_update
 
 # Term codes of the packed rule, in the order of solid_shell.TERMS.
 TERM_NORMAL, TERM_SHEAR_XZ, TERM_SHEAR_YZ, TERM_SHEAR_CROSS = range(4)

@@ -2,8 +2,9 @@
 
 One hexahedron spans the whole laminate (or, once refined, a sublaminate). Reference coordinates
 (xi, eta, zeta) in [0, 1]^3, zeta through the thickness (the meshes guarantee it, see
-``meshes.beam``). Each ply owns ``points_per_ply`` Gauss points through the thickness inside its
-own zeta range, and carries its own stiffness there. Nothing else about a ply is stored.
+``fenics_adaptive.meshes.beam``). Each ply owns ``points_per_ply`` Gauss points through the
+thickness inside its own zeta range, and carries its own stiffness there. Nothing else about a ply
+is stored.
 
 Transverse shear locking is removed with the selective in-plane rule that equals the
 Bathe-Dvorkin assumed natural strain (ANS) interpolation on elements with parallelogram faces:
@@ -41,7 +42,7 @@ import numpy as np
 import ufl
 from dolfinx import fem
 
-from fenics_adaptive.laminate import Laminate
+from fenics_adaptive.materials.laminate import Laminate
 
 KINEMATICS = ("small", "finite")
 

@@ -35,10 +35,10 @@ from dolfinx import la
 from mpi4py import MPI
 from numba import njit
 
-from fenics_adaptive import enrichment as enr
-from fenics_adaptive.laminate import rotation_about_z
-from fenics_adaptive.ply_damage import S_D, S_FT, S_MC, hashin_indices
-from fenics_adaptive.subelement import gather_nodes
+from fenics_adaptive.adaptivity import enrichment as enr
+from fenics_adaptive.element.subelement import gather_nodes
+from fenics_adaptive.materials.laminate import rotation_about_z
+from fenics_adaptive.materials.ply_damage import S_D, S_FT, S_MC, hashin_indices
 
 STRONG, WEAK = enr.STRONG, enr.WEAK
 

@@ -3,12 +3,12 @@
 Units: N, mm, s, tonne (coordinates in mm).
 
 An LW reference model meshes a laminate with ONE plain solid (hexahedral) element layer per
-sublaminate (``meshes.beam.layered_mesh``: mesh layer k carries sublaminate k, k = 0 at the
-bottom). Where the boundary k between mesh layers k and k + 1 is *split* (``BeamMesh.split[k]``)
-the mesh has two coincident node sets there, joined by 8-node cohesive elements
-(``fenics_adaptive.cohesive``) that may delaminate; a non-split boundary shares its nodes and
-stays perfectly bonded. It is the model the adaptive ESL element must reproduce when refined
-everywhere from the start.
+sublaminate (``fenics_adaptive.meshes.beam.layered_mesh``: mesh layer k carries sublaminate k, k = 0
+at the bottom). Where the boundary k between mesh layers k and k + 1 is *split*
+(``BeamMesh.split[k]``) the mesh has two coincident node sets there, joined by 8-node cohesive
+elements (``fenics_adaptive.materials.cohesive``) that may delaminate; a non-split boundary shares
+its nodes and stays perfectly bonded. It is the model the adaptive ESL element must reproduce when
+refined everywhere from the start.
 
 Conventions. One cohesive element per cell of layer k below a split boundary k: its lower face
 is that cell's top face (DOLFINx local vertices 4-7), its upper face the bottom face (vertices
@@ -31,7 +31,7 @@ from dataclasses import dataclass
 import dolfinx
 import numpy as np
 
-from meshes.beam import BeamMesh
+from fenics_adaptive.meshes.beam import BeamMesh
 
 LOWER_FACE = np.arange(4, 8)  # local vertices of a hexahedron's top face, tensor order
 UPPER_FACE = np.arange(0, 4)  # its bottom face

@@ -35,10 +35,10 @@ import dolfinx.io
 import numpy as np
 from mpi4py import MPI
 
+from fenics_adaptive.adaptivity.indicators import ply_failure_indices, ply_strains
 from fenics_adaptive.errors import InputError, shared_errors
-from fenics_adaptive.explicit import COLUMNS, HistoryRow
-from fenics_adaptive.indicators import ply_failure_indices, ply_strains
-from fenics_adaptive.ply_damage import S_D, S_FC, S_FT, S_MC, S_MT, nominal_ply_stresses
+from fenics_adaptive.materials.ply_damage import S_D, S_FC, S_FT, S_MC, S_MT, nominal_ply_stresses
+from fenics_adaptive.solver.explicit import COLUMNS, HistoryRow
 
 COLUMN_UNITS = {
     "time": "s",

@@ -25,14 +25,14 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from fenics_adaptive.cohesive import H_DISSIPATED, HISTORY, cohesive_element_force_tracked
-from fenics_adaptive.subelement import (
+from fenics_adaptive.element.subelement import (
     KERNEL_OPTIONS,
     PackedRules,
     _element_force,
     gather_nodes,
     scatter_add_nodes,
 )
+from fenics_adaptive.materials.cohesive import H_DISSIPATED, HISTORY, cohesive_element_force_tracked
 
 
 @dataclass

@@ -38,12 +38,12 @@ from dataclasses import dataclass
 import numpy as np
 from petsc4py import PETSc
 
-from fenics_adaptive.assembly import SubelementSet, add_subelement_forces
-from fenics_adaptive.indicators import ply_stresses
-from fenics_adaptive.laminate import Laminate, reduced_plane_stress_stiffness
-from fenics_adaptive.loading import face_nodes
-from fenics_adaptive.structure import Structure
-from fenics_adaptive.subelement import concatenate_rules, pack_rule, sublaminate_ply_zeta
+from fenics_adaptive.adaptivity.indicators import ply_stresses
+from fenics_adaptive.element.subelement import concatenate_rules, pack_rule, sublaminate_ply_zeta
+from fenics_adaptive.materials.laminate import Laminate, reduced_plane_stress_stiffness
+from fenics_adaptive.model.assembly import SubelementSet, add_subelement_forces
+from fenics_adaptive.model.loading import face_nodes
+from fenics_adaptive.model.structure import Structure
 
 OUT_OF_PLANE = ("sigma_zz", "tau_xz", "tau_yz")
 VOIGT_OUT_OF_PLANE = [2, 4, 3]  # Voigt (xx, yy, zz, yz, xz, xy) indices of OUT_OF_PLANE

@@ -1,0 +1,1 @@
+"""Through-thickness refinement: enrichment state, extra nodes, refinement indicators."""

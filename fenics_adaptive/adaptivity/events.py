@@ -1,0 +1,41 @@
+"""What a refinement changed, as the solver is told it: one event per refinement that changed
+something on some rank.
+
+Units: N, mm, s, tonne (energies in mJ = N mm).
+
+``Structure.refine`` returns a ``RefinementEvent`` (or ``None`` when no rank changed anything;
+the same answer on every rank, since refinement is collective). The solver reacts to it in one
+place: new work arrays for the grown blocks, the stable step chosen again, the stabilisation of
+the new refinement started, the potential energy change booked as internal work. Observers get
+the same event.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class RefinementEvent:
+    """One refinement, seen from this rank.
+
+    time: s, when it happened (between two steps).
+    cells: this rank's owned cells whose interface state changed (local indices).
+    new_weak: this rank's (cell, interface) pairs that became weak, shape (n, 2).
+    new_strong: this rank's (cell, interface) pairs that became strong, shape (n, 2).
+    new_extra_nodes: extra nodes added, over all ranks.
+    energy_change: mJ, mechanical energy (kinetic + strain + stored cohesive) the refinement
+        added, over all ranks (lumped masses move, so the kinetic energy changes).
+    potential_change: mJ, its strain + stored cohesive part, over all ranks (the solver books it
+        as internal work, so that the dissipated energy does not jump).
+    """
+
+    time: float
+    cells: np.ndarray
+    new_weak: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), dtype=np.int64))
+    new_strong: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), dtype=np.int64))
+    new_extra_nodes: int = 0
+    energy_change: float = 0.0
+    potential_change: float = 0.0

@@ -1,0 +1,1 @@
+"""ESL-against-layerwise comparison tools and cost measurement."""

@@ -1,0 +1,1 @@
+"""Files of a run: checkpoints, history and fields, the run folder."""

@@ -1,0 +1,1 @@
+"""Ply materials and laminates, intralaminar ply damage, the cohesive law of the interfaces."""

@@ -1,0 +1,1 @@
+"""The discrete model the solver integrates: forms, structure, loads, contact, assembly."""

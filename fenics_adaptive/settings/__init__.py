@@ -1,0 +1,1 @@
+"""Run configuration as data: the schema of every key, parsing and checks."""

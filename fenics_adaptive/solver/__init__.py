@@ -1,0 +1,1 @@
+"""Explicit central-difference integration, the static reference solve, physics guards."""
