@@ -158,9 +158,11 @@ def test_a_gmsh_failure_on_rank_0_reaches_rank_1():
         try:
             layered_mesh(MPI.COMM_WORLD, 10.0, 1.0, 4, 1, [1e-300])
         except RemoteError as error:
-            print(f"rank {MPI.COMM_WORLD.rank}: RemoteError from rank {error.rank}", flush=True)
+            # one write per line: two ranks' output shares mpiexec's stdout, and unbuffered
+            # print() writes the text and its newline separately, which may interleave
+            print(f"rank {MPI.COMM_WORLD.rank}: RemoteError from rank {error.rank}\\n", end="")
         except RuntimeError as error:
-            print(f"rank {MPI.COMM_WORLD.rank}: {error}", flush=True)
+            print(f"rank {MPI.COMM_WORLD.rank}: {error}\\n", end="")
         """
     )
     assert result.returncode == 0, result.stderr
@@ -209,7 +211,7 @@ def test_sigterm_ends_a_hung_collective_after_the_watchdog_timeout():
         index_map = mesh.topology.index_map(0)
         stop = _StopOnSignal(comm)
         stop()  # a poll: the solver was alive
-        print(f"ready {comm.rank}", flush=True)
+        print(f"ready {comm.rank}\\n", end="", flush=True)  # one write: no interleaving
         if comm.rank == 0:
             dolfinx.la.vector(index_map)  # collective: rank 1 never joins
         else:
