@@ -117,9 +117,7 @@ def test_site_has_its_pages(site):
     # and one page per subpackage (its docstring names what it holds)
     # and the mesh generators, installed as fenics_adaptive.meshes from the folder meshes/
     meshes = [f"meshes.{p.stem}" for p in (ROOT / "meshes").glob("*.py") if p.stem[0] != "_"]
-    package = sorted(
-        package + [p.parent.name for p in package_root.glob("*/__init__.py")] + meshes
-    )
+    package = sorted(package + [p.parent.name for p in package_root.glob("*/__init__.py")] + meshes)
     assert [m.removeprefix("fenics_adaptive.") for m in modules] == package, (
         "the API reference does not have one page per module of the package"
     )
