@@ -27,9 +27,6 @@ undone.
 
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass
-
 import numpy as np
 from dolfinx import la
 from mpi4py import MPI
@@ -39,6 +36,7 @@ from fenics_adaptive.adaptivity import enrichment as enr
 from fenics_adaptive.element.subelement import gather_nodes
 from fenics_adaptive.materials.laminate import rotation_about_z
 from fenics_adaptive.materials.ply_damage import S_D, S_FT, S_MC, hashin_indices
+from fenics_adaptive.settings.adaptivity import IndicatorSettings
 
 STRONG, WEAK = enr.STRONG, enr.WEAK
 
@@ -327,40 +325,3 @@ def spread(structure, requests: list[tuple[int, int, int]], rings: int) -> list:
             (int(c), int(i) + 1, int(k) + 1) for c, k, i in zip(*np.nonzero(hit), strict=True)
         ]
     return requests
-
-
-@dataclass(frozen=True)
-class IndicatorSettings:
-    """Which indicators run, every ``interval`` seconds: fractions of 1 for the ply failure
-    index (weak) and the interface initiation criterion (strong), matrix damage (strong), how
-    many rings of neighbours refine with a flagged cell, and ``strong_after``: a delaminable
-    interface refined weakly turns strong that long after (the paper's four-point bending:
-    damping for 0.2 ms after the weak refinement, then the strong one). ``front``: the
-    delamination front stays inside the refined region: the cells within that many rings of a
-    cell whose cohesive element has started to fail refine strongly at that interface (the
-    stress recovery of the unrefined cells ahead of a front does not see its stress peak)."""
-
-    interval: float
-    ply_failure: float | None = None
-    interface_stress: float | None = None
-    matrix_damage: bool = False
-    spread: int = 0
-    strong_after: float | None = None  # s: a weak delaminable interface turns strong this late
-    front: int = 0  # rings refined strongly around cohesive elements that have started to fail
-
-
-@dataclass(frozen=True)
-class Manual:
-    """Refine ``interfaces`` (``kind``) of the cells with centroid in [x_min, x_max] once the
-    time reaches ``time`` or the probe displacement (absolute value) reaches
-    ``displacement``."""
-
-    interfaces: tuple[int, ...]
-    kind: int
-    time: float = math.inf
-    displacement: float = math.inf
-    x_min: float = -math.inf
-    x_max: float = math.inf
-
-    def due(self, t: float, displacement: float) -> bool:
-        return t >= self.time or abs(displacement) >= self.displacement

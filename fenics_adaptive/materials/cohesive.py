@@ -76,97 +76,28 @@ coordinates). An opened interface thus pulls the upper face down and the lower f
 from __future__ import annotations
 
 import math
-import numbers
-from collections.abc import Mapping
-from dataclasses import dataclass, fields
 
 import numpy as np
 from numba import njit
 
-from fenics_adaptive.errors import InputError
+from fenics_adaptive.settings.kinds import MixedModeLaw
+from fenics_adaptive.settings.materials import (
+    LAW_BK,
+    P_EXPONENT,
+    P_GIC,
+    P_GIIC,
+    P_KN,
+    P_KS,
+    P_LAW,
+    P_N,
+    P_S,
+    CohesiveLaw,
+)
 
-# Slots of the parameter array given to the numba kernels (see CohesiveLaw.as_array).
-P_KN, P_KS, P_N, P_S, P_GIC, P_GIIC, P_LAW, P_EXPONENT = range(8)
-N_PARAMS = 8
 # Columns of a cohesive point's history (cohesive_element_force_tracked): the local opening of
 # the last call, and the energy the point has dissipated (mJ).
 H_D1, H_D2, H_D3, H_DISSIPATED = range(4)
 HISTORY = 4
-# Codes of the law in slot P_LAW.
-LAW_BK = 0.0
-LAW_POWER = 1.0
-LAW_CODES = {"bk": LAW_BK, "power": LAW_POWER}
-
-
-@dataclass(frozen=True)
-class CohesiveLaw:
-    """Parameters of the bilinear mixed-mode law; see the module docstring for the formulas.
-
-    ``exponent`` is eta for ``law="bk"`` (Benzeggagh-Kenane) and alpha for ``law="power"``."""
-
-    K_n: float
-    K_s: float
-    N: float
-    S: float
-    GIc: float
-    GIIc: float
-    law: str
-    exponent: float
-
-    NUMBERS = ("K_n", "K_s", "N", "S", "GIc", "GIIc", "exponent")
-
-    def __post_init__(self) -> None:
-        for name in self.NUMBERS:
-            value = getattr(self, name)
-            if (
-                isinstance(value, bool)
-                or not isinstance(value, numbers.Real)
-                or not math.isfinite(value)
-                or value <= 0
-            ):
-                raise InputError(f"cohesive.{name}", f"must be a finite number > 0 (got {value!r})")
-        if self.law not in LAW_CODES:
-            raise InputError(
-                "cohesive.law", f"must be one of {', '.join(LAW_CODES)} (got {self.law!r})"
-            )
-        for mode, G, strength, K, G_name, S_name, K_name in (
-            ("I", self.GIc, self.N, self.K_n, "GIc", "N", "K_n"),
-            ("II", self.GIIc, self.S, self.K_s, "GIIc", "S", "K_s"),
-        ):
-            onset_energy = strength**2 / (2.0 * K)
-            if G <= onset_energy:
-                raise InputError(
-                    f"cohesive.{G_name}",
-                    f"softening impossible in pure mode {mode}: {G_name} = {G} must exceed the "
-                    f"elastic energy at onset {S_name}^2/(2 {K_name}) = {onset_energy:.6g}, "
-                    f"else the final opening {2.0 * G / strength:.6g} mm is not beyond the onset "
-                    f"opening {strength / K:.6g} mm",
-                )
-
-    @classmethod
-    def from_mapping(cls, values: Mapping[str, object]) -> CohesiveLaw:
-        """Build from a config table with exactly the keys K_n, K_s, N, S, GIc, GIIc, law,
-        exponent."""
-        if not isinstance(values, Mapping):
-            raise InputError("cohesive", "must be a table of cohesive-law parameters")
-        names = [f.name for f in fields(cls)]
-        unknown = sorted(set(values) - set(names))
-        if unknown:
-            raise InputError(f"cohesive.{unknown[0]}", f"unknown key (allowed: {', '.join(names)})")
-        for name in names:
-            if name not in values:
-                raise InputError(f"cohesive.{name}", "missing")
-        return cls(**{name: values[name] for name in names})
-
-    def as_array(self) -> np.ndarray:
-        """The parameters as a float64 array for the kernels, slots P_KN ... P_EXPONENT."""
-        params = np.empty(N_PARAMS, dtype=np.float64)
-        params[P_KN], params[P_KS] = self.K_n, self.K_s
-        params[P_N], params[P_S] = self.N, self.S
-        params[P_GIC], params[P_GIIC] = self.GIc, self.GIIc
-        params[P_LAW] = LAW_CODES[self.law]
-        params[P_EXPONENT] = self.exponent
-        return params
 
 
 def critical_energy(law: CohesiveLaw, mixity: float) -> float:
@@ -174,7 +105,7 @@ def critical_energy(law: CohesiveLaw, mixity: float) -> float:
     mode mixity B = G_II / (G_I + G_II) in [0, 1]; equals 1/2 K_m d0 dF."""
     if not 0.0 <= mixity <= 1.0:
         raise ValueError(f"mixity must lie in [0, 1] (got {mixity})")
-    if law.law == "bk":
+    if law.law == MixedModeLaw.BK:
         return law.GIc + (law.GIIc - law.GIc) * mixity**law.exponent
     a = law.exponent
     return (((1.0 - mixity) / law.GIc) ** a + (mixity / law.GIIc) ** a) ** (-1.0 / a)

@@ -104,9 +104,7 @@ differ by that excess.
 from __future__ import annotations
 
 import math
-import numbers
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
@@ -114,12 +112,21 @@ from numba import njit
 
 from fenics_adaptive.errors import InputError
 from fenics_adaptive.materials.laminate import VOIGT_PAIRS, Ply, PlyMaterial, rotation_about_z
+from fenics_adaptive.settings.materials import (
+    F_G2C,
+    F_G6C,
+    F_S12,
+    F_S23,
+    F_XC,
+    F_XT,
+    F_YC,
+    F_YT,
+    N_FAILURE,
+    PlyFailure,
+)
 
-# Slots of PlyFailure.as_array() (the first N_FAILURE slots of a ply's parameter row).
-F_XT, F_XC, F_YT, F_YC, F_S12, F_S23, F_G2C, F_G6C = range(8)
-N_FAILURE = 8
-# Slots of a ply's parameter row (ply_params): the failure slots, then the undamaged stiffness
-# C0_21, C0_22, C0_23 (the normal entries of its 22 column), G12 and G23.
+# Slots of a ply's parameter row (ply_params): the failure slots (PlyFailure.as_array), then
+# the undamaged stiffness C0_21, C0_22, C0_23 (the normal entries of its 22 column), G12, G23.
 P_C21, P_C22, P_C23, P_G12, P_G23 = 8, 9, 10, 11, 12
 N_PLY_PARAMS = 13
 # Slots of a ply's damage state.
@@ -130,90 +137,6 @@ N_STATE = 8
 # zero-stiffness mechanism, and crack closure on such a cell has blown explicit runs up. The law
 # softens towards G_c / (1 - RESIDUAL), so that the dissipated energy stays G_c per crack area.
 RESIDUAL = 0.01
-
-# Puck's fracture angle under pure transverse compression; S23 defaults to YC / (2 tan 53 deg)
-# (Puck & Schuermann; LaRC04, Pinho et al.).
-FRACTURE_ANGLE_DEG = 53.0
-
-
-@dataclass(frozen=True)
-class PlyFailure:
-    """Strengths (MPa) and matrix fracture energies (N/mm) of one ply material.
-
-    XT, XC: fibre tension / compression strength; YT, YC: transverse tension / compression;
-    S12: in-plane shear; S23: transverse shear (optional, default YC / (2 tan 53 deg));
-    G2c: matrix mode I (transverse tension) fracture energy; G6c: matrix in-plane shear
-    fracture energy. All > 0, and S23 > YT / 2 (else Hashin's matrix tension criterion never
-    reaches 1 under equal biaxial transverse tension)."""
-
-    name: str
-    XT: float
-    XC: float
-    YT: float
-    YC: float
-    S12: float
-    G2c: float
-    G6c: float
-    S23: float | None = None
-
-    REQUIRED = ("XT", "XC", "YT", "YC", "S12", "G2c", "G6c")
-    OPTIONAL = ("S23",)
-
-    def __post_init__(self) -> None:
-        key = f"materials.{self.name}.failure"
-        for field in self.REQUIRED + (("S23",) if self.S23 is not None else ()):
-            value = getattr(self, field)
-            if (
-                isinstance(value, bool)
-                or not isinstance(value, numbers.Real)
-                or not math.isfinite(value)
-                or value <= 0
-            ):
-                raise InputError(f"{key}.{field}", f"must be a finite number > 0 (got {value!r})")
-        S23 = self.transverse_shear_strength
-        if not S23 > 0.5 * self.YT:
-            given = "" if self.S23 is not None else f" (default YC / (2 tan 53 deg) = {S23:.6g})"
-            raise InputError(
-                f"{key}.S23",
-                f"the transverse shear strength {S23:.6g}{given} must exceed YT/2 = "
-                f"{0.5 * self.YT:.6g} (Hashin's matrix tension criterion would never be "
-                "reached under equal biaxial transverse tension); give S23 explicitly",
-            )
-
-    @classmethod
-    def from_mapping(cls, name: str, values: Mapping[str, object]) -> PlyFailure:
-        """Build from the config table ``materials.NAME.failure``: exactly the keys XT, XC, YT,
-        YC, S12, G2c, G6c and optionally S23."""
-        key = f"materials.{name}.failure"
-        if not isinstance(values, Mapping):
-            raise InputError(key, "must be a table of strengths and fracture energies")
-        allowed = cls.REQUIRED + cls.OPTIONAL
-        unknown = sorted(set(values) - set(allowed))
-        if unknown:
-            raise InputError(f"{key}.{unknown[0]}", f"unknown key (allowed: {', '.join(allowed)})")
-        for field in cls.REQUIRED:
-            if field not in values:
-                raise InputError(f"{key}.{field}", "missing")
-        for field, value in values.items():
-            if isinstance(value, bool) or not isinstance(value, numbers.Real):
-                raise InputError(f"{key}.{field}", f"must be a number (got {value!r})")
-        return cls(name=name, **{k: float(v) for k, v in values.items()})
-
-    @property
-    def transverse_shear_strength(self) -> float:
-        if self.S23 is not None:
-            return self.S23
-        return self.YC / (2.0 * math.tan(math.radians(FRACTURE_ANGLE_DEG)))
-
-    def as_array(self) -> np.ndarray:
-        """float64 array for the kernels, slots F_XT, F_XC, F_YT, F_YC, F_S12, F_S23, F_G2C,
-        F_G6C (S23 with its default applied)."""
-        params = np.empty(N_FAILURE, dtype=np.float64)
-        params[F_XT], params[F_XC] = self.XT, self.XC
-        params[F_YT], params[F_YC] = self.YT, self.YC
-        params[F_S12], params[F_S23] = self.S12, self.transverse_shear_strength
-        params[F_G2C], params[F_G6C] = self.G2c, self.G6c
-        return params
 
 
 # ---------------------------------------------------------------------------------------------

@@ -22,28 +22,14 @@ Units: N, mm, s, tonne.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 from mpi4py import MPI
 from numba import njit
 
 from fenics_adaptive.errors import InputError
 from fenics_adaptive.model.loading import face_nodes
-
-IMPACTOR_SHAPES = ("sphere", "cylinder")
-
-
-@dataclass(frozen=True)
-class Impactor:
-    """The impactor as the config gives it."""
-
-    shape: str  # "sphere" or "cylinder" (axis along y)
-    radius: float  # mm
-    mass: float  # tonne
-    position: tuple[float, float, float]  # mm: centre of the sphere, a point of the axis
-    velocity: tuple[float, float, float]  # mm/s at t = 0
-    penalty: float | None = None  # N/mm per node; None: from the laminate (module docstring)
+from fenics_adaptive.settings.kinds import ImpactorShape
+from fenics_adaptive.settings.loads import Impactor
 
 
 @njit(cache=True)
@@ -118,7 +104,7 @@ class Contact:
         self.x = np.empty((len(self.nodes), 3))
         self.f = np.empty((len(self.nodes), 3))
         self.totals = np.empty(4)  # force on the impactor, penalty energy
-        self.cylinder = impactor.shape == "cylinder"
+        self.cylinder = impactor.shape == ImpactorShape.CYLINDER
 
     def initial_gap(self) -> float:
         """Collective: the smallest gap (mm) between the impactor and the undeformed top face."""

@@ -77,6 +77,7 @@ from fenics_adaptive.model.loading import (
     ResolvedLoads,
     face_nodes,
 )
+from fenics_adaptive.settings.adaptivity import Interfaces, Stabilisation
 
 
 @dataclass
@@ -95,39 +96,6 @@ class Block:
     @property
     def n_owned(self) -> int:
         return len(self.mass)
-
-
-@dataclass(frozen=True)
-class Interfaces:
-    """Ply interfaces (1-based: interface i lies between ply i and ply i + 1) that may refine
-    weakly (``refine``), may delaminate (``delaminate``: strong refinement in an adaptive model,
-    cohesive elements in a layerwise one), and carry the symmetry condition (``symmetry``: their
-    nodes held on their reference plane, u_z = 0). ``initial``: state of the listed interfaces
-    of an adaptive model at t = 0 ("none", "weak", "strong": refined from the start)."""
-
-    refine: tuple[int, ...] = ()
-    delaminate: tuple[int, ...] = ()
-    symmetry: tuple[int, ...] = ()
-    initial: str = "none"
-
-
-@dataclass(frozen=True)
-class Stabilisation:
-    """The paper's remedies for the sudden change of internal forces on refinement (user
-    parameters). After a weak refinement the nodes of the refined cells get mass-proportional
-    damping ``damping`` (1/s) for ``damping_window`` (s). After a strong refinement a tie force
-    holds each new node pair together: at the moment of refinement it makes the two nodes
-    accelerate together exactly as the continuous interface did (it cancels the jump in
-    internal force that splitting causes; Menouillard & Belytschko 2010), and it is released
-    linearly to zero over ``release_window`` (s); 0 inserts the crack abruptly."""
-
-    damping: float = 0.0
-    damping_window: float = 0.0
-    release_window: float = 0.0
-
-    @property
-    def damps(self) -> bool:
-        return self.damping > 0.0 and self.damping_window > 0.0
 
 
 @dataclass

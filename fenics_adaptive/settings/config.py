@@ -47,18 +47,23 @@ import math
 import re
 import tomllib
 from dataclasses import dataclass, field, replace
+from enum import Enum
 from pathlib import Path
 from typing import Any
 
-from fenics_adaptive.adaptivity.enrichment import STRONG, WEAK
-from fenics_adaptive.adaptivity.indicators import IndicatorSettings, Manual
 from fenics_adaptive.errors import InputError
-from fenics_adaptive.materials.cohesive import CohesiveLaw
 from fenics_adaptive.materials.laminate import Laminate, Ply, PlyMaterial
-from fenics_adaptive.materials.ply_damage import PlyFailure
-from fenics_adaptive.model.contact import Impactor
-from fenics_adaptive.model.loading import Amplitude, FaceLoad, PrescribedMotion, clamp
-from fenics_adaptive.model.structure import Interfaces, Stabilisation
+from fenics_adaptive.settings.adaptivity import IndicatorSettings, Interfaces, Manual, Stabilisation
+from fenics_adaptive.settings.kinds import (
+    IndicatorKind,
+    Kinematics,
+    ModelKind,
+    MotionKind,
+    Profile,
+    Refinement,
+)
+from fenics_adaptive.settings.loads import Amplitude, FaceLoad, Impactor, PrescribedMotion, clamp
+from fenics_adaptive.settings.materials import CohesiveLaw, PlyFailure
 from fenics_adaptive.settings.schema import (
     MAX_ASPECT,
     MAX_PLIES,
@@ -71,7 +76,7 @@ from fenics_adaptive.settings.schema import (
     implausible,
     section,
 )
-from fenics_adaptive.solver.explicit import Probe, SolverSettings
+from fenics_adaptive.settings.solver import Probe, SolverSettings
 
 BASE_FACES = ("x0", "x1", "y0", "y1", "bottom", "top")
 SIDE_FACES = ("x0", "x1", "y0", "y1")
@@ -100,7 +105,7 @@ class MatrixStrength:
 
 @dataclass(frozen=True)
 class RunConfig:
-    kind: str
+    kind: ModelKind
     points_per_ply: int
     mesh: MeshConfig
     laminate: Laminate
@@ -114,7 +119,7 @@ class RunConfig:
     stabilisation: Stabilisation = field(default_factory=Stabilisation)
     failures: dict[str, PlyFailure] = field(default_factory=dict)
     ply_damage: bool = False
-    kinematics: str = "small"  # solid_shell.KINEMATICS
+    kinematics: Kinematics = Kinematics.SMALL
     impactor: Impactor | None = None
     matrix_strength: tuple[MatrixStrength, ...] = ()
     cohesive: CohesiveLaw | None = None
@@ -277,13 +282,16 @@ class _Table:
         return value
 
     def choice(self, name: str) -> str:
+        """One of the schema's choices: the enum member if the choices are an enum's
+        (``settings.kinds``), else the string."""
         value = self._value(name, "choice")
         choices = self.schema.key(name).choices
         if not isinstance(value, str) or value not in choices:
             raise InputError(
                 self.key(name), f"must be one of {', '.join(choices)} (got {_shown(value)})"
             )
-        return value
+        kind = type(choices[0])
+        return kind(value) if issubclass(kind, Enum) else value
 
     def string(self, name: str) -> str | None:
         value = self._value(name, "string")
@@ -465,7 +473,7 @@ def parse_config(data: dict, source: str = "<memory>", seen: set[str] | None = N
     ply_damage = model.boolean("ply_damage")
     kinematics = model.choice("kinematics")
     max_memory = model.number("max_memory")
-    if kinematics == "finite" and ply_damage:
+    if kinematics == Kinematics.FINITE and ply_damage:
         # the ply damage kernel samples small strains; mixing it with finite kinematics would
         # silently damage rotating plies
         raise InputError(
@@ -480,7 +488,7 @@ def parse_config(data: dict, source: str = "<memory>", seen: set[str] | None = N
     for k, count in enumerate(mesh.layers):
         if count * points_per_ply < 2:
             raise InputError(
-                "mesh.layers" if kind == "layerwise" else "laminate",
+                "mesh.layers" if kind == ModelKind.LAYERWISE else "laminate",
                 f"mesh layer {k} holds one ply with one integration point through the thickness:"
                 " its bending mode has no stiffness (group plies, or set model.points_per_ply = 2)",
             )
@@ -533,7 +541,9 @@ def parse_config(data: dict, source: str = "<memory>", seen: set[str] | None = N
             raise InputError(
                 table.key("displacement"), "give exactly one of displacement, velocity"
             )
-        kind_of_motion = "displacement" if table.has("displacement") else "velocity"
+        kind_of_motion = (
+            MotionKind.DISPLACEMENT if table.has("displacement") else MotionKind.VELOCITY
+        )
         value = table.number(kind_of_motion)
         x_range = _x_range(table, mesh)
         _check_has_nodes(table.key("face"), face, x_range, mesh, split)
@@ -680,12 +690,12 @@ def _laminate(table: _Table, materials: dict[str, PlyMaterial]) -> Laminate:
     return Laminate(tuple(plies))
 
 
-def _mesh(table: _Table, kind: str, laminate: Laminate) -> MeshConfig:
+def _mesh(table: _Table, kind: ModelKind, laminate: Laminate) -> MeshConfig:
     length = table.number("length")
     width = table.number("width")
     nx = table.integer("nx")
     ny = table.integer("ny")
-    if kind == "layerwise":
+    if kind == ModelKind.LAYERWISE:
         layers = table.integers("layers", unique=False)
         if layers is None:
             layers = (1,) * laminate.n_plies
@@ -774,11 +784,13 @@ def _check_holds_centroids(table: _Table, mesh: MeshConfig, x_min: float, x_max:
         )
 
 
-def _split_boundaries(kind: str, mesh: MeshConfig, interfaces: Interfaces) -> tuple[bool, ...]:
+def _split_boundaries(
+    kind: ModelKind, mesh: MeshConfig, interfaces: Interfaces
+) -> tuple[bool, ...]:
     """Which boundaries between mesh layers have their own nodes on each side (layerwise
     delamination), as ``runner.build_structure`` meshes them."""
     boundaries = list(itertools.accumulate(mesh.layers))[:-1]
-    if kind != "layerwise":
+    if kind != ModelKind.LAYERWISE:
         return (False,) * len(boundaries)
     return tuple(b in interfaces.delaminate for b in boundaries)
 
@@ -870,17 +882,17 @@ def _check_motions_agree(motions: list[PrescribedMotion], mesh: MeshConfig, spli
                 )
 
 
-def _symmetry_motions(kind: str, mesh: MeshConfig, interfaces: Interfaces) -> list:
+def _symmetry_motions(kind: ModelKind, mesh: MeshConfig, interfaces: Interfaces) -> list:
     """The u_z = 0 motions ``runner.build_structure`` adds at a layerwise model's symmetry
     interfaces (an adaptive model holds its extra nodes there instead)."""
-    if kind != "layerwise":
+    if kind != ModelKind.LAYERWISE:
         return []
     boundaries = list(itertools.accumulate(mesh.layers))[:-1]
     return [
         PrescribedMotion(
             f"top_layer{boundaries.index(i)}",
             "z",
-            "displacement",
+            MotionKind.DISPLACEMENT,
             0.0,
             Amplitude.constant(0.0),
             key="interfaces.symmetry",
@@ -893,20 +905,20 @@ def _is_zero_motion(motion: PrescribedMotion) -> bool:
     return motion.value == 0.0 or all(v == 0.0 for v in motion.amplitude.values)
 
 
-def _interfaces(root: _Root, kind: str, laminate: Laminate, mesh: MeshConfig):
+def _interfaces(root: _Root, kind: ModelKind, laminate: Laminate, mesh: MeshConfig):
     n_plies = laminate.n_plies
     table = root.table("interfaces")
     refinement_tables = root.tables("refinement")
     cohesive_table = root.table("cohesive")
     if table is None:
-        if kind == "adaptive":
+        if kind == ModelKind.ADAPTIVE:
             raise InputError("interfaces", "an adaptive model needs [interfaces] (refine = ...)")
         if refinement_tables:
             raise InputError("refinement", "only an adaptive model refines")
         if cohesive_table is not None:
             raise InputError("cohesive", "no interface delaminates ([interfaces] delaminate)")
         return Interfaces(), (), None
-    if kind == "esl":
+    if kind == ModelKind.ESL:
         raise InputError("interfaces", "an ESL model has no interfaces to refine (use adaptive)")
     if n_plies < 2:
         raise InputError("interfaces", "a laminate of one ply has no interfaces")
@@ -914,9 +926,9 @@ def _interfaces(root: _Root, kind: str, laminate: Laminate, mesh: MeshConfig):
     delaminate = tuple(sorted(table.integers("delaminate", high=n_plies - 1)))
     symmetry = tuple(sorted(table.integers("symmetry", high=n_plies - 1)))
     initial = table.choice("initial")
-    if kind == "layerwise":
+    if kind == ModelKind.LAYERWISE:
         boundaries = list(itertools.accumulate(mesh.layers))[:-1]
-        if refine or initial != "none":
+        if refine or initial != Refinement.NONE:
             key = "interfaces.refine" if refine else "interfaces.initial"
             raise InputError(key, "a layerwise model does not refine (its layers are fixed)")
         for name, values in (("delaminate", delaminate), ("symmetry", symmetry)):
@@ -951,7 +963,7 @@ def _interfaces(root: _Root, kind: str, laminate: Laminate, mesh: MeshConfig):
         if not chosen:
             raise InputError(rt.key("interfaces"), "list the interfaces to refine")
         kind_name = rt.choice("kind")
-        pool = delaminate if kind_name == "strong" else set(refine) | set(delaminate)
+        pool = delaminate if kind_name == Refinement.STRONG else set(refine) | set(delaminate)
         for value in chosen:
             if value not in pool:
                 raise InputError(
@@ -960,9 +972,8 @@ def _interfaces(root: _Root, kind: str, laminate: Laminate, mesh: MeshConfig):
                 )
         x_min, x_max = rt.range("x_min", "x_max", strict=True)
         _check_holds_centroids(rt, mesh, x_min, x_max)
-        kind_code = STRONG if kind_name == "strong" else WEAK
         refinements.append(
-            Manual(tuple(sorted(chosen)), kind_code, time, displacement, x_min, x_max)
+            Manual(tuple(sorted(chosen)), kind_name.state, time, displacement, x_min, x_max)
         )
 
     cohesive = None
@@ -994,11 +1005,11 @@ def _impactor(root: _Root) -> Impactor | None:
     )
 
 
-def _stabilisation(root: _Root, kind: str) -> Stabilisation:
+def _stabilisation(root: _Root, kind: ModelKind) -> Stabilisation:
     table = root.table("stabilisation")
     if table is None:
         return Stabilisation()
-    if kind != "adaptive":
+    if kind != ModelKind.ADAPTIVE:
         raise InputError("stabilisation", "only an adaptive model refines, so only it stabilises")
     damping = table.number("damping")
     window = table.number("damping_window")
@@ -1011,11 +1022,11 @@ def _stabilisation(root: _Root, kind: str) -> Stabilisation:
     return Stabilisation(damping, window, release)
 
 
-def _indicators(root: _Root, kind: str, interfaces: Interfaces):
+def _indicators(root: _Root, kind: ModelKind, interfaces: Interfaces):
     table = root.table("indicators")
     if table is None:
         return None
-    if kind != "adaptive":
+    if kind != ModelKind.ADAPTIVE:
         raise InputError("indicators", "only an adaptive model refines")
     settings = IndicatorSettings(
         interval=table.number("interval"),
@@ -1028,10 +1039,10 @@ def _indicators(root: _Root, kind: str, interfaces: Interfaces):
     )
     if not interfaces.delaminate:
         for name, used in (
-            ("front", settings.front),
-            ("strong_after", settings.strong_after is not None),
-            ("interface_stress", settings.interface_stress is not None),
-            ("matrix_damage", settings.matrix_damage),
+            (IndicatorKind.FRONT, settings.front),
+            (IndicatorKind.STRONG_AFTER, settings.strong_after is not None),
+            (IndicatorKind.INTERFACE_STRESS, settings.interface_stress is not None),
+            (IndicatorKind.MATRIX_DAMAGE, settings.matrix_damage),
         ):
             if used:
                 raise InputError(
@@ -1057,7 +1068,7 @@ def _amplitude(table: _Table) -> Amplitude:
         raise InputError(table.key("rise_time"), "missing (give rise_time, or a curve)")
     rise_time = table.number("rise_time")
     profile = table.choice("profile")
-    return Amplitude.ramp(rise_time, smooth=profile == "smooth")
+    return Amplitude.ramp(rise_time, smooth=profile == Profile.SMOOTH)
 
 
 # ------------------------------------------------------------------------ run size and cost

@@ -29,6 +29,15 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from fenics_adaptive.settings.kinds import (
+    ImpactorShape,
+    Kinematics,
+    MixedModeLaw,
+    ModelKind,
+    Profile,
+    Refinement,
+)
+
 # --------------------------------------------------------------------------- limits (documented)
 MAX_LENGTH = 1.0e5  # mm: largest length, width, ply thickness, radius, coordinate
 MIN_LENGTH = 1.0e-4  # mm: smallest cell size or ply thickness (Gmsh's tolerance is 1e-8 mm)
@@ -200,7 +209,7 @@ _TIME_CURVE = (
         "choice",
         "shape of the rise: smoothstep 3s^2 - 2s^3 (zero rate at both ends) or straight",
         default="smooth",
-        choices=("smooth", "linear"),
+        choices=tuple(Profile),
     ),
     Key(
         "curve",
@@ -228,7 +237,7 @@ SECTIONS: tuple[Section, ...] = (
                 "kind",
                 "choice",
                 "equivalent single layer, adaptive (ESL refined towards layerwise), or layerwise",
-                choices=("esl", "adaptive", "layerwise"),
+                choices=tuple(ModelKind),
             ),
             Key(
                 "points_per_ply",
@@ -243,7 +252,7 @@ SECTIONS: tuple[Section, ...] = (
                 "choice",
                 "small strain, or finite (total Lagrangian, large rotations; not with ply_damage)",
                 default="small",
-                choices=("small", "finite"),
+                choices=tuple(Kinematics),
             ),
             Key(
                 "ply_damage",
@@ -605,7 +614,7 @@ SECTIONS: tuple[Section, ...] = (
                 "choice",
                 "adaptive: refinement at t = 0",
                 default="none",
-                choices=("none", "weak", "strong"),
+                choices=tuple(Refinement),
             ),
         ),
     ),
@@ -625,7 +634,7 @@ SECTIONS: tuple[Section, ...] = (
                 open_min=True,
             ),
             Key("interfaces", "ints", "interfaces to refine", "", REQUIRED, 1),
-            Key("kind", "choice", "weak or strong", choices=("weak", "strong")),
+            Key("kind", "choice", "weak or strong", choices=(Refinement.WEAK, Refinement.STRONG)),
             *_range_pair("of the refined cells' centroids"),
         ),
         array=True,
@@ -692,7 +701,7 @@ SECTIONS: tuple[Section, ...] = (
                 "law",
                 "choice",
                 "mixed-mode criterion: Benzeggagh-Kenane or power law",
-                choices=("bk", "power"),
+                choices=tuple(MixedModeLaw),
             ),
             Key(
                 "exponent",
@@ -781,7 +790,7 @@ SECTIONS: tuple[Section, ...] = (
                 "shape",
                 "choice",
                 "sphere, or cylinder with its axis along y",
-                choices=("sphere", "cylinder"),
+                choices=tuple(ImpactorShape),
             ),
             _length("radius", "radius"),
             Key("mass", "float", "mass", "tonne", REQUIRED, 0.0, 1e6, open_min=True),

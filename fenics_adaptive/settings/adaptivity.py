@@ -1,0 +1,90 @@
+"""Adaptivity settings as the config gives them: which ply interfaces may refine, the
+stabilisation of a refinement, the refinement indicators and the manual refinements (standard
+library only; ``model.structure`` and ``adaptivity.indicators`` act on them).
+
+Units: N, mm, s, tonne. Ply interfaces are 1-based: interface i lies between ply i and ply i + 1.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from fenics_adaptive.settings.kinds import InterfaceState, Refinement
+
+
+@dataclass(frozen=True)
+class Interfaces:
+    """Ply interfaces (1-based: interface i lies between ply i and ply i + 1) that may refine
+    weakly (``refine``), may delaminate (``delaminate``: strong refinement in an adaptive model,
+    cohesive elements in a layerwise one), and carry the symmetry condition (``symmetry``: their
+    nodes held on their reference plane, u_z = 0). ``initial``: state of the listed interfaces
+    of an adaptive model at t = 0 ("none", "weak", "strong": refined from the start)."""
+
+    refine: tuple[int, ...] = ()
+    delaminate: tuple[int, ...] = ()
+    symmetry: tuple[int, ...] = ()
+    initial: Refinement = Refinement.NONE
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "initial", Refinement(self.initial))  # frozen: set once, here
+
+
+@dataclass(frozen=True)
+class Stabilisation:
+    """The paper's remedies for the sudden change of internal forces on refinement (user
+    parameters). After a weak refinement the nodes of the refined cells get mass-proportional
+    damping ``damping`` (1/s) for ``damping_window`` (s). After a strong refinement a tie force
+    holds each new node pair together: at the moment of refinement it makes the two nodes
+    accelerate together exactly as the continuous interface did (it cancels the jump in
+    internal force that splitting causes; Menouillard & Belytschko 2010), and it is released
+    linearly to zero over ``release_window`` (s); 0 inserts the crack abruptly."""
+
+    damping: float = 0.0
+    damping_window: float = 0.0
+    release_window: float = 0.0
+
+    @property
+    def damps(self) -> bool:
+        return self.damping > 0.0 and self.damping_window > 0.0
+
+
+@dataclass(frozen=True)
+class IndicatorSettings:
+    """Which indicators run, every ``interval`` seconds: fractions of 1 for the ply failure
+    index (weak) and the interface initiation criterion (strong), matrix damage (strong), how
+    many rings of neighbours refine with a flagged cell, and ``strong_after``: a delaminable
+    interface refined weakly turns strong that long after (the paper's four-point bending:
+    damping for 0.2 ms after the weak refinement, then the strong one). ``front``: the
+    delamination front stays inside the refined region: the cells within that many rings of a
+    cell whose cohesive element has started to fail refine strongly at that interface (the
+    stress recovery of the unrefined cells ahead of a front does not see its stress peak)."""
+
+    interval: float
+    ply_failure: float | None = None
+    interface_stress: float | None = None
+    matrix_damage: bool = False
+    spread: int = 0
+    strong_after: float | None = None  # s: a weak delaminable interface turns strong this late
+    front: int = 0  # rings refined strongly around cohesive elements that have started to fail
+
+
+@dataclass(frozen=True)
+class Manual:
+    """Refine ``interfaces`` (``kind``) of the cells with centroid in [x_min, x_max] once the
+    time reaches ``time`` or the probe displacement (absolute value) reaches
+    ``displacement``."""
+
+    interfaces: tuple[int, ...]
+    kind: InterfaceState  # WEAK or STRONG
+    time: float = math.inf
+    displacement: float = math.inf
+    x_min: float = -math.inf
+    x_max: float = math.inf
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "kind", InterfaceState(self.kind))  # frozen: set once, here
+
+    def due(self, t: float, displacement: float) -> bool:
+        """Whether the refinement is due at time ``t`` (s) and probe ``displacement`` (mm)."""
+        return t >= self.time or abs(displacement) >= self.displacement

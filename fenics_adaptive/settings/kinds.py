@@ -1,0 +1,98 @@
+"""The kinds and states a config names, as enums (standard library only).
+
+String kinds are ``enum.StrEnum``: a member equals its TOML string (``ModelKind.ESL == "esl"``),
+formats as it, and ``", ".join(Kind)`` lists the allowed values for an error message, so a
+config file and existing comparisons with strings keep working. The interface state is an
+``enum.IntEnum`` whose values are what the int8 state arrays hold, so that the arrays and the
+numba kernels stay plain integers.
+"""
+
+from __future__ import annotations
+
+from enum import IntEnum, StrEnum
+
+
+class InterfaceState(IntEnum):
+    """State of one ply interface of one cell (the values of ``Structure.interface_state``):
+    not refined, refined weakly (an extra node layer: displacement kink), or strongly (two node
+    layers joined by a cohesive element: displacement jump)."""
+
+    NONE = 0
+    WEAK = 1
+    STRONG = 2
+
+    @property
+    def label(self) -> str:
+        """The state as the config and the messages name it: "none", "weak", "strong"."""
+        return self.name.lower()
+
+
+class ModelKind(StrEnum):
+    """``[model] kind``: equivalent single layer, adaptive (refines through the thickness),
+    layerwise (one cell layer per mesh layer from the start)."""
+
+    ESL = "esl"
+    ADAPTIVE = "adaptive"
+    LAYERWISE = "layerwise"
+
+
+class Refinement(StrEnum):
+    """A refinement as the config names it: ``[interfaces] initial`` ("none", "weak", "strong")
+    and ``[[refinement]] kind`` ("weak", "strong")."""
+
+    NONE = "none"
+    WEAK = "weak"
+    STRONG = "strong"
+
+    @property
+    def state(self) -> InterfaceState:
+        """The interface state this refinement leaves."""
+        return InterfaceState[self.name]
+
+
+class Kinematics(StrEnum):
+    """``[model] kinematics``: linearised strain, or total Lagrangian (large rotations)."""
+
+    SMALL = "small"
+    FINITE = "finite"
+
+
+class MixedModeLaw(StrEnum):
+    """``[cohesive] law``: the mixed-mode criterion of the critical energy release rate,
+    Benzeggagh-Kenane or the power law (``materials.cohesive``)."""
+
+    BK = "bk"
+    POWER = "power"
+
+
+class MotionKind(StrEnum):
+    """What a ``[[prescribed]]`` entry prescribes: a displacement (mm) or a velocity (mm/s)."""
+
+    DISPLACEMENT = "displacement"
+    VELOCITY = "velocity"
+
+
+class Profile(StrEnum):
+    """``profile`` of a time ramp: C1 smoothstep or straight line."""
+
+    SMOOTH = "smooth"
+    LINEAR = "linear"
+
+
+class ImpactorShape(StrEnum):
+    """``[impactor] shape``: a sphere, or a cylinder with its axis along y."""
+
+    SPHERE = "sphere"
+    CYLINDER = "cylinder"
+
+
+class IndicatorKind(StrEnum):
+    """The refinement indicators of ``[indicators]`` (``adaptivity.indicators``): the ply
+    failure index (weak), matrix damage and the interface stress criterion (strong), the
+    delamination front (strong) and the weak-to-strong timer ``strong_after``."""
+
+    PLY_FAILURE = "ply_failure"
+    INTERFACE_STRESS = "interface_stress"
+    MATRIX_DAMAGE = "matrix_damage"
+    FRONT = "front"
+    STRONG_AFTER = "strong_after"

@@ -1,0 +1,155 @@
+"""Loads as the config gives them: time curves, clamps, prescribed motions, face loads and the
+impactor (standard library only; ``model.loading`` resolves them to the DOFs of a model,
+``model.contact`` makes the impactor act).
+
+Units: N, mm, s, tonne. A face is named by its group in the mesh (``fenics_adaptive.meshes.beam``:
+x0, x1, top, x1_layer3, ...). Components are "x", "y", "z".
+"""
+
+from __future__ import annotations
+
+import bisect
+import functools
+import itertools
+import math
+from dataclasses import dataclass, field
+
+from fenics_adaptive.settings.kinds import ImpactorShape, MotionKind
+
+COMPONENTS = {"x": 0, "y": 1, "z": 2}
+
+
+@dataclass(frozen=True)
+class Amplitude:
+    """Dimensionless scale factor of time: piecewise between the points (times, values), constant
+    before the first and after the last. ``smooth`` joins the points with the C1 smoothstep
+    3 s^2 - 2 s^3 instead of straight lines (zero rate at every point: no velocity jumps)."""
+
+    times: tuple[float, ...]
+    values: tuple[float, ...]
+    smooth: bool = False
+
+    def __post_init__(self) -> None:
+        if len(self.times) != len(self.values) or len(self.times) < 1:
+            raise ValueError("amplitude: need as many values as times, at least one")
+        if any(not math.isfinite(t) for t in self.times + self.values):
+            raise ValueError("amplitude: times and values must be finite")
+        if any(b < a for a, b in itertools.pairwise(self.times)):
+            raise ValueError("amplitude: times must not decrease")
+
+    @classmethod
+    def ramp(cls, rise_time: float, smooth: bool = True) -> Amplitude:
+        """0 at t = 0 up to 1 at t = rise_time, then held."""
+        if not rise_time > 0:
+            raise ValueError(f"amplitude: rise_time must be > 0 s (got {rise_time})")
+        return cls((0.0, float(rise_time)), (0.0, 1.0), smooth)
+
+    @classmethod
+    def constant(cls, value: float = 1.0) -> Amplitude:
+        return cls((0.0,), (float(value),))
+
+    def _segment(self, t: float) -> tuple[int, float] | None:
+        i = bisect.bisect_right(self.times, t) - 1
+        if i < 0 or i >= len(self.times) - 1:
+            return None
+        t0, t1 = self.times[i], self.times[i + 1]
+        return i, (t - t0) / (t1 - t0) if t1 > t0 else 1.0
+
+    def __call__(self, t: float) -> float:
+        segment = self._segment(t)
+        if segment is None:
+            return self.values[0] if t < self.times[0] else self.values[-1]
+        i, s = segment
+        if self.smooth:
+            s = s * s * (3.0 - 2.0 * s)
+        return self.values[i] + (self.values[i + 1] - self.values[i]) * s
+
+    def integral(self, t: float) -> float:
+        """Integral of the amplitude from 0 to t (s): a velocity amplitude's displacement.
+        Exact: a straight segment integrates to its mean, a smoothstep segment from v0 to v1
+        over a fraction x of its length T to T (v0 x + (v1 - v0) (x^3 - x^4 / 2))."""
+        if t <= 0.0:
+            return 0.0
+        knots = self._knot_integrals
+        first = self.times[0]
+        if t <= first:
+            return self.values[0] * t
+        i = min(bisect.bisect_right(self.times, t) - 1, len(self.times) - 1)
+        if i == len(self.times) - 1:
+            return knots[-1] + self.values[-1] * (t - self.times[-1])
+        length = self.times[i + 1] - self.times[i]
+        x = (t - self.times[i]) / length
+        v0, v1 = self.values[i], self.values[i + 1]
+        if self.smooth:
+            piece = length * (v0 * x + (v1 - v0) * (x**3 - 0.5 * x**4))
+        else:
+            piece = length * x * (v0 + 0.5 * (v1 - v0) * x)
+        return knots[i] + piece
+
+    @functools.cached_property
+    def _knot_integrals(self) -> list[float]:
+        """Integral from 0 to each knot time."""
+        first = max(self.times[0], 0.0)
+        out = [self.values[0] * first]
+        for i in range(len(self.times) - 1):
+            length = self.times[i + 1] - self.times[i]
+            out.append(out[-1] + 0.5 * length * (self.values[i] + self.values[i + 1]))
+        return out
+
+
+@dataclass(frozen=True)
+class PrescribedMotion:
+    """Displacement of ``component`` of every node on ``face`` (or only those with x in
+    ``x_range``):
+    value * amplitude(t) when ``kind`` is "displacement" (mm), value * integral of amplitude
+    when it is "velocity" (mm/s). A clamp is a displacement of 0 in all components."""
+
+    face: str
+    component: str
+    kind: MotionKind
+    value: float
+    amplitude: Amplitude
+    x_range: tuple[float, float] | None = None  # only the face's nodes with x in it (mm): a
+    # line (x, x) or a pad (x_min, x_max) of a support or a load
+    key: str = field(default="", compare=False)  # the config key that made it (for errors)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "kind", MotionKind(self.kind))  # frozen: set once, here
+
+    def displacement(self, t: float) -> float:
+        if self.kind == MotionKind.DISPLACEMENT:
+            return self.value * self.amplitude(t)
+        return self.value * self.amplitude.integral(t)
+
+
+@dataclass(frozen=True)
+class FaceLoad:
+    """A total force (N, vector) spread over a face as a uniform traction, times amplitude(t)."""
+
+    face: str
+    force: tuple[float, float, float]
+    amplitude: Amplitude
+    key: str = field(default="", compare=False)  # the config key that made it (for errors)
+
+
+def clamp(face: str) -> list[PrescribedMotion]:
+    """The motions that hold every displacement component of ``face`` at zero."""
+    return [
+        PrescribedMotion(face, c, MotionKind.DISPLACEMENT, 0.0, Amplitude.constant(0.0))
+        for c in COMPONENTS
+    ]
+
+
+@dataclass(frozen=True)
+class Impactor:
+    """The impactor as the config gives it."""
+
+    shape: ImpactorShape  # a cylinder has its axis along y
+    radius: float  # mm
+    mass: float  # tonne
+    position: tuple[float, float, float]  # mm: centre of the sphere, a point of the axis
+    velocity: tuple[float, float, float]  # mm/s at t = 0
+    penalty: float | None = None  # N/mm per node; None: from the laminate (``model.contact``)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "shape", ImpactorShape(self.shape))  # frozen: set once, here

@@ -1,0 +1,41 @@
+"""Solver and output settings as the config gives them (standard library only; the solver
+that uses them is ``solver.explicit``).
+
+Units: N, mm, s, tonne.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class SolverSettings:
+    """The time integration of a run: its end, the step (stable step x ``safety_factor``, or
+    forced), damping, the output and checkpoint intervals and the run's guards."""
+
+    end_time: float  # s
+    output_interval: float  # s between history rows
+    safety_factor: float = 0.9  # on the element-size stable step
+    time_step: float | None = None  # forced step (s); must not exceed the stable one
+    mass_damping: float = 0.0  # 1/s, on every free DOF
+    field_interval: float | None = None  # s between field outputs (None: none)
+    checkpoint_interval: int | None = None  # steps between checkpoints (None: none)
+    # The run stops as failed when |energy balance| exceeds this share of the largest energy
+    # of the run so far (guards.energy_error). Default: 12 x the worst share of every demo and
+    # test case (1.6e-2, the TCB's adaptive run right after its refinement; most stay below
+    # 5e-4), a fifth of an error as large as the energies themselves.
+    energy_error_limit: float = 0.2
+    max_steps: int = 10**9  # a run (and `check`) refuses to take more steps than this
+
+
+@dataclass(frozen=True)
+class Probe:
+    """What the history reports: the mean displacement of a face and the reaction force on a
+    (prescribed) face, both in one component, and the applied-load resultant in that
+    component."""
+
+    displacement_face: str
+    reaction_face: str
+    component: str
+    displacement_x: tuple[float, float] | None = None  # only the face's nodes in this x range
