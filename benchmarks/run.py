@@ -53,11 +53,11 @@ from mpi4py import MPI
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from fenics_adaptive.adaptivity import enrichment as enr  # noqa: E402
 from fenics_adaptive.analysis.timing import time_call, time_per_step  # noqa: E402
 from fenics_adaptive.model.assembly import SubelementSet, add_subelement_forces  # noqa: E402
 from fenics_adaptive.runner import build_structure, execute  # noqa: E402
 from fenics_adaptive.settings.config import parse_config  # noqa: E402
+from fenics_adaptive.settings.kinds import InterfaceState  # noqa: E402
 from fenics_adaptive.solver import explicit  # noqa: E402
 
 POINTS_PER_CELL = 8 * 2 * 2  # plies x in-plane points of the layered rule
@@ -87,8 +87,8 @@ def beam_config(n_cells: int, kind: str = "adaptive", ply_damage: bool = False) 
 
 def refine_all(structure) -> None:
     cells = range(structure.base.n_owned_cells)
-    structure.refine([(c, 4, enr.WEAK) for c in cells])
-    structure.refine([(c, i, enr.STRONG) for c in cells for i in (2, 6)])
+    structure.refine([(c, 4, InterfaceState.WEAK) for c in cells])
+    structure.refine([(c, i, InterfaceState.STRONG) for c in cells for i in (2, 6)])
 
 
 def deform(structure, seed: int = 0) -> None:
@@ -280,7 +280,7 @@ def bench_plate(end_time: float) -> list[dict]:
         summary, structure = execute(
             config, ROOT / "benchmarks" / "results" / f"plate_{name}", show_progress=False, log=None
         )
-        refined = (structure.interface_state != enr.NONE).any(axis=1).mean()
+        refined = (structure.interface_state != InterfaceState.NONE).any(axis=1).mean()
         rows.append(
             {
                 "benchmark": "plate",
@@ -353,7 +353,7 @@ def memory_case(case: str, n_cells: int) -> int:
         distance = np.abs(centre - centre.mean(axis=0)).max(axis=1)
         cells = np.flatnonzero(distance <= np.quantile(distance, 0.1))
         interfaces = data["interfaces"]["delaminate"]
-        structure.refine([(int(c), i, enr.STRONG) for c in cells for i in interfaces])
+        structure.refine([(int(c), i, InterfaceState.STRONG) for c in cells for i in interfaces])
     step_time(structure, 10, 1)
     return structure.base.n_owned_cells
 

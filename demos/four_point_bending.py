@@ -41,12 +41,12 @@ import numpy as np
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 
-from fenics_adaptive.adaptivity import enrichment
 from fenics_adaptive.errors import script_main
 from fenics_adaptive.io.output import read_history
 from fenics_adaptive.materials.ply_damage import S_D
 from fenics_adaptive.runner import execute
 from fenics_adaptive.settings.config import parse_config
+from fenics_adaptive.settings.kinds import InterfaceState
 from fenics_adaptive.solver.explicit import Diverged
 
 HERE = Path(__file__).parent
@@ -70,7 +70,7 @@ def facts(structure, summary: dict, history: dict) -> dict:
     """Headline numbers of one run."""
     comm = structure.comm
     cracked = structure.damage_state[:, :4, S_D].max(axis=1) > 0.5  # 90-degree block, per cell
-    refined = (structure.interface_state != enrichment.NONE).any(axis=1)
+    refined = (structure.interface_state != InterfaceState.NONE).any(axis=1)
     n_cells = comm.allreduce(structure.base.n_owned_cells)
     force = np.abs(np.array(history["reaction_force"]))
     return {

@@ -37,11 +37,11 @@ import itertools
 
 import matplotlib.pyplot as plt
 
-from fenics_adaptive.adaptivity import enrichment
 from fenics_adaptive.errors import script_main
 from fenics_adaptive.io.output import read_history
 from fenics_adaptive.runner import execute
 from fenics_adaptive.settings.config import parse_config
+from fenics_adaptive.settings.kinds import InterfaceState
 
 HERE = Path(__file__).parent
 RUNS = ("esl", "adaptive", "layerwise")
@@ -83,7 +83,7 @@ def facts(structure, summary: dict, history: dict) -> dict:
     corners = structure.X_base[structure.bottom_local]
     d1, d2 = corners[:, 3] - corners[:, 0], corners[:, 2] - corners[:, 1]
     cell_area = float(0.5 * np.linalg.norm(np.cross(d1, d2), axis=1).mean())  # mm^2
-    refined = (structure.interface_state == enrichment.STRONG).any(axis=1)
+    refined = (structure.interface_state == InterfaceState.STRONG).any(axis=1)
     per_interface = {
         str(i): float((damage >= 1.0).sum() * cell_area)
         for i, (_, damage) in interface_damage(structure).items()
@@ -190,7 +190,7 @@ def main() -> None:
         histories[name] = read_history(out / name / "history.csv")
         results[name] = facts(structure, summary, histories[name])
         maps[name] = interface_damage(structure)
-        cells = (structure.interface_state != enrichment.NONE).any(axis=1)
+        cells = (structure.interface_state != InterfaceState.NONE).any(axis=1)
         refined[name] = structure.X_base[structure.bottom_local[cells]].mean(axis=1)[:, :2]
 
     if "layerwise" in results:

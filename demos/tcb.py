@@ -40,12 +40,12 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 from matplotlib.collections import PolyCollection
 
-from fenics_adaptive.adaptivity import enrichment
 from fenics_adaptive.analysis.timing import time_call
 from fenics_adaptive.errors import script_main
 from fenics_adaptive.io.output import read_history
 from fenics_adaptive.runner import build_structure, execute
 from fenics_adaptive.settings.config import parse_config
+from fenics_adaptive.settings.kinds import InterfaceState
 
 HERE = Path(__file__).parent
 RUNS = ("reference", "refined_from_start", "adaptive", "late", "late_stabilised")
@@ -276,9 +276,9 @@ def main() -> None:
         "lefm_adaptive": lefm_adaptive,
         "force_evaluation_cost": cost,
         "refinement_states": {
-            "none": enrichment.NONE,
-            "weak": enrichment.WEAK,
-            "strong": enrichment.STRONG,
+            "none": InterfaceState.NONE,
+            "weak": InterfaceState.WEAK,
+            "strong": InterfaceState.STRONG,
         },
     }
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")

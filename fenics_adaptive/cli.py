@@ -172,6 +172,7 @@ def _check(config_path: str, config, problem, comm) -> int:
         estimated_step_seconds,
         output_counts,
     )
+    from fenics_adaptive.settings.kinds import ModelKind
 
     model, solver = problem.model, config.solver
     steps = check_step_count(solver, problem.time_step)
@@ -184,7 +185,9 @@ def _check(config_path: str, config, problem, comm) -> int:
     wall = steps * estimated_step_seconds(size, comm.size)
     if comm.rank == 0:
         refined = (
-            " (unrefined; refined cells cost 3 .. 7 x more)" if config.kind == "adaptive" else ""
+            " (unrefined; refined cells cost 3 .. 7 x more)"
+            if config.kind == ModelKind.ADAPTIVE
+            else ""
         )
         checkpoints = (
             f", a checkpoint every {solver.checkpoint_interval} steps"

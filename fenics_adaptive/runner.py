@@ -21,7 +21,6 @@ from mpi4py import MPI
 
 import fenics_adaptive
 from fenics_adaptive import watchdog
-from fenics_adaptive.adaptivity.enrichment import STRONG, WEAK
 from fenics_adaptive.adaptivity.indicators import front_requests, indicator_requests, spread
 from fenics_adaptive.errors import InputError, shared_errors
 from fenics_adaptive.io import checkpoint, output
@@ -31,9 +30,11 @@ from fenics_adaptive.model.assembly import CohesiveSet
 from fenics_adaptive.model.contact import Contact
 from fenics_adaptive.model.forms import LayeredModel, build_model
 from fenics_adaptive.model.layerwise import cohesive_pairs
-from fenics_adaptive.model.loading import Amplitude, PrescribedMotion, face_dofs, resolve
+from fenics_adaptive.model.loading import face_dofs, resolve
 from fenics_adaptive.model.structure import Structure, cells_in_x_range
 from fenics_adaptive.settings.config import RunConfig, check_step_count
+from fenics_adaptive.settings.kinds import InterfaceState, ModelKind, MotionKind, Refinement
+from fenics_adaptive.settings.loads import Amplitude, PrescribedMotion
 from fenics_adaptive.solver import explicit
 
 
@@ -74,10 +75,12 @@ def build_structure(
     motions = list(config.motions)
     cohesive = None
     params = config.cohesive.as_array() if config.cohesive is not None else None
-    if config.kind == "layerwise":
+    if config.kind == ModelKind.LAYERWISE:
         for interface in config.interfaces.symmetry:
             top = f"top_layer{boundaries.index(interface)}"
-            motions.append(PrescribedMotion(top, "z", "displacement", 0.0, Amplitude.constant(0)))
+            motions.append(
+                PrescribedMotion(top, "z", MotionKind.DISPLACEMENT, 0.0, Amplitude.constant(0))
+            )
         if config.interfaces.delaminate:
             with shared_errors(comm):  # each rank checks its own columns
                 pairs = cohesive_pairs(beam, model.V)
@@ -102,7 +105,11 @@ def build_structure(
     for region in config.matrix_strength:
         cells = cells_in_x_range(structure, region.x_min, region.x_max)
         structure.scale_matrix_strength(cells, region.plies, region.factor)
-    if refine_initially and config.kind == "adaptive" and config.interfaces.initial != "none":
+    if (
+        refine_initially
+        and config.kind == ModelKind.ADAPTIVE
+        and config.interfaces.initial != Refinement.NONE
+    ):
         structure.refine(initial_refinement(structure, config))
     return structure
 
@@ -111,10 +118,11 @@ def initial_refinement(structure: Structure, config: RunConfig) -> list[tuple[in
     """Every owned cell refined at the listed interfaces: weak at ``refine``, and at
     ``delaminate`` weak or strong as ``initial`` says."""
     interfaces = config.interfaces
-    strong = interfaces.initial == "strong"
+    strong = interfaces.initial == Refinement.STRONG
     cells = range(structure.base.n_owned_cells)
-    requests = [(c, i, WEAK) for c in cells for i in interfaces.refine]
-    requests += [(c, i, STRONG if strong else WEAK) for c in cells for i in interfaces.delaminate]
+    requests = [(c, i, InterfaceState.WEAK) for c in cells for i in interfaces.refine]
+    delaminate = InterfaceState.STRONG if strong else InterfaceState.WEAK
+    requests += [(c, i, delaminate) for c in cells for i in interfaces.delaminate]
     return requests
 
 

@@ -14,6 +14,7 @@ import pytest
 from fenics_adaptive.adaptivity import enrichment as enr
 from fenics_adaptive.runner import build_structure, run_config
 from fenics_adaptive.settings.config import parse_config
+from fenics_adaptive.settings.kinds import InterfaceState
 
 DATA = Path(__file__).parent / "data"
 DEMOS = Path(__file__).parent.parent / "demos"
@@ -29,10 +30,10 @@ def mixed_structure():
     data["interfaces"] = {"refine": [4], "delaminate": [2, 6]}
     structure = build_structure(parse_config(data))
     x = structure.X_base[structure.bottom_local].mean(axis=1)[:, 0]
-    requests = [(int(c), 4, enr.WEAK) for c in np.flatnonzero(x < 2.0)]
-    requests += [(int(c), 2, enr.STRONG) for c in np.flatnonzero(x < 1.0)]
-    requests += [(int(c), 2, enr.WEAK) for c in np.flatnonzero((x > 1.0) & (x < 2.0))]
-    requests += [(int(np.argmin(np.abs(x - 3.25))), 6, enr.WEAK)]
+    requests = [(int(c), 4, InterfaceState.WEAK) for c in np.flatnonzero(x < 2.0)]
+    requests += [(int(c), 2, InterfaceState.STRONG) for c in np.flatnonzero(x < 1.0)]
+    requests += [(int(c), 2, InterfaceState.WEAK) for c in np.flatnonzero((x > 1.0) & (x < 2.0))]
+    requests += [(int(np.argmin(np.abs(x - 3.25))), 6, InterfaceState.WEAK)]
     structure.refine(requests)
     return structure
 
@@ -65,12 +66,12 @@ def column_value(structure, cell: int, a: int, interface: int, side: int) -> np.
             return u_base[structure.top_local[cell, a]]
         return u_extra[structure.extra.index[enr.extra_key(g, j, node_set, n_if)]]
 
-    if row[interface - 1] != enr.NONE:
-        strong = row[interface - 1] == enr.STRONG
+    if row[interface - 1] != InterfaceState.NONE:
+        strong = row[interface - 1] == InterfaceState.STRONG
         return at(interface, enr.SET_B if side and strong else enr.SET_A)
-    below = max((j for j in range(1, interface) if row[j - 1] != enr.NONE), default=0)
+    below = max((j for j in range(1, interface) if row[j - 1] != InterfaceState.NONE), default=0)
     above = min((j for j in range(interface + 1, n_plies) if row[j - 1]), default=n_plies)
-    lower = at(below, enr.SET_B if below and row[below - 1] == enr.STRONG else enr.SET_A)
+    lower = at(below, enr.SET_B if below and row[below - 1] == InterfaceState.STRONG else enr.SET_A)
     s = (fractions[interface] - fractions[below]) / (fractions[above] - fractions[below])
     return (1 - s) * lower + s * at(above, enr.SET_A)
 
@@ -135,7 +136,7 @@ def test_freeing_a_border_node_changes_no_energy():
     bound_before = set(structure.border.dofs.tolist())
     x = structure.X_base[structure.bottom_local].mean(axis=1)[:, 0]
     ring = np.flatnonzero((x > 2.0) & (x < 2.5))
-    structure.refine([(int(c), 4, enr.WEAK) for c in ring])
+    structure.refine([(int(c), 4, InterfaceState.WEAK) for c in ring])
     assert len(bound_before - set(structure.border.dofs.tolist())) == 3 * 3  # 3 nodes at x = 2
     structure.internal_force()
     assert sum(structure.energies()) == pytest.approx(before, rel=1e-12)

@@ -10,6 +10,7 @@ import pytest
 from fenics_adaptive.adaptivity import enrichment as enr
 from fenics_adaptive.runner import build_structure
 from fenics_adaptive.settings.config import parse_config
+from fenics_adaptive.settings.kinds import InterfaceState
 from fenics_adaptive.solver import explicit
 
 DATA = Path(__file__).parent / "data"
@@ -86,7 +87,7 @@ def test_weak_then_strong_refinement_conserves_mass_momentum_and_the_field():
     structure.internal_force()
     energy = structure.energies()[0]
     cells = np.arange(5, 12)
-    assert structure.refine([(c, i, enr.WEAK) for c in cells for i in (2, 4, 6)])
+    assert structure.refine([(c, i, InterfaceState.WEAK) for c in cells for i in (2, 4, 6)])
     # extra nodes start on the element's own (here linear) displacement and velocity fields
     X_extra = structure.extra.vectors["X"].array.reshape(-1, 3)
     assert np.allclose(structure.extra.vectors["u"].array.reshape(-1, 3), X_extra @ A.T)
@@ -96,7 +97,7 @@ def test_weak_then_strong_refinement_conserves_mass_momentum_and_the_field():
     structure.internal_force()
     assert structure.energies()[0] == pytest.approx(energy, rel=1e-12)
 
-    assert structure.refine([(c, i, enr.STRONG) for c in cells for i in (2, 6)])
+    assert structure.refine([(c, i, InterfaceState.STRONG) for c in cells for i in (2, 6)])
     assert structure.total_mass() == pytest.approx(mass, rel=1e-14)
     assert np.allclose(structure.momentum(), momentum, rtol=1e-13, atol=0)
     structure.internal_force()
@@ -110,7 +111,7 @@ def test_refined_cell_masses_are_the_subelement_masses():
     structure = structure_of(tcb(initial="none"))
     m_base = structure.mass_base.array.copy()
     total = structure.total_mass()
-    structure.refine([(0, 4, enr.WEAK)])
+    structure.refine([(0, 4, InterfaceState.WEAK)])
     # assembled: cell 0's four extra nodes hold the plies around interface 4 of that cell, half
     # of the cell's mass; the base nodes lost exactly that
     n_owned = 3 * structure.extra.n_owned
@@ -132,9 +133,9 @@ def test_refined_cell_masses_are_the_subelement_masses():
 def test_refinement_outside_the_allowed_interfaces_is_refused():
     structure = structure_of(tcb(initial="none"))
     with pytest.raises(Exception, match="interface 3"):
-        structure.refine([(0, 3, enr.WEAK)])
+        structure.refine([(0, 3, InterfaceState.WEAK)])
     with pytest.raises(Exception, match="delaminate"):
-        structure.refine([(0, 4, enr.STRONG)])
+        structure.refine([(0, 4, InterfaceState.STRONG)])
 
 
 def test_stable_step_drops_with_thin_subelements_and_cohesive_springs():
@@ -145,7 +146,7 @@ def test_stable_step_drops_with_thin_subelements_and_cohesive_springs():
     data["model"]["points_per_ply"] = 2
     structure = structure_of(data)
     before, _ = structure.stable_time_step()
-    structure.refine([(c, 1, enr.WEAK) for c in range(structure.base.n_owned_cells)])
+    structure.refine([(c, 1, InterfaceState.WEAK) for c in range(structure.base.n_owned_cells)])
     after, where = structure.stable_time_step()
     thin = 0.256 / structure.laminate.plies[0].material.dilatational_wave_speed()
     assert "subelement" in where
@@ -154,7 +155,7 @@ def test_stable_step_drops_with_thin_subelements_and_cohesive_springs():
 
     data["cohesive"]["K_n"] = data["cohesive"]["K_s"] = 1e7
     structure = structure_of(data)
-    structure.refine([(c, 2, enr.STRONG) for c in range(structure.base.n_owned_cells)])
+    structure.refine([(c, 2, InterfaceState.STRONG) for c in range(structure.base.n_owned_cells)])
     limit, where = structure.stable_time_step()
     assert "cohesive" in where
     config = parse_config(data)
@@ -169,7 +170,7 @@ def test_stable_step_drops_with_thin_subelements_and_cohesive_springs():
 
 def test_cell_maps_of_a_refined_cell_name_its_nodes():
     structure = structure_of(tcb(initial="none"))
-    structure.refine([(0, 4, enr.WEAK), (0, 2, enr.STRONG)])
+    structure.refine([(0, 4, InterfaceState.WEAK), (0, 2, InterfaceState.STRONG)])
     text = structure.cell_maps(0)
     assert text.count("subelement") == 3
     assert "subelement 1: plies 1, 2" in text and "subelement 3: plies 5, 6, 7, 8" in text
@@ -194,7 +195,7 @@ def test_one_ply_subelements_have_no_zero_energy_modes():
     data.pop("cohesive")
     structure = structure_of(data)
     cells = range(structure.base.n_owned_cells)
-    structure.refine([(c, i, enr.WEAK) for c in cells for i in range(1, 8)])
+    structure.refine([(c, i, InterfaceState.WEAK) for c in cells for i in range(1, 8)])
     K, _ = probe_stiffness(structure)
     fixed = np.concatenate(
         [structure.base_block.fixed, structure.extra_block.fixed + 3 * structure.n_base]
@@ -217,11 +218,11 @@ def test_vectorised_maps_equal_the_cell_by_cell_maps():
     for _ in range(3):
         cells = rng.choice(n_cells, size=n_cells // 3, replace=False)
         requests = [
-            (int(c), int(i), int(rng.choice([enr.WEAK, enr.STRONG])))
+            (int(c), int(i), int(rng.choice([InterfaceState.WEAK, InterfaceState.STRONG])))
             for c in cells
             for i in rng.choice([2, 4, 6], size=rng.integers(1, 4), replace=False)
             if i != 4
-        ] + [(int(c), 4, enr.WEAK) for c in cells[::2]]
+        ] + [(int(c), 4, InterfaceState.WEAK) for c in cells[::2]]
         structure.refine(requests)
 
     n_plies = structure.laminate.n_plies
@@ -239,15 +240,15 @@ def test_vectorised_maps_equal_the_cell_by_cell_maps():
             )
             cells_of.append(cell)
             plies.append((sub.first, sub.stop))
-        for interface in np.flatnonzero(row == enr.STRONG) + 1:
+        for interface in np.flatnonzero(row == InterfaceState.STRONG) + 1:
             cohesive.append(
                 enr.cohesive_nodes(
                     columns, int(interface), n_plies, structure.extra.index, structure.n_base
                 )
             )
-    refined = (structure.interface_state != enr.NONE).any(axis=1)
+    refined = (structure.interface_state != InterfaceState.NONE).any(axis=1)
     assert refined.sum() > n_cells // 2
-    assert (structure.interface_state == enr.STRONG).any() and len(cohesive) > 0
+    assert (structure.interface_state == InterfaceState.STRONG).any() and len(cohesive) > 0
     keep = refined[np.array(cells_of)]
     np.testing.assert_array_equal(structure.subelements.nodes, np.array(nodes)[keep])
     np.testing.assert_array_equal(structure._subelement_cell, np.array(cells_of)[keep])

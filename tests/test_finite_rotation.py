@@ -47,6 +47,7 @@ from fenics_adaptive.model.loading import face_dofs
 from fenics_adaptive.model.structure import Structure
 from fenics_adaptive.runner import build_structure
 from fenics_adaptive.settings.config import RunConfig, load_config, parse_config
+from fenics_adaptive.settings.kinds import InterfaceState
 
 DATA = Path(__file__).parent / "data"
 ROUND_OFF = 1e-12
@@ -158,8 +159,12 @@ def refined_strip() -> Structure:
     weakly at 3; cells 3-5 stay with the UFL form (neighbours of refined cells, so the border
     constraints are in play too)."""
     _, structure = finite_structure("finite_rotation.toml")
-    requests = [(0, 1, enr.WEAK), (0, 2, enr.STRONG), (0, 3, enr.WEAK)]
-    requests += [(1, 2, enr.STRONG), (2, 3, enr.WEAK)]
+    requests = [
+        (0, 1, InterfaceState.WEAK),
+        (0, 2, InterfaceState.STRONG),
+        (0, 3, InterfaceState.WEAK),
+    ]
+    requests += [(1, 2, InterfaceState.STRONG), (2, 3, InterfaceState.WEAK)]
     structure.refine(requests)
     assert len(structure.cohesive) == 2
     assert len(structure.base.ufl_cells[0]) == 3
@@ -383,7 +388,7 @@ def test_cantilever_large_tip_load_matches_elastica():
     energy_ufl = model.strain_energy()
     f_ufl = f_ufl.array[: model.n_owned_dofs].reshape(-1, 3).copy()
     cells = range(model.n_owned_cells)
-    structure.refine([(c, i, enr.WEAK) for c in cells for i in config.interfaces.refine])
+    structure.refine([(c, i, InterfaceState.WEAK) for c in cells for i in config.interfaces.refine])
     assert all(len(c) == 0 for c in model.ufl_cells)  # every cell is numba's now
     f_base, f_extra = forces(structure)
     # hand each extra node's force to the two base nodes of its column (the transpose of its

@@ -16,11 +16,11 @@ import pytest
 from conftest import esl_model
 from mpi4py import MPI
 
-from fenics_adaptive.adaptivity import enrichment
 from fenics_adaptive.model import loading
 from fenics_adaptive.model.structure import Interfaces, Structure
 from fenics_adaptive.runner import build_structure
 from fenics_adaptive.settings.config import load_config
+from fenics_adaptive.settings.kinds import InterfaceState
 from fenics_adaptive.solver import explicit, guards
 
 DATA = Path(__file__).parent / "data"
@@ -150,7 +150,7 @@ def test_the_check_names_the_cell_on_every_kind_of_element():
         loading.resolve(model, loading.clamp("x0"), []),
         interfaces=Interfaces(refine=(2,), delaminate=(2,)),
     )
-    adaptive.refine([(c, 2, enrichment.STRONG) for c in range(model.n_owned_cells)])
+    adaptive.refine([(c, 2, InterfaceState.STRONG) for c in range(model.n_owned_cells)])
     for structure in (esl, adaptive):
         guard = guards.InversionGuard(structure)
         assert guard.check(0.0) is None

@@ -9,7 +9,6 @@ import pytest
 from fenics_adaptive.meshes import esl_mesh
 from mpi4py import MPI
 
-from fenics_adaptive.adaptivity import enrichment as enr
 from fenics_adaptive.adaptivity import indicators as ind
 from fenics_adaptive.materials.laminate import Laminate, PlyMaterial
 from fenics_adaptive.model import loading
@@ -17,6 +16,7 @@ from fenics_adaptive.model.forms import build_model
 from fenics_adaptive.model.structure import Structure
 from fenics_adaptive.runner import RefinementHook, build_structure, probe_displacement
 from fenics_adaptive.settings.config import parse_config
+from fenics_adaptive.settings.kinds import InterfaceState
 from fenics_adaptive.solver import explicit
 from fenics_adaptive.solver.static import solve_static
 
@@ -102,8 +102,8 @@ def test_manual_refinement_by_displacement():
 
     stats = explicit.run(structure, config.solver, config.probe, on_step=on_step)
     assert stats.refinements == 1
-    assert (structure.interface_state[:, [1, 5]] == enr.STRONG).all()
-    assert (structure.interface_state[:, 3] == enr.NONE).all()
+    assert (structure.interface_state[:, [1, 5]] == InterfaceState.STRONG).all()
+    assert (structure.interface_state[:, 3] == InterfaceState.NONE).all()
     # on the first step past 0.0023 mm (the tip moves at most 1000 mm/s x 4e-8 s per step)
     assert 0.0023 <= at[0] < 0.0023 + 1000.0 * 4e-8
 
@@ -112,12 +112,12 @@ def test_spread_reaches_the_neighbours_once_per_ring():
     structure = build_structure(parse_config(tcb()))
     x = structure.X_base[structure.bottom_local][:, :, 0].mean(axis=1)
     middle = int(np.argmin(np.abs(x - 5.25)))
-    one = ind.spread(structure, [(middle, 2, enr.STRONG)], 1)
-    two = ind.spread(structure, [(middle, 2, enr.STRONG)], 2)
+    one = ind.spread(structure, [(middle, 2, InterfaceState.STRONG)], 1)
+    two = ind.spread(structure, [(middle, 2, InterfaceState.STRONG)], 2)
     cells = lambda requests: sorted(np.round(x[[c for c, _, _ in requests]], 6))  # noqa: E731
     assert cells(one) == [4.75, 5.25, 5.75]
     assert cells(two) == [4.25, 4.75, 5.25, 5.75, 6.25]
-    assert {(i, k) for _, i, k in two} == {(2, enr.STRONG)}
+    assert {(i, k) for _, i, k in two} == {(2, InterfaceState.STRONG)}
 
 
 def test_front_keeps_a_started_delamination_inside_the_refined_region():
@@ -126,12 +126,14 @@ def test_front_keeps_a_started_delamination_inside_the_refined_region():
     structure = build_structure(parse_config(tcb()))
     x = structure.X_base[structure.bottom_local][:, :, 0].mean(axis=1)
     middle = int(np.argmin(np.abs(x - 5.25)))
-    structure.refine([(c, 2, enr.STRONG) for c in np.flatnonzero(np.abs(x - 5.25) < 0.3)])
+    structure.refine(
+        [(c, 2, InterfaceState.STRONG) for c in np.flatnonzero(np.abs(x - 5.25) < 0.3)]
+    )
     assert ind.front_requests(structure, 2) == []
     structure.cohesive.damage[structure.damage_rows[(middle, 2)], 1] = 0.01
     requests = ind.front_requests(structure, 2)
     assert sorted(np.round(x[[c for c, _, _ in requests]], 6)) == [4.25, 4.75, 5.25, 5.75, 6.25]
-    assert {(i, k) for _, i, k in requests} == {(2, enr.STRONG)}
+    assert {(i, k) for _, i, k in requests} == {(2, InterfaceState.STRONG)}
 
 
 def failure_cantilever(ply_damage: bool):
@@ -205,10 +207,13 @@ def test_ply_failure_indicator_refines_next_to_the_failing_ply():
         return ind.indicator_requests(structure, settings, (50.0, 80.0))
 
     # ply 1 -> the nearest refinable interface above it: 1, in every cell
-    assert sorted(asked(1.0)) == [(c, 1, enr.WEAK) for c in range(n)]
+    assert sorted(asked(1.0)) == [(c, 1, InterfaceState.WEAK) for c in range(n)]
     # just below the top ply's index it asks too -> the nearest refinable interface below: 2
     both = asked(0.99 * top.min())
-    assert sorted({(i, k) for _, i, k in both}) == [(1, enr.WEAK), (2, enr.WEAK)]
+    assert sorted({(i, k) for _, i, k in both}) == [
+        (1, InterfaceState.WEAK),
+        (2, InterfaceState.WEAK),
+    ]
     assert asked(1.01 * index.max()) == []
 
 
@@ -221,7 +226,7 @@ def test_matrix_damage_indicator_delaminates_next_to_a_cracked_ply():
     structure.damage_state[7, 2, S_D] = 0.5  # cell 7: a ply away from interface 1
     settings = ind.IndicatorSettings(interval=1.0, matrix_damage=True)
     requests = ind.indicator_requests(structure, settings, (50.0, 80.0))
-    assert requests == [(3, 1, enr.STRONG)]
+    assert requests == [(3, 1, InterfaceState.STRONG)]
     assert structure.refine(requests)
-    assert structure.interface_state[3, 0] == enr.STRONG
+    assert structure.interface_state[3, 0] == InterfaceState.STRONG
     assert ind.indicator_requests(structure, settings, (50.0, 80.0)) == []

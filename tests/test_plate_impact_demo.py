@@ -11,9 +11,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fenics_adaptive.adaptivity import enrichment as enr
 from fenics_adaptive.runner import execute
 from fenics_adaptive.settings.config import parse_config
+from fenics_adaptive.settings.kinds import InterfaceState
 
 ROOT = Path(__file__).parents[1]
 spec = importlib.util.spec_from_file_location("impact_demo", ROOT / "demos" / "plate_impact.py")
@@ -43,7 +43,7 @@ def runs(tmp_path_factory):
 
 def test_adaptive_refines_around_the_impact_point_only(runs):
     summary, structure = runs["adaptive"]
-    refined = (structure.interface_state == enr.STRONG).any(axis=1)
+    refined = (structure.interface_state == InterfaceState.STRONG).any(axis=1)
     assert 0.0 < refined.mean() < 0.5
     centres = structure.X_base[structure.bottom_local[refined]].mean(axis=1)
     assert np.abs(centres[:, :2] - 10.0).max() < 8.0  # none at the clamped edges

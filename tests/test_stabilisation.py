@@ -11,6 +11,7 @@ import pytest
 from fenics_adaptive.adaptivity import enrichment as enr
 from fenics_adaptive.runner import RefinementHook, build_structure
 from fenics_adaptive.settings.config import parse_config
+from fenics_adaptive.settings.kinds import InterfaceState
 from fenics_adaptive.solver import explicit
 
 DATA = Path(__file__).parent / "data"
@@ -51,7 +52,7 @@ def test_tie_force_makes_new_pairs_accelerate_as_the_continuous_interface():
             local = structure.extra.index[key]
             continuous[key] = -f[local] / m[local]
     cells = range(structure.base.n_owned_cells)
-    assert structure.refine([(c, i, enr.STRONG) for c in cells for i in (2, 6)])
+    assert structure.refine([(c, i, InterfaceState.STRONG) for c in cells for i in (2, 6)])
     structure.start_stabilisation(1.4e-5)
     structure.internal_force()
     f = structure.f_extra.array.reshape(-1, 3)

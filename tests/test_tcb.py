@@ -17,7 +17,6 @@ import pytest
 from fenics_adaptive.meshes import esl_mesh
 from mpi4py import MPI
 
-from fenics_adaptive.adaptivity import enrichment as enr
 from fenics_adaptive.io.output import read_history
 from fenics_adaptive.materials.cohesive import CohesiveLaw
 from fenics_adaptive.model.forms import build_model
@@ -25,6 +24,7 @@ from fenics_adaptive.model.loading import resolve
 from fenics_adaptive.model.structure import Interfaces, Structure, cells_in_x_range
 from fenics_adaptive.runner import build_structure, run_config
 from fenics_adaptive.settings.config import parse_config
+from fenics_adaptive.settings.kinds import InterfaceState
 from fenics_adaptive.solver import explicit
 
 DATA = Path(__file__).parent / "data"
@@ -108,8 +108,8 @@ def free_beam_refined_halfway(step_fraction: float):
             return False
         events["before"] = (s.total_mass(), s.momentum(), s.kinetic_energy())
         cells = cells_in_x_range(s, 5.0, np.inf)
-        requests = [(c, 4, enr.WEAK) for c in cells]
-        requests += [(c, i, enr.STRONG) for c in cells for i in (2, 6)]
+        requests = [(c, 4, InterfaceState.WEAK) for c in cells]
+        requests += [(c, i, InterfaceState.STRONG) for c in cells for i in (2, 6)]
         assert s.refine(requests)
         events["after"] = (s.total_mass(), s.momentum(), s.kinetic_energy())
         return True
@@ -123,7 +123,7 @@ def free_beam_refined_halfway(step_fraction: float):
         interfaces=Interfaces(refine=(4,), delaminate=(2, 6)),
         law_params=law.as_array(),
     )
-    probe.refine([(c, i, enr.STRONG) for c in range(20) for i in (2, 6)])
+    probe.refine([(c, i, InterfaceState.STRONG) for c in range(20) for i in (2, 6)])
     dt = step_fraction * probe.stable_time_step()[0]
     settings = explicit.SolverSettings(end_time=6.0e-5, output_interval=1e-6, time_step=dt)
     stats = explicit.run(

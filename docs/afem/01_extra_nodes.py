@@ -45,6 +45,7 @@ from mpi4py import MPI
 from fenics_adaptive.adaptivity import enrichment as enr
 from fenics_adaptive.runner import build_structure
 from fenics_adaptive.settings.config import parse_config
+from fenics_adaptive.settings.kinds import InterfaceState
 
 # %% [markdown]
 # ## The model
@@ -91,8 +92,8 @@ assert np.allclose(alpha, alpha_by_hand, rtol=0.0, atol=1e-15)
 centroid_x = structure.X_base[structure.bottom_local].mean(axis=1)[:, 0]
 left, right = (int(c) for c in np.argsort(centroid_x))
 for interface in (4, 2, 6):
-    structure.refine([(left, interface, enr.WEAK)])
-structure.refine([(right, 4, enr.WEAK)])
+    structure.refine([(left, interface, InterfaceState.WEAK)])
+structure.refine([(right, 4, InterfaceState.WEAK)])
 
 # %% [markdown]
 # ## Check every extra node against Eq. (1)
@@ -156,7 +157,7 @@ assert len(keys_at_4) == 6
 # positions, displacements and velocities, so the two surfaces coincide exactly.
 
 # %%
-structure.refine([(left, 4, enr.STRONG)])
+structure.refine([(left, 4, InterfaceState.STRONG)])
 pairs = 0
 for key, local in structure.extra.index.items():
     global_bottom, interface, node_set = enr.key_parts(key, n_interfaces)

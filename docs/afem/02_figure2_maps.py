@@ -25,6 +25,7 @@ from fenics_adaptive.element.solid_shell import gauss_legendre_01
 from fenics_adaptive.element.subelement import sublaminate_ply_zeta
 from fenics_adaptive.runner import build_structure
 from fenics_adaptive.settings.config import parse_config
+from fenics_adaptive.settings.kinds import InterfaceState
 
 # %% [markdown]
 # ## Interface states decide the subelements
@@ -37,7 +38,7 @@ from fenics_adaptive.settings.config import parse_config
 # %%
 n_plies = 7
 figure_2 = np.zeros(n_plies - 1, dtype=np.int8)  # interfaces 1..6
-figure_2[[2 - 1, 4 - 1]] = enr.WEAK
+figure_2[[2 - 1, 4 - 1]] = InterfaceState.WEAK
 subelements = enr.subelements(figure_2)
 for number, sub in enumerate(subelements, start=1):
     plies = list(range(sub.first + 1, sub.stop + 1))  # 1-based, as in the paper
@@ -142,7 +143,7 @@ data = tomllib.loads((TUTORIAL_DIR / "seven_plies.toml").read_text())  # Figure 
 assert MPI.COMM_WORLD.size == 1, "run this script in serial"
 structure = build_structure(parse_config(data, source="02_figure2_maps"))
 cell = 0
-structure.refine([(cell, 2, enr.WEAK), (cell, 4, enr.WEAK)])
+structure.refine([(cell, 2, InterfaceState.WEAK), (cell, 4, InterfaceState.WEAK)])
 print("\n" + structure.cell_maps(cell))
 
 # %% [markdown]
@@ -228,7 +229,7 @@ for number, sub in enumerate(enr.subelements(structure.interface_state[cell]), s
 # refinement only unzips an interface that already cuts the cell.
 
 # %%
-structure.refine([(cell, 4, enr.STRONG)])
+structure.refine([(cell, 4, InterfaceState.STRONG)])
 maps = structure.cell_maps(cell)
 print("\n" + maps)
 assert [(s.first, s.stop) for s in enr.subelements(structure.interface_state[cell])] == [

@@ -34,6 +34,7 @@ from fenics_adaptive.element.subelement import pack_rule, solid_shell_force, sub
 from fenics_adaptive.materials.cohesive import cohesive_element_force
 from fenics_adaptive.runner import build_structure
 from fenics_adaptive.settings.config import parse_config
+from fenics_adaptive.settings.kinds import InterfaceState
 
 # %% [markdown]
 # ## One cell, refined as in Figure 2
@@ -67,7 +68,7 @@ x, z = X_base[:, 0], X_base[:, 2] - 0.5 * structure.laminate.thickness
 u_base = structure.base.u.x.array.reshape(-1, 3)
 u_base[:, 0] = -kappa * x * z
 u_base[:, 2] = 0.5 * kappa * x**2 + 2e-5 * x * X_base[:, 1]
-structure.refine([(cell, 2, enr.WEAK), (cell, 4, enr.STRONG)])
+structure.refine([(cell, 2, InterfaceState.WEAK), (cell, 4, InterfaceState.STRONG)])
 
 n_interfaces = structure.laminate.n_plies - 1
 u_extra = structure.extra.vectors["u"].array.reshape(-1, 3)
@@ -143,7 +144,7 @@ def formula_force(u):
         solid_shell_force(P @ X_all, P @ u, *rule, f_sub)
         f_lam += P.T @ f_sub
     f_coh = np.zeros((n_nodes, 3))
-    for interface in np.flatnonzero(state == enr.STRONG) + 1:
+    for interface in np.flatnonzero(state == InterfaceState.STRONG) + 1:
         nodes = enr.cohesive_nodes(
             columns, int(interface), n_plies, structure.extra.index, structure.n_base
         )

@@ -27,6 +27,7 @@ from fenics_adaptive.materials.cohesive import cohesive_element_force
 from fenics_adaptive.model.structure import cells_in_x_range
 from fenics_adaptive.runner import build_structure
 from fenics_adaptive.settings.config import parse_config
+from fenics_adaptive.settings.kinds import InterfaceState
 
 # %% [markdown]
 # ## The model
@@ -176,7 +177,7 @@ start = snapshot(structure)
 # %%
 region = cells_in_x_range(structure, 2.5, 6.5)
 print(f"refining {len(region)} cells at interfaces 2, 4, 6 (weak)")
-structure.refine([(int(c), i, enr.WEAK) for c in region for i in (2, 4, 6)])
+structure.refine([(int(c), i, InterfaceState.WEAK) for c in region for i in (2, 4, 6)])
 
 
 def largest_deviation_from_old_field(structure, name, base_values):
@@ -226,7 +227,7 @@ assert abs(kinetic_change - structure.refinement_energy) < 1e-12 * start["kineti
 # %%
 f_extra_before = structure.f_extra.array.reshape(-1, 3).copy()
 index_before = dict(structure.extra.index)
-structure.refine([(int(c), i, enr.STRONG) for c in region for i in (2, 6)])
+structure.refine([(int(c), i, InterfaceState.STRONG) for c in region for i in (2, 6)])
 strong = snapshot(structure)
 report("after the strong refinement", strong, start)
 

@@ -33,6 +33,7 @@ from mpi4py import MPI
 from fenics_adaptive.adaptivity import enrichment as enr
 from fenics_adaptive.runner import build_structure
 from fenics_adaptive.settings.config import parse_config
+from fenics_adaptive.settings.kinds import InterfaceState
 from fenics_adaptive.solver import explicit
 
 # %% [markdown]
@@ -172,7 +173,7 @@ m_continuous = structure.extra_block.mass.reshape(-1, 3)[:, 0].copy()
 index_weak = dict(structure.extra.index)
 
 t0 = 2.0e-5  # s, any time will do
-structure.refine([(0, 4, enr.STRONG)], t0)
+structure.refine([(0, 4, InterfaceState.STRONG)], t0)
 structure.start_stabilisation(t0)
 ties_at_t0 = copy.deepcopy(structure.ties)  # kept for the plot below
 structure.internal_force()
@@ -266,8 +267,8 @@ def rms_after_windows(time, force, reference):
 
 # %%
 time, strong_reference = reaction_history("strong")
-_, strong_abrupt = reaction_history("weak", enr.STRONG)
-_, strong_tied = reaction_history("weak", enr.STRONG, {"release_window": 1.0e-5})
+_, strong_abrupt = reaction_history("weak", InterfaceState.STRONG)
+_, strong_tied = reaction_history("weak", InterfaceState.STRONG, {"release_window": 1.0e-5})
 i0 = int(np.argmax(time >= T_REFINE))
 print("\nreaction force (N) around the strong refinement at 20 us")
 print("   t (us)  strong from start   abrupt    tied")
@@ -297,8 +298,10 @@ assert rms_tied < 0.1 * rms_abrupt
 
 # %%
 _, weak_reference = reaction_history("weak")
-_, weak_abrupt = reaction_history("none", enr.WEAK)
-_, weak_damped = reaction_history("none", enr.WEAK, {"damping": 1.0e6, "damping_window": 1.0e-5})
+_, weak_abrupt = reaction_history("none", InterfaceState.WEAK)
+_, weak_damped = reaction_history(
+    "none", InterfaceState.WEAK, {"damping": 1.0e6, "damping_window": 1.0e-5}
+)
 rms_abrupt = rms_after_windows(time, weak_abrupt, weak_reference)
 rms_damped = rms_after_windows(time, weak_damped, weak_reference)
 print("\nweak refinement at 20 us, RMS difference to the column weak from the start:")

@@ -25,6 +25,7 @@ from fenics_adaptive.adaptivity import enrichment as enr
 from fenics_adaptive.model.structure import cells_in_x_range
 from fenics_adaptive.runner import build_structure
 from fenics_adaptive.settings.config import parse_config
+from fenics_adaptive.settings.kinds import InterfaceState
 
 # %% [markdown]
 # ## The problem
@@ -117,7 +118,7 @@ n_interfaces = structure.laminate.n_plies - 1
 # `Structure.border` lists the constrained degrees of freedom with their masters and weights.
 
 # %%
-structure.refine([(int(c), 4, enr.WEAK) for c in cells_in_x_range(structure, 0.0, 2.0)])
+structure.refine([(int(c), 4, InterfaceState.WEAK) for c in cells_in_x_range(structure, 0.0, 2.0)])
 border = structure.border
 n_base_dofs = 3 * structure.n_base
 X_extra = structure.extra.vectors["X"].array.reshape(-1, 3)
@@ -204,7 +205,7 @@ def front_face_outline(cell, u_base_values, u_extra_values):
     top-right, [extra], bottom-right, as drawn (u magnified)."""
     X_all = np.vstack([structure.X_base, X_extra])
     u_all = np.vstack([u_base_values, u_extra_values])
-    refined = structure.interface_state[cell][4 - 1] != enr.NONE
+    refined = structure.interface_state[cell][4 - 1] != InterfaceState.NONE
     columns = []
     for corner in range(4):
         bottom = structure.bottom_local[cell][corner]
@@ -299,7 +300,7 @@ assert abs(slope - predicted) < 1e-6 * abs(predicted)
 # %%
 structure.internal_force()
 before = sum(structure.energies())
-structure.refine([(int(c), 4, enr.WEAK) for c in cells_in_x_range(structure, 2.0, 3.0)])
+structure.refine([(int(c), 4, InterfaceState.WEAK) for c in cells_in_x_range(structure, 2.0, 3.0)])
 structure.internal_force()
 after = sum(structure.energies())
 X_extra = structure.extra.vectors["X"].array.reshape(-1, 3)
@@ -322,7 +323,7 @@ assert abs(structure.refinement_energy) < 1e-12 * before
 
 # %%
 first, second = cells_in_x_range(structure, 0.0, 1.0)[0], cells_in_x_range(structure, 1.0, 2.0)[0]
-structure.refine([(int(first), 2, enr.STRONG), (int(second), 2, enr.WEAK)])
+structure.refine([(int(first), 2, InterfaceState.STRONG), (int(second), 2, InterfaceState.WEAK)])
 border = structure.border
 for key, local in structure.extra.index.items():
     _, interface, node_set = enr.key_parts(key, n_interfaces)

@@ -9,7 +9,8 @@ Vocabulary.
   above vertex a. Its *column* a is the pair (base node a, base node a + 4).
 - Ply interface i (1-based, 1 .. n_plies - 1) lies between ply i and ply i + 1 at the thickness
   fraction alpha_i (``Laminate.interface_fractions``).
-- Each cell holds, per interface, ``NONE``, ``WEAK`` or ``STRONG`` (``interface_state``).
+- Each cell holds, per interface, ``InterfaceState.NONE``, ``WEAK`` or ``STRONG``
+  (``interface_state``, int8: the enum's values).
 - An *extra node* is identified by (column's bottom base node, interface, set): set A is the
   interface surface of a weak refinement; set B the reserved copy activated by a strong one (the
   upper side of the crack). Extra nodes share the connectivity of their base nodes, so
@@ -44,9 +45,12 @@ import numpy as np
 from dolfinx import common, la
 from mpi4py import MPI
 
-NONE, WEAK, STRONG = 0, 1, 2
+from fenics_adaptive.settings.kinds import InterfaceState
+
+# The old names of the interface states, kept while model/structure.py uses them (its split,
+# issue 13, moves that code); new code uses InterfaceState.
+NONE, WEAK, STRONG = InterfaceState.NONE, InterfaceState.WEAK, InterfaceState.STRONG
 SET_A, SET_B = 0, 1
-STATE_NAMES = {NONE: "none", WEAK: "weak", STRONG: "strong"}
 
 
 def extra_key(
@@ -267,7 +271,7 @@ class Subelement:
 def subelements(state_row: np.ndarray) -> list[Subelement]:
     """The subelements of a cell from its per-interface states (n_plies - 1,)."""
     n_plies = len(state_row) + 1
-    active = [i for i in range(1, n_plies) if state_row[i - 1] != NONE]
+    active = [i for i in range(1, n_plies) if state_row[i - 1] != InterfaceState.NONE]
     bounds = [0, *active, n_plies]
     return [Subelement(lo, hi) for lo, hi in itertools.pairwise(bounds)]
 
@@ -302,7 +306,7 @@ def subelement_nodes(
     if sub.bottom == 0:
         nodes[:4] = columns.bottom_local
     else:
-        node_set = SET_B if state_row[sub.bottom - 1] == STRONG else SET_A
+        node_set = SET_B if state_row[sub.bottom - 1] == InterfaceState.STRONG else SET_A
         keys = interface_nodes(columns, sub.bottom, node_set, n_interfaces)
         nodes[:4] = [n_base + local_extra[k] for k in keys]
     if sub.top == n_plies:
@@ -330,7 +334,7 @@ def subelement_table(states: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.nda
     ``subelements`` lists them one cell at a time."""
     n, n_interfaces = states.shape
     bounds = np.ones((n, n_interfaces + 2), dtype=bool)
-    bounds[:, 1:-1] = states != NONE
+    bounds[:, 1:-1] = states != InterfaceState.NONE
     rows, plies = np.nonzero(bounds)
     same_cell = rows[:-1] == rows[1:]
     return rows[:-1][same_cell], plies[:-1][same_cell], plies[1:][same_cell]
@@ -358,7 +362,7 @@ def subelement_nodes_many(
     inner = np.flatnonzero(~on_base)
     if len(inner):
         below = first[inner]
-        strong = states[inner, below - 1] == STRONG
+        strong = states[inner, below - 1] == InterfaceState.STRONG
         keys = extra_keys(
             bottom_global[inner],
             below[:, None],
@@ -396,7 +400,9 @@ def describe_cell(
     n_interfaces = n_plies - 1
     lines = [
         "interface states: "
-        + ", ".join(f"{i}: {STATE_NAMES[int(s)]}" for i, s in enumerate(state_row, start=1))
+        + ", ".join(
+            f"{i}: {InterfaceState(int(s)).label}" for i, s in enumerate(state_row, start=1)
+        )
     ]
 
     def name(kind: str, where: int, node_set: int | None = None) -> list[str]:
@@ -411,7 +417,9 @@ def describe_cell(
         return [f"extra {n_base + local_extra[k]} (i{where}{label})" for k in keys]
 
     for s, sub in enumerate(subelements(state_row)):
-        bottom_set = SET_B if sub.bottom and state_row[sub.bottom - 1] == STRONG else SET_A
+        bottom_set = (
+            SET_B if sub.bottom and state_row[sub.bottom - 1] == InterfaceState.STRONG else SET_A
+        )
         bottom = name("bottom", 0) if sub.bottom == 0 else name("extra", sub.bottom, bottom_set)
         top = name("top", 0) if sub.top == n_plies else name("extra", sub.top, SET_A)
         plies = ", ".join(str(p + 1) for p in range(sub.first, sub.stop))
@@ -419,7 +427,7 @@ def describe_cell(
         for k, node in enumerate(bottom + top):
             lines.append(f"    local node {k} <- {node}")
     for i in range(1, n_plies):
-        if state_row[i - 1] == STRONG:
+        if state_row[i - 1] == InterfaceState.STRONG:
             lines.append(f"cohesive element at interface {i}  (P^coh,{i})")
             nodes = name("extra", i, SET_A) + name("extra", i, SET_B)
             for k, node in enumerate(nodes):

@@ -32,13 +32,11 @@ from dolfinx import la
 from mpi4py import MPI
 from numba import njit
 
-from fenics_adaptive.adaptivity import enrichment as enr
 from fenics_adaptive.element.subelement import gather_nodes
 from fenics_adaptive.materials.laminate import rotation_about_z
 from fenics_adaptive.materials.ply_damage import S_D, S_FT, S_MC, hashin_indices
 from fenics_adaptive.settings.adaptivity import IndicatorSettings
-
-STRONG, WEAK = enr.STRONG, enr.WEAK
+from fenics_adaptive.settings.kinds import InterfaceState
 
 
 @njit(cache=True)
@@ -259,10 +257,10 @@ def indicator_requests(
     state = structure.interface_state
     if settings.strong_after is not None:
         for interface in structure.interfaces.delaminate:
-            due = (state[:, interface - 1] == enr.WEAK) & (
+            due = (state[:, interface - 1] == InterfaceState.WEAK) & (
                 structure.weak_since[:, interface - 1] + settings.strong_after <= t
             )
-            requests += [(int(c), interface, STRONG) for c in np.flatnonzero(due)]
+            requests += [(int(c), interface, InterfaceState.STRONG) for c in np.flatnonzero(due)]
     if settings.ply_failure is not None:
         index = ply_failure_indices(structure)
         weak = sorted(set(structure.interfaces.refine) | set(structure.interfaces.delaminate))
@@ -272,22 +270,24 @@ def indicator_requests(
             below = [i for i in weak if i <= ply]
             above = [i for i in weak if i >= ply + 1]
             for interface in ([below[-1]] if below else []) + ([above[0]] if above else []):
-                todo = cells[state[cells, interface - 1] == enr.NONE]
-                requests += [(int(c), interface, WEAK) for c in todo]
+                todo = cells[state[cells, interface - 1] == InterfaceState.NONE]
+                requests += [(int(c), interface, InterfaceState.WEAK) for c in todo]
     if settings.matrix_damage:
         damage = structure.damage_state[:, :, S_D]
         for interface in structure.interfaces.delaminate:
             cracked = (damage[:, interface - 1] > 0.0) | (damage[:, interface] > 0.0)
-            todo = np.flatnonzero(cracked & (state[:, interface - 1] < STRONG))
-            requests += [(int(c), interface, STRONG) for c in todo]
+            todo = np.flatnonzero(cracked & (state[:, interface - 1] < InterfaceState.STRONG))
+            requests += [(int(c), interface, InterfaceState.STRONG) for c in todo]
     if settings.interface_stress is not None:
         stresses = ply_stresses(structure)
         index = interface_initiation(recovered_interface_stresses(structure, stresses), *strengths)
         for interface in structure.interfaces.delaminate:
             flagged = (index[:, interface - 1] >= settings.interface_stress) & (
-                state[:, interface - 1] < STRONG
+                state[:, interface - 1] < InterfaceState.STRONG
             )
-            requests += [(int(c), interface, STRONG) for c in np.flatnonzero(flagged)]
+            requests += [
+                (int(c), interface, InterfaceState.STRONG) for c in np.flatnonzero(flagged)
+            ]
     return requests
 
 
@@ -297,7 +297,7 @@ def front_requests(structure, rings: int) -> list[tuple[int, int, int]]:
     spread by ``rings``."""
     damage = structure.cohesive.damage
     started = [
-        (cell, interface, STRONG)
+        (cell, interface, InterfaceState.STRONG)
         for (cell, interface), row in structure.damage_rows.items()
         if damage[row].max() > 0.0
     ]

@@ -43,8 +43,9 @@ import ufl
 from dolfinx import fem
 
 from fenics_adaptive.materials.laminate import Laminate
+from fenics_adaptive.settings.kinds import Kinematics
 
-KINEMATICS = ("small", "finite")
+KINEMATICS = tuple(Kinematics)  # the config's choices (settings.kinds)
 
 GAUSS_2 = np.array([0.5 - 0.5 / np.sqrt(3.0), 0.5 + 0.5 / np.sqrt(3.0)])
 
@@ -162,9 +163,9 @@ def voigt_green_lagrange(u: ufl.core.expr.Expr) -> ufl.core.expr.Expr:
 
 def voigt_strain(u: ufl.core.expr.Expr, kinematics: str = "small") -> ufl.core.expr.Expr:
     """The strain measure of ``kinematics`` ("small" or "finite"), Voigt order."""
-    if kinematics == "small":
+    if kinematics == Kinematics.SMALL:
         return voigt_small_strain(u)
-    if kinematics == "finite":
+    if kinematics == Kinematics.FINITE:
         return voigt_green_lagrange(u)
     raise ValueError(f"kinematics must be one of {', '.join(KINEMATICS)} (got {kinematics!r})")
 

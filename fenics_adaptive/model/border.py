@@ -44,6 +44,7 @@ from dolfinx import la
 from mpi4py import MPI
 
 from fenics_adaptive.adaptivity import enrichment as enr
+from fenics_adaptive.settings.kinds import InterfaceState
 
 
 @dataclass(frozen=True)
@@ -77,15 +78,15 @@ def column_counts(comm, base_map, bottom_local: np.ndarray, state: np.ndarray) -
     refined at three interfaces sums 7 columns, not 31, and the transient memory shrinks
     with it (60 MiB on a 40 000-cell plate before)."""
     n_interfaces = state.shape[1]
-    local = (state >= enr.WEAK).any(axis=0).astype(np.int32)
+    local = (state >= InterfaceState.WEAK).any(axis=0).astype(np.int32)
     used = np.empty_like(local)
     comm.Allreduce(local, used, op=MPI.MAX)
     active = np.flatnonzero(used)
     n_active = len(active)
     counts = la.vector(base_map, bs=1 + 2 * n_active)
     table = counts.array.reshape(-1, 1 + 2 * n_active)
-    refined = (state[:, active] >= enr.WEAK).astype(np.float64)
-    strong = (state[:, active] == enr.STRONG).astype(np.float64)
+    refined = (state[:, active] >= InterfaceState.WEAK).astype(np.float64)
+    strong = (state[:, active] == InterfaceState.STRONG).astype(np.float64)
     for a in range(bottom_local.shape[1]):
         np.add.at(table[:, 0], bottom_local[:, a], 1.0)
         np.add.at(table[:, 1 : 1 + n_active], bottom_local[:, a], refined)

@@ -26,6 +26,7 @@ from fenics_adaptive.element import solid_shell
 from fenics_adaptive.element.timestep import characteristic_lengths
 from fenics_adaptive.materials.laminate import Laminate
 from fenics_adaptive.meshes.beam import BeamMesh
+from fenics_adaptive.settings.kinds import Kinematics
 
 # FFCx kernels compiled for this CPU with reassociation allowed: lets the compiler vectorise the
 # quadrature loops (about 5x faster force assembly here). Results change only at round-off.
@@ -64,7 +65,7 @@ class LayeredModel:
     @property
     def finite(self) -> bool:
         """Total Lagrangian (Green-Lagrange strain) rather than small-strain kinematics."""
-        return self.kinematics == "finite"
+        return self.kinematics == Kinematics.FINITE
 
     @property
     def mesh(self) -> dolfinx.mesh.Mesh:
