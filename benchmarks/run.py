@@ -58,6 +58,7 @@ from fenics_adaptive.model.assembly import SubelementSet, add_subelement_forces 
 from fenics_adaptive.runner import build_structure, execute  # noqa: E402
 from fenics_adaptive.settings.config import parse_config  # noqa: E402
 from fenics_adaptive.settings.kinds import InterfaceState  # noqa: E402
+from fenics_adaptive.settings.solver import Probe, SolverSettings  # noqa: E402
 from fenics_adaptive.solver import explicit  # noqa: E402
 
 POINTS_PER_CELL = 8 * 2 * 2  # plies x in-plane points of the layered rule
@@ -154,7 +155,7 @@ def _kernel_row(name: str, n_cells: int, seconds: float, first: float) -> dict:
 
 def step_time(structure, steps: int, repeat: int) -> tuple[float, float]:
     """(seconds per explicit step, seconds per internal-force evaluation), medians."""
-    probe = explicit.Probe("x1&top", "x1&top", "z")
+    probe = Probe("x1&top", "x1&top", "z")
     step, _ = time_per_step(structure, probe, steps, repeat, statistic=statistics.median)
     force, _ = timed(structure.internal_force, repeat)
     return step, force
@@ -238,7 +239,7 @@ def mpi_worker(n_cells: int, steps: int, repeat: int) -> None:
     config = parse_config(beam_config(n_cells))
     fresh = build_structure(config, comm)
     dt, _, _ = explicit.choose_time_step(fresh, config.solver)
-    settings = explicit.SolverSettings(end_time=200 * dt, output_interval=20 * dt)
+    settings = SolverSettings(end_time=200 * dt, output_interval=20 * dt)
     stats = explicit.run(fresh, settings, config.probe, time_step=dt)
     history = [r.reaction_force for r in stats.history]
     step = comm.allreduce(step, op=MPI.MAX)

@@ -136,10 +136,11 @@ from fenics_adaptive.adaptivity.indicators import recovered_interface_stresses
 from fenics_adaptive.analysis import comparison as cmp
 from fenics_adaptive.analysis.timing import time_call, time_per_step
 from fenics_adaptive.errors import script_main
-from fenics_adaptive.model.loading import Amplitude, FaceLoad
 from fenics_adaptive.model.structure import Structure
 from fenics_adaptive.runner import build_structure
 from fenics_adaptive.settings.config import RunConfig, parse_config
+from fenics_adaptive.settings.loads import Amplitude, FaceLoad
+from fenics_adaptive.settings.solver import SolverSettings
 from fenics_adaptive.solver import explicit
 
 HERE = Path(__file__).parent
@@ -375,7 +376,7 @@ def explicit_check(settings: dict, static_tip: float) -> dict:
     end_time = check["end_periods"] * period
     load = base.loads[0]
     ramped = FaceLoad(load.face, load.force, Amplitude.ramp(check["ramp_periods"] * period))
-    solver = explicit.SolverSettings(
+    solver = SolverSettings(
         end_time=end_time,
         output_interval=end_time / 200,
         mass_damping=2.0 * check["damping_ratio"] * omega,

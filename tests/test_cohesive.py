@@ -15,6 +15,11 @@ import pytest
 
 from fenics_adaptive.errors import InputError
 from fenics_adaptive.materials.cohesive import (
+    cohesive_element_force,
+    critical_energy,
+    traction_separation_curve,
+)
+from fenics_adaptive.settings.materials import (
     LAW_BK,
     LAW_POWER,
     P_EXPONENT,
@@ -26,9 +31,6 @@ from fenics_adaptive.materials.cohesive import (
     P_N,
     P_S,
     CohesiveLaw,
-    cohesive_element_force,
-    critical_energy,
-    traction_separation_curve,
 )
 
 BASE = {

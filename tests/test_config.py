@@ -351,7 +351,7 @@ def test_unit_slips_of_strengths_and_fracture_energies():
 
 
 def test_max_steps_and_energy_error_limit_are_passed_through():
-    from fenics_adaptive.solver.explicit import SolverSettings
+    from fenics_adaptive.settings.solver import SolverSettings
 
     config = parse_config(base())
     defaults = SolverSettings(end_time=1.0, output_interval=1.0)
@@ -451,10 +451,9 @@ def test_unknown_keys_are_refused_with_the_schema_keys():
 
 
 def test_schema_defaults_are_the_dataclass_defaults():
-    from fenics_adaptive.adaptivity.indicators import IndicatorSettings
-    from fenics_adaptive.model.structure import Stabilisation
+    from fenics_adaptive.settings.adaptivity import IndicatorSettings, Stabilisation
     from fenics_adaptive.settings.schema import section
-    from fenics_adaptive.solver.explicit import SolverSettings
+    from fenics_adaptive.settings.solver import SolverSettings
 
     solver = SolverSettings(end_time=1.0, output_interval=1.0)
     for name in ("safety_factor", "mass_damping", "max_steps", "energy_error_limit"):
@@ -543,8 +542,8 @@ def test_odd_key_names_keep_the_message_on_one_line():
 def test_resolution_refuses_what_the_parser_would_with_the_key():
     """The loads' resolution on the mesh (the backstop for motions made outside the parser,
     such as a layerwise model's symmetry planes) names the config keys too."""
-    from fenics_adaptive.model.loading import Amplitude, PrescribedMotion
     from fenics_adaptive.runner import build_structure
+    from fenics_adaptive.settings.loads import Amplitude, PrescribedMotion
 
     config = parse_config(base())
     pull = PrescribedMotion("x1&top", "z", "displacement", 1.0, Amplitude.constant(1.0), key="k1")

@@ -7,9 +7,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fenics_adaptive.model.contact import Contact, Impactor, penalty_forces
+from fenics_adaptive.model.contact import Contact, penalty_forces
 from fenics_adaptive.runner import build_structure
 from fenics_adaptive.settings.config import parse_config
+from fenics_adaptive.settings.loads import Impactor
+from fenics_adaptive.settings.solver import SolverSettings
 from fenics_adaptive.solver import explicit
 
 DATA = Path(__file__).parent / "data"
@@ -47,7 +49,7 @@ def test_ball_bouncing_on_a_plate_conserves_the_total_energy():
     structure = build_structure(config)
     ball = Impactor("sphere", 2.0, 1.0e-6, (5.0, 5.0, 2.0 + 2.0 + 0.005), (0.0, 0.0, -1000.0))
     contact = Contact.on(ball, structure)
-    settings = explicit.SolverSettings(end_time=8.0e-5, output_interval=1e-6)
+    settings = SolverSettings(end_time=8.0e-5, output_interval=1e-6)
     stats = explicit.run(structure, settings, config.probe, contact=contact)
     rows = stats.history
     initial = 0.5 * ball.mass * 1000.0**2  # mJ

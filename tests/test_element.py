@@ -16,6 +16,7 @@ from fenics_adaptive.materials.laminate import VOIGT_PAIRS, Laminate, Ply
 from fenics_adaptive.model import loading
 from fenics_adaptive.model.forms import build_model
 from fenics_adaptive.model.loading import face_dofs
+from fenics_adaptive.settings.loads import Amplitude, FaceLoad, clamp
 from fenics_adaptive.solver.static import solve_static, stiffness_form
 
 
@@ -64,7 +65,7 @@ def patch_solution(model, gradient):
         sigma[i, j] = sigma[j, i] = sigma_voigt[a]
     area = model.beam.length * model.beam.width
     tractions = [
-        loading.FaceLoad(face, tuple(sign * area * sigma[:, 2]), loading.Amplitude.constant())
+        FaceLoad(face, tuple(sign * area * sigma[:, 2]), Amplitude.constant())
         for face, sign in (("top", 1.0), ("bottom", -1.0))
     ]
     loads = loading.resolve(model, [], tractions)
@@ -146,9 +147,9 @@ def test_total_lumped_mass_equals_density_times_volume():
 
 
 def tip_deflection(model, force=-1.0):
-    motions = loading.clamp("x0")
+    motions = clamp("x0")
     loads = loading.resolve(
-        model, motions, [loading.FaceLoad("x1", (0.0, 0.0, force), loading.Amplitude.constant())]
+        model, motions, [FaceLoad("x1", (0.0, 0.0, force), Amplitude.constant())]
     )
     u = solve_static(model, motions, loads, 0.0)
     return u[face_dofs(model, "x1", "z")].mean()

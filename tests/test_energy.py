@@ -18,7 +18,6 @@ from fenics_adaptive.io.output import read_history
 from fenics_adaptive.materials.cohesive import (
     H_DISSIPATED,
     HISTORY,
-    CohesiveLaw,
     cohesive_element_force_tracked,
 )
 from fenics_adaptive.materials.laminate import PlyMaterial
@@ -26,12 +25,12 @@ from fenics_adaptive.materials.ply_damage import (
     RESIDUAL,
     S_D,
     S_DISSIPATED,
-    PlyFailure,
     material_point_update,
     new_state,
 )
 from fenics_adaptive.runner import execute
 from fenics_adaptive.settings.config import load_config
+from fenics_adaptive.settings.materials import CohesiveLaw, PlyFailure
 
 DATA = Path(__file__).parent / "data"
 

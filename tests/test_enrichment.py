@@ -11,6 +11,7 @@ from fenics_adaptive.adaptivity import enrichment as enr
 from fenics_adaptive.runner import build_structure
 from fenics_adaptive.settings.config import parse_config
 from fenics_adaptive.settings.kinds import InterfaceState
+from fenics_adaptive.settings.solver import SolverSettings
 from fenics_adaptive.solver import explicit
 
 DATA = Path(__file__).parent / "data"
@@ -159,7 +160,7 @@ def test_stable_step_drops_with_thin_subelements_and_cohesive_springs():
     limit, where = structure.stable_time_step()
     assert "cohesive" in where
     config = parse_config(data)
-    settings = explicit.SolverSettings(end_time=2000 * 0.9 * limit, output_interval=1e-6)
+    settings = SolverSettings(end_time=2000 * 0.9 * limit, output_interval=1e-6)
     stats = explicit.run(structure, settings, config.probe)
     assert stats.time_step == pytest.approx(0.9 * limit)
     assert all(np.isfinite(r.kinetic_energy) for r in stats.history)

@@ -15,8 +15,10 @@ from fenics_adaptive.model import loading
 from fenics_adaptive.model.forms import build_model
 from fenics_adaptive.model.structure import Structure
 from fenics_adaptive.runner import RefinementHook, build_structure, probe_displacement
+from fenics_adaptive.settings.adaptivity import IndicatorSettings
 from fenics_adaptive.settings.config import parse_config
 from fenics_adaptive.settings.kinds import InterfaceState
+from fenics_adaptive.settings.loads import Amplitude, FaceLoad, clamp
 from fenics_adaptive.solver import explicit
 from fenics_adaptive.solver.static import solve_static
 
@@ -29,8 +31,8 @@ def loaded_cantilever(angles, force=-1.0):
     laminate = Laminate.from_angles(PLY, angles, 0.25)
     beam = esl_mesh(MPI.COMM_WORLD, 50.0, 2.0, 50, 2, laminate.thickness)
     model = build_model(beam, [laminate])
-    motions = loading.clamp("x0")
-    load = loading.FaceLoad("x1", (0.0, 0.0, force), loading.Amplitude.constant())
+    motions = clamp("x0")
+    load = FaceLoad("x1", (0.0, 0.0, force), Amplitude.constant())
     loads = loading.resolve(model, motions, [load])
     solve_static(model, motions, loads, 0.0)
     return Structure(model, loads), laminate
@@ -203,7 +205,7 @@ def test_ply_failure_indicator_refines_next_to_the_failing_ply():
     n = structure.base.n_owned_cells
 
     def asked(fraction):
-        settings = ind.IndicatorSettings(interval=1.0, ply_failure=fraction)
+        settings = IndicatorSettings(interval=1.0, ply_failure=fraction)
         return ind.indicator_requests(structure, settings, (50.0, 80.0))
 
     # ply 1 -> the nearest refinable interface above it: 1, in every cell
@@ -224,7 +226,7 @@ def test_matrix_damage_indicator_delaminates_next_to_a_cracked_ply():
 
     structure.damage_state[3, 0, S_D] = 0.2  # cell 3: bottom 90-degree ply cracking
     structure.damage_state[7, 2, S_D] = 0.5  # cell 7: a ply away from interface 1
-    settings = ind.IndicatorSettings(interval=1.0, matrix_damage=True)
+    settings = IndicatorSettings(interval=1.0, matrix_damage=True)
     requests = ind.indicator_requests(structure, settings, (50.0, 80.0))
     assert requests == [(3, 1, InterfaceState.STRONG)]
     assert structure.refine(requests)

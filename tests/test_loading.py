@@ -5,7 +5,7 @@ import itertools
 import numpy as np
 import pytest
 
-from fenics_adaptive.model.loading import Amplitude, PrescribedMotion
+from fenics_adaptive.settings.loads import Amplitude, PrescribedMotion
 
 CURVES = [
     Amplitude.ramp(2e-5),

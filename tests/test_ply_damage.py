@@ -22,12 +22,13 @@ from fenics_adaptive.element import subelement as se
 from fenics_adaptive.errors import InputError
 from fenics_adaptive.materials import ply_damage as pd
 from fenics_adaptive.materials.laminate import Laminate, Ply, PlyMaterial
+from fenics_adaptive.settings import materials as sm
 
 MATERIAL = PlyMaterial("proto", E1=1e5, E2=1e4, G12=5e3, G23=4e3, nu12=0.25, nu23=0.25, rho=1.6e-9)
 GLASS = PlyMaterial("glass", E1=45e3, E2=12e3, G12=4.5e3, nu12=0.28, nu23=0.4, rho=2e-9, G23=3.5e3)
 FAILURE_TABLE = {"XT": 2000.0, "XC": 1200.0, "YT": 50.0, "YC": 200.0, "S12": 80.0}
-FAILURE = pd.PlyFailure.from_mapping("proto", {**FAILURE_TABLE, "G2c": 0.2, "G6c": 1.0})
-GLASS_FAILURE = pd.PlyFailure(
+FAILURE = sm.PlyFailure.from_mapping("proto", {**FAILURE_TABLE, "G2c": 0.2, "G6c": 1.0})
+GLASS_FAILURE = sm.PlyFailure(
     "glass", XT=1100.0, XC=700.0, YT=40.0, YC=150.0, S12=70.0, S23=50.0, G2c=0.3, G6c=1.2
 )
 FAILURES = {"proto": FAILURE, "glass": GLASS_FAILURE}
@@ -39,12 +40,12 @@ NORMAL = (0, 1, 2)
 
 def test_failure_parameters_are_validated():
     table = {**FAILURE_TABLE, "G2c": 0.2, "G6c": 1.0}
-    failure = pd.PlyFailure.from_mapping("proto", table)
+    failure = sm.PlyFailure.from_mapping("proto", table)
     params = failure.as_array()
-    assert params[pd.F_XT] == 2000.0 and params[pd.F_YC] == 200.0 and params[pd.F_G6C] == 1.0
+    assert params[sm.F_XT] == 2000.0 and params[sm.F_YC] == 200.0 and params[sm.F_G6C] == 1.0
     # default transverse shear strength: YC / (2 tan 53 deg)
-    assert params[pd.F_S23] == pytest.approx(200.0 / (2.0 * math.tan(math.radians(53.0))))
-    assert pd.PlyFailure.from_mapping("proto", {**table, "S23": 60.0}).as_array()[pd.F_S23] == 60
+    assert params[sm.F_S23] == pytest.approx(200.0 / (2.0 * math.tan(math.radians(53.0))))
+    assert sm.PlyFailure.from_mapping("proto", {**table, "S23": 60.0}).as_array()[sm.F_S23] == 60
     cases = [
         ({**table, "Xt": 1.0}, "materials.proto.failure.Xt: unknown key"),
         ({k: v for k, v in table.items() if k != "G6c"}, "materials.proto.failure.G6c: missing"),
@@ -56,7 +57,7 @@ def test_failure_parameters_are_validated():
     ]
     for values, message in cases:
         with pytest.raises(InputError, match=message):
-            pd.PlyFailure.from_mapping("proto", values)
+            sm.PlyFailure.from_mapping("proto", values)
     with pytest.raises(InputError, match=r"materials\.glass\.failure: missing"):
         pd.pack_ply_damage([Ply(GLASS, 0.0, 0.2)], {"proto": FAILURE})
 
@@ -70,7 +71,7 @@ def test_band_width_limit_is_the_snap_back_limit():
     with pytest.raises(InputError, match=r"materials.proto.failure.G2c: .* 2 E2 G2c / YT\^2"):
         pd.check_band_width(MATERIAL, FAILURE, 1.01 * mode_i)
     with pytest.raises(InputError, match=r"materials.proto.failure.G6c: .*snap-back"):
-        pd.check_band_width(MATERIAL, pd.PlyFailure(**{**FAILURE.__dict__, "G2c": 1.0}), shear)
+        pd.check_band_width(MATERIAL, sm.PlyFailure(**{**FAILURE.__dict__, "G2c": 1.0}), shear)
     # a cell across the crack: a |sin t| + b |cos t| for an a x b rectangle
     X = se.CORNERS * [2.0, 0.5, 0.3]
     assert pd.crack_band_width(X, 0.0) == pytest.approx(0.5)
@@ -81,7 +82,7 @@ def test_band_width_limit_is_the_snap_back_limit():
 # --- failure indices ----------------------------------------------------------------------------
 
 
-def hashin_F(f: pd.PlyFailure, s: np.ndarray) -> tuple[float, float, float, float]:
+def hashin_F(f: sm.PlyFailure, s: np.ndarray) -> tuple[float, float, float, float]:
     """Hashin's (1980) four criteria as written in the paper (value 1 at failure)."""
     s11, s22, s33, s23, s13, s12 = s
     S23 = f.transverse_shear_strength

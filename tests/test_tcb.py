@@ -18,13 +18,15 @@ from fenics_adaptive.meshes import esl_mesh
 from mpi4py import MPI
 
 from fenics_adaptive.io.output import read_history
-from fenics_adaptive.materials.cohesive import CohesiveLaw
 from fenics_adaptive.model.forms import build_model
 from fenics_adaptive.model.loading import resolve
-from fenics_adaptive.model.structure import Interfaces, Structure, cells_in_x_range
+from fenics_adaptive.model.structure import Structure, cells_in_x_range
 from fenics_adaptive.runner import build_structure, run_config
+from fenics_adaptive.settings.adaptivity import Interfaces
 from fenics_adaptive.settings.config import parse_config
 from fenics_adaptive.settings.kinds import InterfaceState
+from fenics_adaptive.settings.materials import CohesiveLaw
+from fenics_adaptive.settings.solver import Probe, SolverSettings
 from fenics_adaptive.solver import explicit
 
 DATA = Path(__file__).parent / "data"
@@ -125,11 +127,11 @@ def free_beam_refined_halfway(step_fraction: float):
     )
     probe.refine([(c, i, InterfaceState.STRONG) for c in range(20) for i in (2, 6)])
     dt = step_fraction * probe.stable_time_step()[0]
-    settings = explicit.SolverSettings(end_time=6.0e-5, output_interval=1e-6, time_step=dt)
+    settings = SolverSettings(end_time=6.0e-5, output_interval=1e-6, time_step=dt)
     stats = explicit.run(
         structure,
         settings,
-        explicit.Probe("x1", "x1", "z"),
+        Probe("x1", "x1", "z"),
         on_step=refine_halfway,
         initial_velocity=velocity.ravel(),
     )

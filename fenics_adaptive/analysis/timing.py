@@ -14,6 +14,7 @@ import time
 from collections.abc import Callable, Sequence
 
 from fenics_adaptive.model.structure import Structure
+from fenics_adaptive.settings.solver import Probe, SolverSettings
 from fenics_adaptive.solver import explicit
 
 Statistic = Callable[[Sequence[float]], float]
@@ -40,7 +41,7 @@ def time_call(
 
 def time_per_step(
     structure: Structure,
-    probe: explicit.Probe,
+    probe: Probe,
     steps: int = 200,
     repeats: int = 3,
     statistic: Statistic = min,
@@ -50,11 +51,11 @@ def time_per_step(
     timed by the solver itself (its clock starts after set-up) and divided by its steps; a
     short run first compiles everything. The structure's displacement is overwritten."""
     dt, _, _ = explicit.choose_time_step(
-        structure, explicit.SolverSettings(end_time=1.0, output_interval=1.0)
+        structure, SolverSettings(end_time=1.0, output_interval=1.0)
     )
-    warm = explicit.SolverSettings(end_time=5 * dt, output_interval=5 * dt)
+    warm = SolverSettings(end_time=5 * dt, output_interval=5 * dt)
     explicit.run(structure, warm, probe)
-    settings = explicit.SolverSettings(end_time=steps * dt, output_interval=steps * dt)
+    settings = SolverSettings(end_time=steps * dt, output_interval=steps * dt)
     per_step = []
     for _ in range(repeats):
         stats = explicit.run(structure, settings, probe)
