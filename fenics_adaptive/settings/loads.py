@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 
 from fenics_adaptive.settings.kinds import ImpactorShape, MotionKind
 
+# a displacement component as the config names it -> its index among a node's three DOFs
 COMPONENTS = {"x": 0, "y": 1, "z": 2}
 
 
