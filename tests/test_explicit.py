@@ -16,6 +16,7 @@ from fenics_adaptive.errors import InputError
 from fenics_adaptive.model import loading
 from fenics_adaptive.model.loading import face_dofs
 from fenics_adaptive.model.structure import Structure
+from fenics_adaptive.settings.loads import Amplitude, FaceLoad, PrescribedMotion, clamp
 from fenics_adaptive.solver import explicit
 from fenics_adaptive.solver.static import solve_static
 
@@ -45,8 +46,8 @@ def test_free_vibration_period_and_energy():
     """Released from its static deflection under a tip load, the [0]8 cantilever swings with the
     beam-theory period (within 3 %) and keeps its energy (drift below 0.5 % over 20 periods)."""
     model = cantilever()
-    motions = loading.clamp("x0")
-    tip_load = loading.FaceLoad("x1", (0.0, 0.0, -1.0), loading.Amplitude.constant())
+    motions = clamp("x0")
+    tip_load = FaceLoad("x1", (0.0, 0.0, -1.0), Amplitude.constant())
     static = loading.resolve(model, motions, [tip_load])
     u0 = solve_static(model, motions, static, 0.0)
     f_ext = np.zeros_like(u0)
@@ -97,7 +98,7 @@ def test_stable_time_step_estimate_is_safe_and_sharp():
     """L_e / c is below the exact limit 2 / omega_max of the discrete system, but not by much;
     the scheme is stable just below 2 / omega_max and blows up just above."""
     model = cantilever(CROSS_PLY, nx=10)
-    motions = loading.clamp("x0")
+    motions = clamp("x0")
     loads = loading.resolve(model, motions, [])
     critical = 2.0 / highest_frequency(model, loads.constrained)
     estimate, _ = Structure(model, loads).stable_time_step()
@@ -146,10 +147,8 @@ def test_quasi_static_explicit_matches_static_solution():
     paths: explicit dynamics vs a direct linear solve)."""
     model = cantilever(CROSS_PLY, nx=20)
     period = first_bending_period(model)
-    pull = loading.PrescribedMotion(
-        "x1", "z", "displacement", -0.4, loading.Amplitude.ramp(3 * period)
-    )
-    motions = [*loading.clamp("x0"), pull]
+    pull = PrescribedMotion("x1", "z", "displacement", -0.4, Amplitude.ramp(3 * period))
+    motions = [*clamp("x0"), pull]
     loads = loading.resolve(model, motions, [])
     settings = explicit.SolverSettings(
         end_time=5 * period, output_interval=period / 10, mass_damping=2.0 / period
@@ -172,7 +171,7 @@ def test_quasi_static_explicit_matches_static_solution():
 def test_forcing_one_and_a_half_times_the_stable_step_is_refused():
     model = cantilever(CROSS_PLY, nx=10)
     settings = explicit.SolverSettings(end_time=1e-4, output_interval=1e-5)
-    structure = Structure(model, loading.resolve(model, loading.clamp("x0"), []))
+    structure = Structure(model, loading.resolve(model, clamp("x0"), []))
     dt, stable, _ = explicit.choose_time_step(structure, settings)
     assert dt == stable
     forced = explicit.SolverSettings(end_time=1e-4, output_interval=1e-5, time_step=1.5 * stable)

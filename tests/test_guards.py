@@ -22,6 +22,7 @@ from fenics_adaptive.runner import build_structure
 from fenics_adaptive.settings.adaptivity import Interfaces
 from fenics_adaptive.settings.config import load_config
 from fenics_adaptive.settings.kinds import InterfaceState
+from fenics_adaptive.settings.loads import Amplitude, PrescribedMotion, clamp
 from fenics_adaptive.solver import explicit, guards
 
 DATA = Path(__file__).parent / "data"
@@ -143,12 +144,12 @@ def test_the_check_names_the_cell_on_every_kind_of_element():
     comm = MPI.COMM_WORLD
     # ESL
     model = esl_model([0, 90, 90, 0], 10.0, 1.0, 5, 1)
-    esl = Structure(model, loading.resolve(model, loading.clamp("x0"), []))
+    esl = Structure(model, loading.resolve(model, clamp("x0"), []))
     # adaptive, interface 2 strong from the start: two subelements per cell + cohesive
     model = esl_model([0, 90, 90, 0], 10.0, 1.0, 5, 1)
     adaptive = Structure(
         model,
-        loading.resolve(model, loading.clamp("x0"), []),
+        loading.resolve(model, clamp("x0"), []),
         interfaces=Interfaces(refine=(2,), delaminate=(2,)),
     )
     adaptive.refine([(c, 2, InterfaceState.STRONG) for c in range(model.n_owned_cells)])
@@ -252,8 +253,8 @@ def test_energy_limit_from_the_settings_stops_a_run():
     """The same run completes with the default limit and fails with a limit below its own
     worst share; the message names the time, the error and the largest energy."""
     model = esl_model([0, 90, 90, 0], 20.0, 1.0, 8, 1)
-    tip = loading.PrescribedMotion("x1", "z", "displacement", 0.05, loading.Amplitude.ramp(1e-4))
-    structure = Structure(model, loading.resolve(model, [*loading.clamp("x0"), tip], []))
+    tip = PrescribedMotion("x1", "z", "displacement", 0.05, Amplitude.ramp(1e-4))
+    structure = Structure(model, loading.resolve(model, [*clamp("x0"), tip], []))
     probe = explicit.Probe("x1", "x1", "z")
     settings = explicit.SolverSettings(end_time=1.5e-4, output_interval=5e-6)
     stats = explicit.run(structure, settings, probe)
@@ -276,7 +277,7 @@ def test_energy_limit_from_the_settings_stops_a_run():
     strict = explicit.SolverSettings(
         end_time=1.5e-4, output_interval=5e-6, energy_error_limit=worst / 3
     )
-    structure = Structure(model, loading.resolve(model, [*loading.clamp("x0"), tip], []))
+    structure = Structure(model, loading.resolve(model, [*clamp("x0"), tip], []))
     with pytest.raises(explicit.EnergyBalanceError, match=r"t = .* s \(step \d+\): energy balance"):
         explicit.run(structure, strict, probe)
 
@@ -317,8 +318,8 @@ def test_an_unstable_step_is_stopped_by_the_energy_guard_before_it_overflows():
     from test_explicit import highest_frequency
 
     model = esl_model([0, 90, 90, 0], 20.0, 1.0, 8, 1)
-    tip = loading.PrescribedMotion("x1", "z", "displacement", 0.05, loading.Amplitude.ramp(1e-4))
-    loads = loading.resolve(model, [*loading.clamp("x0"), tip], [])
+    tip = PrescribedMotion("x1", "z", "displacement", 0.05, Amplitude.ramp(1e-4))
+    loads = loading.resolve(model, [*clamp("x0"), tip], [])
     dt = 1.01 * 2.0 / highest_frequency(model, loads.constrained)
     settings = explicit.SolverSettings(end_time=2000 * dt, output_interval=dt)
     with pytest.raises(explicit.EnergyBalanceError) as failure:
