@@ -17,6 +17,9 @@ from pathlib import Path
 import pytest
 from helpers import FIGURES
 
+# The scripts run once for the module (a fixture), together about a minute and a half.
+pytestmark = pytest.mark.slow
+
 ROOT = Path(__file__).parents[1]
 TUTORIAL = ROOT / "docs" / "afem"
 INDEX = TUTORIAL / "README.md"

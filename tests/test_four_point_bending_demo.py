@@ -13,6 +13,9 @@ from fenics_adaptive.runner import RefinementHook, build_structure
 from fenics_adaptive.settings.config import parse_config
 from fenics_adaptive.solver import explicit
 
+# Each test runs a shortened demo to its end (seconds to minutes).
+pytestmark = pytest.mark.slow
+
 ROOT = Path(__file__).parents[1]
 
 

@@ -15,6 +15,9 @@ from fenics_adaptive.analysis.studies import plate_impact_variant
 from fenics_adaptive.runner import execute
 from fenics_adaptive.settings.config import parse_config
 
+# Each test runs a shortened demo to its end (seconds to minutes).
+pytestmark = pytest.mark.slow
+
 ROOT = Path(__file__).parents[1]
 
 
