@@ -34,7 +34,6 @@ Units: seconds, cells, integration points.
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import json
 import os
 import platform
@@ -53,6 +52,7 @@ from mpi4py import MPI
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from fenics_adaptive.analysis.studies import plate_impact_variant  # noqa: E402
 from fenics_adaptive.analysis.timing import time_call, time_per_step  # noqa: E402
 from fenics_adaptive.model.assembly import SubelementSet, add_subelement_forces  # noqa: E402
 from fenics_adaptive.runner import build_structure, execute  # noqa: E402
@@ -261,12 +261,8 @@ def mpi_worker(n_cells: int, steps: int, repeat: int) -> None:
 def plate_config(name: str, end_time: float | None = None) -> dict:
     """The impact plate of ``demos/plate_impact.toml`` as the demo runs it (esl, adaptive,
     layerwise)."""
-    spec = importlib.util.spec_from_file_location(
-        "plate_impact", ROOT / "demos" / "plate_impact.py"
-    )
-    demo = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(demo)
-    data = demo.variant(tomllib.loads((ROOT / "demos" / "plate_impact.toml").read_text()), name)
+    base = tomllib.loads((ROOT / "demos" / "plate_impact.toml").read_text())
+    data = plate_impact_variant(base, name)
     if end_time is not None:
         data["solver"]["end_time"] = end_time
     return data

@@ -30,7 +30,6 @@ loading-roller displacement, like Figure 8) and ``summary.json``. Units: N, mm, 
 """
 
 import argparse
-import copy
 import json
 import tomllib
 from pathlib import Path
@@ -41,6 +40,7 @@ import numpy as np
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 
+from fenics_adaptive.analysis.studies import FOUR_POINT_BENDING_RUNS, four_point_bending_variant
 from fenics_adaptive.errors import script_main
 from fenics_adaptive.io.output import read_history
 from fenics_adaptive.materials.ply_damage import S_D
@@ -50,20 +50,7 @@ from fenics_adaptive.settings.kinds import InterfaceState
 from fenics_adaptive.solver.explicit import Diverged
 
 HERE = Path(__file__).parent
-RUNS = ("reference", "adaptive_unstabilised", "adaptive")
-
-
-def variant(base: dict, name: str) -> dict:
-    data = copy.deepcopy(base)
-    if name == "reference":
-        data["model"]["kind"] = "layerwise"
-        data["mesh"]["layers"] = [4, 12]
-        data["interfaces"] = {"delaminate": [4]}
-        data.pop("indicators")
-        data.pop("stabilisation")
-    elif name == "adaptive_unstabilised":
-        data.pop("stabilisation")
-    return data
+RUNS = FOUR_POINT_BENDING_RUNS
 
 
 def facts(structure, summary: dict, history: dict) -> dict:
@@ -153,7 +140,9 @@ def main() -> None:
     results, histories = {}, {}
     for name in RUNS:
         print(f"--- {name}")
-        config = parse_config(variant(base, name), source=f"four_point_bending.toml [{name}]")
+        config = parse_config(
+            four_point_bending_variant(base, name), source=f"four_point_bending.toml [{name}]"
+        )
         try:
             summary, structure = execute(config, out / name, overwrite=args.overwrite)
         except Diverged as error:  # the run's own summary.json says so too

@@ -24,7 +24,6 @@ layerwise reference). Units: N, mm, s, tonne (energy mJ).
 """
 
 import argparse
-import copy
 import json
 import tomllib
 from pathlib import Path
@@ -33,10 +32,10 @@ import matplotlib
 import numpy as np
 
 matplotlib.use("Agg")
-import itertools
 
 import matplotlib.pyplot as plt
 
+from fenics_adaptive.analysis.studies import PLATE_IMPACT_RUNS, plate_impact_variant
 from fenics_adaptive.errors import script_main
 from fenics_adaptive.io.output import read_history
 from fenics_adaptive.runner import execute
@@ -44,25 +43,12 @@ from fenics_adaptive.settings.config import parse_config
 from fenics_adaptive.settings.kinds import InterfaceState
 
 HERE = Path(__file__).parent
-RUNS = ("esl", "adaptive", "layerwise")
+RUNS = PLATE_IMPACT_RUNS
 STYLES = {
     "esl": dict(color="tab:gray", lw=1.2, ls="--"),
     "adaptive": dict(color="tab:blue", lw=1.5),
     "layerwise": dict(color="k", lw=2.0, alpha=0.7),
 }
-
-
-def variant(base: dict, name: str) -> dict:
-    data = copy.deepcopy(base)
-    if name in ("esl", "layerwise"):
-        data.pop("indicators")
-        data.pop("stabilisation")
-    if name == "layerwise":
-        data["model"]["kind"] = "layerwise"
-        plies = len(data["laminate"]["angles"])
-        bounds = [0, *data["interfaces"]["delaminate"], plies]
-        data["mesh"]["layers"] = [b - a for a, b in itertools.pairwise(bounds)]
-    return data
 
 
 def interface_damage(structure) -> dict[int, tuple[np.ndarray, np.ndarray]]:
@@ -185,7 +171,9 @@ def main() -> None:
     results, histories, maps, refined = {}, {}, {}, {}
     for name in args.runs.split(","):
         print(f"--- {name}")
-        config = parse_config(variant(base, name), source=f"plate_impact.toml [{name}]")
+        config = parse_config(
+            plate_impact_variant(base, name), source=f"plate_impact.toml [{name}]"
+        )
         summary, structure = execute(config, out / name, overwrite=args.overwrite)
         histories[name] = read_history(out / name / "history.csv")
         results[name] = facts(structure, summary, histories[name])

@@ -27,7 +27,6 @@ Writes ``results/tcb/<run>/`` (history.csv, summary.json, plots, ParaView fields
 """
 
 import argparse
-import copy
 import json
 import tomllib
 from pathlib import Path
@@ -40,6 +39,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 from matplotlib.collections import PolyCollection
 
+from fenics_adaptive.analysis.lefm import lefm_comparison, tcb_lefm_force
+from fenics_adaptive.analysis.studies import TCB_LATE_OPENING, TCB_RUNS, tcb_quick, tcb_variant
 from fenics_adaptive.analysis.timing import time_call
 from fenics_adaptive.errors import script_main
 from fenics_adaptive.io.output import read_history
@@ -48,58 +49,7 @@ from fenics_adaptive.settings.config import parse_config
 from fenics_adaptive.settings.kinds import InterfaceState
 
 HERE = Path(__file__).parent
-RUNS = ("reference", "refined_from_start", "adaptive", "late", "late_stabilised")
-LATE = 0.005  # mm, the paper's late refinement
-
-
-def variant(base: dict, name: str) -> dict:
-    """The config of one run, derived from demos/tcb.toml (the adaptive run)."""
-    data = copy.deepcopy(base)
-    if name == "reference":
-        data["model"]["kind"] = "layerwise"
-        data["mesh"]["layers"] = [2, 2, 2, 2]
-        data["interfaces"] = {"delaminate": [2, 6], "symmetry": [4]}
-        data.pop("refinement")
-    elif name == "refined_from_start":
-        data["interfaces"]["initial"] = "strong"
-        data.pop("refinement")
-    elif name in ("late", "late_stabilised"):
-        data["interfaces"]["initial"] = "weak"
-        data["refinement"] = [
-            {"displacement": LATE, "interfaces": [2, 6], "kind": "strong"},
-        ]
-        if name == "late_stabilised":
-            data["stabilisation"] = {"release_window": 1.0e-5}  # 0.01 ms, as in the paper
-    return data
-
-
-def quick(data: dict) -> dict:
-    """A 20 mm beam opened by 0.4 mm: the same physics in seconds (used by the tests)."""
-    data = copy.deepcopy(data)
-    data["mesh"].update(length=20.0, nx=40)
-    data["solver"]["end_time"] = 1.0e-3
-    for entry in data["prescribed"]:
-        entry["velocity"] = np.sign(entry["velocity"]) * 420.0
-    data["output"]["interval"] = 5.0e-6
-    data["output"].pop("fields_interval", None)
-    return data
-
-
-def lefm_force(config, delta: np.ndarray) -> np.ndarray:
-    """Propagation branch of an arm (plies above interface 6) opening against the rest."""
-    plies = config.laminate.plies
-    arm = sum(p.thickness for p in plies[6:])
-    width = config.mesh.width
-    EI = plies[0].material.E1 * width * arm**3 / 12.0
-    K = np.sqrt(2.0 * width * EI * config.cohesive.GIc)
-    return K**1.5 / np.sqrt(3.0 * EI * np.maximum(delta, 1e-12))
-
-
-def root_rotation_correction(config) -> float:
-    """chi of corrected beam theory (Hashemi 1990); the arm's effective length is a + chi h."""
-    m = config.laminate.plies[0].material
-    gamma = 1.18 * np.sqrt(m.E1 * m.E2) / m.G12
-    return float(np.sqrt(m.E1 / (11.0 * m.G12) * (3.0 - 2.0 * (gamma / (1.0 + gamma)) ** 2)))
+RUNS = TCB_RUNS
 
 
 def run_all(base: dict, out: Path, names, overwrite: bool = False) -> tuple[dict, dict]:
@@ -107,7 +57,7 @@ def run_all(base: dict, out: Path, names, overwrite: bool = False) -> tuple[dict
     ``overwrite``: as the command line's ``--overwrite`` for each run's folder."""
     results, structures = {}, {}
     for name in names:
-        config = parse_config(variant(base, name), source=f"demos/tcb.toml [{name}]")
+        config = parse_config(tcb_variant(base, name), source=f"demos/tcb.toml [{name}]")
         print(f"--- {name}")
         summary, structures[name] = execute(config, out / name, overwrite=overwrite)
         results[name] = (config, summary, read_history(out / name / "history.csv"))
@@ -139,33 +89,12 @@ def compare(results: dict) -> dict:
     return out
 
 
-def lefm_comparison(config, history: dict) -> dict:
-    """Simulated force on the propagation branch against LEFM, where the crack is longer than
-    5 arm thicknesses."""
-    arm = sum(p.thickness for p in config.laminate.plies[6:])
-    delta = np.array(history["displacement"])
-    force = np.array(history["reaction_force"])
-    length = np.array(history["delaminated_area"]) / (2 * config.mesh.width)
-    on_branch = length > 5 * arm
-    ratio = force[on_branch] / lefm_force(config, delta[on_branch])
-    return {
-        "points": int(on_branch.sum()),
-        "crack_length_range_mm": [float(length[on_branch].min()), float(length.max())]
-        if on_branch.any()
-        else [],
-        "force_over_lefm_mean": float(ratio.mean()) if on_branch.any() else None,
-        "force_over_lefm_min": float(ratio.min()) if on_branch.any() else None,
-        "force_over_lefm_max": float(ratio.max()) if on_branch.any() else None,
-        "root_rotation_chi": root_rotation_correction(config),
-    }
-
-
 def cost_per_cell(base: dict, repeats: int = 20) -> dict:
     """Median time of one internal-force evaluation per cell: unrefined (UFL), weakly refined
     at 2, 4, 6 and strongly refined at 2, 6 (numba subelements and cohesive elements)."""
     out = {}
     for label, initial in (("unrefined", "none"), ("weak", "weak"), ("strong", "strong")):
-        data = variant(base, "refined_from_start")
+        data = tcb_variant(base, "refined_from_start")
         data["interfaces"]["initial"] = initial
         structure = build_structure(parse_config(data))
         rng = np.random.default_rng(0)
@@ -193,13 +122,13 @@ def plot(results: dict, out: Path) -> None:
         for name, (_, _, h) in results.items():
             ax.plot(h["displacement"], h["reaction_force"], label=name, **styles[name])
         delta = np.linspace(0.02, max(results["reference"][2]["displacement"]), 200)
-        ax.plot(delta, lefm_force(config, delta), ":", color="gray", label="LEFM branch")
+        ax.plot(delta, tcb_lefm_force(config, delta), ":", color="gray", label="LEFM branch")
         ax.set_xlabel("arm opening delta (mm)")
         ax.set_ylabel("reaction force on the top arm (N)")
         ax.grid(alpha=0.3)
         if x_max:
             ax.set_xlim(0, x_max)
-            for value in (0.0023, LATE):
+            for value in (0.0023, TCB_LATE_OPENING):
                 ax.axvline(value, color="gray", lw=0.8)
             ax.set_title("zoom: refinement at 0.0023 and 0.005 mm")
         else:
@@ -258,7 +187,7 @@ def main() -> None:
     args = parser.parse_args()
     base = tomllib.loads(Path(args.config).read_text())
     if args.quick:
-        base = quick(base)
+        base = tcb_quick(base)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
 

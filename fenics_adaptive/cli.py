@@ -24,6 +24,7 @@ import traceback
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from fenics_adaptive import __version__
 from fenics_adaptive.errors import InputError
 
 if TYPE_CHECKING:  # mpi4py is imported when a command runs, so that --help stays fast
@@ -47,6 +48,7 @@ def _command(argv: list[str] | None, interrupt: _StartupInterrupt) -> int:
         description="Explicit dynamics of laminated beams and plates with the adaptive "
         "thick-shell element (units: N, mm, s, tonne).",
     )
+    parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     commands = parser.add_subparsers(dest="command", required=True)
     run = commands.add_parser("run", help="run a config and write its results")
     run.add_argument("config", help="TOML run configuration")

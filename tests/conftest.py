@@ -1,31 +1,26 @@
-"""Shared test helpers. mpi4py is imported before anything loads DOLFINx (the wheel needs it).
+"""Shared fixtures. mpi4py is imported before anything loads DOLFINx (the wheel needs it).
+The helpers the tests share are in ``helpers.py``.
 
 Units: N, mm, s, tonne.
 """
 
 import pytest
-from fenics_adaptive.meshes import esl_mesh
-from mpi4py import MPI
+from helpers import prototype_material
+from mpi4py import MPI  # noqa: F401
 
-from fenics_adaptive.materials.laminate import Laminate, PlyMaterial
-from fenics_adaptive.model.forms import LayeredModel, build_model
+from fenics_adaptive.materials.laminate import PlyMaterial
 
-CROSS_PLY = [0, 90, 0, 90, 90, 0, 90, 0]
+# Every MPI run and every documentation build takes more than a few seconds: such tests are slow
+# whether or not they say so (python -m pytest tests -m "not slow" leaves them out).
+ALWAYS_SLOW = ("mpi", "docs")
 
 
-def prototype_material(name: str = "prototype", rho: float = 1.6e-9) -> PlyMaterial:
-    """The paper's TCB ply (Table 1 as corrected in the issue)."""
-    return PlyMaterial(name, E1=1e5, E2=1e4, G12=5e3, G23=4e3, nu12=0.25, nu23=0.25, rho=rho)
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    for item in items:
+        if any(item.get_closest_marker(name) for name in ALWAYS_SLOW):
+            item.add_marker(pytest.mark.slow)
 
 
 @pytest.fixture
 def material() -> PlyMaterial:
     return prototype_material()
-
-
-def esl_model(
-    angles, length: float, width: float, nx: int, ny: int, ply_thickness: float = 0.25, **kw
-) -> LayeredModel:
-    laminate = Laminate.from_angles(prototype_material(), angles, ply_thickness)
-    beam = esl_mesh(MPI.COMM_WORLD, length, width, nx, ny, laminate.thickness)
-    return build_model(beam, [laminate], **kw)

@@ -398,19 +398,18 @@ def test_non_utf8_and_bad_toml_name_the_file_once(tmp_path):
 def every_config() -> list[tuple[str, dict]]:
     """The demos' and tests' configs (and the demos' variants), plus the keys none of them
     uses, each in a config of its own."""
-    import importlib.util
+    from fenics_adaptive.analysis.studies import STUDIES
 
     root = Path(__file__).parent.parent
     configs = [
         (p.name, tomllib.loads(p.read_text()))
         for p in sorted((root / "tests" / "data").glob("*.toml"))
     ]
-    for name in ("four_point_bending", "plate_impact", "tcb"):
-        spec = importlib.util.spec_from_file_location(name, root / "demos" / f"{name}.py")
-        demo = importlib.util.module_from_spec(spec)
-        spec.loader.exec_module(demo)
+    for name, study in STUDIES.items():
         text = (root / "demos" / f"{name}.toml").read_text()
-        configs += [(f"{name}:{run}", demo.variant(tomllib.loads(text), run)) for run in demo.RUNS]
+        configs += [
+            (f"{name}:{run}", study.make_variant(tomllib.loads(text), run)) for run in study.runs
+        ]
     plies = base()
     for key in ("material", "angles", "ply_thickness"):
         del plies["laminate"][key]

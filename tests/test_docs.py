@@ -15,6 +15,10 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import pytest
+from helpers import FIGURES
+
+# The scripts run once for the module (a fixture), together about a minute and a half.
+pytestmark = pytest.mark.slow
 
 ROOT = Path(__file__).parents[1]
 TUTORIAL = ROOT / "docs" / "afem"
@@ -22,15 +26,6 @@ INDEX = TUTORIAL / "README.md"
 SCRIPTS = sorted(TUTORIAL.glob("[0-9][0-9]_*.py"))  # afem_figures.py is their drawing helper
 TIMEOUT = 120  # s per script; they need a few seconds with warm compiler caches
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
-# The figures each script draws (docs/afem/README.md lists them).
-FIGURES = {
-    "01_extra_nodes": ["01_strip_side_view"],
-    "02_figure2_maps": ["02_figure2_subelements", "02_projection_matrices"],
-    "03_cell_force": ["03_cell_force_arrows"],
-    "04_weak_to_strong": ["04_column_fields_and_force_split"],
-    "05_stabilisation": ["05_force_jump_and_remedies"],
-    "06_border": ["06_border_constraint"],
-}
 
 
 def run_script(script: Path, figures: Path) -> subprocess.CompletedProcess:

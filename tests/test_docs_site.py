@@ -20,7 +20,7 @@ from urllib.parse import unquote, urlsplit
 
 import numpy as np
 import pytest
-from test_docs import FIGURES
+from helpers import FIGURES
 
 ROOT = Path(__file__).parents[1]
 DOCS = ROOT / "docs"

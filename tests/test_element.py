@@ -6,10 +6,10 @@ Units: N, mm, s, tonne.
 
 import numpy as np
 import pytest
-from conftest import CROSS_PLY, esl_model, prototype_material
 from dolfinx import fem
 from dolfinx.fem import petsc as fem_petsc
 from fenics_adaptive.meshes import esl_mesh
+from helpers import CROSS_PLY, esl_model, prototype_material
 from petsc4py import PETSc
 
 from fenics_adaptive.materials.laminate import VOIGT_PAIRS, Laminate, Ply

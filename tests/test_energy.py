@@ -10,8 +10,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import toml_text
 from mpi4py import MPI
-from test_guards import toml_text
 
 from fenics_adaptive.io import checkpoint
 from fenics_adaptive.io.output import read_history

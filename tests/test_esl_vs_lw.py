@@ -32,7 +32,10 @@ demo = importlib.util.module_from_spec(spec)
 spec.loader.exec_module(demo)
 
 LAYUPS = demo.load_settings(ROOT / "demos" / "esl_vs_lw.toml")["layups"]  # all three
-pytestmark = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="the comparison is serial")
+pytestmark = [
+    pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="the comparison is serial"),
+    pytest.mark.slow,  # static solves of four models of three layups, and an explicit run
+]
 
 
 def short_settings() -> dict:

@@ -9,8 +9,8 @@ import re
 
 import numpy as np
 import pytest
-from conftest import CROSS_PLY, esl_model
 from dolfinx import fem
+from helpers import CROSS_PLY, esl_model, highest_frequency
 
 from fenics_adaptive.errors import InputError
 from fenics_adaptive.model import loading
@@ -71,27 +71,6 @@ def test_free_vibration_period_and_energy():
     assert np.abs(total).max() < 0.005 * strain_energy
     kinetic = np.array([r.kinetic_energy for r in stats.history])
     assert kinetic.max() == pytest.approx(strain_energy, rel=0.05)  # it really swings
-
-
-def highest_frequency(model, fixed: np.ndarray, iterations: int = 400) -> float:
-    """omega_max^2 = largest eigenvalue of M^-1 K by power iteration (K u = f_int(u))."""
-    n = model.n_owned_dofs
-    rng = np.random.default_rng(0)
-    x = rng.standard_normal(len(model.u.x.array))
-    f = fem.Function(model.V).x
-    m = model.mass[:n]
-    lam = 0.0
-    for _ in range(iterations):
-        x[fixed] = 0.0
-        x /= np.sqrt(np.dot(m * x[:n], x[:n]))
-        model.u.x.array[:] = x
-        model.u.x.scatter_forward()
-        model.internal_force(f)
-        y = f.array[:n] / m
-        y[fixed] = 0.0
-        lam = np.dot(m * x[:n], y)  # Rayleigh quotient with the M-inner product
-        x[:n] = y
-    return math.sqrt(lam)
 
 
 def test_stable_time_step_estimate_is_safe_and_sharp():

@@ -25,8 +25,7 @@ import pytest
 import ufl
 from dolfinx import fem
 from dolfinx.fem import petsc as fem_petsc
-from petsc4py import PETSc
-from test_subelement import (
+from helpers import (
     BOX,
     SingleCell,
     distorted_hex,
@@ -35,6 +34,7 @@ from test_subelement import (
     relative_difference,
     subelement_vertices,
 )
+from petsc4py import PETSc
 
 from fenics_adaptive.adaptivity import enrichment as enr
 from fenics_adaptive.element import solid_shell

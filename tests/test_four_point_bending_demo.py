@@ -2,27 +2,27 @@
 the adaptive run refines weakly then strongly while the 90-degree block cracks, stays
 stable, keeps its energy balance, and carries the force of the layerwise reference."""
 
-import importlib.util
 import tomllib
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from fenics_adaptive.analysis.studies import four_point_bending_variant
 from fenics_adaptive.runner import RefinementHook, build_structure
 from fenics_adaptive.settings.config import parse_config
 from fenics_adaptive.solver import explicit
 
+# Each test runs a shortened demo to its end (seconds to minutes).
+pytestmark = pytest.mark.slow
+
 ROOT = Path(__file__).parents[1]
-spec = importlib.util.spec_from_file_location("fpb_demo", ROOT / "demos" / "four_point_bending.py")
-demo = importlib.util.module_from_spec(spec)
-spec.loader.exec_module(demo)
 
 
 def run(name: str):
     base = tomllib.loads((ROOT / "demos" / "four_point_bending.toml").read_text())
     base["solver"]["end_time"] = 1.0e-3
-    config = parse_config(demo.variant(base, name))
+    config = parse_config(four_point_bending_variant(base, name))
     structure = build_structure(config)
     stats = explicit.run(structure, config.solver, config.probe, on_step=RefinementHook.of(config))
     return structure, stats

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import esl_model
+from helpers import esl_model, highest_frequency, toml_text
 from mpi4py import MPI
 
 from fenics_adaptive.model import loading
@@ -35,36 +35,6 @@ def small_beam(**changes) -> dict:
         table, key = dotted.split(".")
         data.setdefault(table, {})[key] = value
     return data
-
-
-def toml_text(data: dict) -> str:
-    """A TOML writer for these configs: tables (nested), arrays of tables, flat values."""
-    lines = []
-
-    def value(v):
-        if isinstance(v, str):
-            return json.dumps(v)
-        if isinstance(v, bool):
-            return "true" if v else "false"
-        if isinstance(v, list):
-            return "[" + ", ".join(value(x) for x in v) + "]"
-        return repr(v)
-
-    def table(name: str, entries: dict) -> None:
-        lines.append(f"[{name}]")
-        lines.extend(f"{k} = {value(v)}" for k, v in entries.items() if not isinstance(v, dict))
-        for sub, nested in entries.items():
-            if isinstance(nested, dict):
-                table(f"{name}.{sub}", nested)
-
-    for name, entries in data.items():
-        if isinstance(entries, list):
-            for entry in entries:
-                lines.append(f"[[{name}]]")
-                lines.extend(f"{k} = {value(v)}" for k, v in entry.items())
-        else:
-            table(name, entries)
-    return "\n".join(lines) + "\n"
 
 
 def run_cli(tmp_path: Path, data: dict) -> tuple[subprocess.CompletedProcess, dict]:
@@ -315,7 +285,6 @@ def test_an_unstable_step_is_stopped_by_the_energy_guard_before_it_overflows():
     """A step 1 % above the stability limit (forced past the check) makes the highest mode grow
     from round-off by about 1.2 per step: the energy guard stops the run, with finite numbers,
     before the runaway check (kinetic energy 100 x the work) would."""
-    from test_explicit import highest_frequency
 
     model = esl_model([0, 90, 90, 0], 20.0, 1.0, 8, 1)
     tip = PrescribedMotion("x1", "z", "displacement", 0.05, Amplitude.ramp(1e-4))

@@ -6,8 +6,8 @@ Units: N, mm, s, tonne.
 
 import numpy as np
 import pytest
-from conftest import CROSS_PLY, esl_model
 from dolfinx import fem
+from helpers import CROSS_PLY, esl_model
 
 
 @pytest.mark.parametrize("kinematics", ["small", "finite"])

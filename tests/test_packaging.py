@@ -311,3 +311,111 @@ def test_dolfinx_stack_comes_with_the_native_wheel():
         assert dists & (brought | {canonicalize_name(DOLFINX_WHEEL)}), (
             f"{module} ({dists}) is not brought by {DOLFINX_WHEEL}: pin it in requirements/"
         )
+
+
+# ------------------------------------------------------------------ (e) repository habits
+PYPROJECT = ROOT / "pyproject.toml"
+PACKAGE = ROOT / "fenics_adaptive"
+# The first line of the license text of each SPDX identifier the project may declare.
+LICENSE_TITLES = {"MIT": "MIT License"}
+KEEP_A_CHANGELOG_KINDS = {"Added", "Changed", "Deprecated", "Removed", "Fixed", "Security"}
+PYTEST_BUILTIN_MARKERS = {"parametrize", "skip", "skipif", "xfail", "usefixtures", "filterwarnings"}
+
+
+def pyproject() -> dict:
+    return tomllib.loads(PYPROJECT.read_text())
+
+
+def package_version() -> str:
+    """The literal ``__version__`` of fenics_adaptive/__init__.py, read without importing it."""
+    tree = ast.parse((PACKAGE / "__init__.py").read_text())
+    for node in tree.body:
+        if isinstance(node, ast.Assign) and [getattr(t, "id", None) for t in node.targets] == [
+            "__version__"
+        ]:
+            assert isinstance(node.value, ast.Constant), "__version__ must be a string literal"
+            return node.value.value
+    raise AssertionError("fenics_adaptive/__init__.py assigns no __version__")
+
+
+def test_license_file_matches_the_declared_license():
+    project = pyproject()["project"]
+    license = project["license"]
+    assert isinstance(license, str), "license is an SPDX expression (PEP 639), not a table"
+    assert license in LICENSE_TITLES, f"no known license text for {license!r}"
+    assert project.get("license-files") == ["LICENSE"]
+    text = (ROOT / "LICENSE").read_text()
+    assert text.splitlines()[0].strip() == LICENSE_TITLES[license]
+    assert re.search(r"Copyright \(c\) \d{4} \S", text), "the LICENSE names no copyright holder"
+
+
+def test_the_version_has_one_source():
+    data = pyproject()
+    assert "version" not in data["project"], "pyproject.toml must not repeat the version"
+    assert "version" in data["project"].get("dynamic", [])
+    attr = data["tool"]["setuptools"]["dynamic"]["version"]["attr"]
+    assert attr == "fenics_adaptive.__version__"
+    version = Version(package_version())  # a valid PEP 440 version
+    literal = re.compile(rf"""["']v?{re.escape(str(version))}["']""")
+    copies = []
+    for folder in ("fenics_adaptive", "meshes", "demos", "docs", "tests", "benchmarks", "scripts"):
+        for path in sorted((ROOT / folder).rglob("*")):
+            if path.suffix in (".py", ".toml", ".cfg", ".sh", ".md", ".txt") and path.is_file():
+                if path != PACKAGE / "__init__.py" and literal.search(path.read_text()):
+                    copies.append(str(path.relative_to(ROOT)))
+    for name in ("Dockerfile", "Makefile", "pyproject.toml", "README.md"):
+        if literal.search((ROOT / name).read_text()):
+            copies.append(name)
+    assert not copies, f"the version {version} is written out in {copies}: read __version__"
+
+
+def test_the_command_line_reports_the_version(capsys):
+    from fenics_adaptive import __version__, cli
+
+    with pytest.raises(SystemExit) as stop:
+        cli.main(["--version"])
+    assert stop.value.code == 0
+    assert capsys.readouterr().out.split() == ["fenics-adaptive", __version__]
+    assert __version__ == package_version()
+
+
+def test_the_package_ships_its_type_hints():
+    assert (PACKAGE / "py.typed").is_file()
+    package_data = pyproject()["tool"]["setuptools"]["package-data"]
+    assert "py.typed" in package_data.get("fenics_adaptive", [])
+
+
+def test_the_changelog_keeps_a_changelog():
+    text = (ROOT / "CHANGELOG.md").read_text()
+    lines = text.splitlines()
+    assert lines[0] == "# Changelog"
+    assert "keepachangelog.com" in text
+    releases = re.findall(r"^## \[([^\]]+)\](.*)$", text, re.MULTILINE)
+    assert releases and releases[0][0] == "Unreleased", "the first section is [Unreleased]"
+    dated = {name: rest for name, rest in releases[1:]}
+    for name, rest in dated.items():
+        Version(name)
+        assert re.fullmatch(r" - \d{4}-\d{2}-\d{2}", rest), f"[{name}] needs ' - YYYY-MM-DD'"
+    assert package_version() in dated, "the package's version has no section in CHANGELOG.md"
+    kinds = set(re.findall(r"^### (.+)$", text, re.MULTILINE))
+    assert kinds and kinds <= KEEP_A_CHANGELOG_KINDS, kinds - KEEP_A_CHANGELOG_KINDS
+
+
+def test_the_readme_links_license_changelog_and_contributing():
+    readme = (ROOT / "README.md").read_text()
+    for name in ("LICENSE", "CHANGELOG.md", "CONTRIBUTING.md"):
+        assert (ROOT / name).is_file(), name
+        assert f"]({name})" in readme, f"README.md does not link {name}"
+
+
+def test_every_marker_the_tests_use_is_registered():
+    options = pyproject()["tool"]["pytest"]["ini_options"]
+    assert "--strict-markers" in options["addopts"].split()
+    registered = {line.split(":")[0].strip() for line in options["markers"]}
+    assert {"slow", "mpi", "docs"} <= registered
+    used = set()
+    for path in sorted((ROOT / "tests").glob("*.py")):
+        used |= set(re.findall(r"pytest\.mark\.(\w+)", path.read_text()))
+    used -= PYTEST_BUILTIN_MARKERS
+    assert used, "the scan found no marker"
+    assert used <= registered, f"markers used but not registered: {sorted(used - registered)}"

@@ -4,21 +4,21 @@ layerwise reference's contact force; ESL, blind to delamination, is stiffer. The
 loads its interfaces faster than the demo's, so it refines earlier (at 60 % of the strength on
 recovered stresses instead of 90 %)."""
 
-import importlib.util
 import tomllib
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from fenics_adaptive.analysis.studies import plate_impact_variant
 from fenics_adaptive.runner import execute
 from fenics_adaptive.settings.config import parse_config
 from fenics_adaptive.settings.kinds import InterfaceState
 
+# Each test runs a shortened demo to its end (seconds to minutes).
+pytestmark = pytest.mark.slow
+
 ROOT = Path(__file__).parents[1]
-spec = importlib.util.spec_from_file_location("impact_demo", ROOT / "demos" / "plate_impact.py")
-demo = importlib.util.module_from_spec(spec)
-spec.loader.exec_module(demo)
 
 
 def small_plate(name: str) -> dict:
@@ -27,7 +27,7 @@ def small_plate(name: str) -> dict:
     base["impactor"].update(mass=1.0e-5, position=[10.0, 10.0, 10.01], velocity=[0.0, 0.0, -5000.0])
     base["indicators"]["interface_stress"] = 0.6
     base["solver"]["end_time"] = 1.2e-4
-    return demo.variant(base, name)
+    return plate_impact_variant(base, name)
 
 
 @pytest.fixture(scope="module")

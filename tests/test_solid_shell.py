@@ -4,8 +4,8 @@ import dolfinx
 import numpy as np
 import pytest
 import ufl
-from conftest import prototype_material
 from dolfinx import fem
+from helpers import prototype_material
 from mpi4py import MPI
 
 from fenics_adaptive.element import solid_shell

@@ -9,81 +9,23 @@ DOLFINx mesh, compiled exactly as the model compiles them.
 
 from __future__ import annotations
 
-from mpi4py import MPI  # first: the DOLFINx wheel finds libmpi through it
-
-# isort: split
-import basix.ufl
-import dolfinx
 import numpy as np
 import pytest
-import ufl
-from dolfinx import fem
+from helpers import (
+    BOX,
+    SingleCell,
+    distorted_hex,
+    laminate_rule,
+    random_laminate,
+    relative_difference,
+    subelement_vertices,
+)
 
 from fenics_adaptive.element import solid_shell
 from fenics_adaptive.element import subelement as se
-from fenics_adaptive.materials.laminate import Laminate, Ply, PlyMaterial
+from fenics_adaptive.materials.laminate import Laminate
 
-CARBON = PlyMaterial("carbon", E1=140e3, E2=10e3, G12=5e3, nu12=0.3, nu23=0.45, rho=1.6e-9)
-GLASS = PlyMaterial(
-    "glass", E1=45e3, E2=12e3, G12=4.5e3, nu12=0.28, nu23=0.4, rho=2.0e-9, G23=3.5e3
-)
-BOX = np.array([2.0, 1.5, 1.0])  # mm; the laminate thickness is along z
 TOL = 1e-12
-
-
-def random_laminate(rng: np.random.Generator, n_plies: int) -> Laminate:
-    """Unequal thicknesses, two materials, random angles (one 90-degree ply, whose stiffness has
-    no xz-yz coupling, so that both forms of the cross term are exercised)."""
-    thickness = rng.uniform(0.1, 0.4, n_plies)
-    angles = rng.uniform(-90.0, 90.0, n_plies)
-    angles[1] = 90.0
-    materials = [CARBON if k % 2 == 0 else GLASS for k in range(n_plies)]
-    materials[-1] = GLASS if materials[-2] is CARBON else CARBON
-    return Laminate(
-        tuple(
-            Ply(m, float(a), float(t)) for m, a, t in zip(materials, angles, thickness, strict=True)
-        )
-    )
-
-
-def jacobian_determinants(X: np.ndarray, n: int = 3) -> np.ndarray:
-    """det(dx/dX) of the trilinear map on an n x n x n grid of [0, 1]^3 (corners included)."""
-    s = np.linspace(0.0, 1.0, n)
-    dets = []
-    for a in s:
-        for b in s:
-            for c in s:
-                p = np.array([a, b, c])
-                factors = np.where(se.CORNERS == 1.0, p, 1.0 - p)
-                slopes = np.where(se.CORNERS == 1.0, 1.0, -1.0)
-                dN = np.stack(
-                    [
-                        slopes[:, 0] * factors[:, 1] * factors[:, 2],
-                        factors[:, 0] * slopes[:, 1] * factors[:, 2],
-                        factors[:, 0] * factors[:, 1] * slopes[:, 2],
-                    ],
-                    axis=1,
-                )
-                dets.append(np.linalg.det(X.T @ dN))
-    return np.array(dets)
-
-
-def distorted_hex(rng: np.random.Generator, size: np.ndarray = BOX, amount: float = 0.15):
-    """Vertices (8, 3) of a box of ``size`` with every coordinate perturbed by up to
-    ``amount`` times the edge length along it (vertices 4-7 stay roughly above 0-3)."""
-    X = se.CORNERS * size + rng.uniform(-amount, amount, (8, 3)) * size
-    assert jacobian_determinants(X).min() > 0.2 * np.prod(size)
-    return X
-
-
-def subelement_vertices(X_parent: np.ndarray, fractions: np.ndarray, first: int, stop: int):
-    """Vertices (8, 3) of the subelement holding plies first:stop of a parent element: on the
-    parent's vertical edges at the thickness fractions of its bounding interfaces."""
-    bottom, top = X_parent[:4], X_parent[4:]
-    f = fractions
-    return np.vstack(
-        [(1 - f[first]) * bottom + f[first] * top, (1 - f[stop]) * bottom + f[stop] * top]
-    )
 
 
 def random_displacement(rng: np.random.Generator, scale: float = 1e-2) -> np.ndarray:
@@ -94,54 +36,6 @@ def kernel_force(X: np.ndarray, U: np.ndarray, rule: se.PackedRule) -> tuple[np.
     f = np.empty((8, 3))
     energy = se.solid_shell_force(X, U, *rule, f)
     return f, energy
-
-
-def laminate_rule(laminate: Laminate, ppp: int) -> se.PackedRule:
-    return se.pack_rule(laminate.ply_fractions, np.array(laminate.ply_stiffnesses()), ppp)
-
-
-def relative_difference(a: np.ndarray, b: np.ndarray) -> float:
-    return float(np.abs(a - b).max() / np.abs(b).max())
-
-
-# --- single-cell DOLFINx reference ------------------------------------------------------------
-
-
-class SingleCell:
-    """One hexahedron with vertices X (our order) as a DOLFINx mesh with a P1 vector space."""
-
-    def __init__(self, X: np.ndarray):
-        element = basix.ufl.element("Lagrange", "hexahedron", 1, shape=(3,))
-        cells = np.arange(8, dtype=np.int64).reshape(1, 8)
-        self.mesh = dolfinx.mesh.create_mesh(MPI.COMM_SELF, cells, element, X)
-        nodes = self.mesh.geometry.dofmaps[0][0]
-        # cell-local node k of DOLFINx is our vertex order[k]; the kernel's reference map (zeta
-        # through the thickness) is the same as DOLFINx's only if that is the identity
-        order = np.asarray(self.mesh.geometry.input_global_indices)[nodes]
-        assert np.array_equal(order, np.arange(8)), order
-        assert np.array_equal(self.mesh.geometry.x[nodes], X)
-        self.V = fem.functionspace(self.mesh, ("Lagrange", 1, (3,)))
-        assert self.V.dofmap.index_map_bs == 3
-        self.dofs = self.V.dofmap.cell_dofs(0)  # node of local vertex k, block size 3
-        self.u = fem.Function(self.V)
-        self.v = ufl.TestFunction(self.V)
-
-    def set_displacement(self, U: np.ndarray) -> None:
-        self.u.x.array.reshape(-1, 3)[self.dofs] = U
-
-    def assemble(self, form: ufl.Form) -> np.ndarray:
-        """(8, 3) nodal values of a linear form in v, in our vertex order."""
-        vector = fem.assemble_vector(fem.form(form))
-        return vector.array.reshape(-1, 3)[self.dofs].copy()
-
-    def force(self, laminate: Laminate, ppp: int, U: np.ndarray):
-        self.set_displacement(U)
-        groups = solid_shell.ply_groups(laminate, ppp)
-        return self.assemble(solid_shell.internal_force_form(self.u, self.v, groups))
-
-    def lumped_mass(self, laminate: Laminate) -> np.ndarray:
-        groups = solid_shell.ply_groups(laminate, 1)
-        return self.assemble(solid_shell.lumped_mass_form(self.v, groups))[:, 0]
 
 
 # --- the packed rule --------------------------------------------------------------------------

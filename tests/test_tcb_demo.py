@@ -1,26 +1,27 @@
 """The TCB demo, short version (20 mm beam): the propagation branch against beam-theory LEFM,
 and the adaptive run against the layerwise reference."""
 
-import importlib.util
 import tomllib
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from fenics_adaptive.analysis.lefm import lefm_comparison
+from fenics_adaptive.analysis.studies import tcb_quick, tcb_variant
 from fenics_adaptive.runner import RefinementHook, build_structure
 from fenics_adaptive.settings.config import parse_config
 from fenics_adaptive.solver import explicit
 
+# Each test runs a shortened demo to its end (seconds to minutes).
+pytestmark = pytest.mark.slow
+
 ROOT = Path(__file__).parents[1]
-spec = importlib.util.spec_from_file_location("tcb_demo", ROOT / "demos" / "tcb.py")
-demo = importlib.util.module_from_spec(spec)
-spec.loader.exec_module(demo)
 
 
 def run(name: str):
-    base = demo.quick(tomllib.loads((ROOT / "demos" / "tcb.toml").read_text()))
-    config = parse_config(demo.variant(base, name))
+    base = tcb_quick(tomllib.loads((ROOT / "demos" / "tcb.toml").read_text()))
+    config = parse_config(tcb_variant(base, name))
     structure = build_structure(config)
     stats = explicit.run(structure, config.solver, config.probe, on_step=RefinementHook.of(config))
     history = {
@@ -47,7 +48,7 @@ def test_propagation_follows_beam_theory_lefm(reference):
     """Once the crack is longer than 5 arm thicknesses the force stays within 10 % of the
     LEFM branch P = K^1.5 / sqrt(3 E I delta)."""
     config, history = reference
-    result = demo.lefm_comparison(config, history)
+    result = lefm_comparison(config, history)
     assert result["points"] >= 20
     assert result["crack_length_range_mm"][1] > 3.5  # the crack did run
     assert 0.9 <= result["force_over_lefm_min"] and result["force_over_lefm_max"] <= 1.1

@@ -1,1 +1,2 @@
-"""ESL-against-layerwise comparison tools and cost measurement."""
+"""Studies and references: the demos' runs as config variants, the LEFM reference, ESL-against-
+layerwise comparison tools, cost measurement."""

@@ -1,0 +1,174 @@
+"""The runs of the demos' studies as configs: each variant is the demo's base config (a TOML
+table, as ``tomllib`` reads it) changed into one run, so that the demos, the tests and the
+benchmarks run exactly the same cases from one definition.
+
+Units: N, mm, s, tonne (as in the configs).
+
+Studies (``STUDIES``):
+
+- ``tcb``: the triple cantilever beam of ``demos/tcb.toml`` (the adaptive run): the layerwise
+  reference, refined from the start, adaptive, refined late, refined late and released;
+- ``four_point_bending``: ``demos/four_point_bending.toml`` (the stabilised adaptive run): the
+  layerwise reference, adaptive unstabilised, adaptive;
+- ``plate_impact``: ``demos/plate_impact.toml`` (the adaptive run): ESL, adaptive, layerwise.
+
+A variant never changes its ``base``: it works on a deep copy.
+"""
+
+from __future__ import annotations
+
+import copy
+import itertools
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+TCB_RUNS = ("reference", "refined_from_start", "adaptive", "late", "late_stabilised")
+TCB_LATE_OPENING = 0.005  # mm: the paper's late refinement, past the cohesive initiation
+FOUR_POINT_BENDING_RUNS = ("reference", "adaptive_unstabilised", "adaptive")
+PLATE_IMPACT_RUNS = ("esl", "adaptive", "layerwise")
+
+
+def tcb_variant(base: dict, name: str) -> dict:
+    """One run of the TCB study (``TCB_RUNS``) from ``base``, the config of the adaptive run.
+
+    Parameters:
+        base: the TCB config as a TOML table (``demos/tcb.toml``).
+        name: ``reference`` (layerwise, one cell layer per ply pair, cohesive at interfaces 2
+            and 6, 4 the symmetry), ``refined_from_start`` (strong from t = 0), ``adaptive``
+            (``base`` as it is), ``late`` (weak from the start, strong at an arm opening of
+            ``TCB_LATE_OPENING`` mm) or ``late_stabilised`` (the same, the tie force released
+            over 0.01 ms).
+
+    Returns:
+        A new config table.
+    """
+    data = copy.deepcopy(base)
+    if name == "reference":
+        data["model"]["kind"] = "layerwise"
+        data["mesh"]["layers"] = [2, 2, 2, 2]
+        data["interfaces"] = {"delaminate": [2, 6], "symmetry": [4]}
+        data.pop("refinement")
+    elif name == "refined_from_start":
+        data["interfaces"]["initial"] = "strong"
+        data.pop("refinement")
+    elif name in ("late", "late_stabilised"):
+        data["interfaces"]["initial"] = "weak"
+        data["refinement"] = [
+            {"displacement": TCB_LATE_OPENING, "interfaces": [2, 6], "kind": "strong"},
+        ]
+        if name == "late_stabilised":
+            data["stabilisation"] = {"release_window": 1.0e-5}  # 0.01 ms, as in the paper
+    return data
+
+
+def tcb_quick(data: dict) -> dict:
+    """The TCB study made fast: a 20 mm beam (40 cells) opened to 0.4 mm in 1 ms (arm velocity
+    420 mm/s), history every 5 us, no field output. The same physics in seconds (the tests and
+    ``demos/tcb.py --quick`` use it).
+
+    Parameters:
+        data: a TCB config table (``demos/tcb.toml`` or one of its variants).
+
+    Returns:
+        A new config table.
+    """
+    data = copy.deepcopy(data)
+    data["mesh"].update(length=20.0, nx=40)
+    data["solver"]["end_time"] = 1.0e-3
+    for entry in data["prescribed"]:
+        entry["velocity"] = np.sign(entry["velocity"]) * 420.0
+    data["output"]["interval"] = 5.0e-6
+    data["output"].pop("fields_interval", None)
+    return data
+
+
+def four_point_bending_variant(base: dict, name: str) -> dict:
+    """One run of the four-point-bending study (``FOUR_POINT_BENDING_RUNS``) from ``base``, the
+    config of the stabilised adaptive run.
+
+    Parameters:
+        base: the config as a TOML table (``demos/four_point_bending.toml``).
+        name: ``reference`` (layerwise: a cell layer for the bottom 90-degree block and one for
+            the rest, cohesive elements at interface 4 everywhere), ``adaptive_unstabilised``
+            (no stabilisation) or ``adaptive`` (``base`` as it is).
+
+    Returns:
+        A new config table.
+    """
+    data = copy.deepcopy(base)
+    if name == "reference":
+        data["model"]["kind"] = "layerwise"
+        data["mesh"]["layers"] = [4, 12]
+        data["interfaces"] = {"delaminate": [4]}
+        data.pop("indicators")
+        data.pop("stabilisation")
+    elif name == "adaptive_unstabilised":
+        data.pop("stabilisation")
+    return data
+
+
+def plate_impact_variant(base: dict, name: str) -> dict:
+    """One run of the plate-impact study (``PLATE_IMPACT_RUNS``) from ``base``, the config of the
+    adaptive run.
+
+    Parameters:
+        base: the config as a TOML table (``demos/plate_impact.toml``).
+        name: ``esl`` (no indicators, no refinement), ``adaptive`` (``base`` as it is) or
+            ``layerwise`` (one cell layer per sublaminate between the delaminating interfaces,
+            cohesive elements in them everywhere).
+
+    Returns:
+        A new config table.
+    """
+    data = copy.deepcopy(base)
+    if name in ("esl", "layerwise"):
+        data.pop("indicators")
+        data.pop("stabilisation")
+    if name == "layerwise":
+        data["model"]["kind"] = "layerwise"
+        plies = len(data["laminate"]["angles"])
+        bounds = [0, *data["interfaces"]["delaminate"], plies]
+        data["mesh"]["layers"] = [b - a for a, b in itertools.pairwise(bounds)]
+    return data
+
+
+@dataclass(frozen=True)
+class Study:
+    """The runs of one demo's study and how each is derived from the demo's config."""
+
+    runs: tuple[str, ...]
+    """Names of the runs, in the order the demo runs them."""
+    make_variant: Callable[[dict, str], dict]
+    """``make_variant(base, run)``: the config table of one run."""
+
+
+STUDIES: dict[str, Study] = {
+    "tcb": Study(TCB_RUNS, tcb_variant),
+    "four_point_bending": Study(FOUR_POINT_BENDING_RUNS, four_point_bending_variant),
+    "plate_impact": Study(PLATE_IMPACT_RUNS, plate_impact_variant),
+}
+"""Every study by the name of its demo (``demos/<name>.py`` and ``demos/<name>.toml``)."""
+
+
+def variant(study: str, base: dict, run: str) -> dict:
+    """The config table of run ``run`` of the study ``study`` (a key of ``STUDIES``).
+
+    Parameters:
+        study: the study's name, e.g. ``"tcb"``.
+        base: the demo's config as a TOML table.
+        run: one of the study's runs.
+
+    Returns:
+        A new config table.
+
+    Raises:
+        KeyError: an unknown study or run, naming the known ones.
+    """
+    if study not in STUDIES:
+        raise KeyError(f"unknown study {study!r} (known: {', '.join(STUDIES)})")
+    runs = STUDIES[study].runs
+    if run not in runs:
+        raise KeyError(f"study {study!r} has no run {run!r} (runs: {', '.join(runs)})")
+    return STUDIES[study].make_variant(base, run)
