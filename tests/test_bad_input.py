@@ -68,6 +68,7 @@ BAD = [
 ]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("source", "old", "new", "named"), BAD, ids=[b[3] for b in BAD])
 def test_bad_config_is_one_line_exit_2(tmp_path, source, old, new, named):
     config = edited(tmp_path, source, old, new)
@@ -81,6 +82,7 @@ def test_bad_config_is_one_line_exit_2(tmp_path, source, old, new, named):
     assert not out.exists()  # nothing was written
 
 
+@pytest.mark.slow
 def test_check_reports_size_steps_and_estimates(tmp_path):
     """`check` reports the model the run builds and the steps and rows the run takes."""
     result = run_cli("check", SMALL)
@@ -101,6 +103,7 @@ def test_check_reports_size_steps_and_estimates(tmp_path):
     assert frames == 3  # fields every 1e-4 s: t = 0, 1e-4, 2e-4
 
 
+@pytest.mark.slow
 def test_check_refuses_too_many_steps_with_the_count(tmp_path):
     config = edited(tmp_path, SMALL, "mass_damping = 0.0", "mass_damping = 0.0\nmax_steps = 1000")
     result = run_cli("check", config)
@@ -112,6 +115,7 @@ def test_check_refuses_too_many_steps_with_the_count(tmp_path):
     assert result.returncode == 2 and "solver.max_steps" in result.stderr
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("delay", [1.0, 3.0])
 def test_ctrl_c_during_start_up_is_one_line(tmp_path, delay):
     """SIGINT while importing DOLFINx (1 s) and while meshing / compiling / building (3 s): a

@@ -76,6 +76,7 @@ def column_value(structure, cell: int, a: int, interface: int, side: int) -> np.
     return (1 - s) * lower + s * at(above, enr.SET_A)
 
 
+@pytest.mark.slow
 def test_cells_on_both_sides_of_the_border_agree_along_their_columns():
     structure = mixed_structure()
     assert len(structure.border) > 0
@@ -175,6 +176,7 @@ def four_point_bending(variant: str) -> dict:
     return data
 
 
+@pytest.mark.slow
 def test_a_refined_region_is_bounded_by_the_esl_and_refined_beams(tmp_path):
     """Four-point bending at 0.05 mm: refining the cells around mid-span makes the beam a
     little softer than the ESL beam, not softer than the beam refined everywhere. (Without the

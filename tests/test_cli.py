@@ -29,6 +29,7 @@ def small_run(tmp_path_factory):
     return out, result
 
 
+@pytest.mark.slow
 def test_run_writes_every_result(small_run):
     out, result = small_run
     for name in ("history.csv", "summary.json", "force_displacement.png", "energies.png"):
@@ -38,6 +39,7 @@ def test_run_writes_every_result(small_run):
     assert "time step" in result.stdout
 
 
+@pytest.mark.slow
 def test_history_and_summary_are_consistent(small_run):
     out, _ = small_run
     history = read_history(out / "history.csv")
@@ -65,6 +67,7 @@ def test_history_and_summary_are_consistent(small_run):
     assert summary["model"]["total_mass_tonne"] == pytest.approx(20 * 2 * 2 * 1.6e-9, rel=1e-12)
 
 
+@pytest.mark.slow
 def test_check_reports_the_time_step():
     result = run_cli("check", SMALL)
     assert result.returncode == 0, result.stderr
@@ -79,6 +82,7 @@ def write_config(tmp_path, replace: tuple[str, str]) -> Path:
     return path
 
 
+@pytest.mark.slow
 def test_bad_config_stops_before_the_run_with_one_line(tmp_path):
     config = write_config(tmp_path, ("nx = 8", "nx = -8"))
     out = tmp_path / "out"
@@ -89,6 +93,7 @@ def test_bad_config_stops_before_the_run_with_one_line(tmp_path):
     assert not out.exists()
 
 
+@pytest.mark.slow
 def test_time_step_above_the_stable_one_is_refused(tmp_path):
     config = write_config(tmp_path, ("mass_damping = 0.0", "mass_damping = 0.0\ntime_step = 1e-6"))
     result = run_cli("run", config, "--out", tmp_path / "out")
@@ -97,6 +102,7 @@ def test_time_step_above_the_stable_one_is_refused(tmp_path):
     assert not (tmp_path / "out").exists()
 
 
+@pytest.mark.slow
 def test_forced_time_step_below_the_stable_one_is_used(tmp_path):
     config = write_config(tmp_path, ("mass_damping = 0.0", "mass_damping = 0.0\ntime_step = 5e-8"))
     out = tmp_path / "out"
@@ -129,6 +135,7 @@ def test_the_restart_hint_is_shell_quoted(tmp_path, monkeypatch, capsys):
     assert seen["overwrite"] is True
 
 
+@pytest.mark.slow
 def test_out_that_is_a_file_is_refused_with_one_line(tmp_path):
     (tmp_path / "taken").write_text("a file")
     result = run_cli("run", SMALL, "--out", tmp_path / "taken")

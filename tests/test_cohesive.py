@@ -333,6 +333,7 @@ def test_force_is_energy_gradient():
     np.testing.assert_allclose(f.sum(axis=0), 0.0, atol=1e-12 * np.abs(f).max())
 
 
+@pytest.mark.slow
 def test_curve_helper_matches_element():
     law = make_law(K_n=2e5, K_s=5e4)
     e, beta = direction(law, 0.5)

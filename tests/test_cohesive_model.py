@@ -103,6 +103,7 @@ def proportional_path(mixity: float, law: CohesiveLaw, points: int = 3000) -> np
     return np.linspace(0.0, final, points)[:, None] * direction
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("kind", ["adaptive", "layerwise"])
 @pytest.mark.parametrize("mixity", [0.0, 0.25, 0.5, 0.75, 1.0])
 def test_dissipated_energy_and_traction_separation(kind, mixity):
@@ -144,6 +145,7 @@ def test_unloading_follows_the_damaged_secant_and_compression_does_not_penetrate
         assert t[2] == pytest.approx(law.K_n * closing, rel=1e-12)
 
 
+@pytest.mark.slow
 def test_explicit_pull_dissipates_gic():
     """The solver pulls the top face of the refined cell up (mode I); once the interface has
     failed, the dissipated-energy column holds GIc x area."""

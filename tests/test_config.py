@@ -491,6 +491,7 @@ def test_schema_module_imports_neither_dolfinx_nor_numba():
     assert done.stdout.strip() == "[]"
 
 
+@pytest.mark.slow
 def test_face_node_sets_of_the_parser_are_the_meshs():
     """The parser's node sets of faces (which it checks before meshing) against the nodes the
     mesh really has on them, for every face and pair of faces of a layerwise model with split

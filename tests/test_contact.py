@@ -41,6 +41,7 @@ def clamped_plate():
     return parse_config(data)
 
 
+@pytest.mark.slow
 def test_ball_bouncing_on_a_plate_conserves_the_total_energy():
     """A 1 g steel-like ball at 1 m/s hits the middle of a clamped plate and bounces: plate
     kinetic + strain energy + ball kinetic + penalty energy stays at the ball's initial

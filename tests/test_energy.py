@@ -93,6 +93,7 @@ def test_cohesive_dissipation_in_mixed_mode_matches_the_work():
     assert dissipated == pytest.approx(work - stored, rel=2e-3)
 
 
+@pytest.mark.slow
 def test_ply_dissipation_in_uniaxial_transverse_tension_is_G2c_over_band():
     """One ply point pulled across its fibres to full cracking: the law's summed dissipation
     density is G2c / l_c (the crack band's energy per unit volume) to 1e-3."""
@@ -136,6 +137,7 @@ def tcb(damping: float = 0.0) -> dict:
     return data
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("damping", [0.0, 5.0e5])
 def test_balances_agree_on_a_mode_I_delamination(tmp_path, damping):
     """The short TCB delaminates (cohesive dissipation a large part of the work); the balance
@@ -186,6 +188,7 @@ def cross_ply_pull() -> dict:
     return data
 
 
+@pytest.mark.slow
 def test_balances_agree_with_ply_damage(tmp_path):
     """Matrix cracking of the 90-degree plies: the law's summed ply dissipation accounts for
     the work the materials did not store, and the two balances agree to 1e-4 of the largest
@@ -199,6 +202,7 @@ def test_balances_agree_with_ply_damage(tmp_path):
     assert difference.max() < 1e-4 * largest
 
 
+@pytest.mark.slow
 def test_dissipation_survives_a_restart(tmp_path):
     """Stopped half way and restarted, the run's dissipation columns equal the uninterrupted
     run's (the accumulators are in the checkpoint)."""

@@ -139,6 +139,7 @@ def test_refinement_outside_the_allowed_interfaces_is_refused():
         structure.refine([(0, 4, InterfaceState.STRONG)])
 
 
+@pytest.mark.slow
 def test_stable_step_drops_with_thin_subelements_and_cohesive_springs():
     """Refining at interface 1 leaves a subelement one ply (0.256 mm) thick: L_e / c halves
     about; a stiff cohesive penalty lowers it further. The run stays stable at the new step."""

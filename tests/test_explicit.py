@@ -42,6 +42,7 @@ def crossing_times(t, y):
     return t[i] - y[i] * (t[i + 1] - t[i]) / (y[i + 1] - y[i])
 
 
+@pytest.mark.slow
 def test_free_vibration_period_and_energy():
     """Released from its static deflection under a tip load, the [0]8 cantilever swings with the
     beam-theory period (within 3 %) and keeps its energy (drift below 0.5 % over 20 periods)."""
@@ -73,6 +74,7 @@ def test_free_vibration_period_and_energy():
     assert kinetic.max() == pytest.approx(strain_energy, rel=0.05)  # it really swings
 
 
+@pytest.mark.slow
 def test_stable_time_step_estimate_is_safe_and_sharp():
     """L_e / c is below the exact limit 2 / omega_max of the discrete system, but not by much;
     the scheme is stable just below 2 / omega_max and blows up just above."""
@@ -121,6 +123,7 @@ def test_stable_time_step_estimate_is_safe_and_sharp():
     assert re.search(r"at cell \d+, base node at \(", message), message
 
 
+@pytest.mark.slow
 def test_quasi_static_explicit_matches_static_solution():
     """A slow, damped tip-displacement ramp ends at the static reaction force (two independent
     paths: explicit dynamics vs a direct linear solve)."""

@@ -205,6 +205,7 @@ def cohesive_forces(structure: Structure) -> tuple[np.ndarray, float]:
 STRAIN = np.array([[1.0, 0.3, 0.2], [0.3, -0.5, 0.4], [0.2, 0.4, 0.7]]) * 1e-3
 
 
+@pytest.mark.slow
 def test_rigid_rotation_of_refined_cells_gives_no_force():
     structure = refined_strip()
     set_motion(structure, lambda X: X @ STRAIN.T)
@@ -348,6 +349,7 @@ def solve_newton(structure: Structure, load_steps: int = 8) -> int:
     return iterations
 
 
+@pytest.mark.slow
 def test_cantilever_large_tip_load_matches_elastica():
     """[0]8 cantilever 100 x 2 x 2 mm, 40 cells, one element through the thickness, dead tip
     load P with P L^2 / EI = 2: tip deflection, shortening and rotation within 2 % of the

@@ -187,6 +187,7 @@ def report():
     print(f"\nconfig fuzz: {dict(tally)}")
 
 
+@pytest.mark.slow
 @settings(
     max_examples=EXAMPLES,
     derandomize=True,
@@ -225,6 +226,7 @@ def test_every_mutation_is_refused_in_one_line_or_runs(case, tmp_path_factory, r
     assert summary["status"] == "completed" and summary["steps"] >= 1
 
 
+@pytest.mark.slow
 def test_the_fuzz_tried_every_class(report):
     """Runs after the property (file order): the mutations covered refusals and runs."""
     assert report["tried"] >= EXAMPLES

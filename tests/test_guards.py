@@ -71,6 +71,7 @@ def crush(data: dict, depth: float) -> dict:
     return data
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("kinematics", ["small", "finite"])
 def test_a_crushed_beam_stops_with_the_inverted_cell(tmp_path, kinematics):
     """Pressing the top face of a 2 mm beam 3 mm down (through its bottom) inverts every cell:
@@ -92,6 +93,7 @@ def test_a_crushed_beam_stops_with_the_inverted_cell(tmp_path, kinematics):
     assert summary["status"] == "failed" and "ElementInverted" in summary["error"]
 
 
+@pytest.mark.slow
 def test_a_pressed_but_not_inverted_beam_completes(tmp_path):
     data = crush(small_beam(), 1.0)
     result, summary = run_cli(tmp_path, data)
@@ -200,6 +202,7 @@ def test_energy_guard_rule():
     assert not guards.energy_error(0.9, 1.0, 0.05, guards.ENERGY_MIN_STEPS - 1)
 
 
+@pytest.mark.slow
 def test_a_huge_load_is_stopped(tmp_path):
     """The issue's 1e12 N tip load (displacement 2.4e10 mm, status completed before): now the
     run fails, with one line."""
@@ -219,6 +222,7 @@ def test_a_huge_load_is_stopped(tmp_path):
     assert "ElementInverted" in summary["error"], summary["error"]
 
 
+@pytest.mark.slow
 def test_energy_limit_from_the_settings_stops_a_run():
     """The same run completes with the default limit and fails with a limit below its own
     worst share; the message names the time, the error and the largest energy."""
@@ -253,6 +257,7 @@ def test_energy_limit_from_the_settings_stops_a_run():
 
 
 # ------------------------------------------------------------------ impactor penalty
+@pytest.mark.slow
 def test_an_impactor_penalty_the_step_cannot_carry_is_refused(tmp_path):
     data = tomllib.loads((ROOT / "demos" / "plate_impact.toml").read_text())
     data["impactor"]["penalty"] = 1.0e12

@@ -42,6 +42,7 @@ def area(beam: BeamMesh, name: str) -> float:
     return beam.mesh.comm.allreduce(value, op=MPI.SUM)
 
 
+@pytest.mark.slow
 def test_every_layer_has_top_and_bottom_face_groups_of_the_full_area():
     beam = split_beam()
     x = beam.mesh.geometry.x

@@ -14,6 +14,7 @@ def area(beam, name):
     return beam.mesh.comm.allreduce(value, op=MPI.SUM)
 
 
+@pytest.mark.slow
 def test_esl_mesh_is_one_cell_through_the_thickness():
     beam = esl_mesh(MPI.COMM_WORLD, 50.0, 2.0, 10, 4, 2.048)
     x = beam.mesh.geometry.x
@@ -25,6 +26,7 @@ def test_esl_mesh_is_one_cell_through_the_thickness():
     assert area(beam, "y1") == pytest.approx(50.0 * 2.048)
 
 
+@pytest.mark.slow
 def test_layered_mesh_faces_per_layer_and_split_interfaces():
     thicknesses = [0.5, 0.5, 0.5, 0.5]
     beam = layered_mesh(MPI.COMM_WORLD, 10.0, 1.0, 5, 1, thicknesses, [True, False, True])

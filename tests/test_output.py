@@ -66,6 +66,7 @@ def test_element_file_holds_subelements_extra_nodes_and_cohesive_elements(tmp_pa
     assert sorted(set(zip(*plies, strict=True))) == [(1, 2), (3, 4), (5, 6), (7, 8)]
 
 
+@pytest.mark.slow
 def test_ply_file_holds_every_ply_as_a_slab_with_its_stress(tmp_path):
     """A uniform strain on the refined TCB beam: 8 slabs per cell at the plies' heights, and
     each slab's material-frame stress is C0 T eps of its ply, from whichever subelement holds
@@ -129,6 +130,7 @@ def test_summary_is_valid_json_whatever_the_values(tmp_path):
     assert json_safe({"x": (float("nan"),)}) == {"x": ["nan"]}
 
 
+@pytest.mark.slow
 def test_a_run_with_an_infinite_value_writes_valid_json(tmp_path, monkeypatch):
     """End to end: a run whose summary holds an infinite number (the structure's mass, made
     infinite here) still writes a summary.json that strict JSON reads."""

@@ -154,6 +154,7 @@ def tiny_run(tmp_path_factory):
     return out
 
 
+@pytest.mark.slow
 def test_every_summary_key_of_a_real_run_is_documented(tiny_run):
     summary = json.loads((tiny_run / "summary.json").read_text())
     keys = set()
@@ -170,6 +171,7 @@ def test_every_summary_key_of_a_real_run_is_documented(tiny_run):
     )
 
 
+@pytest.mark.slow
 def test_every_file_of_a_real_run_is_documented(tiny_run):
     names = sorted(path.name for path in tiny_run.iterdir())
     assert "history.csv" in names and "elements.pvd" in names
@@ -177,6 +179,7 @@ def test_every_file_of_a_real_run_is_documented(tiny_run):
     assert not missing, f"files a run writes that docs/outputs.md does not name: {missing}"
 
 
+@pytest.mark.slow
 def test_history_header_is_the_documented_columns(tiny_run):
     header = (tiny_run / "history.csv").read_text().splitlines()[0].split(",")
     assert header == list(COLUMNS)

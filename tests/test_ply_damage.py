@@ -160,6 +160,7 @@ def uniaxial(component, values, band_width, state=None, material=MATERIAL, failu
     return strains, stresses, work, energy, damage, state
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("component", "strength", "modulus", "G"),
     [(1, "YT", "E2", "G2c"), (5, "S12", "G12", "G6c")],
@@ -204,6 +205,7 @@ def test_crack_band_dissipates_fracture_energy_per_area(
     assert dissipated * band_width == pytest.approx(Gc, rel=1e-4)  # trapezoidal rule error only
 
 
+@pytest.mark.slow
 def test_unloading_follows_the_secant_and_reloading_dissipates_nothing():
     band_width = 0.5
     ef = 2.0 * FAILURE.G2c / (FAILURE.YT * band_width)
@@ -223,6 +225,7 @@ def test_unloading_follows_the_secant_and_reloading_dissipates_nothing():
     np.testing.assert_allclose(dissipated[300:], dissipated[300], rtol=1e-9)
 
 
+@pytest.mark.slow
 def test_transverse_compression_does_not_damage_and_a_closed_crack_carries_it():
     eps, sig, _, _, damage, state = uniaxial(1, np.linspace(0, -1.5 * FAILURE.YC / 1e4, 101), 0.5)
     assert np.all(damage == 0.0) and state[pd.S_Y0] == 0.0
@@ -331,6 +334,7 @@ def test_packed_damage_is_consistent_with_the_ply_stiffness():
             se.solid_shell.check_monoclinic(C)
 
 
+@pytest.mark.slow
 def test_ply_mean_strain_of_a_uniform_strain_is_that_strain():
     rng = np.random.default_rng(3)
     laminate = random_laminate(rng, 4)
@@ -360,6 +364,7 @@ def elastic_force(X, U, rule, stiffness=None):
     return f, energy
 
 
+@pytest.mark.slow
 def test_undamaged_kernel_is_the_elastic_kernel():
     rng = np.random.default_rng(4)
     laminate = random_laminate(rng, 5)
@@ -554,6 +559,7 @@ def pull_cross_ply_cell(width_y: float, steps: int = 1500):
     return work - energy, np.array(history), state
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("width_y", [1.0, 0.25])
 def test_cracks_of_a_cross_ply_cell_dissipate_G2c_per_crack_area(width_y):
     dissipated, history, state = pull_cross_ply_cell(width_y)

@@ -76,6 +76,7 @@ def run(data: dict, out: Path, restart: Path | None = None) -> dict:
     return run_config(parse_config(data), out, show_progress=False, log=None, restart=restart)
 
 
+@pytest.mark.slow
 def test_resumed_history_equals_the_uninterrupted_one(tmp_path):
     run(late_refinement(1.0e-4), tmp_path / "whole")
     first = run(late_refinement(6.0e-5, checkpoint_interval=400), tmp_path / "split")
@@ -92,6 +93,7 @@ def test_resumed_history_equals_the_uninterrupted_one(tmp_path):
     assert max(whole["damping_energy"]) > 0.0
 
 
+@pytest.mark.slow
 def test_restart_refuses_another_model_or_rank_count(tmp_path):
     run(late_refinement(2.0e-5, checkpoint_interval=1000), tmp_path / "a")
     other = late_refinement(4.0e-5)
@@ -102,6 +104,7 @@ def test_restart_refuses_another_model_or_rank_count(tmp_path):
         run(late_refinement(4.0e-5), tmp_path / "b", restart=tmp_path / "nothing")
 
 
+@pytest.mark.slow
 def test_sigterm_on_an_extension_and_the_printed_restart_command(tmp_path):
     """The reported chain, with real signals and a path with a space: a finished run is
     extended with --restart, the extension is stopped by SIGTERM (exit status 130, a
@@ -194,6 +197,7 @@ def whole_tcb(tmp_path_factory):
     return out
 
 
+@pytest.mark.slow
 def test_extension_interrupted_extension_and_restart_again(tmp_path, monkeypatch, whole_tcb):
     """The reported bug: the second restart read the finished run's history.csv before the
     extension's history.partial.csv, and lost the rows between them."""
@@ -210,6 +214,7 @@ def test_extension_interrupted_extension_and_restart_again(tmp_path, monkeypatch
     assert not (out / "history.partial.csv").exists()
 
 
+@pytest.mark.slow
 def test_repeated_interruptions_and_restarts(tmp_path, monkeypatch, whole_tcb):
     out = tmp_path / "out"
     times = []
@@ -228,6 +233,7 @@ def test_repeated_interruptions_and_restarts(tmp_path, monkeypatch, whole_tcb):
     assert len(names) == 3 and names[0] == "checkpoint.json", names
 
 
+@pytest.mark.slow
 def test_a_restart_into_another_folder_keeps_the_checkpoint_s_history(
     tmp_path, monkeypatch, whole_tcb
 ):
@@ -260,6 +266,7 @@ def whole_small(tmp_path_factory):
     return out
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     "point, step",
     [
@@ -317,6 +324,7 @@ def test_a_kill_at_any_point_of_the_write_leaves_one_complete_checkpoint(
     assert_same_history(out, whole_small)
 
 
+@pytest.mark.slow
 def test_checkpoints_of_the_earlier_format_are_found(tmp_path, monkeypatch, whole_small):
     """The earlier version's kill between its two renames left checkpoint.old/ and
     checkpoint.partial/ (the newer), both complete, and no checkpoint/: the newer is used."""
@@ -386,6 +394,7 @@ def damage(folder: Path, how: str) -> str:
     raise AssertionError(how)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     "how",
     [
@@ -410,6 +419,7 @@ def test_a_damaged_checkpoint_is_refused_naming_the_file(tmp_path, finished_smal
     assert {p: p.read_bytes() for p in out.rglob("*") if p.is_file()} == before
 
 
+@pytest.mark.slow
 def test_cli_refuses_a_damaged_checkpoint_with_one_line(tmp_path, finished_small):
     out = tmp_path / "out"
     shutil.copytree(finished_small, out)

@@ -62,6 +62,7 @@ def snapshot(folder: Path) -> dict[str, bytes]:
     return {str(p.relative_to(folder)): p.read_bytes() for p in folder.rglob("*") if p.is_file()}
 
 
+@pytest.mark.slow
 def test_a_new_run_removes_what_the_last_run_wrote_and_nothing_else(tmp_path):
     out = tmp_path / "out"
     run(small(output__checkpoint_interval=200), out)
@@ -97,6 +98,7 @@ def test_a_new_run_removes_what_the_last_run_wrote_and_nothing_else(tmp_path):
     assert snapshot(out) == before
 
 
+@pytest.mark.slow
 def test_a_folder_of_other_files_is_refused_and_overwrite_removes_only_own_names(tmp_path):
     out = tmp_path / "mine"
     files = {**USER_FILES, "history.csv": "my own table", "summary.json": "{}"}
@@ -114,6 +116,7 @@ def test_a_folder_of_other_files_is_refused_and_overwrite_removes_only_own_names
     assert json.loads(after["summary.json"])["status"] == "completed"
 
 
+@pytest.mark.slow
 def test_own_names_the_manifest_does_not_list_are_refused(tmp_path):
     out = tmp_path / "out"
     run(small(), out)
@@ -126,6 +129,7 @@ def test_own_names_the_manifest_does_not_list_are_refused(tmp_path):
     assert not (out / "checkpoint").exists()
 
 
+@pytest.mark.slow
 def test_nothing_is_removed_before_the_config_and_the_model_are_checked(tmp_path, monkeypatch):
     out = tmp_path / "out"
     run(small(output__checkpoint_interval=200), out)
@@ -172,6 +176,7 @@ def test_out_is_checked_before_the_model_is_built(tmp_path, monkeypatch):
         run(small(), tmp_path / "full")
 
 
+@pytest.mark.slow
 def test_cli_refuses_cwd_home_and_the_config_folder_with_one_line(tmp_path):
     """`--out .`, `--out ~` (as the shell expands it) and the config's own folder hold other
     files: refused with exit status 2, one line, nothing touched."""
@@ -212,6 +217,7 @@ def process_start(pid: int) -> str:
     return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[19]
 
 
+@pytest.mark.slow
 def test_a_live_lock_refuses_the_run_with_its_pid_host_and_start(tmp_path):
     out = tmp_path / "out"
     run(small(), out)
@@ -235,6 +241,7 @@ def test_a_live_lock_refuses_the_run_with_its_pid_host_and_start(tmp_path):
         other.wait()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("case", ["dead pid", "reused pid", "this process, inactive"])
 def test_a_stale_lock_is_taken_over_with_a_notice(tmp_path, capsys, case):
     out = tmp_path / "out"
@@ -254,6 +261,7 @@ def test_a_stale_lock_is_taken_over_with_a_notice(tmp_path, capsys, case):
     assert not (out / LOCK).exists()
 
 
+@pytest.mark.slow
 def test_two_runs_into_one_folder_the_second_is_refused(tmp_path):
     """A real second process: refused with the first one's PID; the first is not disturbed,
     and SIGTERM (interruption) releases its lock."""
@@ -284,6 +292,7 @@ def test_two_runs_into_one_folder_the_second_is_refused(tmp_path):
     assert json.loads((out / "summary.json").read_text())["status"] == "interrupted"
 
 
+@pytest.mark.slow
 def test_the_lock_is_held_while_the_run_writes(tmp_path, monkeypatch):
     out = tmp_path / "out"
     seen = []
@@ -359,6 +368,7 @@ def test_under_mpi_the_lock_refuses_every_rank_and_a_restart_continues(tmp_path)
         assert np.abs(a - b).max() <= 1e-10 * np.abs(a).max(), column
 
 
+@pytest.mark.slow
 def test_every_file_is_listed_before_it_is_written(tmp_path, monkeypatch):
     """So that a run killed at any moment leaves no file of its own that its manifest does
     not name (and that the next run would refuse or keep)."""

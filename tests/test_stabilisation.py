@@ -96,6 +96,7 @@ def force(history):
     )
 
 
+@pytest.mark.slow
 def test_tie_release_removes_the_jump_and_the_oscillation_of_a_late_refinement():
     reference_data = tcb()
     reference_data["solver"]["end_time"] = 5.0e-5
@@ -115,6 +116,7 @@ def test_tie_release_removes_the_jump_and_the_oscillation_of_a_late_refinement()
     assert rms_tied < 0.3 * rms_abrupt
 
 
+@pytest.mark.slow
 def test_damping_window_after_weak_refinement():
     data = tcb(interfaces={"initial": "none"})
     data["solver"]["end_time"] = 4.0e-5

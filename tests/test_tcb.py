@@ -54,6 +54,7 @@ def tcb_runs():
     return run("tcb_adaptive.toml"), run("tcb_layerwise.toml")
 
 
+@pytest.mark.slow
 def test_refined_from_the_start_equals_the_layerwise_reference(tcb_runs):
     (_, a), (_, b) = tcb_runs
     force_a = np.array([r.reaction_force for r in a.history])
@@ -66,6 +67,7 @@ def test_refined_from_the_start_equals_the_layerwise_reference(tcb_runs):
         assert np.abs(x - y).max() <= 1e-8 * np.abs(y).max(), name
 
 
+@pytest.mark.slow
 def test_both_delaminations_propagate(tcb_runs):
     (adaptive, a), (layerwise, _) = tcb_runs
     by_interface = failed_per_interface(adaptive)
@@ -145,6 +147,7 @@ def energy_drift(history) -> float:
     return max(abs(r.energy_balance - total) for r in history) / total
 
 
+@pytest.mark.slow
 def test_refinement_mid_run_conserves_mass_and_momentum():
     history, (m0, p0, k0), (m1, p1, k1), structure = free_beam_refined_halfway(0.3)
     assert m1 == pytest.approx(m0, rel=1e-14)
@@ -155,6 +158,7 @@ def test_refinement_mid_run_conserves_mass_and_momentum():
     assert abs(k1 - k0) < 1e-3 * history[0].kinetic_energy
 
 
+@pytest.mark.slow
 def test_energy_balance_across_refinement_converges_with_the_time_step():
     """Kinetic + internal - refinement energy stays at its initial value up to the O(dt^2)
     error of the discrete energy measures: a third of the step, a ninth of the error."""
@@ -184,6 +188,7 @@ x_min = 2.0
     return path
 
 
+@pytest.mark.slow
 def test_manual_refinement_from_the_config(tmp_path):
     summary = run_config(
         parse_config(tomllib.loads(late_refinement(tmp_path).read_text())),
