@@ -18,6 +18,7 @@ from fenics_adaptive.meshes import esl_mesh
 from mpi4py import MPI
 
 from fenics_adaptive.adaptivity import enrichment as enr
+from fenics_adaptive.adaptivity.events import refine
 from fenics_adaptive.io.output import read_history
 from fenics_adaptive.materials.cohesive import CohesiveLaw
 from fenics_adaptive.model.forms import build_model
@@ -105,14 +106,15 @@ def free_beam_refined_halfway(step_fraction: float):
 
     def refine_halfway(t, s):
         if "before" in events or t < 2.0e-5:
-            return False
+            return None
         events["before"] = (s.total_mass(), s.momentum(), s.kinetic_energy())
         cells = cells_in_x_range(s, 5.0, np.inf)
         requests = [(c, 4, enr.WEAK) for c in cells]
         requests += [(c, i, enr.STRONG) for c in cells for i in (2, 6)]
-        assert s.refine(requests)
+        event = refine(s, requests, t)
+        assert event is not None
         events["after"] = (s.total_mass(), s.momentum(), s.kinetic_energy())
-        return True
+        return event
 
     # the same step before and after refinement: a fraction of the refined structure's limit
     # (found on a copy: a structure owns its model)
@@ -130,7 +132,7 @@ def free_beam_refined_halfway(step_fraction: float):
         structure,
         settings,
         explicit.Probe("x1", "x1", "z"),
-        on_step=refine_halfway,
+        refiner=refine_halfway,
         initial_velocity=velocity.ravel(),
     )
     assert stats.refinements == 1

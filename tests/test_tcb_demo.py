@@ -22,7 +22,7 @@ def run(name: str):
     base = demo.quick(tomllib.loads((ROOT / "demos" / "tcb.toml").read_text()))
     config = parse_config(demo.variant(base, name))
     structure = build_structure(config)
-    stats = explicit.run(structure, config.solver, config.probe, on_step=RefinementHook.of(config))
+    stats = explicit.run(structure, config.solver, config.probe, refiner=RefinementHook.of(config))
     history = {
         name: [getattr(r, name) for r in stats.history]
         for name in (
