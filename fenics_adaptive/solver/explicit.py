@@ -299,7 +299,7 @@ class ExplicitSolver:
         self._not_finite = False  # this rank saw a non-finite internal work (told at a poll)
         self._damping_changes = math.inf  # next time a stabilisation damping window closes
         self._damped = settings.mass_damping > 0.0
-        self.blocks = [_BlockState(b, settings.mass_damping) for b in structure.blocks]
+        self.blocks: list[_BlockState] = []  # the work arrays: from start() or restore()
         by_kind = {kind: [c for c in self.contributors if c.kind is kind] for kind in ForceKind}
         self._internal = by_kind[ForceKind.INTERNAL]
         self._external = by_kind[ForceKind.EXTERNAL]
@@ -307,11 +307,11 @@ class ExplicitSolver:
         # the optional hooks (model.forces.Contributor) of those that have them
         self._moving = [c.advance for c in self.contributors if hasattr(c, "advance")]
         self._reporting = [c.report for c in self.contributors if hasattr(c, "report")]
-        self._contact_force = self._contact_arrays()
-        self.inversion = guards.InversionGuard(structure)
+        self._contact_force: list[np.ndarray] = []
+        self.inversion: guards.InversionGuard | None = None
         n_motions = len(structure.motions)
         self._motion_now, self._motion_next = np.zeros(n_motions), np.zeros(n_motions)
-        self._f_ext_full = np.zeros_like(self.blocks[0].block.u.array)
+        self._f_ext_full = np.zeros_like(structure.blocks[0].u.array)
         self._probe_indices(probe)
         self._clock = 0.0
 
@@ -371,7 +371,7 @@ class ExplicitSolver:
         """Collective: begin at t = 0 from ``initial_displacement`` and ``initial_velocity``
         (mm, mm/s; base DOFs, owned + ghost entries; default zero; the velocity is taken as
         v_{-1/2}), and evaluate t = 0 (forces, the first history row)."""
-        dt, stable = self._choose_step()
+        dt, stable = self._set_up()
         field_interval = self.settings.field_interval
         self.now = SolverState(
             dt=dt, stable=stable, next_fields=0.0 if field_interval else math.inf
@@ -391,7 +391,7 @@ class ExplicitSolver:
         """Collective: continue from ``state()`` (or a checkpoint's solver part,
         ``checkpoint.solver_state``) taken on the same rank of the same model; the structure
         must already be at the same moment (``checkpoint.restore_structure``)."""
-        self._choose_step()  # as a fresh start does (the contributors' penalties)
+        self._set_up()  # as a fresh start does (the contributors' penalties)
         self.now = SolverState.from_dict(state)
         self.stats.time_step, self.stats.stable_time_step = self.now.dt, self.now.stable
         self.stats.refinements = self.now.refinements
@@ -423,9 +423,12 @@ class ExplicitSolver:
                 out[f"{contributor.name}_{key}"] = value
         return out
 
-    def _choose_step(self) -> tuple[float, float]:
-        """Collective: (step, stable step) in s for the structure now; the contributors
-        prepared for them."""
+    def _set_up(self) -> tuple[float, float]:
+        """Collective: the work arrays and the inversion guard of the structure as it is now;
+        (step, stable step) in s for it, the contributors prepared for them."""
+        self.blocks = [_BlockState(b, self.settings.mass_damping) for b in self.structure.blocks]
+        self._contact_force = self._contact_arrays()
+        self.inversion = guards.InversionGuard(self.structure)
         dt, stable, self.where = choose_time_step(self.structure, self.settings)
         if self.forced_step is not None:
             dt = self.forced_step
@@ -874,7 +877,7 @@ class ExplicitSolver:
     def _probe_indices(self, probe: Probe) -> None:
         """Collective: the owned DOFs the history sums (probe face, loads) and which
         prescribed motions make the reaction force."""
-        structure, base = self.structure, self.blocks[0]
+        structure = self.structure
         self._probe_dofs = face_dofs(
             structure.base, probe.displacement_face, probe.component, x_range=probe.displacement_x
         )
@@ -886,7 +889,8 @@ class ExplicitSolver:
             ],
             dtype=bool,
         )
-        self._load_dofs = np.arange(COMPONENTS[probe.component], base.block.n_owned, 3)
+        n_owned = structure.blocks[0].n_owned
+        self._load_dofs = np.arange(COMPONENTS[probe.component], n_owned, 3)
 
     def _contact_arrays(self) -> list[np.ndarray]:
         """The contact contributors' forces per block (owned DOFs), if there are any."""
