@@ -314,6 +314,7 @@ class ExplicitSolver:
         self._f_ext_full = np.zeros_like(structure.blocks[0].u.array)
         self._probe_indices(probe)
         self._clock = 0.0
+        self.guards = _Guards(self)
 
     # ------------------------------------------------------------------ read between steps
     @property
@@ -595,7 +596,7 @@ class ExplicitSolver:
         if not math.isfinite(s.work_int):
             self._not_finite = True
             if self.comm.size == 1:
-                self.raise_not_finite()
+                self.guards.not_finite()
 
     def react_to_refinement(self, event: RefinementEvent) -> None:
         """Collective, the one reaction to a refinement at t_n: its potential energy change
@@ -704,10 +705,10 @@ class ExplicitSolver:
             self.comm.Allreduce(MPI.IN_PLACE, flags, op=MPI.MAX)
             stop = bool(flags[0])
             if flags[1]:
-                self.raise_not_finite()
-            self._raise_if_inverted(inverted, bool(flags[2]))
+                self.guards.not_finite()
+            self.guards.inverted(inverted, bool(flags[2]))
         else:
-            self._raise_if_inverted(inverted, inverted is not None)
+            self.guards.inverted(inverted, inverted is not None)
         if stop:
             self.checkpoint()
             raise Interrupted(s.t, s.step)
@@ -733,7 +734,7 @@ class ExplicitSolver:
             # round-off would otherwise be judged against the little energy transferred at
             # the first contact
             s.largest_energy = abs(s.initial_energy)
-        self._check_runaway(total[3], abs(total[5]) + s.initial_energy)
+        self.guards.runaway(total[3], abs(total[5]) + s.initial_energy)
         row = HistoryRow(
             time=s.t,
             displacement=total[0] / max(self._n_probe, 1),
@@ -769,7 +770,7 @@ class ExplicitSolver:
         self.stats.history.append(row)
         for observer in self.observers:
             observer.on_history(row)
-        self._check_energy(row)
+        self.guards.energy(row)
 
     def _history_sums(self) -> np.ndarray:
         """Collective: the sums over ranks of (probe displacement, reaction, applied load,
@@ -798,80 +799,10 @@ class ExplicitSolver:
             ]
         )
         total = self.comm.allreduce(local, op=MPI.SUM)
-        self._raise_if_inverted(inverted, total[7] > 0.0)
+        self.guards.inverted(inverted, total[7] > 0.0)
         if not np.all(np.isfinite(total)):
-            self.raise_not_finite()
+            self.guards.not_finite()
         return total
-
-    def _check_runaway(self, kinetic: float, put_in: float) -> None:
-        """Collective: Diverged when the motion holds far more energy (kinetic, mJ) than was
-        ever put in (mJ)."""
-        s = self.now
-        if s.step > 0 and kinetic > RUNAWAY * max(put_in, 1e-300):
-            raise Diverged(
-                f"t = {s.t:.6g} s (step {s.step}): kinetic energy {kinetic:.4g} mJ exceeds "
-                f"{RUNAWAY:g} x the work put in ({put_in:.4g} mJ), fastest "
-                f"{self.where_fastest()}: the run is unstable "
-                f"(time step {s.dt:.4g} s, stable step {s.stable:.4g} s, limited by "
-                f"{self.where}; {self.likely_cause()})"
-            )
-
-    def _check_energy(self, row: HistoryRow) -> None:
-        """Collective: EnergyBalanceError when |balance - balance at t = 0| exceeds the limit
-        share of the largest energy of the run so far."""
-        s, limit = self.now, self.settings.energy_error_limit
-        largest = guards.largest_energy(
-            row.external_work, row.impact_work, row.kinetic_energy, row.internal_energy
-        )
-        s.largest_energy = max(s.largest_energy, largest)
-        error = row.energy_balance - s.initial_balance
-        if guards.energy_error(error, s.largest_energy, limit, s.step):
-            raise EnergyBalanceError(
-                f"t = {s.t:.6g} s (step {s.step}): energy balance error {error:.4g} mJ "
-                f"exceeds {limit:g} x the largest energy of the run, {s.largest_energy:.4g} "
-                f"mJ (solver.energy_error_limit); fastest {self.where_fastest()}; "
-                f"{self.likely_cause()}"
-            )
-
-    def raise_not_finite(self) -> None:
-        """Collective in parallel: the one Diverged of a solution that is no longer finite."""
-        s = self.now
-        raise Diverged(
-            f"t = {s.t:.6g} s (step {s.step}): the solution is no longer finite "
-            f"{self.where_fastest()}; time step {s.dt:.4g} s, stable step {s.stable:.4g} s"
-        )
-
-    def _raise_if_inverted(self, message: str | None, anywhere: bool) -> None:
-        """``message``: this rank's; ``anywhere``: some rank has one (known to all ranks).
-        Collective when anywhere (the message of the lowest rank that has one)."""
-        if not anywhere:
-            return
-        if self.comm.size > 1:
-            message = next(m for m in self.comm.allgather(message) if m is not None)
-        raise ElementInverted(message)
-
-    def where_fastest(self) -> str:
-        """Collective: where the largest (or a non-finite) velocity is, for error messages."""
-        best = (-1.0, "")
-        for index, state in enumerate(self.blocks):
-            speed = np.abs(state.v)
-            speed[~np.isfinite(speed)] = np.inf
-            if len(speed) and speed.max() > best[0]:
-                dof = int(np.argmax(speed))
-                best = (float(speed[dof]), self.structure.describe_dof(index, dof))
-        speed, text = max(self.comm.allgather(best))
-        return f"at {text} (|v| = {speed:.3g} mm/s)"
-
-    def likely_cause(self) -> str:
-        """Collective: what most likely made a run with a stable element step blow up."""
-        causes = [getattr(c, "suspect", lambda: "")() for c in self.contributors]
-        causes = [cause for cause in causes if cause]
-        structure = self.structure
-        if structure.comm.allreduce(len(structure.cohesive), op=MPI.SUM):
-            causes.append("a cohesive penalty too stiff for it?")
-        if structure.ply_damage:
-            causes.append("a damaged material?")
-        return " ".join(causes) or "an unstable time step?"
 
     # ------------------------------------------------------------------ set-up helpers
     def _probe_indices(self, probe: Probe) -> None:
@@ -897,6 +828,84 @@ class ExplicitSolver:
         if not self._contact:
             return []
         return [np.zeros(state.block.n_owned) for state in self.blocks]
+
+
+class _Guards:
+    """The run's stops as failed, each message written once, from the solver's state at t_n
+    (time, step, time steps, where the fastest node is, what to suspect)."""
+
+    def __init__(self, solver: ExplicitSolver):
+        self.solver = solver
+
+    def runaway(self, kinetic: float, put_in: float) -> None:
+        """Collective: Diverged when the motion holds far more energy (kinetic, mJ) than was
+        ever put in (mJ)."""
+        s = self.solver.now
+        if s.step > 0 and kinetic > RUNAWAY * max(put_in, 1e-300):
+            raise Diverged(
+                f"t = {s.t:.6g} s (step {s.step}): kinetic energy {kinetic:.4g} mJ exceeds "
+                f"{RUNAWAY:g} x the work put in ({put_in:.4g} mJ), fastest "
+                f"{self.where_fastest()}: the run is unstable "
+                f"(time step {s.dt:.4g} s, stable step {s.stable:.4g} s, limited by "
+                f"{self.solver.where}; {self.likely_cause()})"
+            )
+
+    def energy(self, row: HistoryRow) -> None:
+        """Collective: EnergyBalanceError when |balance - balance at t = 0| exceeds the limit
+        share of the largest energy of the run so far."""
+        s, limit = self.solver.now, self.solver.settings.energy_error_limit
+        largest = guards.largest_energy(
+            row.external_work, row.impact_work, row.kinetic_energy, row.internal_energy
+        )
+        s.largest_energy = max(s.largest_energy, largest)
+        error = row.energy_balance - s.initial_balance
+        if guards.energy_error(error, s.largest_energy, limit, s.step):
+            raise EnergyBalanceError(
+                f"t = {s.t:.6g} s (step {s.step}): energy balance error {error:.4g} mJ "
+                f"exceeds {limit:g} x the largest energy of the run, {s.largest_energy:.4g} "
+                f"mJ (solver.energy_error_limit); fastest {self.where_fastest()}; "
+                f"{self.likely_cause()}"
+            )
+
+    def not_finite(self) -> None:
+        """Collective in parallel: the one Diverged of a solution that is no longer finite."""
+        s = self.solver.now
+        raise Diverged(
+            f"t = {s.t:.6g} s (step {s.step}): the solution is no longer finite "
+            f"{self.where_fastest()}; time step {s.dt:.4g} s, stable step {s.stable:.4g} s"
+        )
+
+    def inverted(self, message: str | None, anywhere: bool) -> None:
+        """``message``: this rank's; ``anywhere``: some rank has one (known to all ranks).
+        Collective when anywhere (the message of the lowest rank that has one)."""
+        if not anywhere:
+            return
+        if self.solver.comm.size > 1:
+            message = next(m for m in self.solver.comm.allgather(message) if m is not None)
+        raise ElementInverted(message)
+
+    def where_fastest(self) -> str:
+        """Collective: where the largest (or a non-finite) velocity is, for error messages."""
+        best = (-1.0, "")
+        for index, state in enumerate(self.solver.blocks):
+            speed = np.abs(state.v)
+            speed[~np.isfinite(speed)] = np.inf
+            if len(speed) and speed.max() > best[0]:
+                dof = int(np.argmax(speed))
+                best = (float(speed[dof]), self.solver.structure.describe_dof(index, dof))
+        speed, text = max(self.solver.comm.allgather(best))
+        return f"at {text} (|v| = {speed:.3g} mm/s)"
+
+    def likely_cause(self) -> str:
+        """Collective: what most likely made a run with a stable element step blow up."""
+        causes = [getattr(c, "suspect", lambda: "")() for c in self.solver.contributors]
+        causes = [cause for cause in causes if cause]
+        structure = self.solver.structure
+        if structure.comm.allreduce(len(structure.cohesive), op=MPI.SUM):
+            causes.append("a cohesive penalty too stiff for it?")
+        if structure.ply_damage:
+            causes.append("a damaged material?")
+        return " ".join(causes) or "an unstable time step?"
 
 
 def run(
