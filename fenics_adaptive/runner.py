@@ -21,6 +21,7 @@ from mpi4py import MPI
 
 import fenics_adaptive
 from fenics_adaptive import watchdog
+from fenics_adaptive.adaptivity.events import RefinementEvent, refine
 from fenics_adaptive.adaptivity.indicators import front_requests, indicator_requests, spread
 from fenics_adaptive.errors import InputError, shared_errors
 from fenics_adaptive.io import checkpoint, output
@@ -36,6 +37,7 @@ from fenics_adaptive.settings.config import RunConfig, check_step_count
 from fenics_adaptive.settings.kinds import InterfaceState, ModelKind, MotionKind, Refinement
 from fenics_adaptive.settings.loads import Amplitude, PrescribedMotion
 from fenics_adaptive.solver import explicit
+from fenics_adaptive.solver.observers import Observer
 
 
 @dataclass
@@ -127,8 +129,9 @@ def initial_refinement(structure: Structure, config: RunConfig) -> list[tuple[in
 
 
 class RefinementHook:
-    """The solver's per-step hook that refines: the config's manual [[refinement]] entries and
-    its [indicators]. Decisions are taken on the same steps on every rank (time, or the global
+    """The solver's refiner (``ExplicitSolver(refiner=...)``): the config's manual
+    [[refinement]] entries and its [indicators]; returns the ``RefinementEvent`` of a
+    refinement, or None. Decisions are taken on the same steps on every rank (time, or the global
     probe displacement), so the collective refinement is entered by all. Its state (which
     manual entries are still pending, when the indicators run next) goes into checkpoints."""
 
@@ -152,7 +155,7 @@ class RefinementHook:
         self.pending = [int(k) for k in state["pending"]]
         self.next_check = float(state["next_check"])
 
-    def __call__(self, t: float, structure: Structure) -> bool:
+    def __call__(self, t: float, structure: Structure) -> RefinementEvent | None:
         config, settings = self.config, self.config.indicators
         displacement = 0.0
         if self.by_displacement:
@@ -180,8 +183,8 @@ class RefinementHook:
             if settings.front:
                 requests += front_requests(structure, settings.front)
         if not due and not evaluate:
-            return False
-        return structure.refine(requests, t)
+            return None
+        return refine(structure, requests, t)
 
 
 def probe_displacement(structure: Structure, probe, dofs: np.ndarray | None = None) -> float:
@@ -343,35 +346,23 @@ def execute(
     hook = RefinementHook.of(config)
     if hook is not None and hook_state:
         hook.restore(hook_state)
-
-    def write_checkpoint(solver_state: dict) -> None:
-        hook_now = hook.state() if hook else {}
-        checkpoint.write(
-            out_dir, comm, solver_state, structure, hook_now, config, history.text(), record,
-            folder.forget,
-        )  # fmt: skip
-
+    writer = CheckpointWriter(out_dir, config, structure, history, hook, folder)
+    observers = [history, fields, progress, writer, RefinementReport(structure, say)]
     stop = _StopOnSignal(comm)
     start = time.perf_counter()
     try:
-        stats = explicit.run(
+        solver = explicit.ExplicitSolver(
             structure,
             config.solver,
             config.probe,
-            on_history=history,
-            on_fields=fields,
-            on_progress=progress,
-            on_step=hook,
-            on_refined=lambda t, dt, where: say(
-                f"t = {t:.4e} s: refined; now {comm.allreduce(structure.extra.n_owned)} extra "
-                f"nodes, {comm.allreduce(len(structure.cohesive))} cohesive elements; time step "
-                f"{dt:.4e} s (limited by {where})"
-            ),
-            checkpoint=write_checkpoint,
+            contributors=[contact] if contact is not None else [],
+            observers=[o for o in observers if o is not None],
+            refiner=hook,
             stop_requested=stop,
-            resume=resume,
-            contact=contact,
         )
+        if resume is not None:
+            solver.restore(resume)
+        stats = solver.run()
     except BaseException as error:
         history.close(completed=False)
         if fields is not None:
@@ -396,6 +387,38 @@ def execute(
         return _finish(config, out_dir, comm, problem, finished, say, record)
     finally:
         folder.close()
+
+
+class CheckpointWriter(Observer):
+    """Writes the checkpoints of a run (``checkpoint.write``) when the solver says one is due:
+    the solver's state, the structure's, the refinement hook's, the history so far."""
+
+    def __init__(self, out_dir: Path, config: RunConfig, structure: Structure, history, hook,
+                 folder: RunFolder):  # fmt: skip
+        self.out_dir, self.config, self.structure = out_dir, config, structure
+        self.history, self.hook, self.folder = history, hook, folder
+
+    def on_checkpoint(self, solver: explicit.ExplicitSolver) -> None:
+        hook_now = self.hook.state() if self.hook else {}
+        checkpoint.write(
+            self.out_dir, self.structure.comm, solver.state(), self.structure, hook_now,
+            self.config, self.history.text(), self.folder.record, self.folder.forget,
+        )  # fmt: skip
+
+
+class RefinementReport(Observer):
+    """One line per refinement: the extra nodes and cohesive elements now, the new step."""
+
+    def __init__(self, structure: Structure, say: Callable[[str], None]):
+        self.structure, self.say = structure, say
+
+    def on_refinement(self, event: RefinementEvent, dt: float, where: str) -> None:
+        comm, structure = self.structure.comm, self.structure
+        self.say(
+            f"t = {event.time:.4e} s: refined; now {comm.allreduce(structure.extra.n_owned)} "
+            f"extra nodes, {comm.allreduce(len(structure.cohesive))} cohesive elements; time "
+            f"step {dt:.4e} s (limited by {where})"
+        )
 
 
 def _finish(

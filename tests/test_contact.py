@@ -51,7 +51,7 @@ def test_ball_bouncing_on_a_plate_conserves_the_total_energy():
     ball = Impactor("sphere", 2.0, 1.0e-6, (5.0, 5.0, 2.0 + 2.0 + 0.005), (0.0, 0.0, -1000.0))
     contact = Contact.on(ball, structure)
     settings = SolverSettings(end_time=8.0e-5, output_interval=1e-6)
-    stats = explicit.run(structure, settings, config.probe, contact=contact)
+    stats = explicit.run(structure, settings, config.probe, contributors=[contact])
     rows = stats.history
     initial = 0.5 * ball.mass * 1000.0**2  # mJ
     assert max(r.contact_force for r in rows) > 0.0  # they touched

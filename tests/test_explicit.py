@@ -18,6 +18,7 @@ from fenics_adaptive.model.loading import face_dofs
 from fenics_adaptive.model.structure import Structure
 from fenics_adaptive.settings.loads import Amplitude, FaceLoad, PrescribedMotion, clamp
 from fenics_adaptive.solver import explicit
+from fenics_adaptive.solver.observers import Observer
 from fenics_adaptive.solver.static import solve_static
 
 LENGTH, WIDTH = 50.0, 2.0
@@ -89,8 +90,9 @@ def test_stable_time_step_estimate_is_safe_and_sharp():
     probe = explicit.Probe("x1", "x0", "z")
     amplitude = []
 
-    def record(_row):
-        amplitude.append(np.abs(model.u.x.array).max())
+    class Amplitude(Observer):
+        def on_history(self, row):
+            amplitude.append(np.abs(model.u.x.array).max())
 
     steps = 1500
     # at 0.98 x the critical step the full-step kinetic energy v_n = v_{n-1/2} + dt/2 a_n of the
@@ -103,7 +105,7 @@ def test_stable_time_step_estimate_is_safe_and_sharp():
         Structure(model, loads),
         below,
         probe,
-        on_history=record,
+        observers=[Amplitude()],
         time_step=0.98 * critical,
         initial_displacement=u0,
     )

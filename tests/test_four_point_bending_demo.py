@@ -24,7 +24,7 @@ def run(name: str):
     base["solver"]["end_time"] = 1.0e-3
     config = parse_config(four_point_bending_variant(base, name))
     structure = build_structure(config)
-    stats = explicit.run(structure, config.solver, config.probe, on_step=RefinementHook.of(config))
+    stats = explicit.run(structure, config.solver, config.probe, refiner=RefinementHook.of(config))
     return structure, stats
 
 

@@ -102,7 +102,7 @@ def test_manual_refinement_by_displacement():
             at.append(displacement)
         return changed
 
-    stats = explicit.run(structure, config.solver, config.probe, on_step=on_step)
+    stats = explicit.run(structure, config.solver, config.probe, refiner=on_step)
     assert stats.refinements == 1
     assert (structure.interface_state[:, [1, 5]] == InterfaceState.STRONG).all()
     assert (structure.interface_state[:, 3] == InterfaceState.NONE).all()

@@ -296,13 +296,13 @@ def test_two_runs_into_one_folder_the_second_is_refused(tmp_path):
 def test_the_lock_is_held_while_the_run_writes(tmp_path, monkeypatch):
     out = tmp_path / "out"
     seen = []
-    original = explicit.run
+    original = explicit.ExplicitSolver.run
 
     def spy(*args, **kwargs):
         seen.append(json.loads((out / LOCK).read_text()))
         return original(*args, **kwargs)
 
-    monkeypatch.setattr(explicit, "run", spy)
+    monkeypatch.setattr(explicit.ExplicitSolver, "run", spy)
     run(small(), out)
     assert seen[0]["pid"] == os.getpid() and seen[0]["host"] == socket.gethostname()
     assert not (out / LOCK).exists()
@@ -388,14 +388,14 @@ def test_every_file_is_listed_before_it_is_written(tmp_path, monkeypatch):
 
     monkeypatch.setattr(output, "_write_vtu", listed_first(output._write_vtu))
     monkeypatch.setattr(checkpoint, "_write_durably", listed_first(checkpoint._write_durably))
-    original_run = explicit.run
+    original_run = explicit.ExplicitSolver.run
 
     def spy(*args, **kwargs):
         for name in ("history.partial.csv", "history.csv", "displacement.bp/"):
             assert name in read_manifest(out), name
         return original_run(*args, **kwargs)
 
-    monkeypatch.setattr(explicit, "run", spy)
+    monkeypatch.setattr(explicit.ExplicitSolver, "run", spy)
     run(small(output__checkpoint_interval=300), out)
     assert any(c.startswith("checkpoint/rank0-") for c in checked)
     assert any(c.startswith("plies/plies_") for c in checked)

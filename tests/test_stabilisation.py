@@ -31,7 +31,7 @@ def tcb(**sections) -> dict:
 def run(data):
     config = parse_config(data)
     structure = build_structure(config)
-    stats = explicit.run(structure, config.solver, config.probe, on_step=RefinementHook.of(config))
+    stats = explicit.run(structure, config.solver, config.probe, refiner=RefinementHook.of(config))
     return structure, stats
 
 

@@ -17,6 +17,7 @@ import pytest
 from fenics_adaptive.meshes import esl_mesh
 from mpi4py import MPI
 
+from fenics_adaptive.adaptivity.events import refine
 from fenics_adaptive.io.output import read_history
 from fenics_adaptive.model.forms import build_model
 from fenics_adaptive.model.loading import resolve
@@ -109,14 +110,15 @@ def free_beam_refined_halfway(step_fraction: float):
 
     def refine_halfway(t, s):
         if "before" in events or t < 2.0e-5:
-            return False
+            return None
         events["before"] = (s.total_mass(), s.momentum(), s.kinetic_energy())
         cells = cells_in_x_range(s, 5.0, np.inf)
         requests = [(c, 4, InterfaceState.WEAK) for c in cells]
         requests += [(c, i, InterfaceState.STRONG) for c in cells for i in (2, 6)]
-        assert s.refine(requests)
+        event = refine(s, requests, t)
+        assert event is not None
         events["after"] = (s.total_mass(), s.momentum(), s.kinetic_energy())
-        return True
+        return event
 
     # the same step before and after refinement: a fraction of the refined structure's limit
     # (found on a copy: a structure owns its model)
@@ -134,7 +136,7 @@ def free_beam_refined_halfway(step_fraction: float):
         structure,
         settings,
         Probe("x1", "x1", "z"),
-        on_step=refine_halfway,
+        refiner=refine_halfway,
         initial_velocity=velocity.ravel(),
     )
     assert stats.refinements == 1

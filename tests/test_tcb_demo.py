@@ -23,7 +23,7 @@ def run(name: str):
     base = tcb_quick(tomllib.loads((ROOT / "demos" / "tcb.toml").read_text()))
     config = parse_config(tcb_variant(base, name))
     structure = build_structure(config)
-    stats = explicit.run(structure, config.solver, config.probe, on_step=RefinementHook.of(config))
+    stats = explicit.run(structure, config.solver, config.probe, refiner=RefinementHook.of(config))
     history = {
         name: [getattr(r, name) for r in stats.history]
         for name in (

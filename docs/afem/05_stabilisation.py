@@ -31,6 +31,7 @@ from afem_figures import finish
 from mpi4py import MPI
 
 from fenics_adaptive.adaptivity import enrichment as enr
+from fenics_adaptive.adaptivity.events import refine
 from fenics_adaptive.runner import build_structure
 from fenics_adaptive.settings.config import parse_config
 from fenics_adaptive.settings.kinds import InterfaceState
@@ -233,19 +234,19 @@ T_REFINE = 2.0e-5  # s
 def late_refinement(kind):
     done = []
 
-    def on_step(t, structure):
+    def refiner(t, structure):
         if done or t < T_REFINE:
-            return False
+            return None
         done.append(t)
-        return structure.refine([(0, 4, kind)], t)
+        return refine(structure, [(0, 4, kind)], t)
 
-    return on_step
+    return refiner
 
 
 def reaction_history(initial, kind=None, stabilisation=None):
     config, structure = build(initial, stabilisation)
-    on_step = late_refinement(kind) if kind is not None else None
-    stats = explicit.run(structure, config.solver, config.probe, on_step=on_step)
+    refiner = late_refinement(kind) if kind is not None else None
+    stats = explicit.run(structure, config.solver, config.probe, refiner=refiner)
     time = np.array([row.time for row in stats.history])
     return time, np.array([row.reaction_force for row in stats.history])
 

@@ -3,8 +3,9 @@ something on some rank.
 
 Units: N, mm, s, tonne (energies in mJ = N mm).
 
-``Structure.refine`` returns a ``RefinementEvent`` (or ``None`` when no rank changed anything;
-the same answer on every rank, since refinement is collective). The solver reacts to it in one
+``refine`` (below: ``Structure.refine`` and what it changed) returns a ``RefinementEvent`` (or
+``None`` when no rank changed anything; the same answer on every rank, since refinement is
+collective). The solver reacts to it in one
 place: new work arrays for the grown blocks, the stable step chosen again, the stabilisation of
 the new refinement started, the potential energy change booked as internal work. Observers get
 the same event.
@@ -15,6 +16,11 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+
+from fenics_adaptive.settings.kinds import InterfaceState
+
+# plain ints: numpy compares an int8 array with an IntEnum member far more slowly
+NONE, WEAK, STRONG = (int(s) for s in InterfaceState)
 
 
 @dataclass(frozen=True)
@@ -39,3 +45,31 @@ class RefinementEvent:
     new_extra_nodes: int = 0
     energy_change: float = 0.0
     potential_change: float = 0.0
+
+
+def refine(structure, requests, t: float = 0.0) -> RefinementEvent | None:
+    """Collective: refine ``structure`` (``Structure.refine(requests, t)``; requests: (local
+    cell, interface, WEAK or STRONG)) and say what changed as a ``RefinementEvent``, or
+    ``None`` when no rank changed anything. t: s. (A structure whose ``refine`` returns the
+    event itself is passed through.)"""
+    comm = structure.comm
+    before = structure.interface_state.copy()
+    energy_before = structure.refinement_energy
+    extra_before = comm.allreduce(structure.extra.n_owned)
+    changed = structure.refine(requests, t)
+    if isinstance(changed, RefinementEvent) or not changed:
+        return changed or None
+    after = structure.interface_state
+    weak = np.argwhere((before == NONE) & (after >= WEAK))
+    strong = np.argwhere((before != STRONG) & (after == STRONG))
+    weak[:, 1] += 1  # interfaces count from 1
+    strong[:, 1] += 1
+    return RefinementEvent(
+        time=t,
+        cells=np.flatnonzero((after != before).any(axis=1)),
+        new_weak=weak.astype(np.int64),
+        new_strong=strong.astype(np.int64),
+        new_extra_nodes=comm.allreduce(structure.extra.n_owned) - extra_before,
+        energy_change=structure.refinement_energy - energy_before,
+        potential_change=structure.last_refinement_potential,
+    )

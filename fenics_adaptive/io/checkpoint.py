@@ -4,9 +4,10 @@ A checkpoint is a folder ``<out>/checkpoint/`` holding one generation (number N,
 over the checkpoints written into the folder):
 
 - ``rank<r>-<N>.npz``: what rank r needs to continue: the solver state (time, step, the work
-  sums, u and v with their ghosts, the last forces; ``explicit.SOLVER_SCALARS``,
-  ``BLOCK_ARRAYS``), the structure's history-dependent state (ply damage, cohesive damage, tie
-  forces, damping windows, refinement energy) and the log of its refinements;
+  sums, u and v with their ghosts, the last forces: ``ExplicitSolver.state()``, the
+  ``explicit.SolverState`` fields by name, ``BLOCK_ARRAYS``, the contributors' states), the
+  structure's history-dependent state (ply damage, cohesive damage, tie forces, damping
+  windows, refinement energy) and the log of its refinements;
 - ``history-<N>.csv``: the run's history rows up to the checkpoint, so that a restart continues
   exactly the history of this state, whatever history files the folder holds by then;
 - ``checkpoint.json``: time, step, number of ranks, the fingerprint of the config, the
@@ -45,7 +46,7 @@ from mpi4py import MPI
 from fenics_adaptive.errors import InputError, shared_errors
 from fenics_adaptive.model.structure import DampingWindow, Structure, Ties
 from fenics_adaptive.settings.config import RunConfig
-from fenics_adaptive.solver.explicit import SOLVER_SCALARS
+from fenics_adaptive.solver.explicit import SolverState
 
 FOLDER = "checkpoint"
 MANIFEST = "checkpoint.json"
@@ -321,7 +322,7 @@ def read(folder: str | Path, comm: MPI.Comm, config: RunConfig) -> tuple[dict, d
 
 # what a checkpoint's arrays must hold, whatever the model
 _REQUIRED = (
-    *(f"solver_{name}" for name in SOLVER_SCALARS),
+    *(f"solver_{f.name}" for f in dataclasses.fields(SolverState)),
     "structure_refinement_times",
     "structure_refinement_counts",
     "structure_refinement_requests",
@@ -369,7 +370,7 @@ def restore_structure(structure: Structure, arrays: dict) -> None:
 
 
 def solver_state(arrays: dict) -> dict:
-    """The solver's part of a checkpoint, as ``explicit.run(resume=...)`` takes it."""
+    """The solver's part of a checkpoint, as ``ExplicitSolver.restore`` takes it."""
     out = {}
     for name, value in arrays.items():
         if name.startswith("solver_"):

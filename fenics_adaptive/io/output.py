@@ -39,6 +39,7 @@ from fenics_adaptive.adaptivity.indicators import ply_failure_indices, ply_strai
 from fenics_adaptive.errors import InputError, shared_errors
 from fenics_adaptive.materials.ply_damage import S_D, S_FC, S_FT, S_MC, S_MT, nominal_ply_stresses
 from fenics_adaptive.solver.explicit import COLUMNS, HistoryRow
+from fenics_adaptive.solver.observers import Observer
 
 COLUMN_UNITS = {
     "time": "s",
@@ -89,9 +90,9 @@ def parse_history(text: str, source: str) -> list[HistoryRow]:
         raise InputError("restart", f"{source} is not a history table ({error})") from None
 
 
-class HistoryWriter:
+class HistoryWriter(Observer):
     """CSV history, full double precision, flushed every row (rank 0 only). Keeps the rows
-    (rank 0) for the checkpoints (``text``)."""
+    (rank 0) for the checkpoints (``text``). An observer of the solver (``on_history``)."""
 
     def __init__(self, out_dir: Path, comm: MPI.Comm, rows: list[HistoryRow] = ()):
         self.partial = out_dir / "history.partial.csv"
@@ -111,6 +112,9 @@ class HistoryWriter:
         self.rows.append(row)
         self.writer.writerow(_cells(row))
         self.file.flush()
+
+    def on_history(self, row: HistoryRow) -> None:
+        self(row)
 
     def text(self) -> str:
         """The rows so far as CSV text (rank 0; empty elsewhere)."""
@@ -450,9 +454,10 @@ def _write_pvtu(path, name, ranks, point_data, cell_data) -> None:
     )
 
 
-class FieldOutputs:
+class FieldOutputs(Observer):
     """All field outputs of a run: the base displacement (VTX), the enriched mesh and the
-    ply-by-ply results (VTU series). ``record``: the run folder's ``RunFolder.record``."""
+    ply-by-ply results (VTU series). ``record``: the run folder's ``RunFolder.record``. An
+    observer of the solver (``on_fields``)."""
 
     def __init__(self, out_dir: Path, structure, record: Callable[..., None] | None = None):
         self.writers = [
@@ -465,14 +470,18 @@ class FieldOutputs:
         for writer in self.writers:
             writer(t)
 
+    def on_fields(self, t: float) -> None:
+        self(t)
+
     def close(self) -> None:
         for writer in self.writers:
             writer.close()
 
 
-class Progress:
+class Progress(Observer):
     """Progress on stderr (rank 0): a live bar on a terminal, otherwise one line every
-    ``every`` seconds. Silent for the first ``quiet_for`` seconds, so short runs print nothing."""
+    ``every`` seconds. Silent for the first ``quiet_for`` seconds, so short runs print nothing.
+    An observer of the solver (``on_progress``)."""
 
     def __init__(
         self, end_time: float, comm: MPI.Comm, every: float = 10.0, quiet_for: float = 2.0
@@ -507,6 +516,9 @@ class Progress:
         else:
             sys.stderr.write(f"progress {100 * fraction:5.1f} %  {text}\n")
         sys.stderr.flush()
+
+    def on_progress(self, t: float) -> None:
+        self(t)
 
     def done(self) -> None:
         if self.enabled and self.shown and self.tty:

@@ -12,6 +12,11 @@ penalty springs store 1/2 k g^2, which the history reports with the impactor's k
 as ``impactor_energy``. So the energy balance of a bouncing ball closes up to the scheme's
 O(dt^2) error.
 
+As a force contributor (``model.forces``, name "impactor", kind CONTACT) it adds its forces on
+the top-face DOFs, integrates itself (``advance``), reports the contact force, its displacement
+and the energy it gave up (``impact_work``) in the history and keeps its state (centre,
+velocity, initial energy and height) for checkpoints (keys ``impactor_*``).
+
 Penalty k (N/mm per node): by default the through-thickness stiffness of the laminate over one
 node's area, max C33 * A_node / h. It is capped so that a node on its spring stays well inside
 the stable step: k <= 0.05 m_node (2 / dt)^2. Contact is checked on the owned top-face base
@@ -27,6 +32,7 @@ from mpi4py import MPI
 from numba import njit
 
 from fenics_adaptive.errors import InputError
+from fenics_adaptive.model.forces import Contributor, ForceKind
 from fenics_adaptive.model.loading import face_nodes
 from fenics_adaptive.settings.kinds import ImpactorShape
 from fenics_adaptive.settings.loads import Impactor
@@ -57,13 +63,18 @@ def penalty_forces(x, centre, radius, cylinder, penalty, f_out, total):
     return energy
 
 
-class Contact:
+class Contact(Contributor):
     """The impactor's state and its contact with the top-face nodes of a structure.
 
     ``nodes``: owned top-face base nodes; ``mass_of_node``: their lumped masses (for the
     penalty cap); ``X``: their reference positions; ``area``: the in-plane area of a node
     (mm^2); ``C33``, ``h``: the stiffest through-thickness modulus (MPa) and the thickness (mm)
-    (for the default penalty). ``Contact.on(impactor, structure)`` fills these in."""
+    (for the default penalty); ``displacement``: the base displacement vector (a DOLFINx
+    vector, owned + ghost entries) the contact reads. ``Contact.on(impactor, structure)``
+    fills these in."""
+
+    name = "impactor"
+    kind = ForceKind.CONTACT
 
     @classmethod
     def on(cls, impactor: Impactor, structure) -> Contact:
@@ -79,12 +90,23 @@ class Contact:
         area = total / n_cells
         C33 = max(p.material.stiffness()[2, 2] for p in structure.laminate.plies)
         mass = structure.mass_base.array[3 * owned]
-        return cls(
-            impactor, structure.comm, owned, X, mass, area, C33, structure.laminate.thickness
-        )
+        h = structure.laminate.thickness
+        return cls(impactor, structure.comm, owned, X, mass, area, C33, h, structure.base.u.x)
 
-    def __init__(self, impactor: Impactor, comm: MPI.Comm, nodes, X, mass_of_node, area, C33, h):
+    def __init__(
+        self,
+        impactor: Impactor,
+        comm: MPI.Comm,
+        nodes,
+        X,
+        mass_of_node,
+        area,
+        C33,
+        h,
+        displacement=None,
+    ):
         self.impactor = impactor
+        self.displacement = displacement
         self.comm = comm
         self.nodes = np.asarray(nodes, dtype=np.int64)
         self.dofs = (3 * self.nodes[:, None] + np.arange(3)).ravel()
@@ -97,12 +119,16 @@ class Contact:
         self.centre = np.array(impactor.position, dtype=float)
         self.velocity = np.array(impactor.velocity, dtype=float)  # v_{n-1/2}
         self.acceleration = np.zeros(3)
+        self.last_dt = 0.0  # s: dt_{n-1/2}, of the last advance (0 before the first)
+        self.initial = 0.0  # mJ: kinetic + penalty energy at t = 0
+        self.z0 = float(self.centre[2])  # mm: the centre's height at t = 0
         self.force = np.zeros(3)  # on the impactor, global
         self.energy_penalty = 0.0  # global
         # work arrays: the step allocates nothing
         self.u = np.empty(len(self.dofs))
         self.x = np.empty((len(self.nodes), 3))
         self.f = np.empty((len(self.nodes), 3))
+        self.f_dofs = np.empty(len(self.dofs))
         self.totals = np.empty(4)  # force on the impactor, penalty energy
         self.cylinder = impactor.shape == ImpactorShape.CYLINDER
 
@@ -145,12 +171,19 @@ class Contact:
         if self.impactor.penalty is None:
             self.penalty = min(self.natural_penalty, cap)
 
-    def set_forces(self, u_base: np.ndarray, forces: np.ndarray) -> None:
-        """Collective: the contact forces at the current displacement (u_base: local base DOFs,
-        flat) written into ``forces`` (owned base DOFs, flat) at the top-face DOFs; its other
-        entries are left alone (zero, in the solver's array). Also the impactor's force and
-        acceleration."""
-        np.take(u_base, self.dofs, out=self.u)
+    def prepare(self, dt: float, element_step: float) -> None:
+        """At the start of a run with the time step dt (s): the default penalty capped, an
+        explicit one checked (``element_step``: the structure's stable step without the safety
+        factor, s); the impactor's height taken as its reference."""
+        self.limit_penalty(dt)
+        self.check_penalty(dt, element_step)
+        self.z0 = float(self.centre[2])
+
+    def add_force(self, t: float, f_base: np.ndarray, f_extra: np.ndarray) -> None:
+        """Collective: add the contact forces (N) at the current displacement into ``f_base``
+        (owned base DOFs, flat) at the top-face DOFs; also the impactor's force and
+        acceleration. ``f_extra`` is not touched (the top face has no extra nodes)."""
+        np.take(self.displacement.array, self.dofs, out=self.u)
         np.add(self.X, self.u.reshape(-1, 3), out=self.x)
         self.totals[3] = penalty_forces(
             self.x,
@@ -161,7 +194,9 @@ class Contact:
             self.f,
             self.totals[:3],
         )
-        np.put(forces, self.dofs, self.f)
+        np.take(f_base, self.dofs, out=self.f_dofs)  # the DOFs are distinct: add in place
+        self.f_dofs += self.f.reshape(-1)
+        np.put(f_base, self.dofs, self.f_dofs)
         self.comm.Allreduce(MPI.IN_PLACE, self.totals, op=MPI.SUM)
         self.force[:] = self.totals[:3]
         self.energy_penalty = float(self.totals[3])
@@ -171,15 +206,43 @@ class Contact:
         """v_{n-1/2} -> v_{n+1/2}, c_n -> c_{n+1}."""
         self.velocity += mean_dt * self.acceleration
         self.centre += dt * self.velocity
+        self.last_dt = dt
 
-    def energy(self, dt_prev: float) -> float:
-        """Kinetic energy at the full step plus the penalty energy (mJ)."""
-        v = self.velocity + 0.5 * dt_prev * self.acceleration
+    def total_energy(self) -> float:
+        """Kinetic energy at the full step plus the penalty energy (mJ), of the whole run."""
+        v = self.velocity + 0.5 * self.last_dt * self.acceleration
         return 0.5 * self.impactor.mass * float(v @ v) + self.energy_penalty
 
+    def energy(self) -> float:
+        """This rank's share of ``total_energy`` (mJ): all of it on rank 0 (the impactor is
+        one body, known to every rank)."""
+        return self.total_energy() if self.comm.rank == 0 else 0.0
+
+    def report(self, row, first: bool) -> None:
+        """The contact force (N, z), the impactor's z displacement (mm) and the energy it gave
+        up since t = 0 (mJ) into a history row; ``first``: the row at t = 0."""
+        energy = self.total_energy()
+        if first:
+            self.initial = energy
+        row.contact_force = float(self.force[2])
+        row.impactor_displacement = float(self.centre[2] - self.z0)
+        row.impact_work = self.initial - energy
+
+    def suspect(self) -> str:
+        return f"the contact penalty (impactor.penalty = {self.penalty:.4g} N/mm) too stiff for it?"
+
     def state(self) -> dict[str, np.ndarray]:
-        return {"centre": self.centre.copy(), "velocity": self.velocity.copy()}
+        return {
+            "centre": self.centre.copy(),
+            "velocity": self.velocity.copy(),
+            "initial": np.array(self.initial),
+            "z0": np.array(self.z0),
+            "last_dt": np.array(self.last_dt),
+        }
 
     def restore(self, state: dict) -> None:
         self.centre[:] = state["centre"]
         self.velocity[:] = state["velocity"]
+        self.initial = float(state["initial"])
+        self.z0 = float(state["z0"])
+        self.last_dt = float(state["last_dt"])

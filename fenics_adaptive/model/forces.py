@@ -34,7 +34,7 @@ class ForceContributor(Protocol):
 
     def add_force(self, t: float, f_base: np.ndarray, f_extra: np.ndarray) -> None:
         """Add this contributor's force at time t (s) into this rank's base and extra DOF
-        arrays (N, flat, owned + ghost entries; the owner sums the ghosts afterwards)."""
+        arrays (N, flat; the explicit solver passes the owned entries)."""
         ...
 
     def energy(self) -> float:
@@ -49,3 +49,38 @@ class ForceContributor(Protocol):
     def restore(self, state: dict[str, np.ndarray]) -> None:
         """Continue from ``state()`` taken from the same contributor on the same rank."""
         ...
+
+
+class Contributor:
+    """Base of a contributor with the solver's optional hooks, all no-ops: subclass it and
+    define ``name``, ``kind`` and the four methods of ``ForceContributor``."""
+
+    name: str = ""
+    kind: ForceKind = ForceKind.EXTERNAL
+
+    def energy(self) -> float:
+        return 0.0
+
+    def state(self) -> dict[str, np.ndarray]:
+        return {}
+
+    def restore(self, state: dict[str, np.ndarray]) -> None:
+        pass
+
+    def prepare(self, dt: float, element_step: float) -> None:
+        """The time step dt (s) was chosen at the start of a run; ``element_step``: the
+        structure's stable step without the safety factor (s). A contributor that limits the
+        step (a penalty) checks itself here."""
+
+    def advance(self, mean_dt: float, dt: float) -> None:
+        """The structure moved from t_n to t_n + dt (s); ``mean_dt``: (dt_{n-1/2} + dt) / 2
+        (s). A contributor with degrees of freedom of its own (a rigid impactor) integrates
+        them here with the same central-difference scheme."""
+
+    def report(self, row, first: bool) -> None:
+        """Fill this contributor's columns of a history row (``explicit.HistoryRow``);
+        ``first``: the row at t = 0."""
+
+    def suspect(self) -> str:
+        """What of this contributor to suspect when a run blows up ("" for nothing)."""
+        return ""

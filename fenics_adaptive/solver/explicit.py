@@ -34,20 +34,24 @@ largest stable one for the step is refused (``Contact.check_penalty``).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 
 import numpy as np
 from mpi4py import MPI
 
+from fenics_adaptive.adaptivity.events import RefinementEvent
 from fenics_adaptive.errors import InputError
-from fenics_adaptive.model.contact import Contact
+from fenics_adaptive.model.forces import ForceContributor, ForceKind
 from fenics_adaptive.model.loading import COMPONENTS, face_dofs
 from fenics_adaptive.model.structure import Block, Structure
+from fenics_adaptive.model.tie_forces import TieForces
 from fenics_adaptive.settings.solver import Probe, SolverSettings
 from fenics_adaptive.solver import guards
+from fenics_adaptive.solver.observers import Observer
 
 
 @dataclass
@@ -111,24 +115,47 @@ class Interrupted(RuntimeError):
 # What a checkpoint keeps of each block: every array the next step reads (u and v with their
 # ghosts; the rest owned), so that a resumed run repeats the uninterrupted one bit for bit.
 BLOCK_ARRAYS = ("u_all", "v_all", "du", "f_old", "f_ext_old", "reaction_old")
-SOLVER_SCALARS = (
-    "t",
-    "step",
-    "dt",
-    "dt_prev",
-    "stable",
-    "next_output",
-    "next_fields",
-    "work_int",
-    "work_ext",
-    "work_damp",
-    "initial_energy",
-    "tied",
-    "refinements",
-    "initial_potential",
-    "largest_energy",
-    "initial_balance",
-)
+
+
+@dataclass
+class SolverState:
+    """Every scalar the time loop carries from one step to the next (s, mJ). The work sums are
+    this rank's shares (the history sums them over ranks). Checkpoints store each field by its
+    name (``solver_<name>``); a field missing from a checkpoint takes its default."""
+
+    t: float = 0.0  # s, t_n
+    step: int = 0  # n
+    dt: float = 0.0  # s, dt_{n+1/2}: the step about to be taken
+    dt_prev: float = 0.0  # s, dt_{n-1/2}: the step just taken (0 before the first)
+    stable: float = 0.0  # s, the stable step (with the safety factor)
+    next_output: float = 0.0  # s, time of the next history row
+    next_fields: float = math.inf  # s, time of the next field output
+    work_int: float = 0.0  # mJ, internal work
+    work_ext: float = 0.0  # mJ, work of loads and prescribed motions
+    work_damp: float = 0.0  # mJ, dissipated by mass damping
+    initial_energy: float = 0.0  # mJ, kinetic + strain + contributors' energy at t = 0
+    initial_potential: float = 0.0  # mJ, strain + stored cohesive energy at t = 0
+    largest_energy: float = 0.0  # mJ, the largest energy of the run so far (energy guard)
+    # mJ: energy_balance at t = 0 (an initial velocity brings it): the guard judges the change
+    initial_balance: float = 0.0
+    refinements: int = 0  # refinement events so far
+    # the forces, work, refinement and outputs at t_n are done (a state taken between two
+    # ``step()`` calls); False for one taken right after the motion to t_n (checkpoints)
+    evaluated: bool = False
+
+    def as_dict(self) -> dict[str, float | int | bool]:
+        return dataclasses.asdict(self)
+
+    @classmethod
+    def from_dict(cls, values: dict) -> SolverState:
+        """From ``as_dict`` or a checkpoint's solver part (0-d arrays); extra keys ignored."""
+        return cls(
+            **{
+                f.name: type(f.default)(values[f.name])
+                for f in dataclasses.fields(cls)
+                if f.name in values
+            }
+        )
 
 
 RUNAWAY = 100.0  # kinetic energy beyond this multiple of the work put in means instability
@@ -191,479 +218,685 @@ class _BlockState:
             self.reaction_old[new_at] = old.reaction_old[old_at]
 
 
-def run(
-    structure: Structure,
-    settings: SolverSettings,
-    probe: Probe,
-    on_history: Callable[[HistoryRow], None] | None = None,
-    on_fields: Callable[[float], None] | None = None,
-    on_progress: Callable[[float], None] | None = None,
-    on_step: Callable[[float, Structure], bool] | None = None,
-    on_refined: Callable[[float, float, str], None] | None = None,
-    time_step: float | None = None,
-    initial_displacement: np.ndarray | None = None,
-    initial_velocity: np.ndarray | None = None,
-    checkpoint: Callable[[dict], None] | None = None,
-    stop_requested: Callable[[], bool] | None = None,
-    resume: dict | None = None,
-    contact: Contact | None = None,
-) -> RunStats:
-    """Integrate from t = 0 to ``settings.end_time``, starting from ``initial_displacement`` and
-    ``initial_velocity`` (base DOFs, owned + ghost entries; default zero; the velocity is taken
-    as v_{-1/2}).
+# what a refiner is: called before every step, it refines the structure (collectively) or not
+Refiner = Callable[[float, Structure], RefinementEvent | None]
 
-    ``on_step(t, structure)`` runs before every step and returns True if it changed the
-    structure (refinement): the blocks are then rebuilt, the stable step recomputed, the
-    stabilisation of the new refinement started (``Structure.start_stabilisation(t)``: damping
-    windows, tie forces), and ``on_refined(t, new step, what limits it)`` is told.
-    ``time_step`` bypasses the stability check (for tests that show what an unstable step
-    does).
+POLL_EVERY = 64  # steps between the polls for a stop request, inversion and divergence
 
-    Checkpoints: every ``settings.checkpoint_interval`` steps and after the last step (if
-    that is set), and, in any case, when
-    ``stop_requested()`` turns True on any rank (polled every 64 steps), ``checkpoint(state)``
-    gets the solver state (``SOLVER_SCALARS`` and per block ``BLOCK_ARRAYS``) to store with the
-    structure's; after a stop it raises ``Interrupted``. ``resume``: such a state, to continue
-    from (the structure must already be restored to the same moment).
 
-    ``contact``: a rigid impactor hitting the top face (``contact.Contact``), integrated with
-    the structure; its forces are not external work: the history reports the energy the
-    impactor gave up as ``impact_work``."""
-    comm = structure.comm
-    loads = structure.loads
-    dt, stable, where = choose_time_step(structure, settings)
-    if time_step is not None:
-        dt = time_step
-    forced = settings.time_step is not None or time_step is not None
-    stats = RunStats(time_step=dt, stable_time_step=stable, critical=where)
+class ExplicitSolver:
+    """The central-difference time loop of one structure, as an object with explicit state.
 
-    states = [_BlockState(b, settings.mass_damping) for b in structure.blocks]
-    base = states[0]
-    if resume is None:
-        base.block.u.array[:] = 0.0 if initial_displacement is None else initial_displacement
-        base.block.v.array[:] = 0.0 if initial_velocity is None else initial_velocity
+    ``structure``: the model to integrate; ``settings``, ``probe``: what to run and report;
+    ``contributors``: force contributors beside the structure's internal forces and loads
+    (``model.forces``: a rigid impactor, ``contact.Contact``); the structure's tie forces are
+    always one. ``observers``: told of history rows, field and checkpoint times, progress,
+    refinements (``observers.Observer``). ``refiner(t, structure)``: called before every step,
+    refines the structure and returns the ``RefinementEvent`` or None. ``stop_requested()``:
+    polled every 64 steps (as is ``request_stop()``); a stop writes a checkpoint (observers)
+    and raises ``Interrupted``. ``time_step``: forces the step past the stability check (for
+    tests that show what an unstable step does).
+
+    Use: ``start()`` (or ``restore(state)``), then ``step()`` until it returns False, or
+    ``run()``. Between two steps the state is complete at t_n: u_n, the forces at t_n, the
+    history row of t_n if one was due; the velocity held is v_{n-1/2}.
+
+    Every rank must make the same calls (the steps are collective)."""
+
+    def __init__(
+        self,
+        structure: Structure,
+        settings: SolverSettings,
+        probe: Probe,
+        contributors: Iterable[ForceContributor] = (),
+        observers: Iterable[Observer] = (),
+        refiner: Refiner | None = None,
+        stop_requested: Callable[[], bool] | None = None,
+        time_step: float | None = None,
+    ):
+        self.structure = structure
+        self.settings = settings
+        self.comm = structure.comm
+        self.contributors: list[ForceContributor] = [TieForces(structure), *contributors]
+        self.observers: list[Observer] = list(observers)
+        self.refiner = refiner
+        self.stop_requested = stop_requested
+        self.forced_step = time_step
+        self.forced = settings.time_step is not None or time_step is not None
+        self.now = SolverState()
+        self.stats = RunStats()
+        self.where = ""  # what limits the stable step
+        self.started = False
+        self._stop = False
+        self._not_finite = False  # this rank saw a non-finite internal work (told at a poll)
+        self._damping_changes = math.inf  # next time a stabilisation damping window closes
+        self._damped = settings.mass_damping > 0.0
+        self.blocks: list[_BlockState] = []  # the work arrays: from start() or restore()
+        by_kind = {kind: [c for c in self.contributors if c.kind is kind] for kind in ForceKind}
+        self._internal = by_kind[ForceKind.INTERNAL]
+        self._external = by_kind[ForceKind.EXTERNAL]
+        self._contact = by_kind[ForceKind.CONTACT]
+        # the optional hooks (model.forces.Contributor) of those that have them
+        self._moving = [c.advance for c in self.contributors if hasattr(c, "advance")]
+        self._reporting = [c.report for c in self.contributors if hasattr(c, "report")]
+        self._contact_force: list[np.ndarray] = []
+        self.inversion: guards.InversionGuard | None = None
+        n_motions = len(structure.motions)
+        self._motion_now, self._motion_next = np.zeros(n_motions), np.zeros(n_motions)
+        self._f_ext_full = np.zeros_like(structure.blocks[0].u.array)
+        self._probe_indices(probe)
+        self._clock = 0.0
+        self.guards = _Guards(self)
+
+    # ------------------------------------------------------------------ read between steps
+    @property
+    def t(self) -> float:
+        """s, the time t_n the state is at."""
+        return self.now.t
+
+    @property
+    def u(self) -> np.ndarray:
+        """mm, the base nodes' displacement u_n (owned DOFs, flat; a view, do not write)."""
+        return self.blocks[0].u
+
+    @property
+    def v(self) -> np.ndarray:
+        """mm/s, the base nodes' velocity v_{n-1/2} (owned DOFs, flat; a view)."""
+        return self.blocks[0].v
+
+    @property
+    def internal_force(self) -> np.ndarray:
+        """N, f_int(u_n) on the base DOFs (owned, flat; a view)."""
+        return self.blocks[0].f
+
+    @property
+    def external_force(self) -> np.ndarray:
+        """N, f_ext(t_n) on the base DOFs (owned, flat; a view)."""
+        return self.blocks[0].f_ext
+
+    @property
+    def last_row(self) -> HistoryRow | None:
+        """The last history row of this run (energies in mJ), None before the first."""
+        return self.stats.history[-1] if self.stats.history else None
+
+    @property
+    def interface_state(self) -> np.ndarray:
+        """The structure's refinement state: NONE, WEAK or STRONG per (owned cell,
+        interface)."""
+        return self.structure.interface_state
+
+    @property
+    def finished(self) -> bool:
+        """The state is at the end time and evaluated there."""
+        s = self.now
+        return s.evaluated and s.t >= self.settings.end_time - 1e-9 * s.dt
+
+    def request_stop(self) -> None:
+        """Stop at the next poll (every 64 steps) with a checkpoint: ``Interrupted``."""
+        self._stop = True
+
+    # ------------------------------------------------------------------ start, state
+    def start(
+        self,
+        initial_displacement: np.ndarray | None = None,
+        initial_velocity: np.ndarray | None = None,
+    ) -> None:
+        """Collective: begin at t = 0 from ``initial_displacement`` and ``initial_velocity``
+        (mm, mm/s; base DOFs, owned + ghost entries; default zero; the velocity is taken as
+        v_{-1/2}), and evaluate t = 0 (forces, the first history row)."""
+        dt, stable = self._set_up()
+        field_interval = self.settings.field_interval
+        self.now = SolverState(
+            dt=dt, stable=stable, next_fields=0.0 if field_interval else math.inf
+        )
+        base = self.blocks[0].block
+        base.u.array[:] = 0.0 if initial_displacement is None else initial_displacement
+        base.v.array[:] = 0.0 if initial_velocity is None else initial_velocity
         if initial_displacement is None and initial_velocity is None:
             # from rest means the extra nodes too (a structure run before, e.g. by a timing
             # harness, keeps their last motion otherwise: energy the balance never saw put in)
-            for state in states[1:]:
+            for state in self.blocks[1:]:
                 state.block.u.array[:] = 0.0
                 state.block.v.array[:] = 0.0
-    n_motions = len(structure.motions)
-    motion_now, motion_next = np.zeros(n_motions), np.zeros(n_motions)
-    f_ext_full = np.zeros_like(base.block.u.array)
-    damped = settings.mass_damping > 0.0
-    contact_force = np.zeros(base.block.n_owned)  # impactor on the base DOFs (owned), N
-    impactor_initial = [0.0]  # mJ: the impactor's kinetic + penalty energy at t = 0
-    if contact is not None:
-        contact.limit_penalty(dt)
-        contact.check_penalty(dt, stable / settings.safety_factor)
-        z0 = contact.centre[2]
-    inversion = guards.InversionGuard(structure)
-    energy_limit = settings.energy_error_limit
-    largest = [0.0]  # mJ: the largest energy of the run so far (energy guard)
-    initial_potential = [0.0]  # mJ: strain + stored cohesive energy at t = 0
-    # mJ: energy_balance at t = 0, the initial kinetic energy (an initial velocity): the guard
-    # judges the change from it
-    initial_balance = [0.0]
+        self._begin()
 
-    def raise_if_inverted(message: str | None, anywhere: bool) -> None:
+    def restore(self, state: dict) -> None:
+        """Collective: continue from ``state()`` (or a checkpoint's solver part,
+        ``checkpoint.solver_state``) taken on the same rank of the same model; the structure
+        must already be at the same moment (``checkpoint.restore_structure``)."""
+        self._set_up()  # as a fresh start does (the contributors' penalties)
+        self.now = SolverState.from_dict(state)
+        self.stats.time_step, self.stats.stable_time_step = self.now.dt, self.now.stable
+        self.stats.refinements = self.now.refinements
+        for index, block_state in enumerate(self.blocks):
+            block_state.block.u.array[:] = state[f"block{index}_u_all"]
+            block_state.block.v.array[:] = state[f"block{index}_v_all"]
+            for name in BLOCK_ARRAYS[2:]:
+                getattr(block_state, name)[:] = state[f"block{index}_{name}"]
+        for contributor in self.contributors:
+            prefix = f"{contributor.name}_"
+            own = {k.removeprefix(prefix): v for k, v in state.items() if k.startswith(prefix)}
+            if own:
+                contributor.restore(own)
+        self.refresh_damping()
+        self._begin()
+
+    def state(self) -> dict[str, np.ndarray | float | int | bool]:
+        """What ``restore`` needs to continue exactly (this rank): the ``SolverState`` fields
+        by name, per block ``BLOCK_ARRAYS`` as ``block<i>_<name>``, each contributor's state as
+        ``<name>_<key>``. Copies."""
+        out: dict = self.now.as_dict()
+        for index, block_state in enumerate(self.blocks):
+            out[f"block{index}_u_all"] = block_state.block.u.array.copy()
+            out[f"block{index}_v_all"] = block_state.block.v.array.copy()
+            for name in BLOCK_ARRAYS[2:]:
+                out[f"block{index}_{name}"] = getattr(block_state, name).copy()
+        for contributor in self.contributors:
+            for key, value in contributor.state().items():
+                out[f"{contributor.name}_{key}"] = value
+        return out
+
+    def _set_up(self) -> tuple[float, float]:
+        """Collective: the work arrays and the inversion guard of the structure as it is now;
+        (step, stable step) in s for it, the contributors prepared for them."""
+        self.blocks = [_BlockState(b, self.settings.mass_damping) for b in self.structure.blocks]
+        self._contact_force = self._contact_arrays()
+        self.inversion = guards.InversionGuard(self.structure)
+        dt, stable, self.where = choose_time_step(self.structure, self.settings)
+        if self.forced_step is not None:
+            dt = self.forced_step
+        self.stats = RunStats(time_step=dt, stable_time_step=stable, critical=self.where)
+        for contributor in self.contributors:
+            prepare = getattr(contributor, "prepare", None)
+            if prepare is not None:
+                prepare(dt, stable / self.settings.safety_factor)
+        return dt, stable
+
+    def _begin(self) -> None:
+        """The prescribed DOFs on their values at t_n; observers told; t_n evaluated (unless
+        the state was taken evaluated: then only its forces are recomputed)."""
+        self.set_prescribed()
+        for state in self.blocks:
+            np.put(state.u, state.block.fixed, state.u_now)
+            state.block.u.scatter_forward()
+        self.started = True
+        for observer in self.observers:
+            observer.on_start(self)
+        self._clock = time.perf_counter()
+        with np.errstate(over="ignore", invalid="ignore"):
+            if self.now.evaluated:
+                self.forces_and_accelerations()
+            else:
+                self._evaluate()
+
+    # ------------------------------------------------------------------ the loop
+    def step(self) -> bool:
+        """Collective: one central-difference step t_n -> t_{n+1} and the evaluation of
+        t_{n+1} (forces, work, refinement, the outputs due); returns False (and does nothing)
+        once the end time is reached."""
+        with np.errstate(over="ignore", invalid="ignore"):
+            return self._step()
+
+    def run(self) -> RunStats:
+        """Collective: ``start()`` unless started, then step to ``settings.end_time``.
+        Returns the run's statistics and history rows."""
+        # a diverging run is reported by Diverged, not by floating-point warnings
+        with np.errstate(over="ignore", invalid="ignore"):
+            if not self.started:
+                self.start()
+            while self._step():
+                pass
+        self.stats.steps = self.now.step
+        self.stats.wall_time = time.perf_counter() - self._clock
+        self.stats.refinements = self.now.refinements
+        for observer in self.observers:
+            observer.on_finish(self.stats)
+        return self.stats
+
+    def _step(self) -> bool:
+        if not self.started:
+            raise RuntimeError("ExplicitSolver.step before start() or restore()")
+        if self.finished:
+            return False
+        self.advance()
+        s = self.now
+        if s.step % POLL_EVERY == 0:
+            self.poll()
+        # periodic, and the last state (a restart with a later end time extends the run)
+        every = self.settings.checkpoint_interval
+        if every and (s.step % every == 0 or s.t >= self.settings.end_time - 1e-9 * s.dt):
+            self.checkpoint()
+        self._evaluate()
+        return True
+
+    def _evaluate(self) -> None:
+        """Everything at t_n: forces and accelerations, the work of the step just made, a
+        refinement, the outputs due."""
+        s = self.now
+        self.forces_and_accelerations()
+        if s.step > 0:
+            self.update_work()
+        if self.refiner is not None:
+            # refinement between steps: the work of the last step was counted with the old
+            # structure's forces above; the new one starts from its own forces at t_n
+            event = self.refiner(s.t, self.structure)
+            if event:
+                self.react_to_refinement(event)
+        if s.t >= s.next_output - 1e-9 * s.dt or s.t >= self.settings.end_time - 1e-9 * s.dt:
+            self.record_history()
+            while s.next_output <= s.t + 1e-9 * s.dt:
+                s.next_output += self.settings.output_interval
+        if s.t >= s.next_fields - 1e-9 * s.dt:
+            for observer in self.observers:
+                observer.on_fields(s.t)
+            while s.next_fields <= s.t + 1e-9 * s.dt:
+                s.next_fields += self.settings.field_interval
+        s.evaluated = True
+
+    def set_prescribed(self) -> None:
+        """The prescribed DOFs' values at t_n and t_n + dt into every block."""
+        s = self.now
+        for k, motion in enumerate(self.structure.motions):
+            self._motion_now[k] = motion.displacement(s.t)
+            self._motion_next[k] = motion.displacement(s.t + s.dt)
+        for state in self.blocks:
+            np.take(self._motion_now, state.block.fixed_motion, out=state.u_now)
+            np.take(self._motion_next, state.block.fixed_motion, out=state.u_next)
+
+    def forces_and_accelerations(self) -> None:
+        """Collective: f_int, f_ext, the contributors' forces, accelerations and reactions at
+        t_n for the current structure."""
+        s = self.now
+        base, extra = self.blocks
+        self.structure.internal_force()
+        for contributor in self._internal:
+            contributor.add_force(s.t, base.f, extra.f)
+        self.structure.loads.external_force(s.t, self._f_ext_full)
+        base.f_ext[:] = self._f_ext_full[: base.block.n_owned]
+        extra.f_ext.fill(0.0)  # only contributors load the extra nodes
+        for contributor in self._external:
+            contributor.add_force(s.t, base.f_ext, extra.f_ext)
+        if self._contact:
+            for forces in self._contact_force:
+                forces.fill(0.0)
+            for contributor in self._contact:
+                contributor.add_force(s.t, *self._contact_force)
+        mean_dt = 0.5 * (s.dt_prev + s.dt)
+        for index, state in enumerate(self.blocks):
+            contact = self._contact_force[index] if self._contact else None
+            self._accelerate(state, contact, mean_dt)
+
+    def _accelerate(self, state: _BlockState, contact: np.ndarray | None, mean_dt: float) -> None:
+        """a = (f_ext + f_contact - f_int) / m; on the prescribed DOFs the acceleration that
+        takes them exactly to u(t_{n+1}) and the reaction force it needs."""
+        np.subtract(state.f_ext, state.f, out=state.acc)
+        if contact is not None:
+            state.acc += contact
+        state.acc *= state.inv_m
+        if not len(state.block.fixed):
+            return
+        fixed = state.block.fixed
+        np.subtract(state.u_next, state.u_now, out=state.a_fixed)
+        state.a_fixed /= self.now.dt
+        np.take(state.v, fixed, out=state.v_fixed)
+        state.a_fixed -= state.v_fixed
+        state.a_fixed /= mean_dt
+        np.put(state.acc, fixed, state.a_fixed)
+        # reaction = m a + f_int - f_ext (- f_contact) on the prescribed DOFs
+        np.take(state.m, fixed, out=state.reaction)
+        state.reaction *= state.a_fixed
+        state.reaction += np.take(state.f, fixed, out=state.scratch)
+        state.reaction -= np.take(state.f_ext, fixed, out=state.scratch)
+        if contact is not None:
+            state.reaction -= np.take(contact, fixed, out=state.scratch)
+
+    def update_work(self) -> None:
+        """The work over the step just made (trapezoidal in the forces), this rank's share."""
+        s = self.now
+        for state in self.blocks:
+            s.work_int += 0.5 * (np.dot(state.f_old, state.du) + np.dot(state.f, state.du))
+            s.work_ext += 0.5 * (np.dot(state.f_ext_old, state.du) + np.dot(state.f_ext, state.du))
+            if len(state.block.fixed):
+                np.take(state.du, state.block.fixed, out=state.du_fixed)
+                s.work_ext += 0.5 * (
+                    np.dot(state.reaction_old, state.du_fixed)
+                    + np.dot(state.reaction, state.du_fixed)
+                )
+        # the internal work sums every DOF's force and motion: a single non-finite value
+        # anywhere shows here, in the step it appears (in parallel the other ranks learn it at
+        # the next poll)
+        if not math.isfinite(s.work_int):
+            self._not_finite = True
+            if self.comm.size == 1:
+                self.guards.not_finite()
+
+    def react_to_refinement(self, event: RefinementEvent) -> None:
+        """Collective, the one reaction to a refinement at t_n: its potential energy change
+        booked as internal work, new work arrays for the grown blocks, the stable step chosen
+        again, the stabilisation of the new refinement started, the forces of the refined
+        structure at t_n, the observers told."""
+        s, settings, structure = self.now, self.settings, self.structure
+        s.refinements += 1
+        # the strain and cohesive energy the refinement changed count as internal work (booked
+        # once, on rank 0), so that the dissipated energy does not jump
+        if self.comm.rank == 0:
+            s.work_int += event.potential_change
+        self.blocks = [
+            _BlockState(b, settings.mass_damping, old)
+            for b, old in zip(structure.blocks, self.blocks, strict=True)
+        ]
+        self._contact_force = self._contact_arrays()
+        self.inversion.refresh()
+        limit, self.where = structure.stable_time_step()
+        s.stable = settings.safety_factor * limit
+        self.stats.stable_time_step, self.stats.critical = s.stable, self.where
+        if not self.forced:
+            s.dt = s.stable
+        elif s.dt > s.stable * (1.0 + 1e-12):
+            raise Diverged(
+                f"t = {s.t:.6g} s: after refinement the stable step is {s.stable:.4g} s "
+                f"({self.where}), below the forced step {s.dt:.4g} s"
+            )
+        self.set_prescribed()
+        structure.start_stabilisation(s.t)
+        self.refresh_damping()
+        self.forces_and_accelerations()
+        for observer in self.observers:
+            observer.on_refinement(event, s.dt, self.where)
+
+    def refresh_damping(self) -> None:
+        """Per-DOF damping: the global coefficient plus the open stabilisation windows."""
+        windows = self.structure.active_damping(self.now.t)
+        for index, state in enumerate(self.blocks):
+            state.damping[:] = self.settings.mass_damping
+            for window in windows:
+                if window.block == index:
+                    state.damping[window.dofs] += window.coefficient
+            state.damping[state.block.fixed] = 0.0
+        self._damping_changes = min((w.until for w in windows), default=math.inf)
+
+    def advance(self) -> None:
+        """t_n -> t_{n+1}: velocities, displacements (prescribed DOFs on their values), the
+        constrained extra nodes, the contributors' own motion."""
+        s = self.now
+        mean_dt = 0.5 * (s.dt_prev + s.dt)
+        if s.t >= self._damping_changes:
+            self.refresh_damping()
+        damped = self._damped or self._damping_changes < math.inf
+        for state in self.blocks:
+            if damped:
+                s.work_damp += self._damped_velocity(state, mean_dt)
+            else:
+                state.acc *= mean_dt
+                state.v += state.acc
+            # u_n -> u_{n+1}; the prescribed DOFs land exactly on their prescribed values
+            np.multiply(state.v, s.dt, out=state.du)
+            state.u += state.du
+            np.put(state.u, state.block.fixed, state.u_next)
+            state.block.u.scatter_forward()
+            state.f_old[:] = state.f
+            state.f_ext_old[:] = state.f_ext
+            state.reaction_old[:] = state.reaction
+        self.structure.follow_border()
+        for advance in self._moving:
+            advance(mean_dt, s.dt)
+        s.dt_prev = s.dt
+        s.t += s.dt
+        s.step += 1
+        s.evaluated = False
+        self.set_prescribed()
+
+    @staticmethod
+    def _damped_velocity(state: _BlockState, mean_dt: float) -> float:
+        """v_{n-1/2} -> v_{n+1/2} with implicit mass-proportional damping; returns the energy
+        the damping took over the step (mJ, this block on this rank)."""
+        state.v_mid[:] = state.v
+        np.multiply(state.damping, 0.5 * mean_dt, out=state.shrink)
+        np.add(state.shrink, 1.0, out=state.grow)
+        np.subtract(1.0, state.shrink, out=state.shrink)
+        state.v *= state.shrink
+        state.acc *= mean_dt
+        state.v += state.acc
+        state.v /= state.grow
+        state.v_mid += state.v
+        state.v_mid *= 0.5
+        np.multiply(state.v_mid, state.v_mid, out=state.shrink)
+        state.shrink *= state.m
+        return mean_dt * np.dot(state.damping, state.shrink)
+
+    def poll(self) -> None:
+        """Collective, every 64 steps: progress; a stop request, an inversion or a non-finite
+        solution on any rank."""
+        s = self.now
+        for observer in self.observers:
+            observer.on_progress(s.t)
+        stop = self._stop or (self.stop_requested is not None and self.stop_requested())
+        inverted = self.inversion.check(s.t)
+        if self.comm.size > 1:
+            flags = np.array([stop, self._not_finite, inverted is not None], dtype=np.int32)
+            self.comm.Allreduce(MPI.IN_PLACE, flags, op=MPI.MAX)
+            stop = bool(flags[0])
+            if flags[1]:
+                self.guards.not_finite()
+            self.guards.inverted(inverted, bool(flags[2]))
+        else:
+            self.guards.inverted(inverted, inverted is not None)
+        if stop:
+            self.checkpoint()
+            raise Interrupted(s.t, s.step)
+
+    def checkpoint(self) -> None:
+        for observer in self.observers:
+            observer.on_checkpoint(self)
+
+    # ------------------------------------------------------------------ history and guards
+    def record_history(self) -> None:
+        """Collective: the history row of t_n (observers get it), after the guards on
+        inversion and finiteness, and before the energy guard (the row that breaks it is in
+        the history)."""
+        s, structure = self.now, self.structure
+        total = self._history_sums()
+        solid, cohesive = structure.energies()
+        cohesive_dissipation, ply_dissipation = structure.damage_dissipation()
+        if s.step == 0:  # an initial velocity or displacement brings energy along
+            s.initial_energy = total[3] + solid + cohesive + total[8]
+            s.initial_potential = solid + cohesive
+            # the energy the run starts with (an impactor's kinetic energy) sets the scale of
+            # the energy guard too: impact_work is a difference of two values of it, whose
+            # round-off would otherwise be judged against the little energy transferred at
+            # the first contact
+            s.largest_energy = abs(s.initial_energy)
+        self.guards.runaway(total[3], abs(total[5]) + s.initial_energy)
+        row = HistoryRow(
+            time=s.t,
+            displacement=total[0] / max(self._n_probe, 1),
+            reaction_force=total[1],
+            applied_force=total[2],
+            kinetic_energy=total[3],
+            internal_energy=total[4],
+            external_work=total[5],
+            damping_energy=total[6],
+            dissipated_energy=total[4] - solid - cohesive,
+            refinement_energy=structure.refinement_energy,
+            delaminated_area=structure.delaminated_area(),
+            time_step=s.dt,
+        )
+        for report in self._reporting:
+            report(row, s.step == 0)
+        row.cohesive_dissipation = cohesive_dissipation
+        row.ply_dissipation = ply_dissipation
+        row.state_energy_balance = (
+            row.kinetic_energy
+            + solid
+            + cohesive
+            - s.initial_potential
+            + cohesive_dissipation
+            + ply_dissipation
+            + row.damping_energy
+            - row.external_work
+            - row.impact_work
+            - row.refinement_energy
+        )
+        if s.step == 0:
+            s.initial_balance = row.energy_balance
+        self.stats.history.append(row)
+        for observer in self.observers:
+            observer.on_history(row)
+        self.guards.energy(row)
+
+    def _history_sums(self) -> np.ndarray:
+        """Collective: the sums over ranks of (probe displacement, reaction, applied load,
+        kinetic energy, internal, external and damping work, inverted, contributors'
+        energy); raises if an element inverted or a sum is not finite."""
+        s, base = self.now, self.blocks[0]
+        inverted = self.inversion.check(s.t)
+        kinetic = 0.0
+        reaction = 0.0
+        for state in self.blocks:
+            v_full = state.v + 0.5 * s.dt_prev * state.acc  # v_n from v_{n-1/2}
+            kinetic += 0.5 * np.dot(state.m * v_full, v_full)
+            on_face = self._reaction_motions[state.block.fixed_motion]
+            reaction += state.reaction[on_face].sum()
+        local = np.array(
+            [
+                base.u[self._probe_dofs].sum(),
+                reaction,
+                base.f_ext[self._load_dofs].sum(),
+                kinetic,
+                s.work_int,
+                s.work_ext,
+                s.work_damp,
+                float(inverted is not None),
+                sum(contributor.energy() for contributor in self.contributors),
+            ]
+        )
+        total = self.comm.allreduce(local, op=MPI.SUM)
+        self.guards.inverted(inverted, total[7] > 0.0)
+        if not np.all(np.isfinite(total)):
+            self.guards.not_finite()
+        return total
+
+    # ------------------------------------------------------------------ set-up helpers
+    def _probe_indices(self, probe: Probe) -> None:
+        """Collective: the owned DOFs the history sums (probe face, loads) and which
+        prescribed motions make the reaction force."""
+        structure = self.structure
+        self._probe_dofs = face_dofs(
+            structure.base, probe.displacement_face, probe.component, x_range=probe.displacement_x
+        )
+        self._n_probe = self.comm.allreduce(len(self._probe_dofs), op=MPI.SUM)
+        self._reaction_motions = np.array(
+            [
+                m.face == probe.reaction_face and m.component == probe.component
+                for m in structure.motions
+            ],
+            dtype=bool,
+        )
+        n_owned = structure.blocks[0].n_owned
+        self._load_dofs = np.arange(COMPONENTS[probe.component], n_owned, 3)
+
+    def _contact_arrays(self) -> list[np.ndarray]:
+        """The contact contributors' forces per block (owned DOFs), if there are any."""
+        if not self._contact:
+            return []
+        return [np.zeros(state.block.n_owned) for state in self.blocks]
+
+
+class _Guards:
+    """The run's stops as failed, each message written once, from the solver's state at t_n
+    (time, step, time steps, where the fastest node is, what to suspect)."""
+
+    def __init__(self, solver: ExplicitSolver):
+        self.solver = solver
+
+    def runaway(self, kinetic: float, put_in: float) -> None:
+        """Collective: Diverged when the motion holds far more energy (kinetic, mJ) than was
+        ever put in (mJ)."""
+        s = self.solver.now
+        if s.step > 0 and kinetic > RUNAWAY * max(put_in, 1e-300):
+            raise Diverged(
+                f"t = {s.t:.6g} s (step {s.step}): kinetic energy {kinetic:.4g} mJ exceeds "
+                f"{RUNAWAY:g} x the work put in ({put_in:.4g} mJ), fastest "
+                f"{self.where_fastest()}: the run is unstable "
+                f"(time step {s.dt:.4g} s, stable step {s.stable:.4g} s, limited by "
+                f"{self.solver.where}; {self.likely_cause()})"
+            )
+
+    def energy(self, row: HistoryRow) -> None:
+        """Collective: EnergyBalanceError when |balance - balance at t = 0| exceeds the limit
+        share of the largest energy of the run so far."""
+        s, limit = self.solver.now, self.solver.settings.energy_error_limit
+        largest = guards.largest_energy(
+            row.external_work, row.impact_work, row.kinetic_energy, row.internal_energy
+        )
+        s.largest_energy = max(s.largest_energy, largest)
+        error = row.energy_balance - s.initial_balance
+        if guards.energy_error(error, s.largest_energy, limit, s.step):
+            raise EnergyBalanceError(
+                f"t = {s.t:.6g} s (step {s.step}): energy balance error {error:.4g} mJ "
+                f"exceeds {limit:g} x the largest energy of the run, {s.largest_energy:.4g} "
+                f"mJ (solver.energy_error_limit); fastest {self.where_fastest()}; "
+                f"{self.likely_cause()}"
+            )
+
+    def not_finite(self) -> None:
+        """Collective in parallel: the one Diverged of a solution that is no longer finite."""
+        s = self.solver.now
+        raise Diverged(
+            f"t = {s.t:.6g} s (step {s.step}): the solution is no longer finite "
+            f"{self.where_fastest()}; time step {s.dt:.4g} s, stable step {s.stable:.4g} s"
+        )
+
+    def inverted(self, message: str | None, anywhere: bool) -> None:
         """``message``: this rank's; ``anywhere``: some rank has one (known to all ranks).
         Collective when anywhere (the message of the lowest rank that has one)."""
         if not anywhere:
             return
-        if comm.size > 1:
-            message = next(m for m in comm.allgather(message) if m is not None)
+        if self.solver.comm.size > 1:
+            message = next(m for m in self.solver.comm.allgather(message) if m is not None)
         raise ElementInverted(message)
 
-    component = COMPONENTS[probe.component]
-    probe_dofs = face_dofs(
-        structure.base, probe.displacement_face, probe.component, x_range=probe.displacement_x
-    )
-    n_probe = comm.allreduce(len(probe_dofs), op=MPI.SUM)
-    reaction_motions = np.array(
-        [
-            m.face == probe.reaction_face and m.component == probe.component
-            for m in structure.motions
-        ],
-        dtype=bool,
-    )
-    load_dofs = np.arange(component, base.block.n_owned, 3)
+    def where_fastest(self) -> str:
+        """Collective: where the largest (or a non-finite) velocity is, for error messages."""
+        best = (-1.0, "")
+        for index, state in enumerate(self.solver.blocks):
+            speed = np.abs(state.v)
+            speed[~np.isfinite(speed)] = np.inf
+            if len(speed) and speed.max() > best[0]:
+                dof = int(np.argmax(speed))
+                best = (float(speed[dof]), self.solver.structure.describe_dof(index, dof))
+        speed, text = max(self.solver.comm.allgather(best))
+        return f"at {text} (|v| = {speed:.3g} mm/s)"
 
-    def set_prescribed(t_now: float, step: float) -> None:
-        for k, motion in enumerate(structure.motions):
-            motion_now[k] = motion.displacement(t_now)
-            motion_next[k] = motion.displacement(t_now + step)
-        for state in states:
-            np.take(motion_now, state.block.fixed_motion, out=state.u_now)
-            np.take(motion_next, state.block.fixed_motion, out=state.u_next)
-
-    def forces_and_accelerations() -> None:
-        """f_int, f_ext, accelerations and reactions at t_n for the current structure."""
-        structure.internal_force()
-        loads.external_force(t, f_ext_full)
-        base.f_ext[:] = f_ext_full[: base.block.n_owned]
-        if structure.ties or tied[0]:
-            states[1].f_ext.fill(0.0)
-            structure.add_tie_forces(t, states[1].f_ext)
-            tied[0] = bool(structure.ties)
-        mean_dt = 0.5 * (dt_prev + dt)
-        if contact is not None:
-            contact.set_forces(base.block.u.array, contact_force)
-        for state in states:
-            np.subtract(state.f_ext, state.f, out=state.acc)
-            if contact is not None and state is base:
-                state.acc += contact_force
-            state.acc *= state.inv_m
-            if len(state.block.fixed):
-                fixed = state.block.fixed
-                # the acceleration that takes the prescribed DOFs exactly to u(t_{n+1})
-                np.subtract(state.u_next, state.u_now, out=state.a_fixed)
-                state.a_fixed /= dt
-                np.take(state.v, fixed, out=state.v_fixed)
-                state.a_fixed -= state.v_fixed
-                state.a_fixed /= mean_dt
-                np.put(state.acc, fixed, state.a_fixed)
-                # reaction = m a + f_int - f_ext on the prescribed DOFs
-                np.take(state.m, fixed, out=state.reaction)
-                state.reaction *= state.a_fixed
-                state.reaction += np.take(state.f, fixed, out=state.scratch)
-                state.reaction -= np.take(state.f_ext, fixed, out=state.scratch)
-                if contact is not None and state is base:
-                    state.reaction -= np.take(contact_force, fixed, out=state.scratch)
-
-    def likely_cause() -> str:
-        """What most likely made a run with a stable element step blow up, for messages."""
-        causes = []
-        if contact is not None:
-            causes.append(
-                f"the contact penalty (impactor.penalty = {contact.penalty:.4g} N/mm) too stiff "
-                "for it?"
-            )
+    def likely_cause(self) -> str:
+        """Collective: what most likely made a run with a stable element step blow up."""
+        causes = [getattr(c, "suspect", lambda: "")() for c in self.solver.contributors]
+        causes = [cause for cause in causes if cause]
+        structure = self.solver.structure
         if structure.comm.allreduce(len(structure.cohesive), op=MPI.SUM):
             causes.append("a cohesive penalty too stiff for it?")
         if structure.ply_damage:
             causes.append("a damaged material?")
         return " ".join(causes) or "an unstable time step?"
 
-    tied = [False]  # tie forces were applied last step (their f_ext must be cleared once)
-    not_finite = [False]  # this rank has seen a non-finite internal work
 
-    def where_fastest() -> str:
-        """Collective: where the largest (or a non-finite) velocity is, for error messages."""
-        best = (-1.0, "")
-        for index, state in enumerate(states):
-            speed = np.abs(state.v)
-            speed[~np.isfinite(speed)] = np.inf
-            if len(speed) and speed.max() > best[0]:
-                dof = int(np.argmax(speed))
-                best = (float(speed[dof]), structure.describe_dof(index, dof))
-        speed, text = max(comm.allgather(best))
-        return f"at {text} (|v| = {speed:.3g} mm/s)"
-
-    damping_changes = [math.inf]  # next time a stabilisation damping window closes
-
-    def refresh_damping() -> None:
-        """Per-DOF damping: the global coefficient plus the open stabilisation windows."""
-        windows = structure.active_damping(t)
-        for index, state in enumerate(states):
-            state.damping[:] = settings.mass_damping
-            for window in windows:
-                if window.block == index:
-                    state.damping[window.dofs] += window.coefficient
-            state.damping[state.block.fixed] = 0.0
-        damping_changes[0] = min((w.until for w in windows), default=math.inf)
-
-    initial_energy = [0.0]  # kinetic + strain energy at t = 0
-    work_int = work_ext = work_damp = 0.0  # this rank's shares
-    t = 0.0
-    dt_prev = 0.0
-    next_output = 0.0
-    next_fields = 0.0 if (settings.field_interval and on_fields) else math.inf
-    step = 0
-    if resume is not None:
-        t, step, dt, dt_prev, stable = (resume[k] for k in ("t", "step", "dt", "dt_prev", "stable"))
-        step = int(step)
-        next_output, next_fields = resume["next_output"], resume["next_fields"]
-        work_int, work_ext, work_damp = (resume[k] for k in ("work_int", "work_ext", "work_damp"))
-        initial_energy[0] = resume["initial_energy"]
-        initial_potential[0] = float(resume["initial_potential"])
-        largest[0] = float(resume["largest_energy"])
-        initial_balance[0] = float(resume["initial_balance"])
-        tied[0] = bool(resume["tied"])
-        stats.refinements = int(resume["refinements"])
-        stats.time_step, stats.stable_time_step = dt, stable
-        if contact is not None:
-            contact.restore({k: resume[f"impactor_{k}"] for k in ("centre", "velocity")})
-            impactor_initial[0] = float(resume["impactor_initial"])
-            z0 = float(resume["impactor_z0"])
-        for index, state in enumerate(states):
-            state.block.u.array[:] = resume[f"block{index}_u_all"]
-            state.block.v.array[:] = resume[f"block{index}_v_all"]
-            for name in BLOCK_ARRAYS[2:]:
-                getattr(state, name)[:] = resume[f"block{index}_{name}"]
-        refresh_damping()
-    set_prescribed(t, dt)
-    for state in states:
-        np.put(state.u, state.block.fixed, state.u_now)
-        state.block.u.scatter_forward()
-    checkpoint_every = settings.checkpoint_interval if checkpoint is not None else None
-
-    def write_checkpoint() -> None:
-        scalars = (t, step, dt, dt_prev, stable, next_output, next_fields, work_int, work_ext)
-        scalars += (work_damp, initial_energy[0], float(tied[0]), stats.refinements)
-        scalars += (initial_potential[0], largest[0], initial_balance[0])
-        state_now = dict(zip(SOLVER_SCALARS, scalars, strict=True))
-        for index, state in enumerate(states):
-            state_now[f"block{index}_u_all"] = state.block.u.array
-            state_now[f"block{index}_v_all"] = state.block.v.array
-            for name in BLOCK_ARRAYS[2:]:
-                state_now[f"block{index}_{name}"] = getattr(state, name)
-        if contact is not None:
-            for name, value in contact.state().items():
-                state_now[f"impactor_{name}"] = value
-            state_now["impactor_initial"] = impactor_initial[0]
-            state_now["impactor_z0"] = z0
-        checkpoint(state_now)
-
-    start = time.perf_counter()
-
-    # a diverging run is reported by Diverged, not by floating-point warnings
-    with np.errstate(over="ignore", invalid="ignore"):
-        while True:
-            forces_and_accelerations()
-
-            # work over the step just made (trapezoidal in the forces)
-            if step > 0:
-                for state in states:
-                    work_int += 0.5 * (np.dot(state.f_old, state.du) + np.dot(state.f, state.du))
-                    work_ext += 0.5 * (
-                        np.dot(state.f_ext_old, state.du) + np.dot(state.f_ext, state.du)
-                    )
-                    if len(state.block.fixed):
-                        np.take(state.du, state.block.fixed, out=state.du_fixed)
-                        work_ext += 0.5 * (
-                            np.dot(state.reaction_old, state.du_fixed)
-                            + np.dot(state.reaction, state.du_fixed)
-                        )
-                # the internal work sums every DOF's force and motion: a single non-finite
-                # value anywhere shows here, in the step it appears
-                # (in parallel the other ranks learn it at the next poll, every 64 steps)
-                if not math.isfinite(work_int):
-                    not_finite[0] = True
-                    if comm.size == 1:
-                        raise Diverged(
-                            f"t = {t:.6g} s (step {step}): the solution is no longer finite "
-                            f"{where_fastest()}; time step {dt:.4g} s, stable step {stable:.4g} s"
-                        )
-
-            # refinement between steps: the work of the last step was counted with the old
-            # structure's forces above; the new one starts from its own forces at t_n
-            if on_step is not None and on_step(t, structure):
-                stats.refinements += 1
-                # the strain and cohesive energy the refinement changed count as internal work
-                # (booked once, on rank 0), so that the dissipated energy does not jump
-                if comm.rank == 0:
-                    work_int += structure.last_refinement_potential
-                states = [
-                    _BlockState(b, settings.mass_damping, old)
-                    for b, old in zip(structure.blocks, states, strict=True)
-                ]
-                base = states[0]
-                inversion.refresh()
-                limit, where = structure.stable_time_step()
-                stable = settings.safety_factor * limit
-                stats.stable_time_step, stats.critical = stable, where
-                if not forced:
-                    dt = stable
-                elif dt > stable * (1.0 + 1e-12):
-                    raise Diverged(
-                        f"t = {t:.6g} s: after refinement the stable step is {stable:.4g} s "
-                        f"({where}), below the forced step {dt:.4g} s"
-                    )
-                set_prescribed(t, dt)
-                structure.start_stabilisation(t)
-                refresh_damping()
-                forces_and_accelerations()  # of the refined structure, at t_n
-                if on_refined is not None:
-                    on_refined(t, dt, where)
-
-            n_steps_done = step
-            if t >= next_output - 1e-9 * dt or t >= settings.end_time - 1e-9 * dt:
-                inverted = inversion.check(t)
-                kinetic = 0.0
-                reaction = 0.0
-                for state in states:
-                    v_full = state.v + 0.5 * dt_prev * state.acc  # v_n from v_{n-1/2}
-                    kinetic += 0.5 * np.dot(state.m * v_full, v_full)
-                    on_face = reaction_motions[state.block.fixed_motion]
-                    reaction += state.reaction[on_face].sum()
-                local = np.array(
-                    [
-                        base.u[probe_dofs].sum(),
-                        reaction,
-                        base.f_ext[load_dofs].sum(),
-                        kinetic,
-                        work_int,
-                        work_ext,
-                        work_damp,
-                        float(inverted is not None),
-                    ]
-                )
-                total = comm.allreduce(local, op=MPI.SUM)
-                raise_if_inverted(inverted, total[7] > 0.0)
-                if not np.all(np.isfinite(total)):
-                    raise Diverged(
-                        f"t = {t:.6g} s (step {step}): the solution is no longer finite "
-                        f"{where_fastest()}; time step {dt:.4g} s, stable step {stable:.4g} s"
-                    )
-                solid, cohesive = structure.energies()
-                cohesive_dissipation, ply_dissipation = structure.damage_dissipation()
-                impactor_energy = contact.energy(dt_prev) if contact is not None else 0.0
-                if step == 0:  # an initial velocity or displacement brings energy along
-                    initial_energy[0] = total[3] + solid + cohesive + impactor_energy
-                    impactor_initial[0] = impactor_energy
-                    initial_potential[0] = solid + cohesive
-                    # the energy the run starts with (an impactor's kinetic energy) sets the
-                    # scale of the energy guard too: impact_work is a difference of two values
-                    # of it, whose round-off would otherwise be judged against the little
-                    # energy transferred at the first contact
-                    largest[0] = abs(initial_energy[0])
-                # runaway: the motion holds far more energy than was ever put in
-                kinetic, put_in = total[3], abs(total[5]) + initial_energy[0]
-                if step > 0 and kinetic > RUNAWAY * max(put_in, 1e-300):
-                    raise Diverged(
-                        f"t = {t:.6g} s (step {step}): kinetic energy {kinetic:.4g} mJ exceeds "
-                        f"{RUNAWAY:g} x the work put in ({put_in:.4g} mJ), fastest "
-                        f"{where_fastest()}: the run is unstable "
-                        f"(time step {dt:.4g} s, stable step {stable:.4g} s, limited by {where}; "
-                        f"{likely_cause()})"
-                    )
-                row = HistoryRow(
-                    time=t,
-                    displacement=total[0] / max(n_probe, 1),
-                    reaction_force=total[1],
-                    applied_force=total[2],
-                    kinetic_energy=total[3],
-                    internal_energy=total[4],
-                    external_work=total[5],
-                    damping_energy=total[6],
-                    dissipated_energy=total[4] - solid - cohesive,
-                    refinement_energy=structure.refinement_energy,
-                    delaminated_area=structure.delaminated_area(),
-                    time_step=dt,
-                )
-                if contact is not None:
-                    row.contact_force = float(contact.force[2])
-                    row.impactor_displacement = float(contact.centre[2] - z0)
-                    row.impact_work = impactor_initial[0] - impactor_energy
-                row.cohesive_dissipation = cohesive_dissipation
-                row.ply_dissipation = ply_dissipation
-                row.state_energy_balance = (
-                    row.kinetic_energy
-                    + solid
-                    + cohesive
-                    - initial_potential[0]
-                    + cohesive_dissipation
-                    + ply_dissipation
-                    + row.damping_energy
-                    - row.external_work
-                    - row.impact_work
-                    - row.refinement_energy
-                )
-                if step == 0:
-                    initial_balance[0] = row.energy_balance
-                stats.history.append(row)
-                if on_history is not None:
-                    on_history(row)
-                # the energy guard: the row that breaks it is in the history
-                largest[0] = max(
-                    largest[0],
-                    guards.largest_energy(
-                        row.external_work, row.impact_work, row.kinetic_energy, row.internal_energy
-                    ),
-                )
-                error = row.energy_balance - initial_balance[0]
-                if guards.energy_error(error, largest[0], energy_limit, step):
-                    raise EnergyBalanceError(
-                        f"t = {t:.6g} s (step {step}): energy balance error "
-                        f"{error:.4g} mJ exceeds {energy_limit:g} x the largest "
-                        f"energy of the run, {largest[0]:.4g} mJ (solver.energy_error_limit); "
-                        f"fastest {where_fastest()}; {likely_cause()}"
-                    )
-                while next_output <= t + 1e-9 * dt:
-                    next_output += settings.output_interval
-            if t >= next_fields - 1e-9 * dt:
-                on_fields(t)
-                while next_fields <= t + 1e-9 * dt:
-                    next_fields += settings.field_interval
-            if t >= settings.end_time - 1e-9 * dt:
-                break
-
-            mean_dt = 0.5 * (dt_prev + dt)
-            if t >= damping_changes[0]:
-                refresh_damping()
-            for state in states:
-                # v_{n-1/2} -> v_{n+1/2}, with implicit mass-proportional damping where asked
-                if damped or damping_changes[0] < math.inf:
-                    state.v_mid[:] = state.v
-                    np.multiply(state.damping, 0.5 * mean_dt, out=state.shrink)
-                    np.add(state.shrink, 1.0, out=state.grow)
-                    np.subtract(1.0, state.shrink, out=state.shrink)
-                    state.v *= state.shrink
-                    state.acc *= mean_dt
-                    state.v += state.acc
-                    state.v /= state.grow
-                    state.v_mid += state.v
-                    state.v_mid *= 0.5
-                    np.multiply(state.v_mid, state.v_mid, out=state.shrink)
-                    state.shrink *= state.m
-                    work_damp += mean_dt * np.dot(state.damping, state.shrink)
-                else:
-                    state.acc *= mean_dt
-                    state.v += state.acc
-                # u_n -> u_{n+1}; the prescribed DOFs land exactly on their prescribed values
-                np.multiply(state.v, dt, out=state.du)
-                state.u += state.du
-                np.put(state.u, state.block.fixed, state.u_next)
-                state.block.u.scatter_forward()
-                state.f_old[:] = state.f
-                state.f_ext_old[:] = state.f_ext
-                state.reaction_old[:] = state.reaction
-            structure.follow_border()
-            if contact is not None:
-                contact.advance(mean_dt, dt)
-
-            dt_prev = dt
-            t += dt
-            step += 1
-            set_prescribed(t, dt)
-            if step % 64 == 0:
-                if on_progress is not None:
-                    on_progress(t)
-                stop = stop_requested is not None and stop_requested()
-                inverted = inversion.check(t)
-                if comm.size > 1:
-                    flags = np.array([stop, not_finite[0], inverted is not None], dtype=np.int32)
-                    comm.Allreduce(MPI.IN_PLACE, flags, op=MPI.MAX)
-                    stop = bool(flags[0])
-                    if flags[1]:
-                        raise Diverged(
-                            f"t = {t:.6g} s (step {step}): the solution is no longer finite "
-                            f"{where_fastest()}; time step {dt:.4g} s, stable step {stable:.4g} s"
-                        )
-                    raise_if_inverted(inverted, bool(flags[2]))
-                else:
-                    raise_if_inverted(inverted, inverted is not None)
-                if stop:
-                    if checkpoint is not None:
-                        write_checkpoint()
-                    raise Interrupted(t, step)
-            # periodic, and the last state (a restart with a later end time extends the run)
-            if checkpoint_every and (
-                step % checkpoint_every == 0 or t >= settings.end_time - 1e-9 * dt
-            ):
-                write_checkpoint()
-
-    stats.steps = n_steps_done
-    stats.wall_time = time.perf_counter() - start
-    return stats
+def run(
+    structure: Structure,
+    settings: SolverSettings,
+    probe: Probe,
+    *,
+    contributors: Iterable[ForceContributor] = (),
+    observers: Iterable[Observer] = (),
+    refiner: Refiner | None = None,
+    time_step: float | None = None,
+    initial_displacement: np.ndarray | None = None,
+    initial_velocity: np.ndarray | None = None,
+) -> RunStats:
+    """Integrate from t = 0 to ``settings.end_time``: ``ExplicitSolver(...)`` started from
+    ``initial_displacement`` and ``initial_velocity`` (mm, mm/s; base DOFs, owned + ghost
+    entries; default zero), then ``run()``. The arguments: those of ``ExplicitSolver``."""
+    solver = ExplicitSolver(
+        structure, settings, probe, contributors, observers, refiner, time_step=time_step
+    )
+    solver.start(initial_displacement, initial_velocity)
+    return solver.run()
