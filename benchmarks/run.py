@@ -55,10 +55,11 @@ sys.path.insert(0, str(ROOT))
 from fenics_adaptive.analysis.studies import plate_impact_variant  # noqa: E402
 from fenics_adaptive.analysis.timing import time_call, time_per_step  # noqa: E402
 from fenics_adaptive.model.assembly import SubelementSet, add_subelement_forces  # noqa: E402
-from fenics_adaptive.runner import build_structure, execute  # noqa: E402
+from fenics_adaptive.runner import execute  # noqa: E402
 from fenics_adaptive.settings.config import parse_config  # noqa: E402
 from fenics_adaptive.settings.kinds import InterfaceState  # noqa: E402
 from fenics_adaptive.settings.solver import Probe, SolverSettings  # noqa: E402
+from fenics_adaptive.simulation import build_structure  # noqa: E402
 from fenics_adaptive.solver import explicit  # noqa: E402
 
 POINTS_PER_CELL = 8 * 2 * 2  # plies x in-plane points of the layered rule

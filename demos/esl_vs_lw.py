@@ -137,10 +137,10 @@ from fenics_adaptive.analysis import comparison as cmp
 from fenics_adaptive.analysis.timing import time_call, time_per_step
 from fenics_adaptive.errors import script_main
 from fenics_adaptive.model.structure import Structure
-from fenics_adaptive.runner import build_structure
 from fenics_adaptive.settings.config import RunConfig, parse_config
 from fenics_adaptive.settings.loads import Amplitude, FaceLoad
 from fenics_adaptive.settings.solver import SolverSettings
+from fenics_adaptive.simulation import build_structure
 from fenics_adaptive.solver import explicit
 
 HERE = Path(__file__).parent

@@ -44,9 +44,10 @@ from fenics_adaptive.analysis.studies import TCB_LATE_OPENING, TCB_RUNS, tcb_qui
 from fenics_adaptive.analysis.timing import time_call
 from fenics_adaptive.errors import script_main
 from fenics_adaptive.io.output import read_history
-from fenics_adaptive.runner import build_structure, execute
+from fenics_adaptive.runner import execute
 from fenics_adaptive.settings.config import parse_config
 from fenics_adaptive.settings.kinds import InterfaceState
+from fenics_adaptive.simulation import build_structure
 
 HERE = Path(__file__).parent
 RUNS = TCB_RUNS

@@ -80,14 +80,15 @@ def _command(argv: list[str] | None, interrupt: _StartupInterrupt) -> int:
     comm = MPI.COMM_WORLD
     errors = comm.Dup() if comm.size > 1 else None  # for _fail only
     # Imported here so that `--help` answers without loading DOLFINx.
-    from fenics_adaptive.runner import build_problem, run_config
+    from fenics_adaptive.runner import run_config
     from fenics_adaptive.settings.config import load_config
+    from fenics_adaptive.simulation import Simulation
     from fenics_adaptive.solver.explicit import Interrupted
 
     try:
         config = load_config(args.config)
         if args.command == "check":
-            return _check(args.config, config, build_problem(config, comm), comm)
+            return _check(args.config, config, Simulation(config, comm=comm), comm)
         run_config(
             config,
             args.out,
@@ -158,7 +159,7 @@ def _input_error_line(config_path: str, error: InputError) -> str:
     return f"fenics-adaptive: {config_path}: {error}"
 
 
-def _check(config_path: str, config, problem, comm) -> int:
+def _check(config_path: str, config, simulation, comm) -> int:
     """``check``: the model's size, time step, step count (refused above solver.max_steps),
     output counts and estimates of memory and wall time, printed on rank 0; returns 0.
 
@@ -176,13 +177,13 @@ def _check(config_path: str, config, problem, comm) -> int:
     )
     from fenics_adaptive.settings.kinds import ModelKind
 
-    model, solver = problem.model, config.solver
-    steps = check_step_count(solver, problem.time_step)
+    model, solver = simulation.structure.base, config.solver
+    steps = check_step_count(solver, simulation.time_step)
     cells = comm.allreduce(model.mesh.topology.index_map(3).size_local, op=MPI.SUM)
     nodes = model.V.dofmap.index_map.size_global
-    cell_layers = len(problem.beam.layer_z) - 1
+    cell_layers = len(model.beam.layer_z) - 1
     size = ModelSize(cells, nodes, config.laminate.n_plies, cell_layers)  # as built
-    rows, frames = output_counts(solver, problem.time_step)
+    rows, frames = output_counts(solver, simulation.time_step)
     memory = estimated_memory(size, comm.size)
     wall = steps * estimated_step_seconds(size, comm.size)
     if comm.rank == 0:
@@ -201,8 +202,9 @@ def _check(config_path: str, config, problem, comm) -> int:
             f"  model: {config.kind}, {cells} cells, {nodes} nodes ({3 * nodes} DOFs), "
             f"{config.laminate.n_plies} plies, {cell_layers} cell layer(s), {comm.size} MPI "
             "rank(s)\n"
-            f"  time step {problem.time_step:.4e} s (stable {problem.stable_time_step:.4e} s with "
-            f"safety factor {solver.safety_factor}, limited by {problem.critical}), {steps} steps "
+            f"  time step {simulation.time_step:.4e} s (stable "
+            f"{simulation.stable_time_step:.4e} s with safety factor {solver.safety_factor}, "
+            f"limited by {simulation.critical}), {steps} steps "
             f"to {solver.end_time:.4e} s (solver.max_steps = {solver.max_steps})\n"
             f"  output: {rows} history rows, {frames} field frames{checkpoints}\n"
             f"  estimate: peak memory {memory / 1e9:.3g} GB (all ranks), wall time "

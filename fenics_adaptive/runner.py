@@ -5,206 +5,28 @@ Units: N, mm, s, tonne.
 
 from __future__ import annotations
 
-import math
 import platform
 import signal
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
 from pathlib import Path
 
 import dolfinx
 import numba
-import numpy as np
 from mpi4py import MPI
 
 import fenics_adaptive
 from fenics_adaptive import watchdog
-from fenics_adaptive.adaptivity.events import RefinementEvent, refine
-from fenics_adaptive.adaptivity.indicators import front_requests, indicator_requests, spread
+from fenics_adaptive.adaptivity.events import RefinementEvent
 from fenics_adaptive.errors import InputError, shared_errors
 from fenics_adaptive.io import checkpoint, output
 from fenics_adaptive.io.run_folder import RunFolder
-from fenics_adaptive.meshes.beam import BeamMesh, layered_mesh
-from fenics_adaptive.model.assembly import CohesiveSet
-from fenics_adaptive.model.contact import Contact
-from fenics_adaptive.model.forms import LayeredModel, build_model
-from fenics_adaptive.model.layerwise import cohesive_pairs
-from fenics_adaptive.model.loading import face_dofs, resolve
-from fenics_adaptive.model.structure import Structure, cells_in_x_range
+from fenics_adaptive.model.structure import Structure
 from fenics_adaptive.settings.config import RunConfig, check_step_count
-from fenics_adaptive.settings.kinds import InterfaceState, ModelKind, MotionKind, Refinement
-from fenics_adaptive.settings.loads import Amplitude, PrescribedMotion
+from fenics_adaptive.simulation import Simulation, build_structure
 from fenics_adaptive.solver import explicit
 from fenics_adaptive.solver.observers import Observer
-
-
-@dataclass
-class Problem:
-    config: RunConfig
-    structure: Structure
-    time_step: float
-    stable_time_step: float
-    critical: str
-
-    @property
-    def model(self) -> LayeredModel:
-        return self.structure.base
-
-    @property
-    def beam(self) -> BeamMesh:
-        return self.structure.base.beam
-
-
-def build_structure(
-    config: RunConfig, comm: MPI.Comm = MPI.COMM_WORLD, refine_initially: bool = True
-) -> Structure:
-    """Mesh, model, loads and (for adaptive, unless a restart replays it) the initial
-    refinement of a config."""
-    layers = config.layer_laminates()
-    boundaries = config.layer_boundaries
-    beam = layered_mesh(
-        comm,
-        config.mesh.length,
-        config.mesh.width,
-        config.mesh.nx,
-        config.mesh.ny,
-        [laminate.thickness for laminate in layers],
-        [b in config.interfaces.delaminate for b in boundaries],
-    )
-    model = build_model(beam, layers, config.points_per_ply, kinematics=config.kinematics)
-    motions = list(config.motions)
-    cohesive = None
-    params = config.cohesive.as_array() if config.cohesive is not None else None
-    if config.kind == ModelKind.LAYERWISE:
-        for interface in config.interfaces.symmetry:
-            top = f"top_layer{boundaries.index(interface)}"
-            motions.append(
-                PrescribedMotion(top, "z", MotionKind.DISPLACEMENT, 0.0, Amplitude.constant(0))
-            )
-        if config.interfaces.delaminate:
-            with shared_errors(comm):  # each rank checks its own columns
-                pairs = cohesive_pairs(beam, model.V)
-            cohesive = CohesiveSet(
-                pairs.nodes,
-                np.arange(len(pairs), dtype=np.int64),
-                np.zeros((len(pairs), 4)),
-                params,
-                np.array(boundaries, dtype=np.int32)[pairs.boundary],
-            )
-    loads = resolve(model, motions, config.loads)
-    structure = Structure(
-        model,
-        loads,
-        cohesive,
-        config.interfaces,
-        params,
-        config.stabilisation,
-        config.failures,
-        config.ply_damage,
-    )
-    for region in config.matrix_strength:
-        cells = cells_in_x_range(structure, region.x_min, region.x_max)
-        structure.scale_matrix_strength(cells, region.plies, region.factor)
-    if (
-        refine_initially
-        and config.kind == ModelKind.ADAPTIVE
-        and config.interfaces.initial != Refinement.NONE
-    ):
-        structure.refine(initial_refinement(structure, config))
-    return structure
-
-
-def initial_refinement(structure: Structure, config: RunConfig) -> list[tuple[int, int, int]]:
-    """Every owned cell refined at the listed interfaces: weak at ``refine``, and at
-    ``delaminate`` weak or strong as ``initial`` says."""
-    interfaces = config.interfaces
-    strong = interfaces.initial == Refinement.STRONG
-    cells = range(structure.base.n_owned_cells)
-    requests = [(c, i, InterfaceState.WEAK) for c in cells for i in interfaces.refine]
-    delaminate = InterfaceState.STRONG if strong else InterfaceState.WEAK
-    requests += [(c, i, delaminate) for c in cells for i in interfaces.delaminate]
-    return requests
-
-
-class RefinementHook:
-    """The solver's refiner (``ExplicitSolver(refiner=...)``): the config's manual
-    [[refinement]] entries and its [indicators]; returns the ``RefinementEvent`` of a
-    refinement, or None. Decisions are taken on the same steps on every rank (time, or the global
-    probe displacement), so the collective refinement is entered by all. Its state (which
-    manual entries are still pending, when the indicators run next) goes into checkpoints."""
-
-    def __init__(self, config: RunConfig):
-        self.config = config
-        self.pending = list(range(len(config.refinements)))  # manual entries not yet done
-        self.next_check = 0.0  # s: next indicator evaluation
-        self.by_displacement = any(m.displacement < math.inf for m in config.refinements)
-        self.probe_dofs: np.ndarray | None = None
-        cohesive = config.cohesive
-        self.strengths = (cohesive.N, cohesive.S) if cohesive is not None else None
-
-    @classmethod
-    def of(cls, config: RunConfig) -> RefinementHook | None:
-        return cls(config) if config.refinements or config.indicators is not None else None
-
-    def state(self) -> dict[str, np.ndarray]:
-        return {"pending": np.array(self.pending, dtype=np.int64), "next_check": self.next_check}
-
-    def restore(self, state: dict[str, np.ndarray]) -> None:
-        self.pending = [int(k) for k in state["pending"]]
-        self.next_check = float(state["next_check"])
-
-    def __call__(self, t: float, structure: Structure) -> RefinementEvent | None:
-        config, settings = self.config, self.config.indicators
-        displacement = 0.0
-        if self.by_displacement:
-            if self.probe_dofs is None:
-                self.probe_dofs = face_dofs(
-                    structure.base,
-                    config.probe.displacement_face,
-                    config.probe.component,
-                    x_range=config.probe.displacement_x,
-                )
-            displacement = probe_displacement(structure, config.probe, self.probe_dofs)
-        due = [k for k in self.pending if config.refinements[k].due(t, displacement)]
-        requests = []
-        for k in due:
-            self.pending.remove(k)
-            entry = config.refinements[k]
-            cells = cells_in_x_range(structure, entry.x_min, entry.x_max)
-            requests += [(int(c), i, entry.kind) for c in cells for i in entry.interfaces]
-        evaluate = settings is not None and t >= self.next_check
-        if evaluate:
-            requests += indicator_requests(structure, settings, self.strengths, t)
-            self.next_check = t + settings.interval
-            if settings.spread:
-                requests += spread(structure, requests, settings.spread)
-            if settings.front:
-                requests += front_requests(structure, settings.front)
-        if not due and not evaluate:
-            return None
-        return refine(structure, requests, t)
-
-
-def probe_displacement(structure: Structure, probe, dofs: np.ndarray | None = None) -> float:
-    """Mean displacement of the probe face in the probe component, over all ranks (``dofs``:
-    the probe's owned DOFs, if already known)."""
-    if dofs is None:
-        dofs = face_dofs(
-            structure.base, probe.displacement_face, probe.component, x_range=probe.displacement_x
-        )
-    local = np.array([structure.base.u.x.array[dofs].sum(), len(dofs)], dtype=float)
-    total, count = structure.comm.allreduce(local, op=MPI.SUM)
-    return total / max(count, 1.0)
-
-
-def build_problem(config: RunConfig, comm: MPI.Comm = MPI.COMM_WORLD) -> Problem:
-    """Everything up to, not including, the time loop. Raises InputError for a config that
-    cannot run (e.g. a forced time step above the stable one)."""
-    structure = build_structure(config, comm)
-    dt, stable, where = explicit.choose_time_step(structure, config.solver)
-    return Problem(config, structure, dt, stable, where)
 
 
 def run_config(
@@ -246,26 +68,27 @@ def execute(
     fresh = restart is None or not _same_folder(checkpoint.locate(restart).parent, out_dir)
     folder.check(fresh)  # before the model is built: a wrong --out is refused at once
     if restart is None:
-        problem = build_problem(config, comm)
+        simulation = Simulation(config, comm=comm)
     else:
         manifest, arrays, history_csv = checkpoint.read(restart, comm, config)
         structure = build_structure(config, comm, refine_initially=False)
         checkpoint.restore_structure(structure, arrays)
         resume = checkpoint.solver_state(arrays)
         hook_state = checkpoint.hook_state(arrays)
-        where = structure.stable_time_step()[1]
-        problem = Problem(config, structure, float(resume["dt"]), float(resume["stable"]), where)
+        simulation = Simulation(config, comm=comm, structure=structure)
+        simulation.time_step = float(resume["dt"])
+        simulation.stable_time_step = float(resume["stable"])
         with shared_errors(comm):  # the earlier format reads the folder's CSV on each rank
             kept_rows = _kept_history(restart, manifest, history_csv, resume, config)
     say = log if (log is not None and comm.rank == 0) else (lambda _: None)
-    model = problem.model
-    structure = problem.structure
+    model = simulation.structure.base
+    structure = simulation.structure
     n_cells = comm.allreduce(model.mesh.topology.index_map(3).size_local, op=MPI.SUM)
     n_nodes = model.V.dofmap.index_map.size_global
-    n_steps = check_step_count(config.solver, problem.time_step)  # refused above max_steps
+    n_steps = check_step_count(config.solver, simulation.time_step)  # refused above max_steps
     say(
         f"{config.kind} model: {n_cells} cells, {n_nodes} nodes ({3 * n_nodes} DOFs), "
-        f"{config.laminate.n_plies} plies, {len(problem.beam.layer_z) - 1} cell layer(s), "
+        f"{config.laminate.n_plies} plies, {len(model.beam.layer_z) - 1} cell layer(s), "
         f"{comm.size} MPI rank(s)"
     )
     n_extra = comm.allreduce(structure.extra.n_owned, op=MPI.SUM)
@@ -273,23 +96,11 @@ def execute(
     if n_extra or n_cohesive:
         say(f"{n_extra} extra nodes, {n_cohesive} cohesive elements")
     say(
-        f"time step {problem.time_step:.4e} s (stable {problem.stable_time_step:.4e} s with "
-        f"safety factor {config.solver.safety_factor}, limited by {problem.critical}), "
+        f"time step {simulation.time_step:.4e} s (stable {simulation.stable_time_step:.4e} s with "
+        f"safety factor {config.solver.safety_factor}, limited by {simulation.critical}), "
         f"{n_steps} steps to {config.solver.end_time:.4e} s"
     )
 
-    contact = None
-    if config.impactor is not None:
-        contact = Contact.on(config.impactor, structure)
-        contact.check_penalty(
-            problem.time_step, problem.stable_time_step / config.solver.safety_factor
-        )
-        gap = contact.initial_gap()
-        if gap <= 0.0:
-            raise InputError(
-                "impactor.position",
-                f"the impactor starts {-gap:.4g} mm inside the top face; place it above",
-            )
     # the config and the model are checked: only now is anything in the folder removed
     folder.open(fresh)
     record = folder.record
@@ -323,17 +134,17 @@ def execute(
             "nodes": n_nodes,
             "dofs": 3 * n_nodes,
             "plies": config.laminate.n_plies,
-            "cell_layers": len(problem.beam.layer_z) - 1,
+            "cell_layers": len(model.beam.layer_z) - 1,
             "thickness_mm": config.laminate.thickness,
             "total_mass_tonne": structure.total_mass(),
             "extra_nodes_at_start": n_extra,
             "cohesive_elements_at_start": n_cohesive,
         },
         "time_step": {
-            "used_s": problem.time_step,
-            "stable_s": problem.stable_time_step,
+            "used_s": simulation.time_step,
+            "stable_s": simulation.stable_time_step,
             "safety_factor": config.solver.safety_factor,
-            "limited_by": problem.critical,
+            "limited_by": simulation.critical,
         },
         "mpi_ranks": comm.size,
         "versions": {
@@ -343,26 +154,17 @@ def execute(
             "python": platform.python_version(),
         },
     }
-    hook = RefinementHook.of(config)
-    if hook is not None and hook_state:
-        hook.restore(hook_state)
-    writer = CheckpointWriter(out_dir, config, structure, history, hook, folder)
-    observers = [history, fields, progress, writer, RefinementReport(structure, say)]
+    writer = CheckpointWriter(out_dir, config, structure, history, simulation.refinement, folder)
+    for observer in (history, fields, progress, writer, RefinementReport(structure, say)):
+        if observer is not None:
+            simulation.add_observer(observer)
     stop = _StopOnSignal(comm)
+    simulation.solver.stop_requested = stop
     start = time.perf_counter()
     try:
-        solver = explicit.ExplicitSolver(
-            structure,
-            config.solver,
-            config.probe,
-            contributors=[contact] if contact is not None else [],
-            observers=[o for o in observers if o is not None],
-            refiner=hook,
-            stop_requested=stop,
-        )
         if resume is not None:
-            solver.restore(resume)
-        stats = solver.run()
+            simulation.restore(resume, hook_state)
+        stats = simulation.run()
     except BaseException as error:
         history.close(completed=False)
         if fields is not None:
@@ -384,7 +186,7 @@ def execute(
             progress.done()
     try:  # the lock is held until the last file is written
         finished = (stats, history, fields, kept_rows, resume, summary)
-        return _finish(config, out_dir, comm, problem, finished, say, record)
+        return _finish(config, out_dir, comm, simulation, finished, say, record)
     finally:
         folder.close()
 
@@ -399,7 +201,7 @@ class CheckpointWriter(Observer):
         self.history, self.hook, self.folder = history, hook, folder
 
     def on_checkpoint(self, solver: explicit.ExplicitSolver) -> None:
-        hook_now = self.hook.state() if self.hook else {}
+        hook_now = self.hook.state()
         checkpoint.write(
             self.out_dir, self.structure.comm, solver.state(), self.structure, hook_now,
             self.config, self.history.text(), self.folder.record, self.folder.forget,
@@ -425,7 +227,7 @@ def _finish(
     config: RunConfig,
     out_dir: Path,
     comm: MPI.Comm,
-    problem: Problem,
+    simulation: Simulation,
     finished: tuple,
     say: Callable[[str], None],
     record: Callable[..., None],
@@ -434,7 +236,7 @@ def _finish(
     summary and the plots. ``finished``: (stats, history writer, field writers or None, rows
     kept by a restart, resumed solver state or None, summary so far)."""
     stats, history, fields, kept_rows, resume, summary = finished
-    structure = problem.structure
+    structure = simulation.structure
     history.close(completed=True)
     if fields is not None:
         fields.close()

@@ -12,9 +12,10 @@ import numpy as np
 import pytest
 
 from fenics_adaptive.adaptivity import enrichment as enr
-from fenics_adaptive.runner import build_structure, run_config
+from fenics_adaptive.runner import run_config
 from fenics_adaptive.settings.config import parse_config
 from fenics_adaptive.settings.kinds import InterfaceState
+from fenics_adaptive.simulation import build_structure
 
 DATA = Path(__file__).parent / "data"
 DEMOS = Path(__file__).parent.parent / "demos"

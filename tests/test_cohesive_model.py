@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 
 from fenics_adaptive.materials.cohesive import critical_energy, traction_separation_curve
-from fenics_adaptive.runner import build_structure
 from fenics_adaptive.settings.config import parse_config
 from fenics_adaptive.settings.materials import CohesiveLaw
+from fenics_adaptive.simulation import build_structure
 from fenics_adaptive.solver import explicit
 
 LAW = {

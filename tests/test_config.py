@@ -499,8 +499,8 @@ def test_face_node_sets_of_the_parser_are_the_meshs():
     import itertools
 
     from fenics_adaptive.model.loading import face_nodes
-    from fenics_adaptive.runner import build_structure
     from fenics_adaptive.settings.config import _nodes_box, _split_boundaries
+    from fenics_adaptive.simulation import build_structure
 
     data = tomllib.loads(TCB_LW.read_text())
     data["mesh"].update(nx=4, ny=2)
@@ -542,8 +542,8 @@ def test_odd_key_names_keep_the_message_on_one_line():
 def test_resolution_refuses_what_the_parser_would_with_the_key():
     """The loads' resolution on the mesh (the backstop for motions made outside the parser,
     such as a layerwise model's symmetry planes) names the config keys too."""
-    from fenics_adaptive.runner import build_structure
     from fenics_adaptive.settings.loads import Amplitude, PrescribedMotion
+    from fenics_adaptive.simulation import build_structure
 
     config = parse_config(base())
     pull = PrescribedMotion("x1&top", "z", "displacement", 1.0, Amplitude.constant(1.0), key="k1")

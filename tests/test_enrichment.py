@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 
 from fenics_adaptive.adaptivity import enrichment as enr
-from fenics_adaptive.runner import build_structure
 from fenics_adaptive.settings.config import parse_config
 from fenics_adaptive.settings.kinds import InterfaceState
 from fenics_adaptive.settings.solver import SolverSettings
+from fenics_adaptive.simulation import build_structure
 from fenics_adaptive.solver import explicit
 
 DATA = Path(__file__).parent / "data"

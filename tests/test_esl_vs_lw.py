@@ -23,7 +23,7 @@ import pytest
 from mpi4py import MPI
 
 from fenics_adaptive.analysis import comparison as cmp
-from fenics_adaptive.runner import build_structure
+from fenics_adaptive.simulation import build_structure
 from fenics_adaptive.solver.static import solve_static
 
 ROOT = Path(__file__).parents[1]

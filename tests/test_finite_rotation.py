@@ -45,9 +45,9 @@ from fenics_adaptive.model.assembly import add_cohesive_forces
 from fenics_adaptive.model.forms import JIT_OPTIONS
 from fenics_adaptive.model.loading import face_dofs
 from fenics_adaptive.model.structure import Structure
-from fenics_adaptive.runner import build_structure
 from fenics_adaptive.settings.config import RunConfig, load_config, parse_config
 from fenics_adaptive.settings.kinds import InterfaceState
+from fenics_adaptive.simulation import build_structure
 
 DATA = Path(__file__).parent / "data"
 ROUND_OFF = 1e-12

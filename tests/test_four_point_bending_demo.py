@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from fenics_adaptive.analysis.studies import four_point_bending_variant
-from fenics_adaptive.runner import RefinementHook, build_structure
 from fenics_adaptive.settings.config import parse_config
+from fenics_adaptive.simulation import RefinementHook, build_structure
 from fenics_adaptive.solver import explicit
 
 # Each test runs a shortened demo to its end (seconds to minutes).
@@ -24,7 +24,7 @@ def run(name: str):
     base["solver"]["end_time"] = 1.0e-3
     config = parse_config(four_point_bending_variant(base, name))
     structure = build_structure(config)
-    stats = explicit.run(structure, config.solver, config.probe, refiner=RefinementHook.of(config))
+    stats = explicit.run(structure, config.solver, config.probe, refiner=RefinementHook(config))
     return structure, stats
 
 

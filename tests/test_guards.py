@@ -18,11 +18,11 @@ from mpi4py import MPI
 
 from fenics_adaptive.model import loading
 from fenics_adaptive.model.structure import Structure
-from fenics_adaptive.runner import build_structure
 from fenics_adaptive.settings.adaptivity import Interfaces
 from fenics_adaptive.settings.config import load_config
 from fenics_adaptive.settings.kinds import InterfaceState
 from fenics_adaptive.settings.loads import Amplitude, PrescribedMotion, clamp
+from fenics_adaptive.simulation import build_structure
 from fenics_adaptive.solver import explicit, guards
 
 DATA = Path(__file__).parent / "data"

@@ -14,11 +14,11 @@ from fenics_adaptive.materials.laminate import Laminate, PlyMaterial
 from fenics_adaptive.model import loading
 from fenics_adaptive.model.forms import build_model
 from fenics_adaptive.model.structure import Structure
-from fenics_adaptive.runner import RefinementHook, build_structure, probe_displacement
 from fenics_adaptive.settings.adaptivity import IndicatorSettings
 from fenics_adaptive.settings.config import parse_config
 from fenics_adaptive.settings.kinds import InterfaceState
 from fenics_adaptive.settings.loads import Amplitude, FaceLoad, clamp
+from fenics_adaptive.simulation import RefinementHook, build_structure, probe_displacement
 from fenics_adaptive.solver import explicit
 from fenics_adaptive.solver.static import solve_static
 
@@ -92,7 +92,7 @@ def test_manual_refinement_by_displacement():
     data["solver"]["end_time"] = 2.0e-5
     config = parse_config(data)
     structure = build_structure(config)
-    hook = RefinementHook.of(config)
+    hook = RefinementHook(config)
     at = []
 
     def on_step(t, s):

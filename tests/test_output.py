@@ -19,8 +19,8 @@ from fenics_adaptive.io.output import (
     write_summary,
 )
 from fenics_adaptive.materials.ply_damage import strain_rotation
-from fenics_adaptive.runner import build_structure
 from fenics_adaptive.settings.config import parse_config
+from fenics_adaptive.simulation import build_structure
 from fenics_adaptive.solver.explicit import COLUMNS
 
 DATA = Path(__file__).parent / "data"

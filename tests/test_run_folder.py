@@ -162,7 +162,7 @@ def test_out_is_checked_before_the_model_is_built(tmp_path, monkeypatch):
     def no_build(*args, **kwargs):
         raise AssertionError("the model was built before --out was checked")
 
-    monkeypatch.setattr(runner, "build_problem", no_build)
+    monkeypatch.setattr(runner, "Simulation", no_build)
     (tmp_path / "a_file").write_text("x")
     with pytest.raises(InputError, match="not a folder") as caught:
         run(small(), tmp_path / "a_file")

@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 
 from fenics_adaptive.io import checkpoint
-from fenics_adaptive.runner import RefinementHook, build_structure
 from fenics_adaptive.settings.config import parse_config
 from fenics_adaptive.settings.kinds import InterfaceState
+from fenics_adaptive.simulation import RefinementHook, build_structure
 from fenics_adaptive.solver import explicit
 from fenics_adaptive.solver.observers import Observer
 
@@ -47,7 +47,7 @@ def solver_of(config, observers=()):
         config.solver,
         config.probe,
         observers=observers,
-        refiner=RefinementHook.of(config),
+        refiner=RefinementHook(config),
     )
 
 
@@ -117,7 +117,7 @@ def test_state_and_restore_continue_bit_for_bit(whole_run):
 
     structure = build_structure(config, refine_initially=False)
     checkpoint.restore_structure(structure, structure_arrays)
-    hook = RefinementHook.of(config)
+    hook = RefinementHook(config)
     hook.restore(hook_state)
     second = explicit.ExplicitSolver(structure, config.solver, config.probe, refiner=hook)
     second.restore(state)

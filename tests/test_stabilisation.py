@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 
 from fenics_adaptive.adaptivity import enrichment as enr
-from fenics_adaptive.runner import RefinementHook, build_structure
 from fenics_adaptive.settings.config import parse_config
 from fenics_adaptive.settings.kinds import InterfaceState
+from fenics_adaptive.simulation import RefinementHook, build_structure
 from fenics_adaptive.solver import explicit
 
 DATA = Path(__file__).parent / "data"
@@ -31,7 +31,7 @@ def tcb(**sections) -> dict:
 def run(data):
     config = parse_config(data)
     structure = build_structure(config)
-    stats = explicit.run(structure, config.solver, config.probe, refiner=RefinementHook.of(config))
+    stats = explicit.run(structure, config.solver, config.probe, refiner=RefinementHook(config))
     return structure, stats
 
 

@@ -22,12 +22,13 @@ from fenics_adaptive.io.output import read_history
 from fenics_adaptive.model.forms import build_model
 from fenics_adaptive.model.loading import resolve
 from fenics_adaptive.model.structure import Structure, cells_in_x_range
-from fenics_adaptive.runner import build_structure, run_config
+from fenics_adaptive.runner import run_config
 from fenics_adaptive.settings.adaptivity import Interfaces
 from fenics_adaptive.settings.config import parse_config
 from fenics_adaptive.settings.kinds import InterfaceState
 from fenics_adaptive.settings.materials import CohesiveLaw
 from fenics_adaptive.settings.solver import Probe, SolverSettings
+from fenics_adaptive.simulation import build_structure
 from fenics_adaptive.solver import explicit
 
 DATA = Path(__file__).parent / "data"

@@ -9,8 +9,8 @@ import pytest
 
 from fenics_adaptive.analysis.lefm import lefm_comparison
 from fenics_adaptive.analysis.studies import tcb_quick, tcb_variant
-from fenics_adaptive.runner import RefinementHook, build_structure
 from fenics_adaptive.settings.config import parse_config
+from fenics_adaptive.simulation import RefinementHook, build_structure
 from fenics_adaptive.solver import explicit
 
 # Each test runs a shortened demo to its end (seconds to minutes).
@@ -23,7 +23,7 @@ def run(name: str):
     base = tcb_quick(tomllib.loads((ROOT / "demos" / "tcb.toml").read_text()))
     config = parse_config(tcb_variant(base, name))
     structure = build_structure(config)
-    stats = explicit.run(structure, config.solver, config.probe, refiner=RefinementHook.of(config))
+    stats = explicit.run(structure, config.solver, config.probe, refiner=RefinementHook(config))
     history = {
         name: [getattr(r, name) for r in stats.history]
         for name in (

@@ -43,9 +43,9 @@ from afem_figures import SET_COLOURS, TUTORIAL_DIR, draw_plies, finish
 from mpi4py import MPI
 
 from fenics_adaptive.adaptivity import enrichment as enr
-from fenics_adaptive.runner import build_structure
 from fenics_adaptive.settings.config import parse_config
 from fenics_adaptive.settings.kinds import InterfaceState
+from fenics_adaptive.simulation import build_structure
 
 # %% [markdown]
 # ## The model

@@ -23,9 +23,9 @@ from mpi4py import MPI
 from fenics_adaptive.adaptivity import enrichment as enr
 from fenics_adaptive.element.solid_shell import gauss_legendre_01
 from fenics_adaptive.element.subelement import sublaminate_ply_zeta
-from fenics_adaptive.runner import build_structure
 from fenics_adaptive.settings.config import parse_config
 from fenics_adaptive.settings.kinds import InterfaceState
+from fenics_adaptive.simulation import build_structure
 
 # %% [markdown]
 # ## Interface states decide the subelements

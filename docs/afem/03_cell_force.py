@@ -32,9 +32,9 @@ from mpi4py import MPI
 from fenics_adaptive.adaptivity import enrichment as enr
 from fenics_adaptive.element.subelement import pack_rule, solid_shell_force, sublaminate_ply_zeta
 from fenics_adaptive.materials.cohesive import cohesive_element_force
-from fenics_adaptive.runner import build_structure
 from fenics_adaptive.settings.config import parse_config
 from fenics_adaptive.settings.kinds import InterfaceState
+from fenics_adaptive.simulation import build_structure
 
 # %% [markdown]
 # ## One cell, refined as in Figure 2

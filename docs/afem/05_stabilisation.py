@@ -32,9 +32,9 @@ from mpi4py import MPI
 
 from fenics_adaptive.adaptivity import enrichment as enr
 from fenics_adaptive.adaptivity.events import refine
-from fenics_adaptive.runner import build_structure
 from fenics_adaptive.settings.config import parse_config
 from fenics_adaptive.settings.kinds import InterfaceState
+from fenics_adaptive.simulation import build_structure
 from fenics_adaptive.solver import explicit
 
 # %% [markdown]

@@ -23,9 +23,9 @@ from mpi4py import MPI
 
 from fenics_adaptive.adaptivity import enrichment as enr
 from fenics_adaptive.model.structure import cells_in_x_range
-from fenics_adaptive.runner import build_structure
 from fenics_adaptive.settings.config import parse_config
 from fenics_adaptive.settings.kinds import InterfaceState
+from fenics_adaptive.simulation import build_structure
 
 # %% [markdown]
 # ## The problem

@@ -788,7 +788,7 @@ def _split_boundaries(
     kind: ModelKind, mesh: MeshConfig, interfaces: Interfaces
 ) -> tuple[bool, ...]:
     """Which boundaries between mesh layers have their own nodes on each side (layerwise
-    delamination), as ``runner.build_structure`` meshes them."""
+    delamination), as ``simulation.build_structure`` meshes them."""
     boundaries = list(itertools.accumulate(mesh.layers))[:-1]
     if kind != ModelKind.LAYERWISE:
         return (False,) * len(boundaries)
@@ -883,7 +883,7 @@ def _check_motions_agree(motions: list[PrescribedMotion], mesh: MeshConfig, spli
 
 
 def _symmetry_motions(kind: ModelKind, mesh: MeshConfig, interfaces: Interfaces) -> list:
-    """The u_z = 0 motions ``runner.build_structure`` adds at a layerwise model's symmetry
+    """The u_z = 0 motions ``simulation.build_structure`` adds at a layerwise model's symmetry
     interfaces (an adaptive model holds its extra nodes there instead)."""
     if kind != ModelKind.LAYERWISE:
         return []
@@ -1087,7 +1087,7 @@ class ModelSize:
 
 
 def model_size(mesh: MeshConfig, laminate: Laminate, split: int = 0) -> ModelSize:
-    """Cells, nodes, plies and cell layers of the mesh ``runner.build_structure`` makes
+    """Cells, nodes, plies and cell layers of the mesh ``simulation.build_structure`` makes
     (``split``: layer boundaries with their own nodes on each side)."""
     layers = len(mesh.layers)
     cells = mesh.nx * mesh.ny * layers

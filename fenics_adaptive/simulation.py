@@ -1,0 +1,366 @@
+"""A config built into a model and a solver, driven from Python: ``Simulation``.
+
+Units: N, mm, s, tonne (stress MPa, energy mJ = N mm).
+
+The data flow of one run: the config's mesh (``meshes.beam``), the model on it
+(``model.forms``), its loads and the structure the solver integrates (``build_structure``), the
+refinement the config and any Python indicator ask for (``RefinementHook``), an impactor if the
+config has one (``model.contact``), and the explicit solver (``solver.explicit``). ``Simulation``
+holds them; ``run()`` integrates to the end time, ``start()`` + ``step()`` advance one step at
+a time with the state readable in between, observers of one's own (``solver.observers``) see
+the run's events. ``runner.execute`` (the ``fenics-adaptive run`` command) is a ``Simulation``
+plus a run folder: history file, fields, checkpoints, summary and plots.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
+
+import numpy as np
+from mpi4py import MPI
+
+from fenics_adaptive.adaptivity.events import RefinementEvent, refine
+from fenics_adaptive.adaptivity.indicators import front_requests, indicator_requests, spread
+from fenics_adaptive.errors import InputError, shared_errors
+from fenics_adaptive.meshes.beam import layered_mesh
+from fenics_adaptive.model.assembly import CohesiveSet
+from fenics_adaptive.model.contact import Contact
+from fenics_adaptive.model.forms import build_model
+from fenics_adaptive.model.layerwise import cohesive_pairs
+from fenics_adaptive.model.loading import face_dofs, resolve
+from fenics_adaptive.model.structure import Structure, cells_in_x_range
+from fenics_adaptive.settings.config import RunConfig
+from fenics_adaptive.settings.kinds import InterfaceState, ModelKind, MotionKind, Refinement
+from fenics_adaptive.settings.loads import Amplitude, PrescribedMotion
+from fenics_adaptive.solver.explicit import ExplicitSolver, HistoryRow, RunStats, choose_time_step
+from fenics_adaptive.solver.observers import Observer
+
+Request = tuple[int, int, int]
+"""A refinement request: (owned local cell, interface 1 .. n_plies - 1, InterfaceState)."""
+
+
+@dataclass(frozen=True)
+class PythonIndicator:
+    """A refinement indicator written in Python.
+
+    ``function(structure, t)``: called every ``interval`` seconds of simulated time (0: before
+    every step) on every rank at the same steps, so it may use collectives; returns this
+    rank's requests ``(cell, interface, InterfaceState.WEAK or STRONG)`` (cells: owned local
+    indices, interfaces counted from 1 at the bottom). Requests for interfaces already in that
+    state are ignored; interfaces the config does not let refine are refused (InputError)."""
+
+    function: Callable[[Structure, float], Iterable[Request]]
+    interval: float = 0.0  # s
+
+    def __post_init__(self):
+        if not callable(self.function):
+            raise TypeError(f"an indicator must be callable, not {type(self.function).__name__}")
+        if not (math.isfinite(self.interval) and self.interval >= 0.0):
+            raise ValueError(f"indicator interval must be >= 0 s, not {self.interval!r}")
+
+
+def build_structure(
+    config: RunConfig, comm: MPI.Comm = MPI.COMM_WORLD, refine_initially: bool = True
+) -> Structure:
+    """Mesh, model, loads and (for adaptive, unless a restart replays it) the initial
+    refinement of a config."""
+    layers = config.layer_laminates()
+    boundaries = config.layer_boundaries
+    beam = layered_mesh(
+        comm,
+        config.mesh.length,
+        config.mesh.width,
+        config.mesh.nx,
+        config.mesh.ny,
+        [laminate.thickness for laminate in layers],
+        [b in config.interfaces.delaminate for b in boundaries],
+    )
+    model = build_model(beam, layers, config.points_per_ply, kinematics=config.kinematics)
+    motions = list(config.motions)
+    cohesive = None
+    params = config.cohesive.as_array() if config.cohesive is not None else None
+    if config.kind == ModelKind.LAYERWISE:
+        for interface in config.interfaces.symmetry:
+            top = f"top_layer{boundaries.index(interface)}"
+            motions.append(
+                PrescribedMotion(top, "z", MotionKind.DISPLACEMENT, 0.0, Amplitude.constant(0))
+            )
+        if config.interfaces.delaminate:
+            with shared_errors(comm):  # each rank checks its own columns
+                pairs = cohesive_pairs(beam, model.V)
+            cohesive = CohesiveSet(
+                pairs.nodes,
+                np.arange(len(pairs), dtype=np.int64),
+                np.zeros((len(pairs), 4)),
+                params,
+                np.array(boundaries, dtype=np.int32)[pairs.boundary],
+            )
+    loads = resolve(model, motions, config.loads)
+    structure = Structure(
+        model,
+        loads,
+        cohesive,
+        config.interfaces,
+        params,
+        config.stabilisation,
+        config.failures,
+        config.ply_damage,
+    )
+    for region in config.matrix_strength:
+        cells = cells_in_x_range(structure, region.x_min, region.x_max)
+        structure.scale_matrix_strength(cells, region.plies, region.factor)
+    if (
+        refine_initially
+        and config.kind == ModelKind.ADAPTIVE
+        and config.interfaces.initial != Refinement.NONE
+    ):
+        structure.refine(initial_refinement(structure, config))
+    return structure
+
+
+def initial_refinement(structure: Structure, config: RunConfig) -> list[Request]:
+    """Every owned cell refined at the listed interfaces: weak at ``refine``, and at
+    ``delaminate`` weak or strong as ``initial`` says."""
+    interfaces = config.interfaces
+    strong = interfaces.initial == Refinement.STRONG
+    cells = range(structure.base.n_owned_cells)
+    requests = [(c, i, InterfaceState.WEAK) for c in cells for i in interfaces.refine]
+    delaminate = InterfaceState.STRONG if strong else InterfaceState.WEAK
+    requests += [(c, i, delaminate) for c in cells for i in interfaces.delaminate]
+    return requests
+
+
+class RefinementHook:
+    """The solver's refiner (``ExplicitSolver(refiner=...)``): the config's manual
+    [[refinement]] entries and its [indicators]; returns the ``RefinementEvent`` of a
+    refinement, or None. Decisions are taken on the same steps on every rank (time, or the global
+    probe displacement), so the collective refinement is entered by all. Its state (which
+    manual entries are still pending, when the indicators run next) goes into checkpoints."""
+
+    def __init__(self, config: RunConfig, indicators: Iterable[PythonIndicator] = ()):
+        self.config = config
+        self.python = list(indicators)  # indicators written in Python, after the config's
+        self.python_next = np.zeros(len(self.python))  # s: when each is evaluated next
+        self.pending = list(range(len(config.refinements)))  # manual entries not yet done
+        self.next_check = 0.0  # s: next indicator evaluation
+        self.by_displacement = any(m.displacement < math.inf for m in config.refinements)
+        self.probe_dofs: np.ndarray | None = None
+        cohesive = config.cohesive
+        self.strengths = (cohesive.N, cohesive.S) if cohesive is not None else None
+
+    @property
+    def active(self) -> bool:
+        """Whether anything can refine: manual entries, [indicators] or Python indicators."""
+        config = self.config
+        return bool(config.refinements or config.indicators is not None or self.python)
+
+    def add(self, indicator: PythonIndicator) -> None:
+        """One more indicator written in Python, first evaluated at the next step."""
+        self.python.append(indicator)
+        self.python_next = np.append(self.python_next, 0.0)
+
+    def state(self) -> dict[str, np.ndarray]:
+        return {
+            "pending": np.array(self.pending, dtype=np.int64),
+            "next_check": self.next_check,
+            "python_next_check": self.python_next.copy(),
+        }
+
+    def restore(self, state: dict[str, np.ndarray]) -> None:
+        self.pending = [int(k) for k in state["pending"]]
+        self.next_check = float(state["next_check"])
+        stored = np.asarray(state.get("python_next_check", np.zeros(0)), dtype=float)
+        if len(stored) != len(self.python):
+            raise InputError(
+                "restart",
+                f"the checkpoint was written with {len(stored)} Python indicator(s), this run "
+                f"has {len(self.python)}: register the same indicators to restart",
+            )
+        self.python_next[:] = stored
+
+    def __call__(self, t: float, structure: Structure) -> RefinementEvent | None:
+        config, settings = self.config, self.config.indicators
+        displacement = 0.0
+        if self.by_displacement:
+            if self.probe_dofs is None:
+                self.probe_dofs = face_dofs(
+                    structure.base,
+                    config.probe.displacement_face,
+                    config.probe.component,
+                    x_range=config.probe.displacement_x,
+                )
+            displacement = probe_displacement(structure, config.probe, self.probe_dofs)
+        due = [k for k in self.pending if config.refinements[k].due(t, displacement)]
+        requests = []
+        for k in due:
+            self.pending.remove(k)
+            entry = config.refinements[k]
+            cells = cells_in_x_range(structure, entry.x_min, entry.x_max)
+            requests += [(int(c), i, entry.kind) for c in cells for i in entry.interfaces]
+        evaluate = settings is not None and t >= self.next_check
+        if evaluate:
+            requests += indicator_requests(structure, settings, self.strengths, t)
+            self.next_check = t + settings.interval
+            if settings.spread:
+                requests += spread(structure, requests, settings.spread)
+            if settings.front:
+                requests += front_requests(structure, settings.front)
+        python_due = np.flatnonzero(self.python_next <= t)  # the same on every rank
+        for k in python_due:
+            indicator = self.python[k]
+            requests += [tuple(int(x) for x in r) for r in indicator.function(structure, t)]
+            self.python_next[k] = t + indicator.interval
+        if not due and not evaluate and not len(python_due):
+            return None
+        return refine(structure, requests, t)
+
+
+def probe_displacement(structure: Structure, probe, dofs: np.ndarray | None = None) -> float:
+    """Mean displacement of the probe face in the probe component, over all ranks (``dofs``:
+    the probe's owned DOFs, if already known)."""
+    if dofs is None:
+        dofs = face_dofs(
+            structure.base, probe.displacement_face, probe.component, x_range=probe.displacement_x
+        )
+    local = np.array([structure.base.u.x.array[dofs].sum(), len(dofs)], dtype=float)
+    total, count = structure.comm.allreduce(local, op=MPI.SUM)
+    return total / max(count, 1.0)
+
+
+class Simulation:
+    """A config built into a structure and an explicit solver, ready to run.
+
+    ``config``: a ``RunConfig`` (``load_config(path)``, ``parse_config(dict)``).
+    ``observers``: ``Observer`` instances told of the run's events (history rows, field times,
+    refinements, checkpoints, the end); more with ``add_observer``. ``indicators``:
+    ``PythonIndicator`` instances (or ``add_indicator``). ``comm``: the MPI communicator; every
+    rank makes the same calls. ``structure``: an already built structure of this config (a
+    restart restores one, ``runner.execute``); by default it is built here.
+
+    Building checks what can only be checked on the model and raises ``InputError``: a forced
+    time step above the stable one, an impactor that starts inside the plate or whose penalty
+    is too stiff for the step.
+
+    Use: ``run()`` to the end time; or ``start()``, then ``step()`` until it returns False,
+    reading ``t``, ``u``, ``v``, ``internal_force``, ``external_force``, ``history``,
+    ``interface_state``, ``structure`` between steps."""
+
+    def __init__(
+        self,
+        config: RunConfig,
+        observers: Iterable[Observer] = (),
+        indicators: Iterable[PythonIndicator] = (),
+        comm: MPI.Comm = MPI.COMM_WORLD,
+        structure: Structure | None = None,
+    ):
+        self.config = config
+        self.structure = structure if structure is not None else build_structure(config, comm)
+        # s: the step a fresh run takes and the stable one, and what limits it
+        self.time_step, self.stable_time_step, self.critical = choose_time_step(
+            self.structure, config.solver
+        )
+        self.refinement = RefinementHook(config, indicators)
+        contributors = []
+        if config.impactor is not None:
+            contact = Contact.on(config.impactor, self.structure)
+            contact.check_penalty(
+                self.time_step, self.stable_time_step / config.solver.safety_factor
+            )
+            gap = contact.initial_gap()
+            if gap <= 0.0:
+                raise InputError(
+                    "impactor.position",
+                    f"the impactor starts {-gap:.4g} mm inside the top face; place it above",
+                )
+            contributors.append(contact)
+        self.solver = ExplicitSolver(
+            self.structure,
+            config.solver,
+            config.probe,
+            contributors=contributors,
+            observers=observers,
+            refiner=self.refinement if self.refinement.active else None,
+        )
+
+    # ------------------------------------------------------------------ set up
+    def add_observer(self, observer: Observer) -> None:
+        """Tell ``observer`` of the run's events from now on."""
+        self.solver.observers.append(observer)
+
+    def add_indicator(
+        self, function: Callable[[Structure, float], Iterable[Request]], interval: float = 0.0
+    ) -> PythonIndicator:
+        """Refine where ``function(structure, t)`` asks, every ``interval`` s (0: before every
+        step); see ``PythonIndicator``. Returns the registered indicator."""
+        indicator = PythonIndicator(function, interval)
+        self.refinement.add(indicator)
+        self.solver.refiner = self.refinement
+        return indicator
+
+    def start(
+        self,
+        initial_displacement: np.ndarray | None = None,
+        initial_velocity: np.ndarray | None = None,
+    ) -> None:
+        """Collective: begin at t = 0 (``ExplicitSolver.start``; mm and mm/s on the base DOFs,
+        owned + ghost entries, default zero) and evaluate t = 0: forces and the first history
+        row."""
+        self.solver.start(initial_displacement, initial_velocity)
+
+    def restore(self, solver_state: dict, refinement_state: dict | None = None) -> None:
+        """Collective: continue from a solver state (``ExplicitSolver.state()`` or a
+        checkpoint's) and the refinement hook's state; the structure must already be at that
+        moment."""
+        if refinement_state:
+            self.refinement.restore(refinement_state)
+        self.solver.restore(solver_state)
+
+    # ------------------------------------------------------------------ advance
+    def step(self) -> bool:
+        """Collective: one explicit step (``start()`` first); False once the end time is
+        reached."""
+        return self.solver.step()
+
+    def run(self) -> RunStats:
+        """Collective: to ``config.solver.end_time`` (starting at t = 0 unless started);
+        returns the statistics and the history rows."""
+        return self.solver.run()
+
+    # ------------------------------------------------------------------ read between steps
+    @property
+    def t(self) -> float:
+        """s, the time of the current state."""
+        return self.solver.t
+
+    @property
+    def u(self) -> np.ndarray:
+        """mm, base-node displacements (owned DOFs, x y z interleaved; a view: do not write)."""
+        return self.solver.u
+
+    @property
+    def v(self) -> np.ndarray:
+        """mm/s, base-node velocities v_{n-1/2} (owned DOFs; a view)."""
+        return self.solver.v
+
+    @property
+    def internal_force(self) -> np.ndarray:
+        """N, internal force on the base DOFs at t (owned; a view)."""
+        return self.solver.internal_force
+
+    @property
+    def external_force(self) -> np.ndarray:
+        """N, external force (loads) on the base DOFs at t (owned; a view)."""
+        return self.solver.external_force
+
+    @property
+    def history(self) -> list[HistoryRow]:
+        """The history rows so far (every ``output.interval`` s): displacement, forces,
+        energies (mJ)."""
+        return self.solver.stats.history
+
+    @property
+    def interface_state(self) -> np.ndarray:
+        """(owned cells, interfaces) int8 array of ``InterfaceState`` values (a view)."""
+        return self.structure.interface_state
