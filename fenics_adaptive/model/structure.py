@@ -37,12 +37,7 @@ from fenics_adaptive.element.rules import RuleTable
 from fenics_adaptive.element.subelement import (
     solid_shell_lumped_masses,
 )
-from fenics_adaptive.element.timestep import (
-    characteristic_lengths,
-    cohesive_pair_time_steps,
-)
 from fenics_adaptive.errors import InputError
-from fenics_adaptive.materials.cohesive import P_KN, P_KS
 from fenics_adaptive.materials.laminate import Laminate
 from fenics_adaptive.model.assembly import (
     CohesiveSet,
@@ -60,13 +55,13 @@ from fenics_adaptive.model.border import (
 )
 from fenics_adaptive.model.forms import LayeredModel
 from fenics_adaptive.model.loading import (
-    COMPONENTS,
     Amplitude,
     PrescribedMotion,
     ResolvedLoads,
-    face_nodes,
+    extra_node_prescriptions,
 )
 from fenics_adaptive.model.ply_damage_state import PlyDamageState
+from fenics_adaptive.model.time_step import stable_time_step
 
 
 @dataclass
@@ -191,7 +186,7 @@ class Structure:
         self.subelements = SubelementSet.empty(self.rule_table.packed)
         self.subelement_cells = np.zeros(0, dtype=np.int64)
         self.subelement_plies = np.zeros((0, 2), dtype=np.int64)
-        self._subelement_speeds = np.zeros(0)
+        self.subelement_speeds = np.zeros(0)
         self.ply_damage_state: PlyDamageState | None = None
         if ply_damage:
             self._setup_ply_damage()
@@ -243,6 +238,10 @@ class Structure:
         follow_masters(*self._border_args, self.base.u.x.array, self.extra.vectors["u"].array)
         if velocity:
             follow_masters(*self._border_args, self.v_base.array, self.extra.vectors["v"].array)
+
+    def cell_vertices(self) -> np.ndarray:
+        """Reference vertex coordinates (n_cells, 8, 3) mm of the owned cells."""
+        return self.X_base[self.base.V.dofmap.list[: self.base.n_owned_cells]]
 
     def describe_dof(self, block: int, dof: int) -> str:
         """Where an owned DOF of a block is, in words (for error messages)."""
@@ -303,28 +302,10 @@ class Structure:
         return self.comm.allreduce(local, op=MPI.SUM)
 
     def stable_time_step(self) -> tuple[float, str]:
-        """(min of L_e / c over unrefined cells and subelements, and of the cohesive pair limit;
-        where it is attained), reduced over ranks. The caller applies the safety factor."""
-        candidates = []
-        ratios = characteristic_lengths(cell_coordinates(self))
-        speeds = self.base.cell_wave_speeds()
-        refined = self.refinement.refined_cells()
-        ratios /= speeds
-        ratios[refined] = np.inf
-        if len(ratios):
-            cell = int(np.argmin(ratios))
-            candidates.append((float(ratios[cell]), f"cell {self.original_cell[cell]}"))
-        if len(self.subelements):
-            X = self.gather(self.subelements.nodes, "X")
-            sub_ratios = characteristic_lengths(X) / self._subelement_speeds
-            s = int(np.argmin(sub_ratios))
-            cell = self.subelement_cells[s]
-            candidates.append(
-                (float(sub_ratios[s]), f"subelement of cell {self.original_cell[cell]}")
-            )
-        # collective (vectors and scatters): on every rank, with or without cohesive elements
-        candidates.append(self._cohesive_time_step())
-        return self.comm.allreduce(min(candidates), op=MPI.MIN)
+        """Collective: (the stable step (s) of the central-difference scheme, where it is
+        attained), reduced over ranks (``time_step.stable_time_step``). The caller applies the
+        safety factor."""
+        return stable_time_step(self)
 
     def _setup_ply_damage(self) -> None:
         """Matrix damage per (cell, ply): every cell leaves the UFL form for the damage-aware
@@ -333,7 +314,7 @@ class Structure:
             self.laminate,
             self.failures,
             self.rule_table,
-            cell_coordinates(self),
+            self.cell_vertices(),
             self.cell_plies,
             self.comm,
         )
@@ -655,7 +636,7 @@ class Structure:
         )
         self.subelement_cells = cells.astype(np.int64)
         self.subelement_plies = spans
-        self._subelement_speeds = self.rule_table.wave_speed(spans)
+        self.subelement_speeds = self.rule_table.wave_speed(spans)
         # cohesive elements: cells in order, interfaces bottom to top
         rows, interface_index = np.nonzero(states == enr.STRONG)
         cells, interfaces = refined[rows], interface_index + 1
@@ -688,7 +669,9 @@ class Structure:
     def _rebuild_blocks(self) -> None:
         """Collective: border constraints, the masses the solver divides by (constrained masses
         moved to their masters), prescribed DOFs; constrained nodes put on their masters."""
-        prescribed = self._extra_prescriptions()
+        prescribed = extra_node_prescriptions(
+            self.motions, self.base, self.extra, self.column_top, self.refinement.n_interfaces
+        )
         if self.extra.index_map.size_global:  # the same on every rank: column_counts is collective
             counts = column_counts(
                 self.comm, self.base.V.dofmap.index_map, self.bottom_local, self.interface_state
@@ -729,31 +712,6 @@ class Structure:
             fixed=fixed,
             fixed_motion=prescribed[fixed].astype(np.int32),
         )
-
-    def _extra_prescriptions(self) -> np.ndarray:
-        """Motion index (into ``motions``) holding each local extra DOF (owned and ghosts), -1
-        for none: a face motion holds an extra node when both base nodes of its column are on
-        that face; a symmetry interface holds u_z of its nodes. The first motion listed wins."""
-        prescribed = np.full(3 * self.extra.n_local, -1, dtype=np.int64)
-        if self.extra.index_map.size_global == 0:  # the same on every rank
-            return prescribed
-        n_interfaces = self.interface_state.shape[1]
-        parts = [enr.key_parts(k, n_interfaces) for k in self.extra.index]
-        local = np.fromiter(self.extra.index.values(), dtype=np.int64)
-        bottom = np.array([self.extra.local_base_node(g) for g, _, _ in parts], dtype=np.int64)
-        top = np.array([self.column_top[b] for b in bottom], dtype=np.int64)
-        interface = np.array([i for _, i, _ in parts], dtype=np.int64)
-        for m, motion in enumerate(self.motions):
-            if motion.face.startswith("interface"):
-                on = interface == int(motion.face.removeprefix("interface"))
-            else:  # face_nodes is collective: every rank, also one without extra nodes
-                mask = np.zeros(self.n_base, dtype=bool)
-                mask[face_nodes(self.base, motion.face, motion.x_range)] = True
-                on = mask[bottom] & mask[top]
-            dofs = 3 * local[on] + COMPONENTS[motion.component]
-            dofs = dofs[prescribed[dofs] < 0]
-            prescribed[dofs] = m
-        return prescribed
 
     def _update_masses(self, cells: np.ndarray, old_state: np.ndarray) -> None:
         """Take each changed cell's old (sub)element masses off its nodes, put the new ones on;
@@ -805,57 +763,8 @@ class Structure:
         out[~is_base] = extra[nodes[~is_base] - self.n_base]
         return out
 
-    def _cohesive_time_step(self) -> tuple[float, str]:
-        """Penalty springs of this rank's cohesive elements against the masses they join: (the
-        smallest step, where), (inf, "") without any. Collective (the nodal interface areas
-        are summed over ranks), so every rank calls it, whatever it holds."""
-        params = self.cohesive.params
-        stiffness = max(params[P_KN], params[P_KS])
-        X = self.gather(self.cohesive.nodes, "X")
-        areas = quad_areas(X[:, :4, :])
-        # each node's share of the interface area, summed over the elements around it
-        area_base = la.vector(self.mass_base.index_map, bs=3)
-        area_extra = la.vector(self.mass_extra.index_map, bs=3)
-        ab, ax = area_base.array.reshape(-1, 3), area_extra.array.reshape(-1, 3)
-        lower = self.cohesive.nodes[:, :4].ravel()
-        shares = np.repeat(0.25 * areas, 4)
-        is_base = lower < self.n_base
-        np.add.at(ab[:, 0], lower[is_base], shares[is_base])
-        np.add.at(ax[:, 0], lower[~is_base] - self.n_base, shares[~is_base])
-        for vector in (area_base, area_extra):
-            vector.scatter_reverse(la.InsertMode.add)
-            vector.scatter_forward()
-        upper = self.cohesive.nodes[:, 4:].ravel()
-
-        def nodal(values_base, values_extra, nodes):
-            out = np.empty(len(nodes))
-            is_base = nodes < self.n_base
-            out[is_base] = values_base[nodes[is_base]]
-            out[~is_base] = values_extra[nodes[~is_base] - self.n_base]
-            return out
-
-        mb = self.mass_base.array.reshape(-1, 3)[:, 0]
-        mx = self.mass_extra.array.reshape(-1, 3)[:, 0]
-        steps = cohesive_pair_time_steps(
-            stiffness,
-            nodal(ab[:, 0], ax[:, 0], lower),
-            nodal(mb, mx, lower),
-            nodal(mb, mx, upper),
-        )
-        if len(steps) == 0:
-            return np.inf, ""
-        k = int(np.argmin(steps))
-        return float(steps[k]), f"cohesive element {k // 4} (penalty {stiffness:g} N/mm^3)"
-
-
-def cell_coordinates(structure: Structure) -> np.ndarray:
-    """Reference vertex coordinates (n_cells, 8, 3) mm of the owned cells."""
-    n = structure.base.n_owned_cells
-    nodes = structure.base.V.dofmap.list[:n]
-    return structure.X_base[nodes]
-
 
 def cells_in_x_range(structure: Structure, x_min: float, x_max: float) -> np.ndarray:
     """Owned cells whose centroid lies in x_min <= x <= x_max."""
-    x = cell_coordinates(structure)[:, :, 0].mean(axis=1)
+    x = structure.cell_vertices()[:, :, 0].mean(axis=1)
     return np.flatnonzero((x >= x_min) & (x <= x_max)).astype(np.int32)
