@@ -20,6 +20,7 @@ from fenics_adaptive.element.subelement import (
     concatenate_rules,
     pack_mass_rule,
     pack_rule,
+    solid_shell_lumped_masses,
     sublaminate_ply_zeta,
 )
 from fenics_adaptive.materials.laminate import Laminate
@@ -88,3 +89,14 @@ class RuleTable:
     def mass_rule(self, first: int, stop: int) -> PackedMassRule:
         """The lumped-mass rule of plies [first, stop)."""
         return self.mass_rules[self.index(first, stop)]
+
+    def lumped_masses(self, X: np.ndarray, first: np.ndarray, stop: np.ndarray) -> np.ndarray:
+        """Lumped nodal masses (n, 8) tonne of (sub)elements with reference vertices X (n, 8, 3)
+        mm spanning plies [first, stop) (n,) each."""
+        masses = np.empty((len(X), 8))
+        spans = first * (self.n_plies + 1) + stop
+        for span in np.unique(spans):
+            members = np.flatnonzero(spans == span)
+            rule = self.mass_rule(*divmod(int(span), self.n_plies + 1))
+            masses[members] = solid_shell_lumped_masses(X[members], *rule)
+        return masses

@@ -18,6 +18,13 @@ copied from set A (strong); the refined cells' old (sub)element masses are taken
 nodes and the new subelements' masses put on (total mass unchanged); the maps, constraints and
 stable time step are rebuilt. Extra nodes on the border of a refined region follow their
 unrefined neighbour (``border``). The per-step path allocates nothing.
+
+The structure composes parts with one job each: ``element.rules.RuleTable`` (the packed rules of
+every ply span), ``adaptivity.refinement.RefinementState`` (interface states, the refinement
+log and energy), ``adaptivity.stabilisation.StabilisationState`` (damping windows, tie forces),
+``model.ply_damage_state.PlyDamageState`` (matrix damage per cell and ply) and the cohesive set's
+damage rows; ``state()`` / ``restore()`` gather their history-dependent arrays for a checkpoint.
+The stable step is computed in ``model.time_step``.
 """
 
 from __future__ import annotations
@@ -34,9 +41,6 @@ from fenics_adaptive.adaptivity.refinement import RefinementState
 from fenics_adaptive.adaptivity.stabilisation import DampingWindow, StabilisationState, Ties
 from fenics_adaptive.element.geometry import quad_areas, thickness_weight
 from fenics_adaptive.element.rules import RuleTable
-from fenics_adaptive.element.subelement import (
-    solid_shell_lumped_masses,
-)
 from fenics_adaptive.errors import InputError
 from fenics_adaptive.materials.laminate import Laminate
 from fenics_adaptive.model.assembly import (
@@ -148,11 +152,7 @@ class Structure:
         self.interfaces = interfaces or Interfaces()
         self.law_params = law_params
         self.cohesive = cohesive if cohesive is not None else CohesiveSet.empty(np.zeros(8))
-        self.motions: list[PrescribedMotion] = list(loads.motions)
-        for i in self.interfaces.symmetry if len(base.layer_laminates) == 1 else ():
-            self.motions.append(
-                PrescribedMotion(f"interface{i}", "z", "displacement", 0.0, Amplitude.constant(0))
-            )
+        self.motions = _motions(loads, self.interfaces, len(base.layer_laminates))
 
         if len(base.layer_laminates) > 1 and (
             self.interfaces.refine or self.interfaces.initial != "none"
@@ -163,25 +163,10 @@ class Structure:
         laminate = Laminate(tuple(p for layer in base.layer_laminates for p in layer.plies))
         self.laminate = laminate
         n_interfaces = laminate.n_plies - 1
-        n_cells = base.n_owned_cells
-        self.cell_plies = np.zeros((n_cells, 2), dtype=np.int64)
-        first = 0
-        for k, layer in enumerate(base.layer_laminates):
-            self.cell_plies[base.layer_cells(k)] = (first, first + layer.n_plies)
-            first += layer.n_plies
-        self.refinement = RefinementState(n_cells, n_interfaces, self.interfaces)
-        index_map = V.dofmap.index_map
-        local_to_global = index_map.local_to_global(np.arange(self.n_base, dtype=np.int32))
-        nodes = V.dofmap.list[:n_cells]
-        self.bottom_local = np.ascontiguousarray(nodes[:, :4], dtype=np.int32)
-        self.top_local = np.ascontiguousarray(nodes[:, 4:], dtype=np.int32)
-        self.bottom_global = local_to_global[self.bottom_local].astype(np.int64)
-        self.original_cell = np.asarray(
-            base.mesh.topology.original_cell_index[:n_cells], dtype=np.int64
-        )
-        self.column_top = dict(zip(self.bottom_local.ravel(), self.top_local.ravel(), strict=True))
-
-        self.extra = enr.ExtraNodes(self.comm, max(n_interfaces, 1), index_map)
+        self.cell_plies = _cell_plies(base)
+        self.refinement = RefinementState(base.n_owned_cells, n_interfaces, self.interfaces)
+        self._set_cell_columns()
+        self.extra = enr.ExtraNodes(self.comm, max(n_interfaces, 1), V.dofmap.index_map)
         self.rule_table = RuleTable(laminate, base.points_per_ply)
         self.subelements = SubelementSet.empty(self.rule_table.packed)
         self.subelement_cells = np.zeros(0, dtype=np.int64)
@@ -195,6 +180,21 @@ class Structure:
         self.border = BorderConstraints.empty()
         self._resize_extra_vectors()
         self._rebuild_blocks()
+
+    def _set_cell_columns(self) -> None:
+        """The owned cells' bottom and top base nodes (local; bottom also global), original
+        cell numbers and the top node of each bottom one (a column of the mesh)."""
+        n_cells = self.base.n_owned_cells
+        index_map = self.base.V.dofmap.index_map
+        local_to_global = index_map.local_to_global(np.arange(self.n_base, dtype=np.int32))
+        nodes = self.base.V.dofmap.list[:n_cells]
+        self.bottom_local = np.ascontiguousarray(nodes[:, :4], dtype=np.int32)
+        self.top_local = np.ascontiguousarray(nodes[:, 4:], dtype=np.int32)
+        self.bottom_global = local_to_global[self.bottom_local].astype(np.int64)
+        self.original_cell = np.asarray(
+            self.base.mesh.topology.original_cell_index[:n_cells], dtype=np.int64
+        )
+        self.column_top = dict(zip(self.bottom_local.ravel(), self.top_local.ravel(), strict=True))
 
     # ------------------------------------------------------------------ what the solver uses
     @property
@@ -729,14 +729,7 @@ class Structure:
         )
         delta = np.zeros(self.n_base + self.extra.n_local)  # combined local nodes
         if len(nodes):
-            X = self.gather(nodes, "X")
-            masses = np.empty((len(nodes), 8))
-            rules = first * (self.laminate.n_plies + 1) + stop
-            for rule in np.unique(rules):
-                members = np.flatnonzero(rules == rule)
-                span = divmod(int(rule), self.laminate.n_plies + 1)
-                mass_rule = self.rule_table.mass_rule(*span)
-                masses[members] = solid_shell_lumped_masses(X[members], *mass_rule)
+            masses = self.rule_table.lumped_masses(self.gather(nodes, "X"), first, stop)
             masses *= signs[:, None]
             np.add.at(delta, nodes.ravel(), masses.ravel())  # in order, as a loop would
         delta_base, delta_extra = delta[: self.n_base], delta[self.n_base :]
@@ -762,6 +755,26 @@ class Structure:
         out[is_base] = base[nodes[is_base]]
         out[~is_base] = extra[nodes[~is_base] - self.n_base]
         return out
+
+
+def _motions(loads: ResolvedLoads, interfaces: Interfaces, n_layers: int) -> list[PrescribedMotion]:
+    """The loads' prescribed motions, then the symmetry interfaces' u_z = 0 (ESL mesh only)."""
+    motions = list(loads.motions)
+    for i in interfaces.symmetry if n_layers == 1 else ():
+        motions.append(
+            PrescribedMotion(f"interface{i}", "z", "displacement", 0.0, Amplitude.constant(0))
+        )
+    return motions
+
+
+def _cell_plies(base: LayeredModel) -> np.ndarray:
+    """(n_cells, 2) plies [first, stop) of the whole laminate each owned cell holds."""
+    cell_plies = np.zeros((base.n_owned_cells, 2), dtype=np.int64)
+    first = 0
+    for k, layer in enumerate(base.layer_laminates):
+        cell_plies[base.layer_cells(k)] = (first, first + layer.n_plies)
+        first += layer.n_plies
+    return cell_plies
 
 
 def cells_in_x_range(structure: Structure, x_min: float, x_max: float) -> np.ndarray:
