@@ -66,6 +66,7 @@ from fenics_adaptive.model.loading import (
 )
 from fenics_adaptive.model.ply_damage_state import PlyDamageState
 from fenics_adaptive.model.time_step import stable_time_step
+from fenics_adaptive.model.topology import CellColumnTable
 
 
 @dataclass
@@ -165,7 +166,11 @@ class Structure:
         n_interfaces = laminate.n_plies - 1
         self.cell_plies = _cell_plies(base)
         self.refinement = RefinementState(base.n_owned_cells, n_interfaces, self.interfaces)
-        self._set_cell_columns()
+        self.columns = CellColumnTable(base)
+        # the columns' arrays as the structure's own (read by indicators, contact, output)
+        self.bottom_local, self.top_local = self.columns.bottom_local, self.columns.top_local
+        self.bottom_global = self.columns.bottom_global
+        self.original_cell, self.column_top = self.columns.original_cell, self.columns.column_top
         self.extra = enr.ExtraNodes(self.comm, max(n_interfaces, 1), V.dofmap.index_map)
         self.rule_table = RuleTable(laminate, base.points_per_ply)
         self.subelements = SubelementSet.empty(self.rule_table.packed)
@@ -180,21 +185,6 @@ class Structure:
         self.border = BorderConstraints.empty()
         self._resize_extra_vectors()
         self._rebuild_blocks()
-
-    def _set_cell_columns(self) -> None:
-        """The owned cells' bottom and top base nodes (local; bottom also global), original
-        cell numbers and the top node of each bottom one (a column of the mesh)."""
-        n_cells = self.base.n_owned_cells
-        index_map = self.base.V.dofmap.index_map
-        local_to_global = index_map.local_to_global(np.arange(self.n_base, dtype=np.int32))
-        nodes = self.base.V.dofmap.list[:n_cells]
-        self.bottom_local = np.ascontiguousarray(nodes[:, :4], dtype=np.int32)
-        self.top_local = np.ascontiguousarray(nodes[:, 4:], dtype=np.int32)
-        self.bottom_global = local_to_global[self.bottom_local].astype(np.int64)
-        self.original_cell = np.asarray(
-            self.base.mesh.topology.original_cell_index[:n_cells], dtype=np.int64
-        )
-        self.column_top = dict(zip(self.bottom_local.ravel(), self.top_local.ravel(), strict=True))
 
     # ------------------------------------------------------------------ what the solver uses
     @property
@@ -250,9 +240,7 @@ class Structure:
         if block == 0:
             x = self.X_base[node]
             # the cells (rows) holding the node
-            cells = np.flatnonzero(
-                ((self.bottom_local == node) | (self.top_local == node)).any(axis=1)
-            )
+            cells = self.columns.cells_holding(node)
             cell = f"cell {self.original_cell[cells[0]]}, " if len(cells) else ""
             return f"{cell}base node at ({x[0]:.4g}, {x[1]:.4g}, {x[2]:.4g}) mm, u_{axis}"
         n_interfaces = self.interface_state.shape[1]
@@ -557,7 +545,9 @@ class Structure:
                 gathered[:, 4:]
             )
         self.refinement.mark_weak(cells, interface)
-        self.extra.activate(*self._requests(cells, interface, enr.SET_A, values))
+        self.extra.activate(
+            *self.columns.node_requests(cells, interface, enr.SET_A, n_interfaces, values)
+        )
 
     def _activate_strong(self, cells: np.ndarray, interface: int) -> None:
         """New set-B nodes at ``interface`` of ``cells``, where their set-A partners are, then
@@ -570,55 +560,23 @@ class Structure:
             name: self.extra.vectors[name].array.reshape(-1, 3)[local] for name in ("u", "v", "X")
         }
         self.refinement.mark_strong(cells, interface)
-        self.extra.activate(*self._requests(cells, interface, enr.SET_B, values))
+        self.extra.activate(
+            *self.columns.node_requests(cells, interface, enr.SET_B, n_interfaces, values)
+        )
         self.cohesive.grow_rows(len(self.damage_rows))
 
-    def _requests(
-        self, cells: np.ndarray, interface: int, node_set: int, values: dict[str, np.ndarray]
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(keys, tie-breaks, values (n, 9)) of the 4 nodes of each of ``cells`` at an
-        interface, one per node, from their u, v, X (each (n_cells, 4, 3)): where cells share a
-        node, the one with the lowest original cell number sets its values (the same on every
-        rank, as ``ExtraNodes.activate`` also breaks ties across ranks)."""
-        n_interfaces = self.interface_state.shape[1]
-        keys = enr.extra_keys(self.bottom_global[cells], interface, node_set, n_interfaces)
-        keys = keys.ravel()
-        ties = np.repeat(self.original_cell[cells].astype(np.int64), 4)
-        rows = np.concatenate([values["u"], values["v"], values["X"]], axis=2).reshape(-1, 9)
-        chosen = enr.lowest_tie_per_key(keys, ties)
-        return keys[chosen], ties[chosen], rows[chosen]
-
     # ------------------------------------------------------------------ maps and bookkeeping
-    def _columns(self, cell: int) -> enr.CellColumns:
-        return enr.CellColumns(
-            self.bottom_local[cell], self.top_local[cell], self.bottom_global[cell]
-        )
-
-    def _subelement_nodes(self, row: np.ndarray, sub: enr.Subelement, cell: int) -> np.ndarray:
-        return enr.subelement_nodes(
-            row, sub, self._columns(cell), self.laminate.n_plies, self.extra.index, self.n_base
-        )
-
     def _subelement_nodes_many(
         self, states: np.ndarray, first: np.ndarray, stop: np.ndarray, cells: np.ndarray
     ) -> np.ndarray:
         """(m, 8) nodes of subelements plies first:stop of ``cells`` in states ``states``."""
-        return enr.subelement_nodes_many(
-            states,
-            first,
-            stop,
-            self.bottom_local[cells],
-            self.top_local[cells],
-            self.bottom_global[cells],
-            self.extra.locate,
-            self.n_base,
-        )
+        return self.columns.subelement_nodes(states, first, stop, cells, self.extra.locate)
 
     def cell_maps(self, cell: int) -> str:
         """The gather/scatter maps (projection matrices as index lists) of one owned cell."""
         return enr.describe_cell(
             self.interface_state[cell],
-            self._columns(cell),
+            self.columns.cell(cell),
             self.laminate.n_plies,
             self.extra.index,
             self.n_base,
@@ -643,13 +601,9 @@ class Structure:
         pairs = zip(cells.tolist(), interfaces.tolist(), strict=True)
         coh_rows = [self.damage_rows[pair] for pair in pairs]
         self.cohesive = CohesiveSet(
-            enr.cohesive_nodes_many(
-                interfaces,
-                self.bottom_global[cells],
-                self.interface_state.shape[1],
-                self.extra.locate,
-                self.n_base,
-            ).reshape(-1, 8),
+            self.columns.cohesive_nodes(
+                interfaces, cells, self.refinement.n_interfaces, self.extra.locate
+            ),
             np.array(coh_rows, dtype=np.int64),
             self.cohesive.damage,
             self.law_params if self.law_params is not None else self.cohesive.params,
