@@ -120,7 +120,7 @@ def bench_kernels(n_cells: int, repeat: int) -> list[dict]:
     median, first = timed(lambda: structure.base.add_internal_force(f), repeat)
     rows.append(_kernel_row("UFL/FFCx form, elastic", n, median, first))
 
-    rule = structure._rules_index[(0, structure.laminate.n_plies)]
+    rule = structure.rule_table.index(0, structure.laminate.n_plies)
     cells = SubelementSet(
         np.hstack([structure.bottom_local, structure.top_local]).astype(np.int32),
         np.full(n, rule, dtype=np.int64),

@@ -36,6 +36,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 
 from fenics_adaptive.analysis.studies import PLATE_IMPACT_RUNS, plate_impact_variant
+from fenics_adaptive.element.geometry import quad_areas
 from fenics_adaptive.errors import script_main
 from fenics_adaptive.io.output import read_history
 from fenics_adaptive.runner import execute
@@ -66,9 +67,7 @@ def interface_damage(structure) -> dict[int, tuple[np.ndarray, np.ndarray]]:
 
 
 def facts(structure, summary: dict, history: dict) -> dict:
-    corners = structure.X_base[structure.bottom_local]
-    d1, d2 = corners[:, 3] - corners[:, 0], corners[:, 2] - corners[:, 1]
-    cell_area = float(0.5 * np.linalg.norm(np.cross(d1, d2), axis=1).mean())  # mm^2
+    cell_area = float(quad_areas(structure.X_base[structure.bottom_local]).mean())  # mm^2
     refined = (structure.interface_state == InterfaceState.STRONG).any(axis=1)
     per_interface = {
         str(i): float((damage >= 1.0).sum() * cell_area)

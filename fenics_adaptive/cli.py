@@ -78,7 +78,7 @@ def _command(argv: list[str] | None, interrupt: _StartupInterrupt) -> int:
     from mpi4py import MPI
 
     comm = MPI.COMM_WORLD
-    errors = comm.Dup() if comm.size > 1 else None  # for _fail only
+    errors = comm.Dup() if comm.size > 1 else None  # for fail_ranks only
     # Imported here so that `--help` answers without loading DOLFINx.
     from fenics_adaptive.runner import run_config
     from fenics_adaptive.settings.config import load_config
@@ -108,13 +108,13 @@ def _command(argv: list[str] | None, interrupt: _StartupInterrupt) -> int:
             )
         return 130
     except InputError as error:
-        return _fail(errors, 2, _input_error_line(args.config, error))
+        return fail_ranks(errors, 2, _input_error_line(args.config, error))
     except Exception as error:  # the run itself failed: say why in one line
         if interrupt.fired:  # Ctrl-C killed a compiler or Gmsh under us: not a failure
             return _interrupted(error)
         if os.environ.get("FENICS_ADAPTIVE_TRACEBACK"):
             traceback.print_exc()
-        return _fail(
+        return fail_ranks(
             errors,
             1,
             f"fenics-adaptive: run failed: {type(error).__name__}: {error} "
@@ -126,7 +126,7 @@ def _command(argv: list[str] | None, interrupt: _StartupInterrupt) -> int:
 AGREE_TIMEOUT = 10.0  # s: how long a failed rank waits for the others to fail too
 
 
-def _fail(errors: MPI.Comm | None, status: int, line: str) -> int:
+def fail_ranks(errors: MPI.Comm | None, status: int, line: str) -> int:
     """Print ``line`` once (rank 0) and return ``status``, when every rank has failed: errors
     are raised on every rank (a collective decision, or ``errors.shared_errors``). A rank that
     fails alone, the others not arriving here within AGREE_TIMEOUT s (they wait in a collective

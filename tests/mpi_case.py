@@ -14,7 +14,6 @@ from mpi4py import MPI
 
 from fenics_adaptive.materials.ply_damage import S_D
 from fenics_adaptive.model import contact as contact_module
-from fenics_adaptive.model.structure import _cell_coordinates
 from fenics_adaptive.runner import execute
 from fenics_adaptive.settings.config import load_config
 
@@ -36,7 +35,7 @@ def main() -> None:
     comm = MPI.COMM_WORLD
     config = load_config(sys.argv[1])
     _, structure = execute(config, sys.argv[2], comm, show_progress=False, log=None)
-    x = _cell_coordinates(structure)[:, :, 0].mean(axis=1)
+    x = structure.cell_vertices()[:, :, 0].mean(axis=1)
     held = {
         "x_min": float(x.min()),
         "x_max": float(x.max()),

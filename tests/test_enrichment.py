@@ -253,6 +253,6 @@ def test_vectorised_maps_equal_the_cell_by_cell_maps():
     assert (structure.interface_state == InterfaceState.STRONG).any() and len(cohesive) > 0
     keep = refined[np.array(cells_of)]
     np.testing.assert_array_equal(structure.subelements.nodes, np.array(nodes)[keep])
-    np.testing.assert_array_equal(structure._subelement_cell, np.array(cells_of)[keep])
-    np.testing.assert_array_equal(structure._subelement_plies, np.array(plies)[keep])
+    np.testing.assert_array_equal(structure.subelement_cells, np.array(cells_of)[keep])
+    np.testing.assert_array_equal(structure.subelement_plies, np.array(plies)[keep])
     np.testing.assert_array_equal(structure.cohesive.nodes, np.array(cohesive))

@@ -19,7 +19,7 @@ def test_packed_displacement_is_dolfinx_packing(kinematics):
     rng = np.random.default_rng(0)
     model.u.x.array[:] = rng.normal(scale=1e-2, size=model.u.x.array.shape)
 
-    packed = model._packed
+    packed = model.packed
     packed.update()
     for i, form in enumerate((model.force_form, model.energy_form)):
         reference = fem.pack_coefficients(form)

@@ -186,7 +186,7 @@ def test_an_error_on_one_rank_alone_aborts_the_job_with_its_status():
         comm = MPI.COMM_WORLD
         errors = comm.Dup()
         if comm.rank == 1:
-            sys.exit(cli._fail(errors, 2, "fenics-adaptive: x.toml: key: only rank 1 knows"))
+            sys.exit(cli.fail_ranks(errors, 2, "fenics-adaptive: x.toml: key: only rank 1 knows"))
         comm.barrier()  # rank 0 waits for rank 1 for ever
         """
     )

@@ -284,7 +284,7 @@ def test_a_kill_at_any_point_of_the_write_leaves_one_complete_checkpoint(
     then holds the first (step 500) or the second, complete, and the restart from it gives the
     uninterrupted history."""
     writes = []
-    original_write = checkpoint._write_durably
+    original_write = checkpoint.write_durably
     torn = {  # the file the kill tears, by the start of its name
         "rank file half written": "rank",
         "history file half written": "history-",
@@ -309,10 +309,10 @@ def test_a_kill_at_any_point_of_the_write_leaves_one_complete_checkpoint(
             raise Killed
         return original_remove(folder, sequence)
 
-    original_commit, original_remove = checkpoint._commit, checkpoint._remove_superseded
-    monkeypatch.setattr(checkpoint, "_write_durably", write)
-    monkeypatch.setattr(checkpoint, "_commit", commit)
-    monkeypatch.setattr(checkpoint, "_remove_superseded", remove)
+    original_commit, original_remove = checkpoint.commit, checkpoint.remove_superseded
+    monkeypatch.setattr(checkpoint, "write_durably", write)
+    monkeypatch.setattr(checkpoint, "commit", commit)
+    monkeypatch.setattr(checkpoint, "remove_superseded", remove)
     out = tmp_path / "out"
     with pytest.raises(Killed):
         run(small(), out)

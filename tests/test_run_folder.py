@@ -386,8 +386,8 @@ def test_every_file_is_listed_before_it_is_written(tmp_path, monkeypatch):
 
         return write
 
-    monkeypatch.setattr(output, "_write_vtu", listed_first(output._write_vtu))
-    monkeypatch.setattr(checkpoint, "_write_durably", listed_first(checkpoint._write_durably))
+    monkeypatch.setattr(output, "write_vtu", listed_first(output.write_vtu))
+    monkeypatch.setattr(checkpoint, "write_durably", listed_first(checkpoint.write_durably))
     original_run = explicit.ExplicitSolver.run
 
     def spy(*args, **kwargs):

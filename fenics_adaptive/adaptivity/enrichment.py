@@ -47,9 +47,6 @@ from mpi4py import MPI
 
 from fenics_adaptive.settings.kinds import InterfaceState
 
-# The old names of the interface states, kept while model/structure.py uses them (its split,
-# issue 13, moves that code); new code uses InterfaceState.
-NONE, WEAK, STRONG = InterfaceState.NONE, InterfaceState.WEAK, InterfaceState.STRONG
 SET_A, SET_B = 0, 1
 
 

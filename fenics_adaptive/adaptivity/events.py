@@ -19,9 +19,6 @@ import numpy as np
 
 from fenics_adaptive.settings.kinds import InterfaceState
 
-# plain ints: numpy compares an int8 array with an IntEnum member far more slowly
-NONE, WEAK, STRONG = (int(s) for s in InterfaceState)
-
 
 @dataclass(frozen=True)
 class RefinementEvent:
@@ -60,8 +57,8 @@ def refine(structure, requests, t: float = 0.0) -> RefinementEvent | None:
     if isinstance(changed, RefinementEvent) or not changed:
         return changed or None
     after = structure.interface_state
-    weak = np.argwhere((before == NONE) & (after >= WEAK))
-    strong = np.argwhere((before != STRONG) & (after == STRONG))
+    weak = np.argwhere((before == InterfaceState.NONE) & (after >= InterfaceState.WEAK))
+    strong = np.argwhere((before != InterfaceState.STRONG) & (after == InterfaceState.STRONG))
     weak[:, 1] += 1  # interfaces count from 1
     strong[:, 1] += 1
     return RefinementEvent(

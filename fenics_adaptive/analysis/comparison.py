@@ -39,7 +39,7 @@ import numpy as np
 from petsc4py import PETSc
 
 from fenics_adaptive.adaptivity.indicators import ply_stresses
-from fenics_adaptive.element.subelement import concatenate_rules, pack_rule, sublaminate_ply_zeta
+from fenics_adaptive.element.geometry import quad_areas
 from fenics_adaptive.materials.laminate import Laminate, reduced_plane_stress_stiffness
 from fenics_adaptive.model.assembly import SubelementSet, add_subelement_forces
 from fenics_adaptive.model.loading import face_nodes
@@ -301,26 +301,6 @@ def ply_values_at_interfaces(stresses: np.ndarray) -> np.ndarray:
     return out
 
 
-def _rules_for(structure: Structure, ranges: list[tuple[int, int]]):
-    """Packed integration rules of elements holding plies [first, stop), as the structure
-    integrates them (same points per ply), and the rule index of each range."""
-    laminate = structure.laminate
-    stiffness = np.array(laminate.ply_stiffnesses())
-    keys = sorted(set(ranges))
-    rules = concatenate_rules(
-        [
-            pack_rule(
-                sublaminate_ply_zeta(laminate.ply_fractions, a, b),
-                stiffness[a:b],
-                structure.base.points_per_ply,
-            )
-            for a, b in keys
-        ]
-    )
-    index = {key: r for r, key in enumerate(keys)}
-    return rules, np.array([index[r] for r in ranges], dtype=np.int64)
-
-
 def element_forces(structure: Structure, mask: np.ndarray) -> np.ndarray:
     """Internal force (N, (n_nodes, 3), base then extra nodes) of the elements
     ``structure.elements()[mask]`` alone, at the current displacement (numba kernel)."""
@@ -329,9 +309,13 @@ def element_forces(structure: Structure, mask: np.ndarray) -> np.ndarray:
     f_base = np.zeros((structure.n_base, 3))
     f_extra = np.zeros((n_extra, 3))
     if mask.any():
-        rules, rule_of = _rules_for(structure, [(int(a), int(b)) for a, b in plies[mask]])
+        # the structure's own rules: the same points as its kernels use for every span of plies
+        table = structure.rule_table
+        elements = SubelementSet(
+            np.ascontiguousarray(nodes[mask]), table.rule_of(plies[mask]), table.packed
+        )
         add_subelement_forces(
-            SubelementSet(np.ascontiguousarray(nodes[mask]), rule_of, rules),
+            elements,
             structure.X_base,
             structure.extra.vectors["X"].array.reshape(-1, 3),
             structure.base.u.x.array.reshape(-1, 3),
@@ -340,11 +324,6 @@ def element_forces(structure: Structure, mask: np.ndarray) -> np.ndarray:
             f_extra,
         )
     return np.vstack([f_base, f_extra])
-
-
-def _quad_areas(X: np.ndarray) -> np.ndarray:
-    """Areas of planar quadrilaterals (n, 4, 3) in tensor vertex order."""
-    return 0.5 * np.linalg.norm(np.cross(X[:, 3] - X[:, 0], X[:, 2] - X[:, 1]), axis=1)
 
 
 def interface_tractions(structure: Structure) -> dict[int, tuple[np.ndarray, np.ndarray]]:
@@ -367,7 +346,7 @@ def interface_tractions(structure: Structure) -> dict[int, tuple[np.ndarray, np.
             continue
         F = element_forces(structure, plies[:, 0] >= interface)
         faces = nodes[starts_here][:, :4]  # bottom faces of the elements right above
-        areas = np.repeat(_quad_areas(X[faces]) / 4.0, 4)
+        areas = np.repeat(quad_areas(X[faces]) / 4.0, 4)
         on = np.unique(faces)
         area = np.bincount(faces.ravel(), weights=areas, minlength=len(X))[on]
         lines, line = np.unique(np.round(X[on, 0] / tol).astype(np.int64), return_inverse=True)

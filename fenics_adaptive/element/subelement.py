@@ -305,10 +305,10 @@ def _monomials(values, out):
                     out[m, i] -= out[m ^ bit, i]
 
 
-# Compiler options of ``_element_force`` and of every kernel that calls it. The point kernels are
-# inlined at numba's IR level, where the caller's flags are the ones that apply, and inlining is
-# what turns ``finite`` into a constant (one loop per kinematics, each vectorised). Fast-math
-# subset without "nnan"/"ninf": a degenerate element still gives inf/nan, not garbage.
+# Compiler options of ``element_force_kernel`` and of every kernel that calls it. The point
+# kernels are inlined at numba's IR level, where the caller's flags are the ones that apply, and
+# inlining is what turns ``finite`` into a constant (one loop per kinematics, each vectorised).
+# Fast-math subset without "nnan"/"ninf": a degenerate element still gives inf/nan, not garbage.
 KERNEL_OPTIONS = {"error_model": "numpy", "fastmath": {"contract", "reassoc", "nsz", "arcp"}}
 
 
@@ -574,7 +574,7 @@ def _element_force_kinematics(
     overwritten; returns the strain energy. Work arrays: ``work`` (2, 8, 3), ``line``
     (4, 3, 3). ``finite``: Green-Lagrange strain and second Piola-Kirchhoff stress instead of
     small strain (not combined with matrix cracks: the caller, the damaged kernel, is
-    small-strain only); a constant here, see ``_element_force``.
+    small-strain only); a constant here, see ``element_force_kernel``.
 
     The points come in runs sharing a vertical line, and with it the energy term (the rule's
     order, ``pack_rule``); each run is one loop without branches on the point, which the
@@ -663,7 +663,7 @@ def _element_force_kinematics(
 
 
 @njit(inline="always", **KERNEL_OPTIONS)
-def _element_force(
+def element_force_kernel(
     X,
     u,
     start,
@@ -754,7 +754,7 @@ def solid_shell_force(
     work = np.empty((2, 8, 3))
     line = np.empty((4, 3, 3))
     n = weights.shape[0]
-    return _element_force(
+    return element_force_kernel(
         X,
         u,
         0,
@@ -807,7 +807,7 @@ def solid_shell_forces(
     for e in range(X_all.shape[0]):
         start = rule_offsets[rule_of_element[e]]
         stop = rule_offsets[rule_of_element[e] + 1]
-        energy += _element_force(
+        energy += element_force_kernel(
             X_all[e],
             u_all[e],
             start,
@@ -900,7 +900,7 @@ def solid_shell_lumped_masses(X_all, points, weights, ply_of_point, density):
 # the ply's "normal" points, gamma_xz over its shear_xz points, gamma_yz over its shear_yz
 # points, weighted by w |det J|); (2) its effective material-frame stress C0 T eps and the
 # damage update; (3) its shell-frame secant stiffness stiffness[k] - d (open A0 + A1) into a
-# scratch copy (a plain copy while d = 0); (4) ``_element_force`` with that copy, which equals
+# scratch copy (a plain copy while d = 0); (4) ``element_force_kernel`` with that copy, which equals
 # the elastic kernel's force (to round-off) while nothing is damaged.
 #
 # Consequences of one secant stiffness per ply: the dissipation is exactly G_c per crack area
@@ -1085,7 +1085,7 @@ def _element_force_damaged(
             for b in range(6):
                 degraded[k, a, b] = stiffness[k, a, b] - d * degradation[k, 1, a, b]
         opening_scale[k] = d / ply_params[k, P_C22]
-    return _element_force(
+    return element_force_kernel(
         X,
         u,
         start,

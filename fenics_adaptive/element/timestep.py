@@ -13,10 +13,12 @@ from __future__ import annotations
 import numpy as np
 
 from fenics_adaptive.element import solid_shell
+from fenics_adaptive.element.geometry import quad_areas
 
-# Local vertex lists of the six faces of a reference hexahedron (DOLFINx numbering).
+# Local vertex lists of the six faces of a reference hexahedron (DOLFINx numbering), each face
+# in tensor order (``geometry.quad_areas``).
 HEX_FACES = np.array(
-    [[0, 1, 3, 2], [4, 5, 7, 6], [0, 1, 5, 4], [2, 3, 7, 6], [0, 2, 6, 4], [1, 3, 7, 5]]
+    [[0, 1, 2, 3], [4, 5, 6, 7], [0, 1, 4, 5], [2, 3, 6, 7], [0, 2, 4, 6], [1, 3, 5, 7]]
 )
 
 
@@ -30,10 +32,7 @@ def characteristic_lengths(X: np.ndarray) -> np.ndarray:
     out = np.empty(len(X))
     for start in range(0, len(X), BLOCK):
         block = X[start : start + BLOCK]
-        faces = block[:, HEX_FACES, :]  # (n, 6, 4, 3), vertices in cyclic order
-        diag1 = faces[:, :, 2] - faces[:, :, 0]
-        diag2 = faces[:, :, 3] - faces[:, :, 1]
-        areas = 0.5 * np.linalg.norm(np.cross(diag1, diag2), axis=2)
+        areas = quad_areas(block[:, HEX_FACES, :])  # (n, 6)
         out[start : start + BLOCK] = hexahedron_volumes(block) / areas.max(axis=1)
     return out
 

@@ -44,7 +44,7 @@ import numpy as np
 from mpi4py import MPI
 
 from fenics_adaptive.errors import InputError, shared_errors
-from fenics_adaptive.model.structure import DampingWindow, Structure, Ties
+from fenics_adaptive.model.structure import Structure
 from fenics_adaptive.settings.config import RunConfig
 from fenics_adaptive.solver.explicit import SolverState
 
@@ -59,35 +59,6 @@ def fingerprint(config: RunConfig) -> str:
     return hashlib.sha256(repr(frozen).encode()).hexdigest()[:16]
 
 
-def structure_state(structure: Structure) -> dict[str, np.ndarray]:
-    """The structure's history-dependent arrays (this rank)."""
-    log = structure.refinement_log
-    ties, windows = structure.ties, structure.damping_windows
-    state = {
-        "refinement_times": np.array([t for t, _ in log], dtype=float),
-        "refinement_counts": np.array([len(r) for _, r in log], dtype=np.int64),
-        "refinement_requests": np.concatenate(
-            [np.asarray(r, dtype=np.int64).reshape(-1, 3) for _, r in log] or [np.zeros((0, 3))]
-        ).astype(np.int64),
-        "refinement_energy": np.array(structure.refinement_energy),
-        "cohesive_damage": structure.cohesive.damage,
-        "cohesive_history": structure.cohesive.history,
-        "tie_counts": np.array([len(tie.a) for tie in ties], dtype=np.int64),
-        "tie_a": np.concatenate([tie.a for tie in ties] or [np.zeros(0, np.int64)]),
-        "tie_b": np.concatenate([tie.b for tie in ties] or [np.zeros(0, np.int64)]),
-        "tie_force": np.concatenate([tie.force for tie in ties] or [np.zeros((0, 3))]),
-        "tie_times": np.array([[tie.start, tie.window] for tie in ties]).reshape(-1, 2),
-        "window_counts": np.array([len(w.dofs) for w in windows], dtype=np.int64),
-        "window_dofs": np.concatenate([w.dofs for w in windows] or [np.zeros(0, np.int32)]),
-        "window_values": np.array([[w.block, w.coefficient, w.until] for w in windows]).reshape(
-            -1, 3
-        ),
-    }
-    if structure.ply_damage:
-        state["ply_damage"] = structure.damage_state
-    return state
-
-
 def _sync_folder(folder: Path) -> None:
     """fsync a folder, so that the names created or renamed in it survive a crash."""
     fd = os.open(folder, os.O_RDONLY)
@@ -97,7 +68,8 @@ def _sync_folder(folder: Path) -> None:
         os.close(fd)
 
 
-def _write_durably(path: Path, data: bytes) -> None:
+def write_durably(path: Path, data: bytes) -> None:
+    """Write ``data`` to ``path`` and fsync the file (the step a test interrupts)."""
     with open(path, "wb") as f:
         f.write(data)
         f.flush()
@@ -154,7 +126,7 @@ def write(
             sequence = _next_sequence(folder)
     sequence = comm.bcast(sequence, root=0)
     arrays = {f"solver_{k}": np.asarray(v) for k, v in solver_state.items()}
-    arrays.update({f"structure_{k}": v for k, v in structure_state(structure).items()})
+    arrays.update({f"structure_{k}": v for k, v in structure.state().items()})
     arrays.update({f"hook_{k}": np.asarray(v) for k, v in hook_state.items()})
     entry = None
     with shared_errors(comm):
@@ -164,7 +136,7 @@ def write(
         name = f"rank{comm.rank}-{sequence}.npz"
         if comm.rank == 0 and record is not None:
             record(*(folder / f"rank{r}-{sequence}.npz" for r in range(comm.size)))
-        _write_durably(folder / name, data)
+        write_durably(folder / name, data)
         entry = _entry(name, data)
     entries = comm.gather(entry, root=0)
     with shared_errors(comm):
@@ -173,7 +145,7 @@ def write(
             history_name = f"history-{sequence}.csv"
             if record is not None:
                 record(folder / history_name, folder / MANIFEST, folder / (MANIFEST + ".partial"))
-            _write_durably(folder / history_name, history)
+            write_durably(folder / history_name, history)
             manifest = {
                 "time_s": float(solver_state["t"]),
                 "step": int(solver_state["step"]),
@@ -186,21 +158,21 @@ def write(
             }
             _sync_folder(folder)  # the new files exist before the commit names them
             partial = folder / (MANIFEST + ".partial")
-            _write_durably(partial, (json.dumps(manifest, indent=2) + "\n").encode())
-            _commit(partial, folder / MANIFEST)
-            removed = _remove_superseded(folder, sequence)
+            write_durably(partial, (json.dumps(manifest, indent=2) + "\n").encode())
+            commit(partial, folder / MANIFEST)
+            removed = remove_superseded(folder, sequence)
             if forget is not None:
                 forget(*removed)
     return folder
 
 
-def _commit(partial: Path, final: Path) -> None:
+def commit(partial: Path, final: Path) -> None:
     """The one step that makes a checkpoint current: an atomic rename, made durable."""
     os.replace(partial, final)
     _sync_folder(final.parent)
 
 
-def _remove_superseded(folder: Path, sequence: int) -> list[Path]:
+def remove_superseded(folder: Path, sequence: int) -> list[Path]:
     """Remove the files of every generation but ``sequence`` (and of the unnumbered format);
     returns them."""
     removed = []
@@ -335,38 +307,11 @@ _REQUIRED = (
 
 def restore_structure(structure: Structure, arrays: dict) -> None:
     """Collective: replay the logged refinements on a structure built from the config without
-    its initial refinement, then put the stored state back."""
-    times = arrays["structure_refinement_times"]
-    counts = arrays["structure_refinement_counts"]
-    requests = arrays["structure_refinement_requests"]
-    offsets = np.concatenate([[0], np.cumsum(counts)])
-    for k, t in enumerate(times):
-        chunk = requests[offsets[k] : offsets[k + 1]]
-        structure.refine([tuple(int(x) for x in r) for r in chunk], float(t))
-        structure.discard_stabilisation_requests()
-    structure.refinement_energy = float(arrays["structure_refinement_energy"])
-    structure.cohesive.damage[:] = arrays["structure_cohesive_damage"]
-    structure.cohesive.history[:] = arrays["structure_cohesive_history"]
-    if structure.ply_damage:
-        structure.damage_state[:] = arrays["structure_ply_damage"]
-    ties, start = [], 0
-    for n, (t0, window) in zip(
-        arrays["structure_tie_counts"], arrays["structure_tie_times"], strict=True
-    ):
-        a = arrays["structure_tie_a"][start : start + n]
-        b = arrays["structure_tie_b"][start : start + n]
-        force = arrays["structure_tie_force"][start : start + n]
-        ties.append(Ties(a, b, force, float(t0), float(window)))
-        start += n
-    structure.ties = ties
-    windows, start = [], 0
-    for n, (block, coefficient, until) in zip(
-        arrays["structure_window_counts"], arrays["structure_window_values"], strict=True
-    ):
-        dofs = arrays["structure_window_dofs"][start : start + n].astype(np.int32)
-        windows.append(DampingWindow(int(block), dofs, float(coefficient), float(until)))
-        start += n
-    structure.damping_windows = windows
+    its initial refinement, then put the stored state back (``Structure.restore``)."""
+    prefix = "structure_"
+    structure.restore(
+        {k.removeprefix(prefix): v for k, v in arrays.items() if k.startswith(prefix)}
+    )
 
 
 def solver_state(arrays: dict) -> dict:

@@ -36,6 +36,7 @@ import numpy as np
 from mpi4py import MPI
 
 from fenics_adaptive.adaptivity.indicators import ply_failure_indices, ply_strains
+from fenics_adaptive.element.geometry import slab_vertices, thickness_weight
 from fenics_adaptive.errors import InputError, shared_errors
 from fenics_adaptive.materials.ply_damage import S_D, S_FC, S_FT, S_MC, S_MT, nominal_ply_stresses
 from fenics_adaptive.solver.explicit import COLUMNS, HistoryRow
@@ -276,7 +277,7 @@ class _VtuSeries:
                 pieces = [f"{stem}_r{r}.vtu" for r in range(self.comm.size)] + [f"{stem}.pvtu"]
                 names = pieces if parallel else [piece]
                 self.record(self.pvd, *(self.folder / n for n in names))
-            _write_vtu(self.folder / piece, X, connectivity, offsets, types, point_data, cell_data)
+            write_vtu(self.folder / piece, X, connectivity, offsets, types, point_data, cell_data)
             if parallel and self.comm.rank == 0:
                 _write_pvtu(
                     self.folder / f"{stem}.pvtu", stem, self.comm.size, point_data, cell_data
@@ -367,16 +368,12 @@ class PlyWriter:
         counts = spans[:, 1] - spans[:, 0]
         element = np.repeat(np.arange(len(nodes)), counts)
         ply = np.concatenate([np.arange(a, b) for a, b in spans]) if len(spans) else element
-        bottom, top = fractions[spans[element, 0]], fractions[spans[element, 1]]
-        s0 = ((fractions[ply] - bottom) / (top - bottom))[:, None, None]
-        s1 = ((fractions[ply + 1] - bottom) / (top - bottom))[:, None, None]
+        s0 = thickness_weight(fractions, ply, spans[element, 0], spans[element, 1])
+        s1 = thickness_weight(fractions, ply + 1, spans[element, 0], spans[element, 1])
         slab_points = []
         for values in (X, u):
             lower, upper = values[nodes[element, :4]], values[nodes[element, 4:]]
-            slab = np.concatenate(
-                [lower + s0 * (upper - lower), lower + s1 * (upper - lower)], axis=1
-            )
-            slab_points.append(slab.reshape(-1, 3))
+            slab_points.append(slab_vertices(lower, upper, s0, s1).reshape(-1, 3))
         n = len(element)
         connectivity = (8 * np.arange(n)[:, None] + _VTK_HEX[None, :]).ravel()
         offsets = 8 * np.arange(1, n + 1)
@@ -415,7 +412,9 @@ def _data_array(name: str, values: np.ndarray, components: int = 1) -> str:
     )
 
 
-def _write_vtu(path, X, connectivity, offsets, types, point_data, cell_data) -> None:
+def write_vtu(path, X, connectivity, offsets, types, point_data, cell_data) -> None:
+    """Write one VTK unstructured-grid piece: points X (n, 3) mm, cells as VTK connectivity,
+    offsets and types, point and cell data {name: array} in the run's units."""
     pd = "".join(_data_array(k, v, 3 if np.ndim(v) == 2 else 1) for k, v in point_data.items())
     cd = "".join(_data_array(k, v) for k, v in cell_data.items())
     path.write_text(

@@ -28,7 +28,7 @@ from numba import njit
 from fenics_adaptive.element.subelement import (
     KERNEL_OPTIONS,
     PackedRules,
-    _element_force,
+    element_force_kernel,
     gather_nodes,
     scatter_add_nodes,
 )
@@ -88,6 +88,26 @@ class CohesiveSet:
     def failed(self) -> np.ndarray:
         """Elements whose four points are fully damaged (the delaminated area)."""
         return self.damage[self.damage_row].min(axis=1) >= 1.0
+
+    def grow_rows(self, n_rows: int) -> None:
+        """Damage and history rows for ``n_rows`` (>= the present number) elements; the new rows
+        undamaged."""
+        grown = np.zeros((n_rows, 4))
+        grown[: len(self.damage)] = self.damage
+        self.damage = grown
+        history = np.zeros((n_rows, *self.history.shape[1:]))
+        history[: len(self.history)] = self.history
+        self.history = history
+
+    def state(self) -> dict[str, np.ndarray]:
+        """The history-dependent arrays: {"damage": (rows, 4), "history": (rows, 4, HISTORY)}."""
+        return {"damage": self.damage, "history": self.history}
+
+    def restore(self, state: dict[str, np.ndarray]) -> None:
+        """Put back the damage and history of ``state`` (as ``state`` gives them) into the
+        rows the set holds."""
+        self.damage[:] = state["damage"]
+        self.history[:] = state["history"]
 
     def __len__(self) -> int:
         return len(self.nodes)
@@ -183,7 +203,7 @@ def _add_subelement_forces(
         gather_nodes(nodes, n_base, u_base, u_extra, u)
         start = rule_offsets[rule_of_element[e]]
         stop = rule_offsets[rule_of_element[e] + 1]
-        energy += _element_force(
+        energy += element_force_kernel(
             X,
             u,
             start,

@@ -44,6 +44,7 @@ from dolfinx import la
 from mpi4py import MPI
 
 from fenics_adaptive.adaptivity import enrichment as enr
+from fenics_adaptive.element.geometry import thickness_weight
 from fenics_adaptive.settings.kinds import InterfaceState
 
 
@@ -144,7 +145,7 @@ def border_constraints(
             else:
                 lower = node(g, below, enr.SET_B if free(bottom, below, enr.SET_B) else enr.SET_A)
             upper = column_top[bottom] if above == n_plies else node(g, above, enr.SET_A)
-            s = (fractions[interface] - fractions[below]) / (fractions[above] - fractions[below])
+            s = thickness_weight(fractions, interface, below, above)
             nodes, w = (lower, upper), (1.0 - s, s)
         for component in range(3):
             if prescribed[3 * local + component]:

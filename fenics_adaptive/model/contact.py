@@ -31,6 +31,7 @@ import numpy as np
 from mpi4py import MPI
 from numba import njit
 
+from fenics_adaptive.element.geometry import quad_areas
 from fenics_adaptive.errors import InputError
 from fenics_adaptive.model.forces import Contributor, ForceKind
 from fenics_adaptive.model.loading import face_nodes
@@ -83,9 +84,8 @@ class Contact(Contributor):
         owned = top[top < base.V.dofmap.index_map.size_local]
         X = structure.X_base[owned]
         corners = structure.X_base[structure.bottom_local]
-        d1, d2 = corners[:, 3] - corners[:, 0], corners[:, 2] - corners[:, 1]
         # the mean cell area over all ranks: one penalty for the whole face, as in serial
-        local = np.array([0.5 * np.linalg.norm(np.cross(d1, d2), axis=1).sum(), len(corners)])
+        local = np.array([quad_areas(corners).sum(), len(corners)])
         total, n_cells = structure.comm.allreduce(local, op=MPI.SUM)
         area = total / n_cells
         C33 = max(p.material.stiffness()[2, 2] for p in structure.laminate.plies)

@@ -102,7 +102,7 @@ class LayeredModel:
         self.force_ufl = ufl.derivative(energy, self.u, v)
         self.force_form = fem.form(self.force_ufl, jit_options=JIT_OPTIONS)
         self.energy_form = fem.form(energy, jit_options=JIT_OPTIONS)
-        self._packed = PackedDisplacement([self.force_form, self.energy_form], self.u, self.V)
+        self.packed = PackedDisplacement([self.force_form, self.energy_form], self.u, self.V)
 
     def set_kinematics(self, kinematics: str) -> None:
         """Switch the strain measure ("small" or "finite") and rebuild the forms over the same
@@ -118,9 +118,9 @@ class LayeredModel:
     def add_internal_force(self, out: np.ndarray) -> None:
         """Add this rank's share of f_int(u) (N) over the UFL cells into ``out`` (owned + ghost
         entries, no scatter)."""
-        self._packed.update()
+        self.packed.update()
         fem.assemble_vector(
-            out, self.force_form, constants=self._packed.constants[0], coeffs=self._packed.coeffs[0]
+            out, self.force_form, constants=self.packed.constants[0], coeffs=self.packed.coeffs[0]
         )
 
     def internal_force(self, out: dolfinx.la.Vector) -> None:
@@ -132,9 +132,9 @@ class LayeredModel:
 
     def strain_energy(self) -> float:
         """Strain energy (mJ) of the UFL cells, summed over ranks."""
-        self._packed.update()
+        self.packed.update()
         local = fem.assemble_scalar(
-            self.energy_form, constants=self._packed.constants[1], coeffs=self._packed.coeffs[1]
+            self.energy_form, constants=self.packed.constants[1], coeffs=self.packed.coeffs[1]
         )
         return self.comm.allreduce(local, op=MPI.SUM)
 

@@ -14,6 +14,7 @@ import ufl
 from dolfinx import fem
 from mpi4py import MPI
 
+from fenics_adaptive.adaptivity import enrichment as enr
 from fenics_adaptive.errors import InputError, shared_errors
 from fenics_adaptive.model.forms import LayeredModel
 from fenics_adaptive.settings.loads import COMPONENTS, Amplitude, FaceLoad, PrescribedMotion
@@ -152,3 +153,36 @@ def _motion_key(motion: PrescribedMotion) -> str:
 
 def _is_zero(motion: PrescribedMotion) -> bool:
     return motion.value == 0.0 or all(v == 0.0 for v in motion.amplitude.values)
+
+
+def extra_node_prescriptions(
+    motions: Sequence[PrescribedMotion],
+    base: LayeredModel,
+    extra: enr.ExtraNodes,
+    column_top: dict[int, int],
+    n_interfaces: int,
+) -> np.ndarray:
+    """Collective: motion index (into ``motions``) holding each local extra DOF (owned and
+    ghosts), -1 for none: a face motion holds an extra node when both base nodes of its column
+    (``column_top``: top base node of each bottom one) are on that face; a symmetry interface
+    holds u_z of its nodes. The first motion listed wins."""
+    prescribed = np.full(3 * extra.n_local, -1, dtype=np.int64)
+    if extra.index_map.size_global == 0:  # the same on every rank
+        return prescribed
+    n_base = base.V.dofmap.index_map.size_local + base.V.dofmap.index_map.num_ghosts
+    parts = [enr.key_parts(k, n_interfaces) for k in extra.index]
+    local = np.fromiter(extra.index.values(), dtype=np.int64)
+    bottom = np.array([extra.local_base_node(g) for g, _, _ in parts], dtype=np.int64)
+    top = np.array([column_top[b] for b in bottom], dtype=np.int64)
+    interface = np.array([i for _, i, _ in parts], dtype=np.int64)
+    for m, motion in enumerate(motions):
+        if motion.face.startswith("interface"):
+            on = interface == int(motion.face.removeprefix("interface"))
+        else:  # face_nodes is collective: every rank, also one without extra nodes
+            mask = np.zeros(n_base, dtype=bool)
+            mask[face_nodes(base, motion.face, motion.x_range)] = True
+            on = mask[bottom] & mask[top]
+        dofs = 3 * local[on] + COMPONENTS[motion.component]
+        dofs = dofs[prescribed[dofs] < 0]
+        prescribed[dofs] = m
+    return prescribed

@@ -18,6 +18,13 @@ copied from set A (strong); the refined cells' old (sub)element masses are taken
 nodes and the new subelements' masses put on (total mass unchanged); the maps, constraints and
 stable time step are rebuilt. Extra nodes on the border of a refined region follow their
 unrefined neighbour (``border``). The per-step path allocates nothing.
+
+The structure composes parts with one job each: ``element.rules.RuleTable`` (the packed rules of
+every ply span), ``adaptivity.refinement.RefinementState`` (interface states, the refinement
+log and energy), ``adaptivity.stabilisation.StabilisationState`` (damping windows, tie forces),
+``model.ply_damage_state.PlyDamageState`` (matrix damage per cell and ply) and the cohesive set's
+damage rows; ``state()`` / ``restore()`` gather their history-dependent arrays for a checkpoint.
+The stable step is computed in ``model.time_step``.
 """
 
 from __future__ import annotations
@@ -30,31 +37,12 @@ from dolfinx import fem, la
 from mpi4py import MPI
 
 from fenics_adaptive.adaptivity import enrichment as enr
-from fenics_adaptive.element.subelement import (
-    add_damaged_subelement_forces,
-    concatenate_rules,
-    pack_mass_rule,
-    pack_rule,
-    solid_shell_lumped_masses,
-    sublaminate_ply_zeta,
-)
-from fenics_adaptive.element.timestep import (
-    characteristic_lengths,
-    cohesive_pair_time_steps,
-    hexahedron_volumes,
-)
-from fenics_adaptive.errors import InputError, shared_errors
-from fenics_adaptive.materials.cohesive import P_KN, P_KS
+from fenics_adaptive.adaptivity.refinement import RefinementState
+from fenics_adaptive.adaptivity.stabilisation import DampingWindow, StabilisationState, Ties
+from fenics_adaptive.element.geometry import quad_areas, thickness_weight
+from fenics_adaptive.element.rules import RuleTable
+from fenics_adaptive.errors import InputError
 from fenics_adaptive.materials.laminate import Laminate
-from fenics_adaptive.materials.ply_damage import (
-    S_DISSIPATED,
-    S_Y0,
-    check_band_width,
-    concatenate_ply_damage,
-    crack_band_width,
-    new_state,
-    pack_ply_damage,
-)
 from fenics_adaptive.model.assembly import (
     CohesiveSet,
     SubelementSet,
@@ -71,13 +59,16 @@ from fenics_adaptive.model.border import (
 )
 from fenics_adaptive.model.forms import LayeredModel
 from fenics_adaptive.model.loading import (
-    COMPONENTS,
     Amplitude,
     PrescribedMotion,
     ResolvedLoads,
-    face_nodes,
+    extra_node_prescriptions,
 )
+from fenics_adaptive.model.ply_damage_state import PlyDamageState
+from fenics_adaptive.model.time_step import stable_time_step
+from fenics_adaptive.model.topology import CellColumnTable
 from fenics_adaptive.settings.adaptivity import Interfaces, Stabilisation
+from fenics_adaptive.settings.kinds import InterfaceState
 
 
 @dataclass
@@ -96,33 +87,6 @@ class Block:
     @property
     def n_owned(self) -> int:
         return len(self.mass)
-
-
-@dataclass
-class DampingWindow:
-    """Extra mass-proportional damping ``coefficient`` (1/s) on owned DOFs of a block until
-    ``until`` (s)."""
-
-    block: int
-    dofs: np.ndarray
-    coefficient: float
-    until: float
-
-
-@dataclass
-class Ties:
-    """Tie forces on owned extra-node pairs (lower node A, upper node B of a new strong
-    interface): +scale(t) T0 on A, -scale(t) T0 on B, scale falling from 1 at ``start`` to 0 at
-    ``start + window``."""
-
-    a: np.ndarray  # owned extra local indices
-    b: np.ndarray
-    force: np.ndarray  # (n, 3) N
-    start: float
-    window: float
-
-    def scale(self, t: float) -> float:
-        return max(0.0, 1.0 - (t - self.start) / self.window)
 
 
 class Structure:
@@ -145,12 +109,9 @@ class Structure:
         self.failures = failures or {}
         self.ply_damage = ply_damage
         self.stabilisation = stabilisation or Stabilisation()
-        self.damping_windows: list[DampingWindow] = []
-        self.ties: list[Ties] = []
-        self._new_weak_cells = np.zeros(0, dtype=np.int64)
-        self._new_pairs: list[tuple[int, int]] = []
         self.loads = loads
         self.comm = base.comm
+        self.stabilisation_state = StabilisationState(self.stabilisation, self.comm)
         V = base.V
         self.n_base = V.dofmap.index_map.size_local + V.dofmap.index_map.num_ghosts
         self.X_base = V.tabulate_dof_coordinates()[: self.n_base].copy()
@@ -161,11 +122,7 @@ class Structure:
         self.interfaces = interfaces or Interfaces()
         self.law_params = law_params
         self.cohesive = cohesive if cohesive is not None else CohesiveSet.empty(np.zeros(8))
-        self.motions: list[PrescribedMotion] = list(loads.motions)
-        for i in self.interfaces.symmetry if len(base.layer_laminates) == 1 else ():
-            self.motions.append(
-                PrescribedMotion(f"interface{i}", "z", "displacement", 0.0, Amplitude.constant(0))
-            )
+        self.motions = _motions(loads, self.interfaces, len(base.layer_laminates))
 
         if len(base.layer_laminates) > 1 and (
             self.interfaces.refine or self.interfaces.initial != "none"
@@ -176,43 +133,22 @@ class Structure:
         laminate = Laminate(tuple(p for layer in base.layer_laminates for p in layer.plies))
         self.laminate = laminate
         n_interfaces = laminate.n_plies - 1
-        n_cells = base.n_owned_cells
-        self.cell_plies = np.zeros((n_cells, 2), dtype=np.int64)
-        first = 0
-        for k, layer in enumerate(base.layer_laminates):
-            self.cell_plies[base.layer_cells(k)] = (first, first + layer.n_plies)
-            first += layer.n_plies
-        self.interface_state = np.zeros((n_cells, max(n_interfaces, 0)), dtype=np.int8)
-        self.weak_since = np.full(self.interface_state.shape, np.inf)  # s
-        index_map = V.dofmap.index_map
-        local_to_global = index_map.local_to_global(np.arange(self.n_base, dtype=np.int32))
-        nodes = V.dofmap.list[:n_cells]
-        self.bottom_local = np.ascontiguousarray(nodes[:, :4], dtype=np.int32)
-        self.top_local = np.ascontiguousarray(nodes[:, 4:], dtype=np.int32)
-        self.bottom_global = local_to_global[self.bottom_local].astype(np.int64)
-        self.original_cell = np.asarray(
-            base.mesh.topology.original_cell_index[:n_cells], dtype=np.int64
-        )
-        self.column_top = dict(zip(self.bottom_local.ravel(), self.top_local.ravel(), strict=True))
-
-        self.extra = enr.ExtraNodes(self.comm, max(n_interfaces, 1), index_map)
-        self._rules_index: dict[tuple[int, int], int] = {}
-        self._rules = []
-        self._mass_rules: dict[tuple[int, int], object] = {}
-        self.subelements = SubelementSet.empty(self._rule_table())
-        self._subelement_cell = np.zeros(0, dtype=np.int64)
-        self._subelement_plies = np.zeros((0, 2), dtype=np.int64)
-        self._subelement_speeds = np.zeros(0)
-        self.damage_rows: dict[tuple[int, int], int] = {}
+        self.cell_plies = _cell_plies(base)
+        self.refinement = RefinementState(base.n_owned_cells, n_interfaces, self.interfaces)
+        self.columns = CellColumnTable(base)
+        # the columns' arrays as the structure's own (read by indicators, contact, output)
+        self.bottom_local, self.top_local = self.columns.bottom_local, self.columns.top_local
+        self.bottom_global = self.columns.bottom_global
+        self.original_cell, self.column_top = self.columns.original_cell, self.columns.column_top
+        self.extra = enr.ExtraNodes(self.comm, max(n_interfaces, 1), V.dofmap.index_map)
+        self.rule_table = RuleTable(laminate, base.points_per_ply)
+        self.subelements = SubelementSet.empty(self.rule_table.packed)
+        self.subelement_cells = np.zeros(0, dtype=np.int64)
+        self.subelement_plies = np.zeros((0, 2), dtype=np.int64)
+        self.subelement_speeds = np.zeros(0)
+        self.ply_damage_state: PlyDamageState | None = None
         if ply_damage:
             self._setup_ply_damage()
-        # mechanical energy (kinetic + strain + recoverable cohesive, mJ) that refinements added
-        # in total, and the potential part of the last one (the solver books it as internal
-        # work, so that the dissipated energy does not jump)
-        self.refinement_energy = 0.0
-        self.last_refinement_potential = 0.0
-        # every refinement that changed something: (t, this rank's requests), for restarts
-        self.refinement_log: list[tuple[float, list[tuple[int, int, int]]]] = []
         self._solid_energy = 0.0
         self._cohesive_energy = 0.0
         self.border = BorderConstraints.empty()
@@ -235,18 +171,8 @@ class Structure:
         fb, fx = f_base.reshape(-1, 3), f_extra.reshape(-1, 3)
         if self.ply_damage:
             # every cell through numba: the ply damage state lives per (cell, ply)
-            self._solid_energy = add_damaged_subelement_forces(
-                *self._damaged_elements,
-                *self.subelements.rules,
-                *self._ply_damage_pack,
-                self.band_width,
-                self.damage_state,
-                self.X_base,
-                X_extra,
-                u_base,
-                u_extra,
-                fb,
-                fx,
+            self._solid_energy = self.ply_damage_state.add_forces(
+                self.subelements.rules, self.X_base, X_extra, u_base, u_extra, fb, fx
             )
         else:
             self.base.add_internal_force(f_base)
@@ -272,6 +198,10 @@ class Structure:
         if velocity:
             follow_masters(*self._border_args, self.v_base.array, self.extra.vectors["v"].array)
 
+    def cell_vertices(self) -> np.ndarray:
+        """Reference vertex coordinates (n_cells, 8, 3) mm of the owned cells."""
+        return self.X_base[self.base.V.dofmap.list[: self.base.n_owned_cells]]
+
     def describe_dof(self, block: int, dof: int) -> str:
         """Where an owned DOF of a block is, in words (for error messages)."""
         node, component = divmod(dof, 3)
@@ -279,9 +209,7 @@ class Structure:
         if block == 0:
             x = self.X_base[node]
             # the cells (rows) holding the node
-            cells = np.flatnonzero(
-                ((self.bottom_local == node) | (self.top_local == node)).any(axis=1)
-            )
+            cells = self.columns.cells_holding(node)
             cell = f"cell {self.original_cell[cells[0]]}, " if len(cells) else ""
             return f"{cell}base node at ({x[0]:.4g}, {x[1]:.4g}, {x[2]:.4g}) mm, u_{axis}"
         n_interfaces = self.interface_state.shape[1]
@@ -309,7 +237,7 @@ class Structure:
         if not self.comm.allreduce(len(self.cohesive), op=MPI.SUM):
             return 0.0
         X = self.gather(self.cohesive.nodes[:, :4], "X")
-        local = _quad_areas(X)[self.cohesive.failed()].sum()
+        local = quad_areas(X)[self.cohesive.failed()].sum()
         return self.comm.allreduce(local, op=MPI.SUM)
 
     def kinetic_energy(self) -> float:
@@ -331,72 +259,29 @@ class Structure:
         return self.comm.allreduce(local, op=MPI.SUM)
 
     def stable_time_step(self) -> tuple[float, str]:
-        """(min of L_e / c over unrefined cells and subelements, and of the cohesive pair limit;
-        where it is attained), reduced over ranks. The caller applies the safety factor."""
-        candidates = []
-        ratios = characteristic_lengths(_cell_coordinates(self))
-        speeds = self.base.cell_wave_speeds()
-        refined = np.flatnonzero((self.interface_state != enr.NONE).any(axis=1))
-        ratios /= speeds
-        ratios[refined] = np.inf
-        if len(ratios):
-            cell = int(np.argmin(ratios))
-            candidates.append((float(ratios[cell]), f"cell {self.original_cell[cell]}"))
-        if len(self.subelements):
-            X = self.gather(self.subelements.nodes, "X")
-            sub_ratios = characteristic_lengths(X) / self._subelement_speeds
-            s = int(np.argmin(sub_ratios))
-            cell = self._subelement_cell[s]
-            candidates.append(
-                (float(sub_ratios[s]), f"subelement of cell {self.original_cell[cell]}")
-            )
-        # collective (vectors and scatters): on every rank, with or without cohesive elements
-        candidates.append(self._cohesive_time_step())
-        return self.comm.allreduce(min(candidates), op=MPI.MIN)
+        """Collective: (the stable step (s) of the central-difference scheme, where it is
+        attained), reduced over ranks (``time_step.stable_time_step``). The caller applies the
+        safety factor."""
+        return stable_time_step(self)
 
     def _setup_ply_damage(self) -> None:
         """Matrix damage per (cell, ply): every cell leaves the UFL form for the damage-aware
-        numba kernel (the same for ESL, adaptive and LW cells); crack band width of each ply of
-        each cell across its fibres."""
-        plies = self.laminate.plies
-        self._ply_damage_pack = concatenate_ply_damage(
-            [pack_ply_damage(plies[first:stop], self.failures) for first, stop in self._rules_index]
+        numba kernel (the same for ESL, adaptive and LW cells)."""
+        self.ply_damage_state = PlyDamageState(
+            self.laminate,
+            self.failures,
+            self.rule_table,
+            self.cell_vertices(),
+            self.cell_plies,
+            self.comm,
         )
-        n_cells = self.base.n_owned_cells
-        X = _cell_coordinates(self)
-        self.band_width = np.zeros((n_cells, len(plies)))
-        for k, ply in enumerate(plies):
-            in_cell = (self.cell_plies[:, 0] <= k) & (k < self.cell_plies[:, 1])
-            for cell in np.flatnonzero(in_cell):
-                self.band_width[cell, k] = crack_band_width(X[cell], ply.angle)
-            # the widest band over all ranks: every rank takes the same decision
-            widest = self.comm.allreduce(
-                self.band_width[:, k].max() if in_cell.any() else -1.0, op=MPI.MAX
-            )
-            if widest >= 0.0:
-                check_band_width(ply.material, self.failures[ply.material.name], widest)
-        self.damage_state = new_state(n_cells, len(plies))
-        # reference volume (mm^3) of each ply of each cell: the ply's dissipation density
-        # (ply_damage S_DISSIPATED) times it is its dissipated energy
-        fractions = self.laminate.ply_fractions
-        self.ply_volumes = np.zeros((n_cells, len(plies)))
-        for k in range(len(plies)):
-            in_cell = np.flatnonzero((self.cell_plies[:, 0] <= k) & (k < self.cell_plies[:, 1]))
-            lo, hi = self.cell_plies[in_cell, 0], self.cell_plies[in_cell, 1]
-            # the ply's place in its cell's own thickness (an LW cell holds some plies)
-            w_lo = (fractions[k] - fractions[lo]) / (fractions[hi] - fractions[lo])
-            w_hi = (fractions[k + 1] - fractions[lo]) / (fractions[hi] - fractions[lo])
-            bottom, top = X[in_cell, :4], X[in_cell, 4:]
-            ply_X = np.concatenate(
-                [
-                    bottom + w_lo[:, None, None] * (top - bottom),
-                    bottom + w_hi[:, None, None] * (top - bottom),
-                ],
-                axis=1,
-            )
-            self.ply_volumes[in_cell, k] = hexahedron_volumes(ply_X)
         self.base.set_ufl_cells([np.zeros(0, np.int32)] * len(self.base.layer_laminates))
         self._rebuild_damaged_elements()
+
+    @property
+    def damage_state(self) -> np.ndarray:
+        """(n_cells, n_plies, N_STATE) ply damage state of the owned cells (with ply damage)."""
+        return self.ply_damage_state.damage
 
     def scale_matrix_strength(self, cells: np.ndarray, plies: Iterable[int], factor: float) -> None:
         """Let the matrix of these plies (0-based) in these owned cells crack at ``factor`` times
@@ -406,35 +291,20 @@ class Structure:
         (factor YT)^2 / (2 C22)."""
         if not self.ply_damage:
             raise InputError("matrix_strength", "needs model.ply_damage = true")
-        for k in plies:
-            ply = self.laminate.plies[k]
-            C22 = ply.material.stiffness()[1, 1]
-            YT = self.failures[ply.material.name].YT
-            self.damage_state[cells, k, S_Y0] = (factor * YT) ** 2 / (2.0 * C22)
+        self.ply_damage_state.scale_matrix_strength(cells, plies, factor)
 
     def _rebuild_damaged_elements(self) -> None:
-        nodes, cells, plies = self.elements()
-        rules = self._rule_of_plies[plies[:, 0], plies[:, 1]]
-        self._damaged_elements = (
-            nodes,
-            rules.reshape(-1),
-            cells.astype(np.int64),
-            plies[:, 0].astype(np.int64),
-        )
+        self.ply_damage_state.set_elements(*self.elements(), self.rule_table)
 
     def element_rules(self, plies: np.ndarray) -> np.ndarray:
         """Index into ``subelements.rules`` of the packed rule of each (sub)element spanning
         laminate plies ``plies`` (n, 2) [first, stop), as ``elements`` gives them."""
-        return self._rule_of_plies[plies[:, 0], plies[:, 1]].astype(np.int64)
+        return self.rule_table.rule_of(plies)
 
     def damage_dissipation(self) -> tuple[float, float]:
         """Collective: (cohesive, ply) energy (mJ) dissipated so far, summed from the damage
         laws' own increments (``cohesive_element_force_tracked``, ``ply_damage_update``)."""
-        ply = 0.0
-        if self.ply_damage:
-            ply = float(
-                np.dot(self.damage_state[:, :, S_DISSIPATED].ravel(), self.ply_volumes.ravel())
-            )
+        ply = self.ply_damage_state.dissipated_energy() if self.ply_damage else 0.0
         local = np.array([self.cohesive.dissipated_energy(), ply])
         cohesive, ply = self.comm.allreduce(local, op=MPI.SUM)
         return float(cohesive), float(ply)
@@ -443,59 +313,79 @@ class Structure:
         """Every solid element of this rank: nodes (n, 8) in combined local indices, the owned
         cell each belongs to, and its plies [first, stop) of the laminate: unrefined cells
         (whole cells: all plies, or an LW layer's) and the subelements of refined ones."""
-        unrefined = np.flatnonzero((self.interface_state == enr.NONE).all(axis=1))
+        unrefined = self.refinement.unrefined_cells()
         nodes = np.hstack([self.bottom_local, self.top_local])[unrefined]
         cells = unrefined.astype(np.int64)
         plies = self.cell_plies[unrefined]
         if len(self.subelements):
             nodes = np.vstack([nodes, self.subelements.nodes])
-            cells = np.concatenate([cells, self._subelement_cell])
-            plies = np.vstack([plies, self._subelement_plies])
+            cells = np.concatenate([cells, self.subelement_cells])
+            plies = np.vstack([plies, self.subelement_plies])
         return nodes.astype(np.int32), cells, plies
 
+    # ------------------------------------------------------------------ checkpoint
+    def state(self) -> dict[str, np.ndarray]:
+        """The history-dependent arrays of this rank, each part's under its prefix:
+        ``refinement_*`` (the log of refinements and their energy), ``cohesive_*`` (damage),
+        ``tie_*``, ``window_*`` (stabilisation), ``ply_damage`` (with ply damage)."""
+        parts = [("refinement_", self.refinement), ("cohesive_", self.cohesive)]
+        parts.append(("", self.stabilisation_state))
+        if self.ply_damage:
+            parts.append(("ply_", self.ply_damage_state))
+        return {prefix + k: v for prefix, part in parts for k, v in part.state().items()}
+
+    def restore(self, state: dict[str, np.ndarray]) -> None:
+        """Collective: replay the logged refinements of ``state`` (as ``state`` gives it) on a
+        structure built without its initial refinement, then put the stored arrays back."""
+
+        def part(prefix: str) -> dict[str, np.ndarray]:
+            return {k.removeprefix(prefix): v for k, v in state.items() if k.startswith(prefix)}
+
+        def replay(requests: list[tuple[int, int, int]], t: float) -> None:
+            self.refine(requests, t)
+            self.stabilisation_state.discard_requests()
+
+        self.refinement.restore(part("refinement_"), replay)
+        self.cohesive.restore(part("cohesive_"))
+        if self.ply_damage:
+            self.ply_damage_state.restore(part("ply_"))
+        self.stabilisation_state.restore(state)
+
     # ------------------------------------------------------------------ stabilisation
+    @property
+    def ties(self) -> list[Ties]:
+        """The active tie forces (``StabilisationState.ties``)."""
+        return self.stabilisation_state.ties
+
+    @ties.setter
+    def ties(self, ties: list[Ties]) -> None:
+        self.stabilisation_state.ties = ties
+
     def start_stabilisation(self, t: float) -> None:
-        """Collective, right after a refinement at time t: open the damping window of the newly
-        weakly refined cells' nodes and set the tie forces of the new strong node pairs from the
-        refined structure's internal forces at t."""
-        settings = self.stabilisation
-        if settings.damps and self.comm.allreduce(len(self._new_weak_cells), op=MPI.SUM):
-            for block, dofs in enumerate(self._nodes_of_cells(self._new_weak_cells)):
-                self.damping_windows.append(
-                    DampingWindow(block, dofs, settings.damping, t + settings.damping_window)
-                )
-        new_pairs = self.comm.allreduce(len(self._new_pairs), op=MPI.SUM)
-        if settings.release_window > 0.0 and new_pairs:
-            self.internal_force()  # collective (reverse scatters): on every rank
-            pairs = np.array(self._new_pairs, dtype=np.int64).reshape(-1, 2)
-            f = self.f_extra.array.reshape(-1, 3)
-            m = self.extra_block.mass.reshape(-1, 3)[:, 0]  # after the border's transfer
-            a, b = pairs[:, 0], pairs[:, 1]
-            m_a, m_b = m[a, None], m[b, None]
-            force = (m_b * f[a] - m_a * f[b]) / (m_a + m_b)
-            self.ties.append(Ties(a, b, force, t, settings.release_window))
-        self._new_weak_cells = np.zeros(0, dtype=np.int64)
-        self._new_pairs = []
+        """Collective, right after a refinement at time t (s): open the damping window of the
+        newly weakly refined cells' nodes and set the tie forces of the new strong node pairs from
+        the refined structure's internal forces at t."""
+        self.stabilisation_state.start(t, self._nodes_of_cells, self._extra_force_and_mass)
+
+    def _extra_force_and_mass(self) -> tuple[np.ndarray, np.ndarray]:
+        """Collective: the extra nodes' internal force (n, 3) N and lumped mass (n,) tonne (after
+        the border's transfer) at the current state."""
+        self.internal_force()  # collective (reverse scatters): on every rank
+        return self.f_extra.array.reshape(-1, 3), self.extra_block.mass.reshape(-1, 3)[:, 0]
 
     def discard_stabilisation_requests(self) -> None:
         """Forget what the last refinement would stabilise (a restart replaying refinements
         restores the stabilisation state it stored instead)."""
-        self._new_weak_cells = np.zeros(0, dtype=np.int64)
-        self._new_pairs = []
+        self.stabilisation_state.discard_requests()
 
     def add_tie_forces(self, t: float, f_ext_extra: np.ndarray) -> None:
-        """Add the active tie forces at time t to the extra block's external force (owned DOFs,
-        flat)."""
-        self.ties = [tie for tie in self.ties if tie.scale(t) > 0.0]
-        f = f_ext_extra.reshape(-1, 3)
-        for tie in self.ties:
-            scale = tie.scale(t)
-            np.add.at(f, tie.a, scale * tie.force)
-            np.subtract.at(f, tie.b, scale * tie.force)
+        """Add the active tie forces at time t (s) to the extra block's external force (owned
+        DOFs, flat, N)."""
+        self.stabilisation_state.add_tie_forces(t, f_ext_extra)
 
     def active_damping(self, t: float) -> list[DampingWindow]:
-        self.damping_windows = [w for w in self.damping_windows if w.until > t]
-        return self.damping_windows
+        """The damping windows open at time t (s)."""
+        return self.stabilisation_state.active_damping(t)
 
     def _nodes_of_cells(self, cells: np.ndarray) -> list[np.ndarray]:
         """Owned DOFs (base block, extra block) of the nodes of these owned cells and of their
@@ -520,34 +410,51 @@ class Structure:
         return out
 
     # ------------------------------------------------------------------ refinement
+    @property
+    def interface_state(self) -> np.ndarray:
+        """(n_cells, n_interfaces) NONE, WEAK or STRONG of each owned cell's interfaces."""
+        return self.refinement.interface_state
+
+    @property
+    def weak_since(self) -> np.ndarray:
+        """(n_cells, n_interfaces) time (s) each interface became weak, inf if not yet."""
+        return self.refinement.weak_since
+
+    @property
+    def damage_rows(self) -> dict[tuple[int, int], int]:
+        """Cohesive damage row of each strong (owned cell, interface)."""
+        return self.refinement.damage_rows
+
+    @property
+    def refinement_energy(self) -> float:
+        """Mechanical energy (mJ) that refinements added in total."""
+        return self.refinement.energy
+
+    @property
+    def last_refinement_potential(self) -> float:
+        """Potential-energy part (mJ) of the last refinement's change."""
+        return self.refinement.last_potential
+
     def refine(self, requests: Iterable[tuple[int, int, int]], t: float = 0.0) -> bool:
         """Collective: refine owned cells at time t. ``requests``: (local cell, interface, WEAK
         or STRONG); a strong request on an unrefined interface makes it weak first. Returns
         whether anything changed on any rank. Raises InputError for interfaces not allowed to
         refine."""
         requests = list(requests)
-        target = self.interface_state.copy()
-        with shared_errors(self.comm):  # the requests are this rank's: so may be the error
-            for cell, interface, kind in requests:
-                allowed = set(self.interfaces.delaminate)
-                if kind != enr.STRONG:
-                    allowed |= set(self.interfaces.refine)
-                if interface not in allowed:
-                    what = "delaminate" if kind == enr.STRONG else "refine"
-                    raise InputError(
-                        "interfaces", f"interface {interface} is not allowed to {what}"
-                    )
-                # int: numpy compares an int8 with an IntEnum 20 x slower than with an int
-                target[cell, interface - 1] = max(target[cell, interface - 1], int(kind))
+        target = self.refinement.plan(requests, self.comm)
         old_state = self.interface_state.copy()
         changed = np.flatnonzero((target != old_state).any(axis=1))
         if not self.comm.allreduce(len(changed), op=MPI.SUM):
             return False
-        self.refinement_log.append((t, [tuple(int(x) for x in r) for r in requests]))
-        self._new_weak_cells = changed[
-            ((old_state[changed] == enr.NONE) & (target[changed] >= enr.WEAK)).any(axis=1)
-        ]
-        self._new_pairs = []
+        self.refinement.record(t, requests)
+        self.stabilisation_state.request(
+            changed[
+                (
+                    (old_state[changed] == InterfaceState.NONE)
+                    & (target[changed] >= InterfaceState.WEAK)
+                ).any(axis=1)
+            ]
+        )
         for vector in (
             self.base.u.x,
             self.v_base,
@@ -557,19 +464,13 @@ class Structure:
             vector.scatter_forward()
         kinetic_before, potential_before = self._mechanical_energy()
 
-        n_interfaces = self.interface_state.shape[1]
+        n_interfaces = self.refinement.n_interfaces
         for interface in range(1, n_interfaces + 1):  # weak, bottom to top
-            cells = changed[
-                (self.interface_state[changed, interface - 1] == enr.NONE)
-                & (target[changed, interface - 1] >= enr.WEAK)
-            ]
+            cells = self.refinement.to_weaken(changed, target, interface)
             self._activate_weak(cells, interface)
             self.weak_since[cells, interface - 1] = t
         for interface in range(1, n_interfaces + 1):  # then strong
-            cells = changed[
-                (self.interface_state[changed, interface - 1] == enr.WEAK)
-                & (target[changed, interface - 1] == enr.STRONG)
-            ]
+            cells = self.refinement.to_strengthen(changed, target, interface)
             self._activate_strong(cells, interface)
 
         self._resize_extra_vectors()
@@ -578,9 +479,7 @@ class Structure:
         if self.ply_damage:
             self._rebuild_damaged_elements()
         else:
-            self.base.set_ufl_cells(
-                [np.flatnonzero((self.interface_state == enr.NONE).all(axis=1))]
-            )
+            self.base.set_ufl_cells([self.refinement.unrefined_cells()])
         free_b = self.border.free_b
         self._rebuild_blocks()
         # the strong node pairs that open now: new set-B nodes no longer bound to set A
@@ -590,12 +489,11 @@ class Structure:
             if local < self.extra.n_owned:
                 g, i, _ = enr.key_parts(key, n_interfaces)
                 partner = self.extra.index[enr.extra_key(g, i, enr.SET_A, n_interfaces)]
-                self._new_pairs.append((partner, local))
+                self.stabilisation_state.request_pair(partner, local)
         # New and freed nodes sit where the cells' fields put them, so the strain energy hardly
         # changes; the lumped masses move, which changes the kinetic energy: book both
         kinetic, potential = self._mechanical_energy()
-        self.last_refinement_potential = potential - potential_before
-        self.refinement_energy += kinetic - kinetic_before + self.last_refinement_potential
+        self.refinement.book(kinetic - kinetic_before, potential - potential_before)
         return True
 
     def _activate_weak(self, cells: np.ndarray, interface: int) -> None:
@@ -606,22 +504,24 @@ class Structure:
         n_interfaces = states.shape[1]
         # the active interfaces nearest below and above (0 and n_plies: the cell's faces)
         levels = np.arange(1, n_interfaces + 1)
-        active = states != enr.NONE
+        active = states != InterfaceState.NONE
         below = np.where(active & (levels < interface), levels, 0).max(axis=1, initial=0)
         above = np.where(active & (levels > interface), levels, n_interfaces + 1).min(
             axis=1, initial=n_interfaces + 1
         )
         nodes = self._subelement_nodes_many(states, below, above, cells)
         fractions = self.laminate.ply_fractions
-        w = (fractions[interface] - fractions[below]) / (fractions[above] - fractions[below])
+        w = thickness_weight(fractions, interface, below, above)
         values = {}
         for name in ("u", "v", "X"):
             gathered = self.gather(nodes, name)
             values[name] = (1.0 - w[:, None, None]) * gathered[:, :4] + w[:, None, None] * (
                 gathered[:, 4:]
             )
-        self.interface_state[cells, interface - 1] = enr.WEAK
-        self.extra.activate(*self._requests(cells, interface, enr.SET_A, values))
+        self.refinement.mark_weak(cells, interface)
+        self.extra.activate(
+            *self.columns.node_requests(cells, interface, enr.SET_A, n_interfaces, values)
+        )
 
     def _activate_strong(self, cells: np.ndarray, interface: int) -> None:
         """New set-B nodes at ``interface`` of ``cells``, where their set-A partners are, then
@@ -633,116 +533,51 @@ class Structure:
         values = {
             name: self.extra.vectors[name].array.reshape(-1, 3)[local] for name in ("u", "v", "X")
         }
-        self.interface_state[cells, interface - 1] = enr.STRONG
-        for cell in cells.tolist():
-            self.damage_rows[(cell, interface)] = len(self.damage_rows)
-        self.extra.activate(*self._requests(cells, interface, enr.SET_B, values))
-        grown = np.zeros((len(self.damage_rows), 4))
-        grown[: len(self.cohesive.damage)] = self.cohesive.damage
-        self.cohesive.damage = grown
-        history = np.zeros((len(self.damage_rows), *self.cohesive.history.shape[1:]))
-        history[: len(self.cohesive.history)] = self.cohesive.history
-        self.cohesive.history = history
-
-    def _requests(
-        self, cells: np.ndarray, interface: int, node_set: int, values: dict[str, np.ndarray]
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(keys, tie-breaks, values (n, 9)) of the 4 nodes of each of ``cells`` at an
-        interface, one per node, from their u, v, X (each (n_cells, 4, 3)): where cells share a
-        node, the one with the lowest original cell number sets its values (the same on every
-        rank, as ``ExtraNodes.activate`` also breaks ties across ranks)."""
-        n_interfaces = self.interface_state.shape[1]
-        keys = enr.extra_keys(self.bottom_global[cells], interface, node_set, n_interfaces)
-        keys = keys.ravel()
-        ties = np.repeat(self.original_cell[cells].astype(np.int64), 4)
-        rows = np.concatenate([values["u"], values["v"], values["X"]], axis=2).reshape(-1, 9)
-        chosen = enr.lowest_tie_per_key(keys, ties)
-        return keys[chosen], ties[chosen], rows[chosen]
+        self.refinement.mark_strong(cells, interface)
+        self.extra.activate(
+            *self.columns.node_requests(cells, interface, enr.SET_B, n_interfaces, values)
+        )
+        self.cohesive.grow_rows(len(self.damage_rows))
 
     # ------------------------------------------------------------------ maps and bookkeeping
-    def _columns(self, cell: int) -> enr.CellColumns:
-        return enr.CellColumns(
-            self.bottom_local[cell], self.top_local[cell], self.bottom_global[cell]
-        )
-
-    def _subelement_nodes(self, row: np.ndarray, sub: enr.Subelement, cell: int) -> np.ndarray:
-        return enr.subelement_nodes(
-            row, sub, self._columns(cell), self.laminate.n_plies, self.extra.index, self.n_base
-        )
-
     def _subelement_nodes_many(
         self, states: np.ndarray, first: np.ndarray, stop: np.ndarray, cells: np.ndarray
     ) -> np.ndarray:
         """(m, 8) nodes of subelements plies first:stop of ``cells`` in states ``states``."""
-        return enr.subelement_nodes_many(
-            states,
-            first,
-            stop,
-            self.bottom_local[cells],
-            self.top_local[cells],
-            self.bottom_global[cells],
-            self.extra.locate,
-            self.n_base,
-        )
+        return self.columns.subelement_nodes(states, first, stop, cells, self.extra.locate)
 
     def cell_maps(self, cell: int) -> str:
         """The gather/scatter maps (projection matrices as index lists) of one owned cell."""
         return enr.describe_cell(
             self.interface_state[cell],
-            self._columns(cell),
+            self.columns.cell(cell),
             self.laminate.n_plies,
             self.extra.index,
             self.n_base,
         )
 
-    def _rule_table(self):
-        n = self.laminate.n_plies
-        fractions = self.laminate.ply_fractions
-        stiffness = np.array(self.laminate.ply_stiffnesses())
-        density = np.array([p.material.rho for p in self.laminate.plies])
-        # mm/s; each ply's wave speed inverts its compliance: once, not per subelement
-        ply_speeds = np.array([p.material.dilatational_wave_speed() for p in self.laminate.plies])
-        # rule and fastest wave speed of each sublaminate [first, stop), for whole arrays of them
-        self._rule_of_plies = np.full((n + 1, n + 1), -1, dtype=np.int64)
-        self._speed_of_plies = np.zeros((n + 1, n + 1))
-        for first in range(n):
-            for stop in range(first + 1, n + 1):
-                zeta = sublaminate_ply_zeta(fractions, first, stop)
-                self._rule_of_plies[first, stop] = len(self._rules)
-                self._speed_of_plies[first, stop] = ply_speeds[first:stop].max()
-                self._rules_index[(first, stop)] = len(self._rules)
-                # a one-ply subelement with one point through its thickness would bend with
-                # zero energy (an hourglass mode through the thickness): it gets two
-                points = self.base.points_per_ply if stop - first > 1 else 2
-                self._rules.append(pack_rule(zeta, stiffness[first:stop], points))
-                self._mass_rules[(first, stop)] = pack_mass_rule(zeta, density[first:stop])
-        return concatenate_rules(self._rules)
-
     def _rebuild_maps(self) -> None:
-        refined = np.flatnonzero((self.interface_state != enr.NONE).any(axis=1))
+        refined = self.refinement.refined_cells()
         states = self.interface_state[refined]
         rows, first, stop = enr.subelement_table(states)
         cells = refined[rows]
         nodes = self._subelement_nodes_many(states[rows], first, stop, cells)
+        spans = np.column_stack([first, stop]).astype(np.int64)
         self.subelements = SubelementSet(
-            nodes, self._rule_of_plies[first, stop].astype(np.int64), self.subelements.rules
+            nodes, self.rule_table.rule_of(spans), self.subelements.rules
         )
-        self._subelement_cell = cells.astype(np.int64)
-        self._subelement_plies = np.column_stack([first, stop]).astype(np.int64)
-        self._subelement_speeds = self._speed_of_plies[first, stop]
+        self.subelement_cells = cells.astype(np.int64)
+        self.subelement_plies = spans
+        self.subelement_speeds = self.rule_table.wave_speed(spans)
         # cohesive elements: cells in order, interfaces bottom to top
-        rows, interface_index = np.nonzero(states == enr.STRONG)
+        rows, interface_index = np.nonzero(states == InterfaceState.STRONG)
         cells, interfaces = refined[rows], interface_index + 1
         pairs = zip(cells.tolist(), interfaces.tolist(), strict=True)
         coh_rows = [self.damage_rows[pair] for pair in pairs]
         self.cohesive = CohesiveSet(
-            enr.cohesive_nodes_many(
-                interfaces,
-                self.bottom_global[cells],
-                self.interface_state.shape[1],
-                self.extra.locate,
-                self.n_base,
-            ).reshape(-1, 8),
+            self.columns.cohesive_nodes(
+                interfaces, cells, self.refinement.n_interfaces, self.extra.locate
+            ),
             np.array(coh_rows, dtype=np.int64),
             self.cohesive.damage,
             self.law_params if self.law_params is not None else self.cohesive.params,
@@ -762,7 +597,9 @@ class Structure:
     def _rebuild_blocks(self) -> None:
         """Collective: border constraints, the masses the solver divides by (constrained masses
         moved to their masters), prescribed DOFs; constrained nodes put on their masters."""
-        prescribed = self._extra_prescriptions()
+        prescribed = extra_node_prescriptions(
+            self.motions, self.base, self.extra, self.column_top, self.refinement.n_interfaces
+        )
         if self.extra.index_map.size_global:  # the same on every rank: column_counts is collective
             counts = column_counts(
                 self.comm, self.base.V.dofmap.index_map, self.bottom_local, self.interface_state
@@ -804,31 +641,6 @@ class Structure:
             fixed_motion=prescribed[fixed].astype(np.int32),
         )
 
-    def _extra_prescriptions(self) -> np.ndarray:
-        """Motion index (into ``motions``) holding each local extra DOF (owned and ghosts), -1
-        for none: a face motion holds an extra node when both base nodes of its column are on
-        that face; a symmetry interface holds u_z of its nodes. The first motion listed wins."""
-        prescribed = np.full(3 * self.extra.n_local, -1, dtype=np.int64)
-        if self.extra.index_map.size_global == 0:  # the same on every rank
-            return prescribed
-        n_interfaces = self.interface_state.shape[1]
-        parts = [enr.key_parts(k, n_interfaces) for k in self.extra.index]
-        local = np.fromiter(self.extra.index.values(), dtype=np.int64)
-        bottom = np.array([self.extra.local_base_node(g) for g, _, _ in parts], dtype=np.int64)
-        top = np.array([self.column_top[b] for b in bottom], dtype=np.int64)
-        interface = np.array([i for _, i, _ in parts], dtype=np.int64)
-        for m, motion in enumerate(self.motions):
-            if motion.face.startswith("interface"):
-                on = interface == int(motion.face.removeprefix("interface"))
-            else:  # face_nodes is collective: every rank, also one without extra nodes
-                mask = np.zeros(self.n_base, dtype=bool)
-                mask[face_nodes(self.base, motion.face, motion.x_range)] = True
-                on = mask[bottom] & mask[top]
-            dofs = 3 * local[on] + COMPONENTS[motion.component]
-            dofs = dofs[prescribed[dofs] < 0]
-            prescribed[dofs] = m
-        return prescribed
-
     def _update_masses(self, cells: np.ndarray, old_state: np.ndarray) -> None:
         """Take each changed cell's old (sub)element masses off its nodes, put the new ones on;
         sums on shared nodes are completed by reverse scatters."""
@@ -845,13 +657,7 @@ class Structure:
         )
         delta = np.zeros(self.n_base + self.extra.n_local)  # combined local nodes
         if len(nodes):
-            X = self.gather(nodes, "X")
-            masses = np.empty((len(nodes), 8))
-            rules = first * (self.laminate.n_plies + 1) + stop
-            for rule in np.unique(rules):
-                members = np.flatnonzero(rules == rule)
-                span = divmod(int(rule), self.laminate.n_plies + 1)
-                masses[members] = solid_shell_lumped_masses(X[members], *self._mass_rules[span])
+            masses = self.rule_table.lumped_masses(self.gather(nodes, "X"), first, stop)
             masses *= signs[:, None]
             np.add.at(delta, nodes.ravel(), masses.ravel())  # in order, as a loop would
         delta_base, delta_extra = delta[: self.n_base], delta[self.n_base :]
@@ -878,63 +684,28 @@ class Structure:
         out[~is_base] = extra[nodes[~is_base] - self.n_base]
         return out
 
-    def _cohesive_time_step(self) -> tuple[float, str]:
-        """Penalty springs of this rank's cohesive elements against the masses they join: (the
-        smallest step, where), (inf, "") without any. Collective (the nodal interface areas
-        are summed over ranks), so every rank calls it, whatever it holds."""
-        params = self.cohesive.params
-        stiffness = max(params[P_KN], params[P_KS])
-        X = self.gather(self.cohesive.nodes, "X")
-        areas = _quad_areas(X[:, :4, :])
-        # each node's share of the interface area, summed over the elements around it
-        area_base = la.vector(self.mass_base.index_map, bs=3)
-        area_extra = la.vector(self.mass_extra.index_map, bs=3)
-        ab, ax = area_base.array.reshape(-1, 3), area_extra.array.reshape(-1, 3)
-        lower = self.cohesive.nodes[:, :4].ravel()
-        shares = np.repeat(0.25 * areas, 4)
-        is_base = lower < self.n_base
-        np.add.at(ab[:, 0], lower[is_base], shares[is_base])
-        np.add.at(ax[:, 0], lower[~is_base] - self.n_base, shares[~is_base])
-        for vector in (area_base, area_extra):
-            vector.scatter_reverse(la.InsertMode.add)
-            vector.scatter_forward()
-        upper = self.cohesive.nodes[:, 4:].ravel()
 
-        def nodal(values_base, values_extra, nodes):
-            out = np.empty(len(nodes))
-            is_base = nodes < self.n_base
-            out[is_base] = values_base[nodes[is_base]]
-            out[~is_base] = values_extra[nodes[~is_base] - self.n_base]
-            return out
-
-        mb = self.mass_base.array.reshape(-1, 3)[:, 0]
-        mx = self.mass_extra.array.reshape(-1, 3)[:, 0]
-        steps = cohesive_pair_time_steps(
-            stiffness,
-            nodal(ab[:, 0], ax[:, 0], lower),
-            nodal(mb, mx, lower),
-            nodal(mb, mx, upper),
+def _motions(loads: ResolvedLoads, interfaces: Interfaces, n_layers: int) -> list[PrescribedMotion]:
+    """The loads' prescribed motions, then the symmetry interfaces' u_z = 0 (ESL mesh only)."""
+    motions = list(loads.motions)
+    for i in interfaces.symmetry if n_layers == 1 else ():
+        motions.append(
+            PrescribedMotion(f"interface{i}", "z", "displacement", 0.0, Amplitude.constant(0))
         )
-        if len(steps) == 0:
-            return np.inf, ""
-        k = int(np.argmin(steps))
-        return float(steps[k]), f"cohesive element {k // 4} (penalty {stiffness:g} N/mm^3)"
+    return motions
 
 
-def _quad_areas(X: np.ndarray) -> np.ndarray:
-    """Areas of planar quadrilaterals with vertices (n, 4, 3) in tensor order."""
-    d1 = X[:, 3] - X[:, 0]
-    d2 = X[:, 2] - X[:, 1]
-    return 0.5 * np.linalg.norm(np.cross(d1, d2), axis=1)
-
-
-def _cell_coordinates(structure: Structure) -> np.ndarray:
-    n = structure.base.n_owned_cells
-    nodes = structure.base.V.dofmap.list[:n]
-    return structure.X_base[nodes]
+def _cell_plies(base: LayeredModel) -> np.ndarray:
+    """(n_cells, 2) plies [first, stop) of the whole laminate each owned cell holds."""
+    cell_plies = np.zeros((base.n_owned_cells, 2), dtype=np.int64)
+    first = 0
+    for k, layer in enumerate(base.layer_laminates):
+        cell_plies[base.layer_cells(k)] = (first, first + layer.n_plies)
+        first += layer.n_plies
+    return cell_plies
 
 
 def cells_in_x_range(structure: Structure, x_min: float, x_max: float) -> np.ndarray:
     """Owned cells whose centroid lies in x_min <= x <= x_max."""
-    x = _cell_coordinates(structure)[:, :, 0].mean(axis=1)
+    x = structure.cell_vertices()[:, :, 0].mean(axis=1)
     return np.flatnonzero((x >= x_min) & (x <= x_max)).astype(np.int32)

@@ -1,0 +1,163 @@
+"""The state of the paper's remedies for the sudden change of internal forces on refinement:
+damping windows after weak refinements, tie forces after strong ones (the user's parameters are
+the ``Stabilisation`` settings).
+
+Units: N, mm, s, tonne.
+
+A refinement tells ``StabilisationState`` what it would stabilise (``request``: newly weakly
+refined cells, new strong node pairs); right after it, ``start`` opens the damping windows and
+sets the tie forces. The solver asks each step for the active windows (``active_damping``) and
+adds the tie forces (``add_tie_forces``). ``state`` / ``restore`` carry the windows and ties
+through a checkpoint (the requests never outlive a step, so they are not part of it).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+from mpi4py import MPI
+
+if TYPE_CHECKING:
+    from fenics_adaptive.settings.adaptivity import Stabilisation
+
+
+@dataclass
+class DampingWindow:
+    """Extra mass-proportional damping ``coefficient`` (1/s) on owned DOFs of a block until
+    ``until`` (s)."""
+
+    block: int
+    dofs: np.ndarray
+    coefficient: float
+    until: float
+
+
+@dataclass
+class Ties:
+    """Tie forces on owned extra-node pairs (lower node A, upper node B of a new strong
+    interface): +scale(t) T0 on A, -scale(t) T0 on B, scale falling from 1 at ``start`` to 0 at
+    ``start + window``."""
+
+    a: np.ndarray  # owned extra local indices
+    b: np.ndarray
+    force: np.ndarray  # (n, 3) N
+    start: float
+    window: float
+
+    def scale(self, t: float) -> float:
+        return max(0.0, 1.0 - (t - self.start) / self.window)
+
+
+def tie_forces(force: np.ndarray, mass: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(n, 3) tie force T0 (N) on node pairs (a, b) of the extra block, from its internal force
+    ``force`` (n_nodes, 3) N and lumped mass ``mass`` (n_nodes,) tonne: with T0 on a and -T0 on
+    b, the two nodes accelerate together as the continuous interface did."""
+    m_a, m_b = mass[a, None], mass[b, None]
+    return (m_b * force[a] - m_a * force[b]) / (m_a + m_b)
+
+
+class StabilisationState:
+    """Damping windows and tie forces of one rank, opened after refinements with the
+    parameters of ``settings`` (a ``Stabilisation``)."""
+
+    def __init__(self, settings: Stabilisation, comm: MPI.Comm):
+        self.settings = settings
+        self.comm = comm
+        self.damping_windows: list[DampingWindow] = []
+        self.ties: list[Ties] = []
+        self.discard_requests()
+
+    def discard_requests(self) -> None:
+        """Forget what the last refinement would stabilise (a restart replaying refinements
+        restores the stabilisation state it stored instead)."""
+        self.new_weak_cells = np.zeros(0, dtype=np.int64)
+        self.new_pairs: list[tuple[int, int]] = []
+
+    def request(self, new_weak_cells: np.ndarray) -> None:
+        """A refinement begins: damp the nodes of these newly weakly refined owned cells; the
+        new strong pairs follow through ``request_pair``."""
+        self.new_weak_cells = new_weak_cells
+        self.new_pairs = []
+
+    def request_pair(self, a: int, b: int) -> None:
+        """Tie the owned extra nodes a (set A) and b (set B) of a new strong interface."""
+        self.new_pairs.append((a, b))
+
+    def start(
+        self,
+        t: float,
+        dofs_of_cells: Callable[[np.ndarray], list[np.ndarray]],
+        extra_force_and_mass: Callable[[], tuple[np.ndarray, np.ndarray]],
+    ) -> None:
+        """Collective, right after a refinement at time t (s): open the damping window of the
+        requested cells' nodes and set the tie forces of the requested pairs.
+        ``dofs_of_cells(cells)``: owned DOFs (base block, extra block) of the nodes of owned
+        cells (collective); ``extra_force_and_mass()``: the refined structure's internal force
+        (n, 3) N and lumped mass (n,) tonne of the extra nodes at t (collective; called only when
+        some rank has a pair)."""
+        settings = self.settings
+        if settings.damps and self.comm.allreduce(len(self.new_weak_cells), op=MPI.SUM):
+            for block, dofs in enumerate(dofs_of_cells(self.new_weak_cells)):
+                self.damping_windows.append(
+                    DampingWindow(block, dofs, settings.damping, t + settings.damping_window)
+                )
+        new_pairs = self.comm.allreduce(len(self.new_pairs), op=MPI.SUM)
+        if settings.release_window > 0.0 and new_pairs:
+            force, mass = extra_force_and_mass()
+            pairs = np.array(self.new_pairs, dtype=np.int64).reshape(-1, 2)
+            a, b = pairs[:, 0], pairs[:, 1]
+            self.ties.append(Ties(a, b, tie_forces(force, mass, a, b), t, settings.release_window))
+        self.discard_requests()
+
+    def add_tie_forces(self, t: float, f_ext_extra: np.ndarray) -> None:
+        """Add the active tie forces at time t (s) to the extra block's external force (owned
+        DOFs, flat, N); ties released by t are dropped."""
+        self.ties = [tie for tie in self.ties if tie.scale(t) > 0.0]
+        f = f_ext_extra.reshape(-1, 3)
+        for tie in self.ties:
+            scale = tie.scale(t)
+            np.add.at(f, tie.a, scale * tie.force)
+            np.subtract.at(f, tie.b, scale * tie.force)
+
+    def active_damping(self, t: float) -> list[DampingWindow]:
+        """The damping windows still open at time t (s); closed ones are dropped."""
+        self.damping_windows = [w for w in self.damping_windows if w.until > t]
+        return self.damping_windows
+
+    def state(self) -> dict[str, np.ndarray]:
+        """The ties and windows as flat arrays (checkpoint keys ``tie_*``, ``window_*``)."""
+        ties, windows = self.ties, self.damping_windows
+        return {
+            "tie_counts": np.array([len(tie.a) for tie in ties], dtype=np.int64),
+            "tie_a": np.concatenate([tie.a for tie in ties] or [np.zeros(0, np.int64)]),
+            "tie_b": np.concatenate([tie.b for tie in ties] or [np.zeros(0, np.int64)]),
+            "tie_force": np.concatenate([tie.force for tie in ties] or [np.zeros((0, 3))]),
+            "tie_times": np.array([[tie.start, tie.window] for tie in ties]).reshape(-1, 2),
+            "window_counts": np.array([len(w.dofs) for w in windows], dtype=np.int64),
+            "window_dofs": np.concatenate([w.dofs for w in windows] or [np.zeros(0, np.int32)]),
+            "window_values": np.array([[w.block, w.coefficient, w.until] for w in windows]).reshape(
+                -1, 3
+            ),
+        }
+
+    def restore(self, state: dict[str, np.ndarray]) -> None:
+        """Put back the ties and windows of ``state`` (as ``state`` gives them)."""
+        ties, start = [], 0
+        for n, (t0, window) in zip(state["tie_counts"], state["tie_times"], strict=True):
+            a = state["tie_a"][start : start + n]
+            b = state["tie_b"][start : start + n]
+            force = state["tie_force"][start : start + n]
+            ties.append(Ties(a, b, force, float(t0), float(window)))
+            start += n
+        self.ties = ties
+        windows, start = [], 0
+        for n, (block, coefficient, until) in zip(
+            state["window_counts"], state["window_values"], strict=True
+        ):
+            dofs = state["window_dofs"][start : start + n].astype(np.int32)
+            windows.append(DampingWindow(int(block), dofs, float(coefficient), float(until)))
+            start += n
+        self.damping_windows = windows

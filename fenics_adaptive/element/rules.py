@@ -1,0 +1,102 @@
+"""The packed integration rules of every (sub)element a laminate can hold: one rule per span of
+plies [first, stop), the kernels' force rule and the lumped-mass rule, and the fastest wave
+speed of each span (for the stable time step).
+
+Units: mm, s, tonne, MPa.
+
+Every consumer of packed rules (the structure's numba forces and masses, the ply-damage kernel,
+the element forces of ``analysis.comparison``, the benchmark) takes them from one ``RuleTable``,
+so that the rule of a span cannot differ between them.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from fenics_adaptive.element.subelement import (
+    PackedMassRule,
+    PackedRule,
+    PackedRules,
+    concatenate_rules,
+    pack_mass_rule,
+    pack_rule,
+    solid_shell_lumped_masses,
+    sublaminate_ply_zeta,
+)
+from fenics_adaptive.materials.laminate import Laminate
+
+# A one-ply (sub)element with one Gauss point through its thickness bends with zero energy (an
+# hourglass mode through the thickness): it always gets this many.
+ONE_PLY_POINTS = 2
+
+
+def points_through_ply(n_plies: int, points_per_ply: int) -> int:
+    """Gauss points through each ply of a (sub)element of ``n_plies`` plies."""
+    return points_per_ply if n_plies > 1 else ONE_PLY_POINTS
+
+
+class RuleTable:
+    """Packed rules of all spans [first, stop) of the plies of ``laminate``, in the order
+    (0, 1), (0, 2), ..., (0, n), (1, 2), ... (``spans``); ``points_per_ply``: Gauss points
+    through each ply of spans of more than one ply."""
+
+    def __init__(self, laminate: Laminate, points_per_ply: int):
+        n = laminate.n_plies
+        fractions = laminate.ply_fractions
+        stiffness = np.array(laminate.ply_stiffnesses())
+        density = np.array([p.material.rho for p in laminate.plies])
+        # mm/s; each ply's wave speed inverts its compliance: once, not per subelement
+        ply_speeds = np.array([p.material.dilatational_wave_speed() for p in laminate.plies])
+        self.n_plies = n
+        self.points_per_ply = points_per_ply
+        self.spans: list[tuple[int, int]] = []
+        self.rules: list[PackedRule] = []
+        self.mass_rules: list[PackedMassRule] = []
+        # rule index and fastest wave speed (mm/s) of each span, for whole arrays of spans
+        self._rule_of_plies = np.full((n + 1, n + 1), -1, dtype=np.int64)
+        self._speed_of_plies = np.zeros((n + 1, n + 1))
+        for first in range(n):
+            for stop in range(first + 1, n + 1):
+                zeta = sublaminate_ply_zeta(fractions, first, stop)
+                self._rule_of_plies[first, stop] = len(self.rules)
+                self._speed_of_plies[first, stop] = ply_speeds[first:stop].max()
+                self.spans.append((first, stop))
+                points = points_through_ply(stop - first, points_per_ply)
+                self.rules.append(pack_rule(zeta, stiffness[first:stop], points))
+                self.mass_rules.append(pack_mass_rule(zeta, density[first:stop]))
+        self.packed: PackedRules = concatenate_rules(self.rules)
+
+    def __len__(self) -> int:
+        return len(self.rules)
+
+    def index(self, first: int, stop: int) -> int:
+        """Index into ``packed`` (and ``rules``) of the rule of plies [first, stop)."""
+        rule = int(self._rule_of_plies[first, stop]) if 0 <= first < stop <= self.n_plies else -1
+        if rule < 0:
+            raise ValueError(f"no ply span [{first}, {stop}) in a laminate of {self.n_plies} plies")
+        return rule
+
+    def rule_of(self, plies: np.ndarray) -> np.ndarray:
+        """Rule index (int64) of each span of ``plies`` (n, 2) [first, stop)."""
+        plies = np.asarray(plies, dtype=np.int64).reshape(-1, 2)
+        return self._rule_of_plies[plies[:, 0], plies[:, 1]].astype(np.int64)
+
+    def wave_speed(self, plies: np.ndarray) -> np.ndarray:
+        """Fastest dilatational wave speed (mm/s) of the plies of each span of ``plies``."""
+        plies = np.asarray(plies, dtype=np.int64).reshape(-1, 2)
+        return self._speed_of_plies[plies[:, 0], plies[:, 1]]
+
+    def mass_rule(self, first: int, stop: int) -> PackedMassRule:
+        """The lumped-mass rule of plies [first, stop)."""
+        return self.mass_rules[self.index(first, stop)]
+
+    def lumped_masses(self, X: np.ndarray, first: np.ndarray, stop: np.ndarray) -> np.ndarray:
+        """Lumped nodal masses (n, 8) tonne of (sub)elements with reference vertices X (n, 8, 3)
+        mm spanning plies [first, stop) (n,) each."""
+        masses = np.empty((len(X), 8))
+        spans = first * (self.n_plies + 1) + stop
+        for span in np.unique(spans):
+            members = np.flatnonzero(spans == span)
+            rule = self.mass_rule(*divmod(int(span), self.n_plies + 1))
+            masses[members] = solid_shell_lumped_masses(X[members], *rule)
+        return masses

@@ -1,0 +1,139 @@
+"""The matrix-damage state of a structure's plies: per (owned cell, laminate ply) the state of
+``materials.ply_damage``, its crack band width and reference volume, and the (sub)elements the
+damage-aware numba kernel computes.
+
+Units: N, mm, s, tonne (energies mJ).
+
+With ply damage, every cell leaves the UFL form for the damage-aware kernel (the same for ESL,
+adaptive and layerwise cells). The state rows are the owned cells; a subelement reads and
+updates the rows of its cell's plies, so a refinement keeps the damage of each ply.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+
+import numpy as np
+from mpi4py import MPI
+
+from fenics_adaptive.element.geometry import slab_vertices, thickness_weight
+from fenics_adaptive.element.rules import RuleTable
+from fenics_adaptive.element.subelement import add_damaged_subelement_forces
+from fenics_adaptive.element.timestep import hexahedron_volumes
+from fenics_adaptive.materials.laminate import Laminate
+from fenics_adaptive.materials.ply_damage import (
+    S_DISSIPATED,
+    S_Y0,
+    check_band_width,
+    concatenate_ply_damage,
+    crack_band_width,
+    new_state,
+    pack_ply_damage,
+)
+
+
+class PlyDamageState:
+    """Ply damage of this rank's owned cells.
+
+    ``laminate``: the whole laminate; ``failures``: the ply failure parameters by material
+    name; ``rule_table``: the structure's rules (the damage parameters are packed per rule
+    span); ``cell_X`` (n_cells, 8, 3) mm: the owned cells' reference vertices; ``cell_plies``
+    (n_cells, 2): the plies [first, stop) of each cell. Collective (the band widths are checked
+    against the widest over all ranks). Raises InputError where a cell is too wide for a ply's
+    crack band."""
+
+    def __init__(
+        self,
+        laminate: Laminate,
+        failures: dict,
+        rule_table: RuleTable,
+        cell_X: np.ndarray,
+        cell_plies: np.ndarray,
+        comm: MPI.Comm,
+    ):
+        plies = laminate.plies
+        self.laminate = laminate
+        self.failures = failures
+        self.comm = comm
+        self.pack = concatenate_ply_damage(
+            [pack_ply_damage(plies[a:b], failures) for a, b in rule_table.spans]
+        )
+        n_cells = len(cell_X)
+        # crack band width (mm) of each ply of each cell, across its fibres
+        self.band_width = np.zeros((n_cells, len(plies)))
+        for k, ply in enumerate(plies):
+            in_cell = (cell_plies[:, 0] <= k) & (k < cell_plies[:, 1])
+            for cell in np.flatnonzero(in_cell):
+                self.band_width[cell, k] = crack_band_width(cell_X[cell], ply.angle)
+            # the widest band over all ranks: every rank takes the same decision
+            widest = comm.allreduce(
+                self.band_width[:, k].max() if in_cell.any() else -1.0, op=MPI.MAX
+            )
+            if widest >= 0.0:
+                check_band_width(ply.material, failures[ply.material.name], widest)
+        self.damage = new_state(n_cells, len(plies))  # (n_cells, n_plies, N_STATE)
+        # reference volume (mm^3) of each ply of each cell: the ply's dissipation density
+        # (ply_damage S_DISSIPATED) times it is its dissipated energy
+        fractions = laminate.ply_fractions
+        self.ply_volumes = np.zeros((n_cells, len(plies)))
+        for k in range(len(plies)):
+            in_cell = np.flatnonzero((cell_plies[:, 0] <= k) & (k < cell_plies[:, 1]))
+            lo, hi = cell_plies[in_cell, 0], cell_plies[in_cell, 1]
+            # the ply's place in its cell's own thickness (an LW cell holds some plies)
+            w_lo = thickness_weight(fractions, k, lo, hi)
+            w_hi = thickness_weight(fractions, k + 1, lo, hi)
+            ply_X = slab_vertices(cell_X[in_cell, :4], cell_X[in_cell, 4:], w_lo, w_hi)
+            self.ply_volumes[in_cell, k] = hexahedron_volumes(ply_X)
+        self.elements: tuple[np.ndarray, ...] = ()  # set_elements
+
+    def set_elements(
+        self, nodes: np.ndarray, cells: np.ndarray, plies: np.ndarray, rule_table: RuleTable
+    ) -> None:
+        """The (sub)elements the kernel computes (``Structure.elements``): nodes (n, 8) combined
+        local indices, owned cell of each, its plies [first, stop)."""
+        self.elements = (
+            nodes,
+            rule_table.rule_of(plies),
+            cells.astype(np.int64),
+            np.asarray(plies[:, 0]).astype(np.int64),
+        )
+
+    def add_forces(self, rules, X_base, X_extra, u_base, u_extra, f_base, f_extra) -> float:
+        """Add the elements' internal forces (N) into ``f_base``, ``f_extra`` (n, 3), updating
+        the damage state; ``rules``: the packed rules (``RuleTable.packed``); X, u in mm.
+        Returns the elements' secant strain energy (mJ, this rank)."""
+        return add_damaged_subelement_forces(
+            *self.elements,
+            *rules,
+            *self.pack,
+            self.band_width,
+            self.damage,
+            X_base,
+            X_extra,
+            u_base,
+            u_extra,
+            f_base,
+            f_extra,
+        )
+
+    def scale_matrix_strength(self, cells: np.ndarray, plies: Iterable[int], factor: float) -> None:
+        """Let the matrix of these plies (0-based) in these owned cells crack at ``factor`` times
+        the transverse strength: sets the ply's crack-onset energy to (factor YT)^2 / (2 C22)."""
+        for k in plies:
+            ply = self.laminate.plies[k]
+            C22 = ply.material.stiffness()[1, 1]
+            YT = self.failures[ply.material.name].YT
+            self.damage[cells, k, S_Y0] = (factor * YT) ** 2 / (2.0 * C22)
+
+    def dissipated_energy(self) -> float:
+        """Energy (mJ) the matrix damage of this rank's plies dissipated so far."""
+        return float(np.dot(self.damage[:, :, S_DISSIPATED].ravel(), self.ply_volumes.ravel()))
+
+    def state(self) -> dict[str, np.ndarray]:
+        """{"damage": the (n_cells, n_plies, N_STATE) state}."""
+        return {"damage": self.damage}
+
+    def restore(self, state: dict[str, np.ndarray]) -> None:
+        """Put back the damage state of ``state`` (as ``state`` gives it), in place (the kernel
+        arguments keep pointing at it)."""
+        self.damage[:] = state["damage"]

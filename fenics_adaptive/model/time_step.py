@@ -1,0 +1,89 @@
+"""The stable time step of a structure's explicit central-difference scheme: the smallest of
+L_e / c over its unrefined cells and subelements and of the limit of its cohesive penalty
+springs (``element.timestep`` holds the formulas).
+
+Units: N, mm, s, tonne.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+from dolfinx import la
+from mpi4py import MPI
+
+from fenics_adaptive.element.geometry import quad_areas
+from fenics_adaptive.element.timestep import characteristic_lengths, cohesive_pair_time_steps
+from fenics_adaptive.materials.cohesive import P_KN, P_KS
+
+if TYPE_CHECKING:
+    from fenics_adaptive.model.structure import Structure
+
+
+def stable_time_step(structure: Structure) -> tuple[float, str]:
+    """(min of L_e / c over unrefined cells and subelements, and of the cohesive pair limit;
+    where it is attained), reduced over ranks. The caller applies the safety factor."""
+    candidates = []
+    ratios = characteristic_lengths(structure.cell_vertices())
+    speeds = structure.base.cell_wave_speeds()
+    refined = structure.refinement.refined_cells()
+    ratios /= speeds
+    ratios[refined] = np.inf
+    if len(ratios):
+        cell = int(np.argmin(ratios))
+        candidates.append((float(ratios[cell]), f"cell {structure.original_cell[cell]}"))
+    if len(structure.subelements):
+        X = structure.gather(structure.subelements.nodes, "X")
+        sub_ratios = characteristic_lengths(X) / structure.subelement_speeds
+        s = int(np.argmin(sub_ratios))
+        cell = structure.subelement_cells[s]
+        candidates.append(
+            (float(sub_ratios[s]), f"subelement of cell {structure.original_cell[cell]}")
+        )
+    # collective (vectors and scatters): on every rank, with or without cohesive elements
+    candidates.append(cohesive_time_step(structure))
+    return structure.comm.allreduce(min(candidates), op=MPI.MIN)
+
+
+def cohesive_time_step(structure: Structure) -> tuple[float, str]:
+    """Penalty springs of this rank's cohesive elements against the masses they join: (the
+    smallest step, where), (inf, "") without any. Collective (the nodal interface areas
+    are summed over ranks), so every rank calls it, whatever it holds."""
+    params = structure.cohesive.params
+    stiffness = max(params[P_KN], params[P_KS])
+    X = structure.gather(structure.cohesive.nodes, "X")
+    areas = quad_areas(X[:, :4, :])
+    # each node's share of the interface area, summed over the elements around it
+    area_base = la.vector(structure.mass_base.index_map, bs=3)
+    area_extra = la.vector(structure.mass_extra.index_map, bs=3)
+    ab, ax = area_base.array.reshape(-1, 3), area_extra.array.reshape(-1, 3)
+    lower = structure.cohesive.nodes[:, :4].ravel()
+    shares = np.repeat(0.25 * areas, 4)
+    is_base = lower < structure.n_base
+    np.add.at(ab[:, 0], lower[is_base], shares[is_base])
+    np.add.at(ax[:, 0], lower[~is_base] - structure.n_base, shares[~is_base])
+    for vector in (area_base, area_extra):
+        vector.scatter_reverse(la.InsertMode.add)
+        vector.scatter_forward()
+    upper = structure.cohesive.nodes[:, 4:].ravel()
+
+    def nodal(values_base, values_extra, nodes):
+        out = np.empty(len(nodes))
+        is_base = nodes < structure.n_base
+        out[is_base] = values_base[nodes[is_base]]
+        out[~is_base] = values_extra[nodes[~is_base] - structure.n_base]
+        return out
+
+    mb = structure.mass_base.array.reshape(-1, 3)[:, 0]
+    mx = structure.mass_extra.array.reshape(-1, 3)[:, 0]
+    steps = cohesive_pair_time_steps(
+        stiffness,
+        nodal(ab[:, 0], ax[:, 0], lower),
+        nodal(mb, mx, lower),
+        nodal(mb, mx, upper),
+    )
+    if len(steps) == 0:
+        return np.inf, ""
+    k = int(np.argmin(steps))
+    return float(steps[k]), f"cohesive element {k // 4} (penalty {stiffness:g} N/mm^3)"

@@ -1,0 +1,264 @@
+"""The parts ``Structure`` is built from, each alone: the geometric helpers, the rule table, the
+stabilisation, ply-damage and refinement states (their ``state()`` / ``restore()`` round trips),
+the cohesive damage rows; and the comparison's element forces, which now take the structure's
+own rules.
+
+Units: N, mm, s, tonne (stress MPa, energy mJ).
+"""
+
+from __future__ import annotations
+
+import copy
+import importlib.util
+from pathlib import Path
+
+import numpy as np
+import pytest
+from mpi4py import MPI
+
+from fenics_adaptive.adaptivity.refinement import RefinementState
+from fenics_adaptive.adaptivity.stabilisation import StabilisationState
+from fenics_adaptive.element.geometry import quad_areas, slab_vertices, thickness_weight
+from fenics_adaptive.element.rules import RuleTable
+from fenics_adaptive.element.subelement import CORNERS, pack_rule, sublaminate_ply_zeta
+from fenics_adaptive.element.timestep import characteristic_lengths, hexahedron_volumes
+from fenics_adaptive.errors import InputError
+from fenics_adaptive.materials import ply_damage as pd
+from fenics_adaptive.materials.laminate import Laminate, Ply, PlyMaterial
+from fenics_adaptive.model.assembly import CohesiveSet
+from fenics_adaptive.model.ply_damage_state import PlyDamageState
+from fenics_adaptive.settings.adaptivity import Interfaces, Stabilisation
+from fenics_adaptive.settings.kinds import InterfaceState
+
+CARBON = PlyMaterial("proto", E1=1e5, E2=1e4, G12=5e3, G23=4e3, nu12=0.25, nu23=0.25, rho=1.6e-9)
+GLASS = PlyMaterial("glass", E1=45e3, E2=12e3, G12=4.5e3, nu12=0.28, nu23=0.4, rho=2e-9, G23=3.5e3)
+FAILURES = {
+    "proto": pd.PlyFailure.from_mapping(
+        "proto",
+        {"XT": 2000.0, "XC": 1200.0, "YT": 50.0, "YC": 200.0, "S12": 80.0, "G2c": 0.2, "G6c": 1.0},
+    ),
+    "glass": pd.PlyFailure(
+        "glass", XT=1100.0, XC=700.0, YT=40.0, YC=150.0, S12=70.0, S23=50.0, G2c=0.3, G6c=1.2
+    ),
+}
+# three plies of different thickness and material: spans differ in rule and wave speed
+LAMINATE = Laminate((Ply(CARBON, 0.0, 0.2), Ply(GLASS, 90.0, 0.3), Ply(CARBON, 45.0, 0.1)))
+
+
+def box(lx: float, ly: float, lz: float) -> np.ndarray:
+    """Vertices (1, 8, 3) of an axis-aligned box, DOLFINx tensor order."""
+    return (CORNERS * np.array([lx, ly, lz]))[None]
+
+
+# --- geometry ---------------------------------------------------------------------------------
+def test_quad_area_of_known_quadrilaterals():
+    rectangle = np.array([[0.0, 0.0, 0.0], [2.0, 0.0, 0.0], [0.0, 3.0, 0.0], [2.0, 3.0, 0.0]])
+    # a parallelogram sheared by 1 mm along x and tilted out of the xy plane: base 2, height 3
+    rotation = np.array([[1.0, 0.0, 0.0], [0.0, 0.6, -0.8], [0.0, 0.8, 0.6]])
+    sheared = (rectangle + np.array([[0.0, 0, 0], [0, 0, 0], [1, 0, 0], [1, 0, 0]])) @ rotation.T
+    areas = quad_areas(np.stack([rectangle, sheared]))
+    np.testing.assert_allclose(areas, [6.0, 6.0], rtol=1e-14)
+    # any leading shape: the six faces of a 1 x 2 x 3 box
+    faces = box(1.0, 2.0, 3.0)[:, [[0, 1, 2, 3], [4, 5, 6, 7], [0, 1, 4, 5], [0, 2, 4, 6]]]
+    np.testing.assert_allclose(quad_areas(faces), [[2.0, 2.0, 3.0, 6.0]], rtol=1e-14)
+    # the stable-step length of the box: volume / largest face area
+    assert characteristic_lengths(box(1.0, 2.0, 3.0))[0] == pytest.approx(6.0 / 6.0)
+
+
+def test_slab_between_thickness_weights():
+    fractions = LAMINATE.ply_fractions  # 0, 1/3, 5/6, 1
+    assert thickness_weight(fractions, 1, 0, 3) == pytest.approx(1 / 3)
+    assert thickness_weight(fractions, 2, 1, 3) == pytest.approx(0.75)  # (5/6 - 1/3) / (2/3)
+    X = box(2.0, 1.0, 0.6)
+    middle = slab_vertices(X[:, :4], X[:, 4:], np.array([1 / 3]), np.array([5 / 6]))
+    np.testing.assert_allclose(middle[0, :4, 2], 0.2, rtol=1e-14)
+    np.testing.assert_allclose(middle[0, 4:, 2], 0.5, rtol=1e-14)
+    assert hexahedron_volumes(middle)[0] == pytest.approx(2.0 * 1.0 * 0.3, rel=1e-14)
+
+
+# --- rule table -------------------------------------------------------------------------------
+@pytest.mark.parametrize("points_per_ply", [1, 2])
+def test_rule_table_gives_each_span_its_rule(points_per_ply):
+    table = RuleTable(LAMINATE, points_per_ply)
+    n = LAMINATE.n_plies
+    assert table.spans == [(a, b) for a in range(n) for b in range(a + 1, n + 1)]
+    stiffness = np.array(LAMINATE.ply_stiffnesses())
+    for first, stop in table.spans:
+        rule = table.rules[table.index(first, stop)]
+        # one ply: two points through it whatever points_per_ply, else points_per_ply per ply
+        points = points_per_ply if stop - first > 1 else 2
+        zeta = sublaminate_ply_zeta(LAMINATE.ply_fractions, first, stop)
+        expected = pack_rule(zeta, stiffness[first:stop], points)
+        for got, want in zip(rule, expected, strict=True):
+            np.testing.assert_array_equal(got, want)
+    # a one-ply subelement bends with energy: its normal-term points integrate (zeta - 1/2)^2
+    rule = table.rules[table.index(1, 2)]
+    normal = (rule.terms == 0) & (rule.position_of_point == rule.position_of_point[0])
+    weights, zeta = rule.weights[normal], rule.zeta[normal]
+    moment = np.sum(weights * (zeta - 0.5) ** 2) / np.sum(weights)
+    assert moment == pytest.approx(1.0 / 12.0, rel=1e-12)
+    # arrays of spans
+    spans = np.array([[0, 3], [1, 2], [0, 1]])
+    np.testing.assert_array_equal(table.rule_of(spans), [table.index(a, b) for a, b in spans])
+    speeds = [p.material.dilatational_wave_speed() for p in LAMINATE.plies]
+    np.testing.assert_allclose(table.wave_speed(spans), [max(speeds), speeds[1], speeds[0]])
+    # the mass rule of a span: its weights times the densities give the span's mass per volume
+    mass_rule = table.mass_rule(0, 3)
+    density = np.array([p.material.rho for p in LAMINATE.plies])
+    mean_density = np.sum(mass_rule.weights * mass_rule.density[mass_rule.ply_of_point])
+    thicknesses = np.array([p.thickness for p in LAMINATE.plies])
+    assert mean_density == pytest.approx(np.dot(density, thicknesses) / thicknesses.sum())
+    with pytest.raises(ValueError, match="no ply span"):
+        table.index(2, 2)
+
+
+# --- stabilisation ----------------------------------------------------------------------------
+def started_stabilisation() -> tuple[StabilisationState, np.ndarray, np.ndarray]:
+    state = StabilisationState(Stabilisation(5.0e4, 2.0e-5, 1.0e-5), MPI.COMM_SELF)
+    rng = np.random.default_rng(0)
+    force, mass = rng.normal(size=(6, 3)), rng.uniform(1e-9, 2e-9, 6)
+    state.request(np.array([3, 5]))
+    state.request_pair(0, 1)
+    state.request_pair(4, 2)
+    state.start(
+        1.0e-5,
+        lambda cells: [np.array([0, 1, 2], np.int32), 3 * cells.astype(np.int32)],
+        lambda: (force, mass),
+    )
+    return state, force, mass
+
+
+def test_tie_forces_make_the_pairs_accelerate_together_and_round_trip():
+    state, force, mass = started_stabilisation()
+    assert not len(state.new_weak_cells) and not state.new_pairs  # requests consumed
+    f_ext = np.zeros(18)
+    state.add_tie_forces(1.0e-5, f_ext)
+    f_ext = f_ext.reshape(-1, 3)
+    acceleration = (f_ext - force) / mass[:, None]  # m a = f_ext - f_int
+    np.testing.assert_allclose(acceleration[0], acceleration[1], rtol=1e-12)
+    np.testing.assert_allclose(acceleration[4], acceleration[2], rtol=1e-12)
+    windows = state.active_damping(1.0e-5)
+    assert [(w.block, w.coefficient) for w in windows] == [(0, 5.0e4), (1, 5.0e4)]
+    # open for damping_window from the refinement on
+    assert [w.until for w in windows] == pytest.approx([3.0e-5, 3.0e-5], rel=1e-12)
+    np.testing.assert_array_equal(windows[1].dofs, [9, 15])
+
+    copy_ = StabilisationState(state.settings, MPI.COMM_SELF)
+    copy_.restore(state.state())
+    for t in (1.2e-5, 1.5e-5):  # the same forces while releasing: half of them at mid-window
+        f_a, f_b = np.zeros(18), np.zeros(18)
+        state.add_tie_forces(t, f_a)
+        copy_.add_tie_forces(t, f_b)
+        np.testing.assert_array_equal(f_a, f_b)
+    np.testing.assert_allclose(f_b.reshape(-1, 3)[0], 0.5 * f_ext[0], rtol=1e-12)
+    assert copy_.active_damping(2.9e-5)[1].until == windows[1].until
+    assert not copy_.active_damping(3.1e-5)  # closed after its end
+    copy_.add_tie_forces(2.0e-5, np.zeros(18))
+    assert not copy_.ties  # released
+
+
+# --- ply damage -------------------------------------------------------------------------------
+def test_ply_damage_state_volumes_strength_and_round_trip():
+    X = np.concatenate([box(1.0, 1.0, 0.6), box(1.0, 1.0, 0.6) + np.array([1.0, 0.0, 0.0])])
+    cell_plies = np.array([[0, 3], [0, 3]])
+    table = RuleTable(LAMINATE, 1)
+    state = PlyDamageState(LAMINATE, FAILURES, table, X, cell_plies, MPI.COMM_SELF)
+    # each ply's reference volume: its thickness over the unit square (the laminate is 0.6 thick)
+    np.testing.assert_allclose(state.ply_volumes, [[0.2, 0.3, 0.1]] * 2, rtol=1e-12)
+    # the crack band crosses the fibres: 0-degree ply across y, 90-degree across x
+    np.testing.assert_allclose(state.band_width[:, :2], 1.0, rtol=1e-12)
+    state.scale_matrix_strength(np.array([1]), [1], 0.5)
+    C22 = GLASS.stiffness()[1, 1]
+    assert state.damage[1, 1, pd.S_Y0] == pytest.approx((0.5 * 40.0) ** 2 / (2.0 * C22))
+    assert state.damage[0, 1, pd.S_Y0] == 0.0
+    state.damage[:, :, pd.S_DISSIPATED] = [[1.0, 2.0, 3.0], [0.0, 0.0, 10.0]]  # MPa = mJ/mm^3
+    assert state.dissipated_energy() == pytest.approx(0.2 + 0.6 + 0.3 + 1.0)
+
+    other = PlyDamageState(LAMINATE, FAILURES, table, X, cell_plies, MPI.COMM_SELF)
+    kept = other.damage
+    other.restore(state.state())
+    assert other.damage is kept  # in place: the kernel's arguments stay valid
+    np.testing.assert_array_equal(other.damage, state.damage)
+    assert other.dissipated_energy() == state.dissipated_energy()
+
+
+# --- refinement -------------------------------------------------------------------------------
+def test_refinement_state_plans_books_and_replays():
+    refinement = RefinementState(4, 2, Interfaces(refine=(1, 2), delaminate=(2,)))
+    target = refinement.plan(
+        [(0, 1, InterfaceState.WEAK), (1, 2, InterfaceState.STRONG)], MPI.COMM_SELF
+    )
+    assert not refinement.interface_state.any()  # a plan changes nothing yet
+    np.testing.assert_array_equal(
+        target[:2],
+        [[InterfaceState.WEAK, InterfaceState.NONE], [InterfaceState.NONE, InterfaceState.STRONG]],
+    )
+    with pytest.raises(InputError, match="interface 1 is not allowed to delaminate"):
+        refinement.plan([(0, 1, InterfaceState.STRONG)], MPI.COMM_SELF)
+    changed = np.array([0, 1])
+    # strong through weak: both cells weaken first, only cell 1 strengthens
+    np.testing.assert_array_equal(refinement.to_weaken(changed, target, 1), [0])
+    np.testing.assert_array_equal(refinement.to_weaken(changed, target, 2), [1])
+    refinement.mark_weak(np.array([1]), 2)
+    np.testing.assert_array_equal(refinement.to_strengthen(changed, target, 2), [1])
+    refinement.mark_strong(np.array([1]), 2)
+    assert refinement.damage_rows == {(1, 2): 0}
+    np.testing.assert_array_equal(refinement.refined_cells(), [1])
+    np.testing.assert_array_equal(refinement.unrefined_cells(), [0, 2, 3])
+    refinement.record(2.0e-5, [(0, 1, InterfaceState.WEAK), (1, 2, InterfaceState.STRONG)])
+    refinement.record(4.0e-5, [(3, 2, InterfaceState.WEAK)])
+    refinement.book(0.25, -0.5)
+    refinement.book(1.0, 0.125)
+    assert refinement.energy == 0.875 and refinement.last_potential == 0.125
+
+    replayed = []
+    fresh = RefinementState(4, 2, refinement.interfaces)
+    fresh.restore(refinement.state(), lambda requests, t: replayed.append((t, requests)))
+    assert replayed == refinement.log
+    assert fresh.energy == refinement.energy
+
+
+def test_cohesive_rows_grow_undamaged_and_round_trip():
+    cohesive = CohesiveSet.empty(np.zeros(8))
+    cohesive.grow_rows(2)
+    cohesive.damage[1] = 0.5
+    cohesive.history[1, :, 0] = 0.01
+    cohesive.grow_rows(3)
+    np.testing.assert_array_equal(cohesive.damage, [[0.0] * 4, [0.5] * 4, [0.0] * 4])
+    other = CohesiveSet.empty(np.zeros(8))
+    other.grow_rows(3)
+    other.restore(cohesive.state())
+    np.testing.assert_array_equal(other.history, cohesive.history)
+    np.testing.assert_array_equal(other.damage, cohesive.damage)
+
+
+# --- the comparison's element forces use the structure's rules --------------------------------
+ROOT = Path(__file__).parents[1]
+
+
+@pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="the comparison is serial")
+def test_element_forces_of_one_ply_subelements_with_one_point_per_ply():
+    """With points_per_ply = 1, a refined cell's one-ply subelements get two points through
+    their thickness; the element forces of ``analysis.comparison`` must use them too (their
+    own copy of the rules used one and missed this)."""
+    from fenics_adaptive.analysis import comparison as cmp
+    from fenics_adaptive.runner import build_structure
+
+    spec = importlib.util.spec_from_file_location("esl_vs_lw_demo", ROOT / "demos" / "esl_vs_lw.py")
+    demo = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(demo)
+    settings = copy.deepcopy(demo.load_settings(ROOT / "demos" / "esl_vs_lw.toml"))
+    settings["beam"].update(nx=4, ny=1, length=4.0, points_per_ply=1)
+    config = demo.run_config(settings, settings["layups"]["[0/90]2s"], "adaptive")
+    structure = build_structure(config)
+    assert structure.base.points_per_ply == 1
+    _, _, plies = structure.elements()
+    assert (plies[:, 1] - plies[:, 0] == 1).all()  # every interface refined
+    rng = np.random.default_rng(5)
+    structure.base.u.x.array[:] = 1e-3 * rng.standard_normal(len(structure.base.u.x.array))
+    extra = structure.extra.vectors["u"].array
+    extra[:] = 1e-3 * rng.standard_normal(len(extra))
+    structure.internal_force()
+    expected = np.concatenate([structure.f_base.array, structure.f_extra.array]).reshape(-1, 3)
+    total = cmp.element_forces(structure, np.ones(len(plies), dtype=bool))
+    assert np.abs(total - expected).max() <= 1e-10 * np.abs(expected).max()
