@@ -12,7 +12,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fenics_adaptive.io import checkpoint
 from fenics_adaptive.settings.config import parse_config
 from fenics_adaptive.settings.kinds import InterfaceState
 from fenics_adaptive.simulation import RefinementHook, build_structure
@@ -107,16 +106,14 @@ def test_state_and_restore_continue_bit_for_bit(whole_run):
         first.step()
     assert first.now.refinements == 1 and first.structure.ties
     state = first.state()
-    structure_arrays = {
-        f"structure_{k}": v for k, v in checkpoint.structure_state(first.structure).items()
-    }
+    structure_state = first.structure.state()
     hook_state = first.refiner.state()
     t_taken = first.t
     first.step()  # the state handed out is a copy: stepping on does not change it
     assert state["t"] == t_taken
 
     structure = build_structure(config, refine_initially=False)
-    checkpoint.restore_structure(structure, structure_arrays)
+    structure.restore(structure_state)
     hook = RefinementHook(config)
     hook.restore(hook_state)
     second = explicit.ExplicitSolver(structure, config.solver, config.probe, refiner=hook)
