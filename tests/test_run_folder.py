@@ -143,7 +143,7 @@ def test_nothing_is_removed_before_the_config_and_the_model_are_checked(tmp_path
     def fail_at_step_0(*args, **kwargs):
         raise RuntimeError("failed at step 0")
 
-    monkeypatch.setattr(explicit, "run", fail_at_step_0)
+    monkeypatch.setattr(explicit.ExplicitSolver, "run", fail_at_step_0)
     with pytest.raises(RuntimeError, match="step 0"):
         run(small(), out)
     after = snapshot(out)
