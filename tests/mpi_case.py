@@ -17,18 +17,18 @@ from fenics_adaptive.model import contact as contact_module
 from fenics_adaptive.runner import execute
 from fenics_adaptive.settings.config import load_config
 
-# the largest contact force on this rank's nodes over the run (N): recorded around set_forces
+# the largest contact force on this rank's nodes over the run (N): recorded around add_force
 peak_contact = [0.0]
-set_forces = contact_module.Contact.set_forces
+add_force = contact_module.Contact.add_force
 
 
-def recording_set_forces(self, u_base, forces):
-    set_forces(self, u_base, forces)
+def recording_add_force(self, t, f_base, f_extra):
+    add_force(self, t, f_base, f_extra)
     if len(self.f):
         peak_contact[0] = max(peak_contact[0], float(np.abs(self.f).max()))
 
 
-contact_module.Contact.set_forces = recording_set_forces
+contact_module.Contact.add_force = recording_add_force
 
 
 def main() -> None:

@@ -95,14 +95,14 @@ def test_manual_refinement_by_displacement():
     hook = RefinementHook(config)
     at = []
 
-    def on_step(t, s):
+    def refiner(t, s):
         displacement = probe_displacement(s, config.probe)
         changed = hook(t, s)
         if changed:
             at.append(displacement)
         return changed
 
-    stats = explicit.run(structure, config.solver, config.probe, refiner=on_step)
+    stats = explicit.run(structure, config.solver, config.probe, refiner=refiner)
     assert stats.refinements == 1
     assert (structure.interface_state[:, [1, 5]] == InterfaceState.STRONG).all()
     assert (structure.interface_state[:, 3] == InterfaceState.NONE).all()

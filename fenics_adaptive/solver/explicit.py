@@ -30,6 +30,13 @@ Guards (``guards``): the run stops as failed (``ElementInverted``, ``EnergyBalan
 |energy balance| exceeds ``energy_error_limit`` x the largest energy of the run so far (on
 output steps, from step ``guards.ENERGY_MIN_STEPS``); an explicit impactor penalty above the
 largest stable one for the step is refused (``Contact.check_penalty``).
+
+The loop is an object, ``ExplicitSolver``: its scalars are one ``SolverState`` (checkpointed by
+field name), the forces beside the structure's own come from contributors (``model.forces``:
+the tie forces of new strong interfaces, a rigid impactor), what happens is told to observers
+(``observers.Observer``: history, fields, progress, refinements, checkpoints), and a refiner
+returns a ``RefinementEvent`` that the solver reacts to in one method
+(``react_to_refinement``). ``run()`` is the thin way to use it in one call.
 """
 
 from __future__ import annotations
@@ -523,15 +530,18 @@ class ExplicitSolver:
                 contributor.add_force(s.t, *self._contact_force)
         mean_dt = 0.5 * (s.dt_prev + s.dt)
         for index, state in enumerate(self.blocks):
-            contact = self._contact_force[index] if self._contact else None
-            self._accelerate(state, contact, mean_dt)
+            contact_force = self._contact_force[index] if self._contact else None
+            self._accelerate(state, contact_force, mean_dt)
 
-    def _accelerate(self, state: _BlockState, contact: np.ndarray | None, mean_dt: float) -> None:
-        """a = (f_ext + f_contact - f_int) / m; on the prescribed DOFs the acceleration that
-        takes them exactly to u(t_{n+1}) and the reaction force it needs."""
+    def _accelerate(
+        self, state: _BlockState, contact_force: np.ndarray | None, mean_dt: float
+    ) -> None:
+        """a = (f_ext + f_contact - f_int) / m (``contact_force``: the CONTACT contributors'
+        force on this block, N, if any); on the prescribed DOFs the acceleration that takes
+        them exactly to u(t_{n+1}) and the reaction force it needs."""
         np.subtract(state.f_ext, state.f, out=state.acc)
-        if contact is not None:
-            state.acc += contact
+        if contact_force is not None:
+            state.acc += contact_force
         state.acc *= state.inv_m
         if not len(state.block.fixed):
             return
@@ -547,8 +557,8 @@ class ExplicitSolver:
         state.reaction *= state.a_fixed
         state.reaction += np.take(state.f, fixed, out=state.scratch)
         state.reaction -= np.take(state.f_ext, fixed, out=state.scratch)
-        if contact is not None:
-            state.reaction -= np.take(contact, fixed, out=state.scratch)
+        if contact_force is not None:
+            state.reaction -= np.take(contact_force, fixed, out=state.scratch)
 
     def update_work(self) -> None:
         """The work over the step just made (trapezoidal in the forces), this rank's share."""
