@@ -61,99 +61,34 @@ def execute(
 
     SIGINT and SIGTERM stop the run at the next poll (every 64 steps) with a checkpoint, a
     flushed ``history.partial.csv`` and a summary saying "interrupted"."""
-    resume, hook_state, kept_rows = None, None, []
     out_dir = Path(out_dir)
     folder = RunFolder(out_dir, comm, overwrite)
     # a restart into the folder of its checkpoint continues that run folder; else it is fresh
     fresh = restart is None or not _same_folder(checkpoint.locate(restart).parent, out_dir)
     folder.check(fresh)  # before the model is built: a wrong --out is refused at once
+    resume, hook_state, kept_rows = None, None, []
     if restart is None:
         simulation = Simulation(config, comm=comm)
     else:
-        manifest, arrays, history_csv = checkpoint.read(restart, comm, config)
-        structure = build_structure(config, comm, refine_initially=False)
-        checkpoint.restore_structure(structure, arrays)
-        resume = checkpoint.solver_state(arrays)
-        hook_state = checkpoint.hook_state(arrays)
-        simulation = Simulation(config, comm=comm, structure=structure)
-        simulation.time_step = float(resume["dt"])
-        simulation.stable_time_step = float(resume["stable"])
-        with shared_errors(comm):  # the earlier format reads the folder's CSV on each rank
-            kept_rows = _kept_history(restart, manifest, history_csv, resume, config)
+        simulation, resume, hook_state, kept_rows = _restarted(config, restart, comm)
     say = log if (log is not None and comm.rank == 0) else (lambda _: None)
-    model = simulation.structure.base
-    structure = simulation.structure
-    n_cells = comm.allreduce(model.mesh.topology.index_map(3).size_local, op=MPI.SUM)
-    n_nodes = model.V.dofmap.index_map.size_global
-    n_steps = check_step_count(config.solver, simulation.time_step)  # refused above max_steps
-    say(
-        f"{config.kind} model: {n_cells} cells, {n_nodes} nodes ({3 * n_nodes} DOFs), "
-        f"{config.laminate.n_plies} plies, {len(model.beam.layer_z) - 1} cell layer(s), "
-        f"{comm.size} MPI rank(s)"
-    )
-    n_extra = comm.allreduce(structure.extra.n_owned, op=MPI.SUM)
-    n_cohesive = comm.allreduce(len(structure.cohesive), op=MPI.SUM)
-    if n_extra or n_cohesive:
-        say(f"{n_extra} extra nodes, {n_cohesive} cohesive elements")
-    say(
-        f"time step {simulation.time_step:.4e} s (stable {simulation.stable_time_step:.4e} s with "
-        f"safety factor {config.solver.safety_factor}, limited by {simulation.critical}), "
-        f"{n_steps} steps to {config.solver.end_time:.4e} s"
-    )
+    summary = _summary_at_start(config, simulation, comm)
+    _announce(config, simulation, summary, say)
 
     # the config and the model are checked: only now is anything in the folder removed
     folder.open(fresh)
-    record = folder.record
     fields_dir = out_dir
     if resume is not None:
         say(f"restarted from the checkpoint at t = {float(resume['t']):.6e} s")
         fields_dir = out_dir / f"restart_step{int(resume['step'])}"  # earlier fields stay
         folder.remove_recorded(fields_dir.name)  # those of an earlier restart from here
     try:
-        record(out_dir / "history.partial.csv", out_dir / "history.csv")
-        with shared_errors(comm):  # rank 0 opens the file
-            history = output.HistoryWriter(out_dir, comm, kept_rows)
-        fields = None
-        if config.solver.field_interval:
-            with shared_errors(comm):  # rank 0 makes the folder; its error reaches every rank
-                if comm.rank == 0:
-                    record(fields_dir, folder=True)
-                    fields_dir.mkdir(exist_ok=True)
-            fields = output.FieldOutputs(fields_dir, structure, record)
+        history, fields = _open_outputs(config, simulation, out_dir, fields_dir, kept_rows, folder)
     except BaseException:
         folder.close()
         raise
     progress = output.Progress(config.solver.end_time, comm) if show_progress else None
-    summary = {
-        "status": "running",
-        "config": config.source,
-        "units": "N, mm, s, tonne (MPa, mJ)",
-        "model": {
-            "kind": config.kind,
-            "cells": n_cells,
-            "nodes": n_nodes,
-            "dofs": 3 * n_nodes,
-            "plies": config.laminate.n_plies,
-            "cell_layers": len(model.beam.layer_z) - 1,
-            "thickness_mm": config.laminate.thickness,
-            "total_mass_tonne": structure.total_mass(),
-            "extra_nodes_at_start": n_extra,
-            "cohesive_elements_at_start": n_cohesive,
-        },
-        "time_step": {
-            "used_s": simulation.time_step,
-            "stable_s": simulation.stable_time_step,
-            "safety_factor": config.solver.safety_factor,
-            "limited_by": simulation.critical,
-        },
-        "mpi_ranks": comm.size,
-        "versions": {
-            "fenics_adaptive": fenics_adaptive.__version__,
-            "dolfinx": dolfinx.__version__,
-            "numba": numba.__version__,
-            "python": platform.python_version(),
-        },
-    }
+    structure = simulation.structure
     writer = CheckpointWriter(out_dir, config, structure, history, simulation.refinement, folder)
     for observer in (history, fields, progress, writer, RefinementReport(structure, say)):
         if observer is not None:
@@ -176,7 +111,7 @@ def execute(
             summary["checkpoint"] = str(out_dir / checkpoint.FOLDER)
         summary["wall_time_s"] = time.perf_counter() - start
         try:
-            output.write_summary(out_dir, summary, comm, record)
+            output.write_summary(out_dir, summary, comm, folder.record)
         finally:
             folder.close()
         raise
@@ -186,9 +121,111 @@ def execute(
             progress.done()
     try:  # the lock is held until the last file is written
         finished = (stats, history, fields, kept_rows, resume, summary)
-        return _finish(config, out_dir, comm, simulation, finished, say, record)
+        return _finish(config, out_dir, comm, simulation, finished, say, folder.record)
     finally:
         folder.close()
+
+
+def _restarted(
+    config: RunConfig, restart: str | Path, comm: MPI.Comm
+) -> tuple[Simulation, dict, dict, list]:
+    """Collective: the simulation of a checkpoint (the structure rebuilt from the config, its
+    refinements replayed and its state put back), the solver and refinement states to resume
+    from and the history rows up to the checkpoint."""
+    manifest, arrays, history_csv = checkpoint.read(restart, comm, config)
+    structure = build_structure(config, comm, refine_initially=False)
+    checkpoint.restore_structure(structure, arrays)
+    resume = checkpoint.solver_state(arrays)
+    simulation = Simulation(config, comm=comm, structure=structure)
+    simulation.time_step = float(resume["dt"])
+    simulation.stable_time_step = float(resume["stable"])
+    with shared_errors(comm):  # the earlier format reads the folder's CSV on each rank
+        kept_rows = _kept_history(restart, manifest, history_csv, resume, config)
+    return simulation, resume, checkpoint.hook_state(arrays), kept_rows
+
+
+def _summary_at_start(config: RunConfig, simulation: Simulation, comm: MPI.Comm) -> dict:
+    """Collective: ``summary.json`` as it stands before the first step: the model's size (over
+    all ranks), the time step, the versions."""
+    structure = simulation.structure
+    model = structure.base
+    n_nodes = model.V.dofmap.index_map.size_global
+    return {
+        "status": "running",
+        "config": config.source,
+        "units": "N, mm, s, tonne (MPa, mJ)",
+        "model": {
+            "kind": config.kind,
+            "cells": comm.allreduce(model.mesh.topology.index_map(3).size_local, op=MPI.SUM),
+            "nodes": n_nodes,
+            "dofs": 3 * n_nodes,
+            "plies": config.laminate.n_plies,
+            "cell_layers": len(model.beam.layer_z) - 1,
+            "thickness_mm": config.laminate.thickness,
+            "total_mass_tonne": structure.total_mass(),
+            "extra_nodes_at_start": comm.allreduce(structure.extra.n_owned, op=MPI.SUM),
+            "cohesive_elements_at_start": comm.allreduce(len(structure.cohesive), op=MPI.SUM),
+        },
+        "time_step": {
+            "used_s": simulation.time_step,
+            "stable_s": simulation.stable_time_step,
+            "safety_factor": config.solver.safety_factor,
+            "limited_by": simulation.critical,
+        },
+        "mpi_ranks": comm.size,
+        "versions": {
+            "fenics_adaptive": fenics_adaptive.__version__,
+            "dolfinx": dolfinx.__version__,
+            "numba": numba.__version__,
+            "python": platform.python_version(),
+        },
+    }
+
+
+def _announce(
+    config: RunConfig, simulation: Simulation, summary: dict, say: Callable[[str], None]
+) -> None:
+    """The model and its time step, in the log; refuses a step count above
+    ``solver.max_steps`` (InputError)."""
+    model, step = summary["model"], summary["time_step"]
+    n_steps = check_step_count(config.solver, simulation.time_step)
+    say(
+        f"{config.kind} model: {model['cells']} cells, {model['nodes']} nodes "
+        f"({model['dofs']} DOFs), {model['plies']} plies, {model['cell_layers']} cell layer(s), "
+        f"{summary['mpi_ranks']} MPI rank(s)"
+    )
+    n_extra, n_cohesive = model["extra_nodes_at_start"], model["cohesive_elements_at_start"]
+    if n_extra or n_cohesive:
+        say(f"{n_extra} extra nodes, {n_cohesive} cohesive elements")
+    say(
+        f"time step {step['used_s']:.4e} s (stable {step['stable_s']:.4e} s with "
+        f"safety factor {step['safety_factor']}, limited by {step['limited_by']}), "
+        f"{n_steps} steps to {config.solver.end_time:.4e} s"
+    )
+
+
+def _open_outputs(
+    config: RunConfig,
+    simulation: Simulation,
+    out_dir: Path,
+    fields_dir: Path,
+    kept_rows: list,
+    folder: RunFolder,
+) -> tuple[output.HistoryWriter, output.FieldOutputs | None]:
+    """Collective: the history writer (continuing ``kept_rows``) and, if fields are asked for,
+    the field writers in ``fields_dir``; every file listed in the run folder's record first."""
+    comm, record = simulation.structure.comm, folder.record
+    record(out_dir / "history.partial.csv", out_dir / "history.csv")
+    with shared_errors(comm):  # rank 0 opens the file
+        history = output.HistoryWriter(out_dir, comm, kept_rows)
+    fields = None
+    if config.solver.field_interval:
+        with shared_errors(comm):  # rank 0 makes the folder; its error reaches every rank
+            if comm.rank == 0:
+                record(fields_dir, folder=True)
+                fields_dir.mkdir(exist_ok=True)
+        fields = output.FieldOutputs(fields_dir, simulation.structure, record)
+    return history, fields
 
 
 class CheckpointWriter(Observer):
