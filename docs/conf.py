@@ -50,7 +50,14 @@ myst_heading_anchors = 3
 # written afresh each build, so that a module moved or removed leaves no stale page behind.
 shutil.rmtree(DOCS / "api" / "generated", ignore_errors=True)
 autosummary_generate = True
-autodoc_default_options = {"members": True, "undoc-members": False, "show-inheritance": False}
+# "ignore-module-all": the package's public names (``fenics_adaptive.__all__``) are documented
+# where they are defined, not a second time as members of the package (one target per name)
+autodoc_default_options = {
+    "members": True,
+    "undoc-members": False,
+    "show-inheritance": False,
+    "ignore-module-all": True,
+}
 autodoc_typehints = "description"
 autodoc_member_order = "bysource"
 
@@ -62,6 +69,8 @@ nitpick_ignore_regex = [
     (r"py:.*", r"(ndarray|ArrayLike|NDArray|Path)"),
     # pieces of string annotations that Sphinx splits at the brackets
     (r"py:.*", r".*[\[\]'].*"),
+    # type aliases of annotations (documented in their modules' docstrings)
+    (r"py:class", r"(Refiner|Request)"),
 ]
 
 html_theme = "furo"
