@@ -456,6 +456,9 @@ def load_config(path: str | Path) -> RunConfig:
 def parse_config(data: dict, source: str = "<memory>", seen: set[str] | None = None) -> RunConfig:
     """Check a config (the dict of a TOML file) completely and build the run's objects.
 
+    The tables are read in a fixed order (each reader may depend on those before it), so the
+    first problem reported is always the same one.
+
     Parameters:
         data: the parsed TOML.
         source: where it came from (kept in the summary).
@@ -463,51 +466,115 @@ def parse_config(data: dict, source: str = "<memory>", seen: set[str] | None = N
     Raises:
         InputError: the first problem, one line naming the key.
     """
-    reading = _Reading(seen)
-    root = _Root(data, reading)
+    root = _Root(data, _Reading(seen))
+    model = _model(root.table("model"))
+    materials, failures = _materials(root)
+    laminate = _laminate(root.table("laminate"), materials)
+    mesh = _mesh(root.table("mesh"), model.kind, laminate)
+    _check_model_size(model, mesh, laminate)
+    _check_geometry(mesh, laminate)
+    faces = face_names(len(mesh.layers))
+    interfaces, refinements, cohesive = _interfaces(root, model.kind, laminate, mesh)
+    split = _split_boundaries(model.kind, mesh, interfaces)
+    stabilisation = _stabilisation(root, model.kind)
+    impactor = _impactor(root)
+    indicators = _indicators(root, model.kind, interfaces)
+    _check_failure_data(laminate, failures, model.ply_damage, indicators)
+    flaws = _matrix_strength(root, model.ply_damage, laminate, mesh)
+    motions = _motions(root, faces, mesh, split)
+    symmetry = _symmetry_motions(model.kind, mesh, interfaces)
+    _check_motions_agree([*motions, *symmetry], mesh, split)
+    loads = _loads(root, faces)
+    if not motions:
+        raise InputError("clamp", "the model needs at least one [[clamp]] or [[prescribed]] face")
+    solver_options = _solver_options(root.table("solver"))
+    output_options, probe = _output(
+        root.table("output"), solver_options["end_time"], faces, mesh, split, motions
+    )
+    return RunConfig(
+        kind=model.kind,
+        points_per_ply=model.points_per_ply,
+        mesh=mesh,
+        laminate=laminate,
+        motions=tuple(motions),
+        loads=tuple(loads),
+        solver=SolverSettings(**solver_options, **output_options),
+        probe=probe,
+        interfaces=interfaces,
+        refinements=refinements,
+        indicators=indicators,
+        stabilisation=stabilisation,
+        failures=failures,
+        ply_damage=model.ply_damage,
+        kinematics=model.kinematics,
+        impactor=impactor,
+        matrix_strength=flaws,
+        cohesive=cohesive,
+        source=source,
+    )
 
-    model = root.table("model")
-    reading.check_units = model.boolean("check_units")
-    kind = model.choice("kind")
-    points_per_ply = model.integer("points_per_ply")
-    ply_damage = model.boolean("ply_damage")
-    kinematics = model.choice("kinematics")
-    max_memory = model.number("max_memory")
-    if kinematics == Kinematics.FINITE and ply_damage:
+
+@dataclass(frozen=True)
+class _Model:
+    """The [model] table: the kind of model and the options the other tables depend on."""
+
+    kind: ModelKind
+    points_per_ply: int
+    ply_damage: bool
+    kinematics: Kinematics
+    max_memory: float  # GB
+
+
+def _model(table: _Table) -> _Model:
+    """[model]. Its ``check_units`` is read first: every number read after it obeys it."""
+    table.reading.check_units = table.boolean("check_units")
+    model = _Model(
+        kind=table.choice("kind"),
+        points_per_ply=table.integer("points_per_ply"),
+        ply_damage=table.boolean("ply_damage"),
+        kinematics=table.choice("kinematics"),
+        max_memory=table.number("max_memory"),
+    )
+    if model.kinematics == Kinematics.FINITE and model.ply_damage:
         # the ply damage kernel samples small strains; mixing it with finite kinematics would
         # silently damage rotating plies
         raise InputError(
-            model.key("kinematics"),
+            table.key("kinematics"),
             '"finite" cannot be combined with model.ply_damage = true (the ply damage model is '
             "small-strain only)",
         )
+    return model
 
-    materials, failures = _materials(root)
-    laminate = _laminate(root.table("laminate"), materials)
-    mesh = _mesh(root.table("mesh"), kind, laminate)
+
+def _check_model_size(model: _Model, mesh: MeshConfig, laminate: Laminate) -> None:
+    """Every mesh layer has bending stiffness through its thickness, and the estimated memory
+    of the model stays within ``model.max_memory`` (GB)."""
     for k, count in enumerate(mesh.layers):
-        if count * points_per_ply < 2:
+        if count * model.points_per_ply < 2:
             raise InputError(
-                "mesh.layers" if kind == ModelKind.LAYERWISE else "laminate",
+                "mesh.layers" if model.kind == ModelKind.LAYERWISE else "laminate",
                 f"mesh layer {k} holds one ply with one integration point through the thickness:"
                 " its bending mode has no stiffness (group plies, or set model.points_per_ply = 2)",
             )
     size = model_size(mesh, laminate)
     memory = estimated_memory(size)
-    if memory > max_memory * 1e9:
+    if memory > model.max_memory * 1e9:
         raise InputError(
             "mesh.nx" if mesh.nx >= mesh.ny else "mesh.ny",
             f"the model would have {size.cells:.4g} cells of {laminate.n_plies} plies in "
             f"{size.cell_layers} cell layer(s), an estimated {memory / 1e9:.3g} GB, above "
-            f"model.max_memory = {max_memory:g} GB (raise it to run this model)",
+            f"model.max_memory = {model.max_memory:g} GB (raise it to run this model)",
         )
-    _check_geometry(mesh, laminate)
-    faces = face_names(len(mesh.layers))
-    interfaces, refinements, cohesive = _interfaces(root, kind, laminate, mesh)
-    split = _split_boundaries(kind, mesh, interfaces)
-    stabilisation = _stabilisation(root, kind)
-    impactor = _impactor(root)
-    indicators = _indicators(root, kind, interfaces)
+
+
+def _check_failure_data(
+    laminate: Laminate,
+    failures: dict[str, PlyFailure],
+    ply_damage: bool,
+    indicators: IndicatorSettings | None,
+) -> None:
+    """Ply damage and the ply failure indicator need the strengths of every material used;
+    the matrix damage indicator needs ply damage."""
     used = sorted({p.material.name for p in laminate.plies})
     needs_failure = ply_damage or (indicators is not None and indicators.ply_failure is not None)
     for name in used if needs_failure else ():
@@ -516,6 +583,13 @@ def parse_config(data: dict, source: str = "<memory>", seen: set[str] | None = N
             raise InputError(f"materials.{name}.failure", f"missing ({why} needs strengths)")
     if indicators is not None and indicators.matrix_damage and not ply_damage:
         raise InputError("indicators.matrix_damage", "needs model.ply_damage = true")
+
+
+def _matrix_strength(
+    root: _Root, ply_damage: bool, laminate: Laminate, mesh: MeshConfig
+) -> tuple[MatrixStrength, ...]:
+    """[[matrix_strength]]: plies (1-based in the file, 0-based here) whose matrix strength is
+    scaled in an x range of cell centroids (mm); only with ply damage."""
     flaws: list[MatrixStrength] = []
     for table in root.tables("matrix_strength"):
         if not ply_damage:
@@ -527,7 +601,13 @@ def parse_config(data: dict, source: str = "<memory>", seen: set[str] | None = N
         x_min, x_max = table.range("x_min", "x_max")
         _check_holds_centroids(table, mesh, x_min, x_max)
         flaws.append(MatrixStrength(tuple(p - 1 for p in plies), factor, x_min, x_max))
+    return tuple(flaws)
 
+
+def _motions(
+    root: _Root, faces: list[str], mesh: MeshConfig, split: tuple[bool, ...]
+) -> list[PrescribedMotion]:
+    """[[clamp]] (every component held at zero) then [[prescribed]] faces, each holding nodes."""
     motions: list[PrescribedMotion] = []
     for table in root.tables("clamp"):
         face = table.face("face", faces)
@@ -535,64 +615,78 @@ def parse_config(data: dict, source: str = "<memory>", seen: set[str] | None = N
         _check_has_nodes(table.key("face"), face, x_range, mesh, split)
         motions += [replace(m, x_range=x_range, key=table.key("face")) for m in clamp(face)]
     for table in root.tables("prescribed"):
-        face = table.face("face", faces)
-        component = table.choice("component")
-        if table.has("displacement") == table.has("velocity"):
-            raise InputError(
-                table.key("displacement"), "give exactly one of displacement, velocity"
-            )
-        kind_of_motion = (
-            MotionKind.DISPLACEMENT if table.has("displacement") else MotionKind.VELOCITY
-        )
-        value = table.number(kind_of_motion)
-        x_range = _x_range(table, mesh)
-        _check_has_nodes(table.key("face"), face, x_range, mesh, split)
-        motions.append(
-            PrescribedMotion(
-                face,
-                component,
-                kind_of_motion,
-                value,
-                _amplitude(table),
-                x_range,
-                key=table.key("face"),
-            )
-        )
-    _check_motions_agree([*motions, *_symmetry_motions(kind, mesh, interfaces)], mesh, split)
+        motions.append(_prescribed(table, faces, mesh, split))
+    return motions
+
+
+def _prescribed(
+    table: _Table, faces: list[str], mesh: MeshConfig, split: tuple[bool, ...]
+) -> PrescribedMotion:
+    """One [[prescribed]] face: a displacement (mm) or a velocity (mm/s) of one component."""
+    face = table.face("face", faces)
+    component = table.choice("component")
+    if table.has("displacement") == table.has("velocity"):
+        raise InputError(table.key("displacement"), "give exactly one of displacement, velocity")
+    kind = MotionKind.DISPLACEMENT if table.has("displacement") else MotionKind.VELOCITY
+    value = table.number(kind)
+    x_range = _x_range(table, mesh)
+    _check_has_nodes(table.key("face"), face, x_range, mesh, split)
+    return PrescribedMotion(
+        face, component, kind, value, _amplitude(table), x_range, key=table.key("face")
+    )
+
+
+def _loads(root: _Root, faces: list[str]) -> list[FaceLoad]:
+    """[[load]]: a total force (N) on one face each, with its time curve."""
     loads: list[FaceLoad] = []
     for table in root.tables("load"):
         face = table.face("face", faces, single=True)
         force = table.numbers("force")
         loads.append(FaceLoad(face, force, _amplitude(table), key=table.key("face")))
-    if not motions:
-        raise InputError("clamp", "the model needs at least one [[clamp]] or [[prescribed]] face")
+    return loads
 
-    solver_table = root.table("solver")
-    end_time = solver_table.number("end_time")
-    solver_options = {
-        "safety_factor": solver_table.number("safety_factor"),
-        "time_step": solver_table.number("time_step"),
-        "mass_damping": solver_table.number("mass_damping"),
+
+def _solver_options(table: _Table) -> dict[str, Any]:
+    """[solver], as ``SolverSettings`` keywords; keys left out keep ``SolverSettings``' own
+    defaults (which the schema states)."""
+    options = {
+        "end_time": table.number("end_time"),
+        "safety_factor": table.number("safety_factor"),
+        "time_step": table.number("time_step"),
+        "mass_damping": table.number("mass_damping"),
     }
-    if solver_table.has("max_steps"):  # else SolverSettings' own default (the schema says it)
-        solver_options["max_steps"] = solver_table.integer("max_steps")
-    if solver_table.has("energy_error_limit"):
-        solver_options["energy_error_limit"] = solver_table.number("energy_error_limit")
+    if table.has("max_steps"):
+        options["max_steps"] = table.integer("max_steps")
+    if table.has("energy_error_limit"):
+        options["energy_error_limit"] = table.number("energy_error_limit")
+    return options
 
-    output = root.table("output")
-    interval = output.number("interval")
-    fields_interval = output.number("fields_interval")
-    checkpoint_interval = output.integer("checkpoint_interval")
+
+def _output(
+    table: _Table,
+    end_time: float,
+    faces: list[str],
+    mesh: MeshConfig,
+    split: tuple[bool, ...],
+    motions: list[PrescribedMotion],
+) -> tuple[dict[str, Any], Probe]:
+    """[output]: its intervals as ``SolverSettings`` keywords, and the probe of the history
+    (a displacement on a face holding nodes, the reaction on a clamped or prescribed face)."""
+    options = {
+        "output_interval": table.number("interval"),
+        "field_interval": table.number("fields_interval"),
+        "checkpoint_interval": table.integer("checkpoint_interval"),
+    }
     probe = Probe(
-        displacement_face=output.face("displacement_face", faces),
-        reaction_face=output.face("reaction_face", faces),
-        component=output.choice("component"),
-        displacement_x=_x_range(output, mesh, "displacement_x"),
+        displacement_face=table.face("displacement_face", faces),
+        reaction_face=table.face("reaction_face", faces),
+        component=table.choice("component"),
+        displacement_x=_x_range(table, mesh, "displacement_x"),
     )
     _check_has_nodes(
-        output.key("displacement_face"), probe.displacement_face, probe.displacement_x, mesh, split
+        table.key("displacement_face"), probe.displacement_face, probe.displacement_x, mesh, split
     )
-    if interval > end_time:
+    if options["output_interval"] > end_time:
         raise InputError("output.interval", f"is longer than solver.end_time ({end_time:g} s)")
     constrained_faces = {m.face for m in motions}
     if probe.reaction_face not in constrained_faces:
@@ -601,33 +695,7 @@ def parse_config(data: dict, source: str = "<memory>", seen: set[str] | None = N
             f"{probe.reaction_face!r} is neither clamped nor prescribed; a reaction force exists "
             f"only there ({', '.join(sorted(constrained_faces))})",
         )
-    return RunConfig(
-        kind=kind,
-        points_per_ply=points_per_ply,
-        mesh=mesh,
-        laminate=laminate,
-        motions=tuple(motions),
-        loads=tuple(loads),
-        solver=SolverSettings(
-            end_time=end_time,
-            output_interval=interval,
-            field_interval=fields_interval,
-            checkpoint_interval=checkpoint_interval,
-            **solver_options,
-        ),
-        probe=probe,
-        interfaces=interfaces,
-        refinements=refinements,
-        indicators=indicators,
-        stabilisation=stabilisation,
-        failures=failures,
-        ply_damage=ply_damage,
-        kinematics=kinematics,
-        impactor=impactor,
-        matrix_strength=tuple(flaws),
-        cohesive=cohesive,
-        source=source,
-    )
+    return options, probe
 
 
 def _materials(root: _Root) -> tuple[dict[str, PlyMaterial], dict[str, PlyFailure]]:
