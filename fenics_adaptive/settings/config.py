@@ -973,7 +973,11 @@ def _is_zero_motion(motion: PrescribedMotion) -> bool:
     return motion.value == 0.0 or all(v == 0.0 for v in motion.amplitude.values)
 
 
-def _interfaces(root: _Root, kind: ModelKind, laminate: Laminate, mesh: MeshConfig):
+def _interfaces(
+    root: _Root, kind: ModelKind, laminate: Laminate, mesh: MeshConfig
+) -> tuple[Interfaces, tuple[Manual, ...], CohesiveLaw | None]:
+    """[interfaces] (which ply interfaces refine, delaminate, are symmetry planes), then the
+    [[refinement]] tables and the [cohesive] law that depend on it."""
     n_plies = laminate.n_plies
     table = root.table("interfaces")
     refinement_tables = root.tables("refinement")
@@ -990,73 +994,85 @@ def _interfaces(root: _Root, kind: ModelKind, laminate: Laminate, mesh: MeshConf
         raise InputError("interfaces", "an ESL model has no interfaces to refine (use adaptive)")
     if n_plies < 2:
         raise InputError("interfaces", "a laminate of one ply has no interfaces")
-    refine = tuple(sorted(table.integers("refine", high=n_plies - 1)))
-    delaminate = tuple(sorted(table.integers("delaminate", high=n_plies - 1)))
-    symmetry = tuple(sorted(table.integers("symmetry", high=n_plies - 1)))
-    initial = table.choice("initial")
+    interfaces = Interfaces(
+        refine=tuple(sorted(table.integers("refine", high=n_plies - 1))),
+        delaminate=tuple(sorted(table.integers("delaminate", high=n_plies - 1))),
+        symmetry=tuple(sorted(table.integers("symmetry", high=n_plies - 1))),
+        initial=table.choice("initial"),
+    )
     if kind == ModelKind.LAYERWISE:
-        boundaries = list(itertools.accumulate(mesh.layers))[:-1]
-        if refine or initial != Refinement.NONE:
-            key = "interfaces.refine" if refine else "interfaces.initial"
-            raise InputError(key, "a layerwise model does not refine (its layers are fixed)")
-        for name, values in (("delaminate", delaminate), ("symmetry", symmetry)):
-            for value in values:
-                if value not in boundaries:
-                    raise InputError(
-                        f"interfaces.{name}",
-                        f"interface {value} is not a boundary between mesh layers "
-                        f"(mesh.layers puts them at {boundaries})",
-                    )
+        _check_layerwise_interfaces(interfaces, mesh)
         if refinement_tables:
             raise InputError("refinement", "only an adaptive model refines")
     else:
-        allowed = set(refine) | set(delaminate)
-        for value in symmetry:
-            if value not in allowed:
-                raise InputError(
-                    "interfaces.symmetry", f"interface {value} is not listed to refine"
-                )
-        if not allowed:
-            raise InputError("interfaces.refine", "an adaptive model needs interfaces to refine")
-    if set(symmetry) & set(delaminate):
+        _check_adaptive_interfaces(interfaces)
+    if set(interfaces.symmetry) & set(interfaces.delaminate):
         raise InputError("interfaces.symmetry", "a symmetry interface cannot also delaminate")
+    refinements = tuple(_refinement(t, interfaces, n_plies, mesh) for t in refinement_tables)
+    return interfaces, refinements, _cohesive(cohesive_table, interfaces)
 
-    refinements = []
-    for rt in refinement_tables:
-        if rt.has("time") == rt.has("displacement"):
-            raise InputError(rt.key("time"), "give exactly one trigger: time (s) or displacement")
-        time = rt.number("time") if rt.has("time") else math.inf
-        displacement = rt.number("displacement") if rt.has("displacement") else math.inf
-        chosen = rt.integers("interfaces", high=n_plies - 1)
-        if not chosen:
-            raise InputError(rt.key("interfaces"), "list the interfaces to refine")
-        kind_name = rt.choice("kind")
-        pool = delaminate if kind_name == Refinement.STRONG else set(refine) | set(delaminate)
-        for value in chosen:
-            if value not in pool:
+
+def _check_layerwise_interfaces(interfaces: Interfaces, mesh: MeshConfig) -> None:
+    """A layerwise model does not refine; it delaminates (or holds symmetric) only at the
+    boundaries between its mesh layers."""
+    boundaries = list(itertools.accumulate(mesh.layers))[:-1]
+    if interfaces.refine or interfaces.initial != Refinement.NONE:
+        key = "interfaces.refine" if interfaces.refine else "interfaces.initial"
+        raise InputError(key, "a layerwise model does not refine (its layers are fixed)")
+    for name, values in (("delaminate", interfaces.delaminate), ("symmetry", interfaces.symmetry)):
+        for value in values:
+            if value not in boundaries:
                 raise InputError(
-                    rt.key("interfaces"),
-                    f"interface {value} may not refine {kind_name}ly (see [interfaces])",
+                    f"interfaces.{name}",
+                    f"interface {value} is not a boundary between mesh layers "
+                    f"(mesh.layers puts them at {boundaries})",
                 )
-        x_min, x_max = rt.range("x_min", "x_max", strict=True)
-        _check_holds_centroids(rt, mesh, x_min, x_max)
-        refinements.append(
-            Manual(tuple(sorted(chosen)), kind_name.state, time, displacement, x_min, x_max)
-        )
 
-    cohesive = None
-    if delaminate:
-        if cohesive_table is None:
-            raise InputError("cohesive", "interfaces delaminate but [cohesive] is missing")
-        numbers = {
-            k.name: cohesive_table.number(k.name)
-            for k in cohesive_table.schema.keys
-            if k.kind == "float"
-        }
-        cohesive = CohesiveLaw(law=cohesive_table.choice("law"), **numbers)
-    elif cohesive_table is not None:
-        raise InputError("cohesive", "no interface delaminates ([interfaces] delaminate)")
-    return Interfaces(refine, delaminate, symmetry, initial), tuple(refinements), cohesive
+
+def _check_adaptive_interfaces(interfaces: Interfaces) -> None:
+    """An adaptive model refines some interface, and its symmetry interfaces are among them."""
+    allowed = set(interfaces.refine) | set(interfaces.delaminate)
+    for value in interfaces.symmetry:
+        if value not in allowed:
+            raise InputError("interfaces.symmetry", f"interface {value} is not listed to refine")
+    if not allowed:
+        raise InputError("interfaces.refine", "an adaptive model needs interfaces to refine")
+
+
+def _refinement(table: _Table, interfaces: Interfaces, n_plies: int, mesh: MeshConfig) -> Manual:
+    """One [[refinement]]: interfaces refined at a time (s) or a probe displacement (mm), in
+    an x range of cell centroids (mm); strongly only where [interfaces] lets them delaminate."""
+    if table.has("time") == table.has("displacement"):
+        raise InputError(table.key("time"), "give exactly one trigger: time (s) or displacement")
+    time = table.number("time") if table.has("time") else math.inf
+    displacement = table.number("displacement") if table.has("displacement") else math.inf
+    chosen = table.integers("interfaces", high=n_plies - 1)
+    if not chosen:
+        raise InputError(table.key("interfaces"), "list the interfaces to refine")
+    kind = table.choice("kind")
+    delaminate = interfaces.delaminate
+    pool = delaminate if kind == Refinement.STRONG else set(interfaces.refine) | set(delaminate)
+    for value in chosen:
+        if value not in pool:
+            raise InputError(
+                table.key("interfaces"),
+                f"interface {value} may not refine {kind}ly (see [interfaces])",
+            )
+    x_min, x_max = table.range("x_min", "x_max", strict=True)
+    _check_holds_centroids(table, mesh, x_min, x_max)
+    return Manual(tuple(sorted(chosen)), kind.state, time, displacement, x_min, x_max)
+
+
+def _cohesive(table: _Table | None, interfaces: Interfaces) -> CohesiveLaw | None:
+    """[cohesive]: the traction-separation law, needed exactly when an interface delaminates."""
+    if not interfaces.delaminate:
+        if table is not None:
+            raise InputError("cohesive", "no interface delaminates ([interfaces] delaminate)")
+        return None
+    if table is None:
+        raise InputError("cohesive", "interfaces delaminate but [cohesive] is missing")
+    numbers = {k.name: table.number(k.name) for k in table.schema.keys if k.kind == "float"}
+    return CohesiveLaw(law=table.choice("law"), **numbers)
 
 
 def _impactor(root: _Root) -> Impactor | None:
