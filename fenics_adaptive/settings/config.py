@@ -46,6 +46,7 @@ import itertools
 import math
 import re
 import tomllib
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from enum import Enum
 from pathlib import Path
@@ -178,6 +179,28 @@ def _shown(value: Any) -> str:
     return text if len(text) <= 60 else text[:57] + "..."
 
 
+def _expect(
+    value: Any,
+    kind: type | tuple[type, ...],
+    key: str,
+    what: str,
+    ok: Callable[[Any], Any] | None = None,
+    shown: Callable[[Any], str] = _shown,
+) -> Any:
+    """The one type check of a config value: ``value`` if it is a ``kind`` (a TOML boolean is
+    a ``bool`` only, never a number) and ``ok(value)`` holds (if given); else raises
+    ``KEY: must be WHAT (got VALUE)``."""
+    kinds = kind if isinstance(kind, tuple) else (kind,)
+    right_type = isinstance(value, kinds) and (bool in kinds or not isinstance(value, bool))
+    if not right_type or (ok is not None and not ok(value)):
+        raise InputError(key, f"must be {what} (got {shown(value)})")
+    return value
+
+
+def _is_pair(value: list) -> bool:
+    return len(value) == 2
+
+
 def _bound_problem(spec: Key, value: float, low: float | None, high: float | None) -> str | None:
     """The problem of a number outside its bounds (the schema's, narrowed by ``low``/``high``)."""
     unit = f" {spec.unit}" if spec.unit else ""
@@ -201,8 +224,7 @@ class _Table:
     kind, so a new key cannot skip its checks."""
 
     def __init__(self, path: str, data: Any, schema: Section, reading: _Reading):
-        if not isinstance(data, dict):
-            raise InputError(path, f"must be a table (got {_type_name(data)})")
+        _expect(data, dict, path, "a table", shown=_type_name)
         for name in data:
             if name not in schema.by_name:
                 raise InputError(
@@ -237,8 +259,7 @@ class _Table:
     def _check_number(self, name: str, value: Any, key: str, low=None, high=None) -> float:
         spec = self.schema.key(name)
         unit = f" in {spec.unit}" if spec.unit else ""
-        if isinstance(value, bool) or not isinstance(value, int | float):
-            raise InputError(key, f"must be a number{unit} (got {_shown(value)})")
+        _expect(value, (int, float), key, f"a number{unit}")
         value = float(value)
         if not math.isfinite(value):
             raise InputError(key, f"must be a finite number{unit} (got {value})")
@@ -262,8 +283,7 @@ class _Table:
         # 1e5 is a float in TOML; an integral float is the integer it names
         if isinstance(value, float) and math.isfinite(value) and value.is_integer():
             value = int(value)
-        if isinstance(value, bool) or not isinstance(value, int):
-            raise InputError(key, f"must be an integer (got {_shown(value)})")
+        _expect(value, int, key, "an integer")
         problem = _bound_problem(spec, value, None, high)
         if problem is not None:
             raise InputError(key, problem.replace("must be", "must be an integer", 1))
@@ -277,19 +297,15 @@ class _Table:
 
     def boolean(self, name: str) -> bool:
         value = self._value(name, "bool")
-        if not isinstance(value, bool):
-            raise InputError(self.key(name), f"must be true or false (got {_shown(value)})")
-        return value
+        return _expect(value, bool, self.key(name), "true or false")
 
     def choice(self, name: str) -> str:
         """One of the schema's choices: the enum member if the choices are an enum's
         (``settings.kinds``), else the string."""
         value = self._value(name, "choice")
         choices = self.schema.key(name).choices
-        if not isinstance(value, str) or value not in choices:
-            raise InputError(
-                self.key(name), f"must be one of {', '.join(choices)} (got {_shown(value)})"
-            )
+        what = f"one of {', '.join(choices)}"
+        _expect(value, str, self.key(name), what, ok=lambda v: v in choices)
         kind = type(choices[0])
         return kind(value) if issubclass(kind, Enum) else value
 
@@ -297,15 +313,12 @@ class _Table:
         value = self._value(name, "string")
         if value is None:
             return None
-        if not isinstance(value, str) or not value:
-            raise InputError(self.key(name), f"must be a non-empty string (got {_shown(value)})")
-        return value
+        return _expect(value, str, self.key(name), "a non-empty string", ok=bool)
 
     def face(self, name: str, faces: list[str], single: bool = False) -> str:
         """A face group, or with & the common nodes of several (``single``: one face only)."""
         value = self._value(name, "face")
-        if not isinstance(value, str):
-            raise InputError(self.key(name), f"must be a face name (got {_shown(value)})")
+        _expect(value, str, self.key(name), "a face name")
         parts = value.split("&")
         if single and len(parts) > 1:
             raise InputError(self.key(name), f"{value!r}: a load acts on one face, not on a&b")
@@ -327,8 +340,13 @@ class _Table:
         spec = self.schema.key(name)
         what = f"[{', '.join('xyz')}]" if spec.length == 3 else "a non-empty list of numbers"
         unit = f" in {spec.unit}" if spec.unit else ""
-        if not isinstance(value, list) or not value or (spec.length and len(value) != spec.length):
-            raise InputError(self.key(name), f"must be {what}{unit} (got {_shown(value)})")
+        _expect(
+            value,
+            list,
+            self.key(name),
+            f"{what}{unit}",
+            ok=lambda v: v and not (spec.length and len(v) != spec.length),
+        )
         return tuple(
             self._check_number(name, v, f"{self.key(name)}[{i}]") for i, v in enumerate(value)
         )
@@ -338,8 +356,7 @@ class _Table:
         value = self._value(name, "ints")
         if name not in self.data:
             return value
-        if not isinstance(value, list):
-            raise InputError(self.key(name), f"must be a list of integers (got {_shown(value)})")
+        _expect(value, list, self.key(name), "a list of integers")
         out = tuple(
             self._check_integer(name, v, f"{self.key(name)}[{i}]", high)
             for i, v in enumerate(value)
@@ -354,14 +371,11 @@ class _Table:
         if name not in self.data:
             return value
         key = self.key(name)
-        if not isinstance(value, list) or not value:
-            raise InputError(
-                key, f"must be a list of [time (s), scale] pairs (got {_shown(value)})"
-            )
+        _expect(value, list, key, "a list of [time (s), scale] pairs", ok=bool)
         times, scales = [], []
         for i, pair in enumerate(value):
-            if not isinstance(pair, list) or len(pair) != 2:
-                raise InputError(f"{key}[{i}]", f"must be a [time (s), scale] pair (got {pair!r})")
+            pair_key = f"{key}[{i}]"
+            _expect(pair, list, pair_key, "a [time (s), scale] pair", ok=_is_pair, shown=repr)
             times.append(self._check_number(name, pair[0], f"{key}[{i}][0]", 0.0, MAX_TIME))
             scales.append(self._check_number(name, pair[1], f"{key}[{i}][1]"))
             if i and times[-1] < times[-2]:
@@ -382,8 +396,7 @@ class _Table:
         value = self._value(name, "tables")
         if value is None:
             return []
-        if not isinstance(value, list):
-            raise InputError(self.key(name), f"must be an array of tables (got {_shown(value)})")
+        _expect(value, list, self.key(name), "an array of tables")
         schema = section(f"{self.schema.name}.{name}")
         return [
             _Table(f"{self.key(name)}[{i}]", t, schema, self.reading) for i, t in enumerate(value)
@@ -406,8 +419,7 @@ class _Root:
     """The top level of a config: the sections of the schema, and nothing else."""
 
     def __init__(self, data: Any, reading: _Reading):
-        if not isinstance(data, dict):
-            raise InputError("config", f"must be a table (got {_type_name(data)})")
+        _expect(data, dict, "config", "a table", shown=_type_name)
         for name in data:
             if name not in TOP_LEVEL:
                 raise InputError(_name(name), f"unknown section (allowed: {', '.join(TOP_LEVEL)})")
