@@ -493,16 +493,8 @@ def parse_config(data: dict, source: str = "<memory>", seen: set[str] | None = N
     indicators = _indicators(root, model.kind, interfaces)
     _check_failure_data(laminate, failures, model.ply_damage, indicators)
     flaws = _matrix_strength(root, model.ply_damage, laminate, mesh)
-    motions = _motions(root, faces, mesh, split)
-    symmetry = _symmetry_motions(model.kind, mesh, interfaces)
-    _check_motions_agree([*motions, *symmetry], mesh, split)
-    loads = _loads(root, faces)
-    if not motions:
-        raise InputError("clamp", "the model needs at least one [[clamp]] or [[prescribed]] face")
-    solver_options = _solver_options(root.table("solver"))
-    output_options, probe = _output(
-        root.table("output"), solver_options["end_time"], faces, mesh, split, motions
-    )
+    motions, loads = _motions_and_loads(root, model.kind, faces, mesh, split, interfaces)
+    solver, probe = _solver_and_output(root, faces, mesh, split, motions)
     return RunConfig(
         kind=model.kind,
         points_per_ply=model.points_per_ply,
@@ -510,7 +502,7 @@ def parse_config(data: dict, source: str = "<memory>", seen: set[str] | None = N
         laminate=laminate,
         motions=tuple(motions),
         loads=tuple(loads),
-        solver=SolverSettings(**solver_options, **output_options),
+        solver=solver,
         probe=probe,
         interfaces=interfaces,
         refinements=refinements,
@@ -616,6 +608,25 @@ def _matrix_strength(
     return tuple(flaws)
 
 
+def _motions_and_loads(
+    root: _Root,
+    kind: ModelKind,
+    faces: list[str],
+    mesh: MeshConfig,
+    split: tuple[bool, ...],
+    interfaces: Interfaces,
+) -> tuple[list[PrescribedMotion], list[FaceLoad]]:
+    """The boundary conditions: [[clamp]] and [[prescribed]] faces (which must not prescribe
+    one DOF twice, the symmetry interfaces' u_z = 0 included), then the [[load]] faces."""
+    motions = _motions(root, faces, mesh, split)
+    symmetry = _symmetry_motions(kind, mesh, interfaces)
+    _check_motions_agree([*motions, *symmetry], mesh, split)
+    loads = _loads(root, faces)
+    if not motions:
+        raise InputError("clamp", "the model needs at least one [[clamp]] or [[prescribed]] face")
+    return motions, loads
+
+
 def _motions(
     root: _Root, faces: list[str], mesh: MeshConfig, split: tuple[bool, ...]
 ) -> list[PrescribedMotion]:
@@ -656,6 +667,21 @@ def _loads(root: _Root, faces: list[str]) -> list[FaceLoad]:
         force = table.numbers("force")
         loads.append(FaceLoad(face, force, _amplitude(table), key=table.key("face")))
     return loads
+
+
+def _solver_and_output(
+    root: _Root,
+    faces: list[str],
+    mesh: MeshConfig,
+    split: tuple[bool, ...],
+    motions: list[PrescribedMotion],
+) -> tuple[SolverSettings, Probe]:
+    """[solver] then [output]: the time integration and output settings, and the probe."""
+    solver_options = _solver_options(root.table("solver"))
+    output_options, probe = _output(
+        root.table("output"), solver_options["end_time"], faces, mesh, split, motions
+    )
+    return SolverSettings(**solver_options, **output_options), probe
 
 
 def _solver_options(table: _Table) -> dict[str, Any]:
