@@ -198,6 +198,7 @@ def _expect(
 
 
 def _is_pair(value: list) -> bool:
+    """Whether a list is a pair (a point [time, scale] of a time curve)."""
     return len(value) == 2
 
 
@@ -761,6 +762,9 @@ def _materials(root: _Root) -> tuple[dict[str, PlyMaterial], dict[str, PlyFailur
 
 
 def _laminate(table: _Table, materials: dict[str, PlyMaterial]) -> Laminate:
+    """[laminate]: plies bottom to top, as material + ply_thickness (mm) + angles (degrees),
+    or as plies = [{material, angle, thickness}, ...]."""
+
     def material(key: str, name: str) -> PlyMaterial:
         if name not in materials:
             raise InputError(key, f"unknown material {name!r} (defined: {', '.join(materials)})")
@@ -797,6 +801,8 @@ def _laminate(table: _Table, materials: dict[str, PlyMaterial]) -> Laminate:
 
 
 def _mesh(table: _Table, kind: ModelKind, laminate: Laminate) -> MeshConfig:
+    """[mesh]: the plate (mm), its cells in-plane, and the plies of each mesh layer (one layer
+    of all plies unless the model is layerwise)."""
     length = table.number("length")
     width = table.number("width")
     nx = table.integer("nx")
@@ -1114,6 +1120,7 @@ def _cohesive(table: _Table | None, interfaces: Interfaces) -> CohesiveLaw | Non
 
 
 def _impactor(root: _Root) -> Impactor | None:
+    """[impactor]: a rigid body (mm, tonne, mm/s) hitting the top face, or None."""
     table = root.table("impactor")
     if table is None:
         return None
@@ -1128,6 +1135,7 @@ def _impactor(root: _Root) -> Impactor | None:
 
 
 def _stabilisation(root: _Root, kind: ModelKind) -> Stabilisation:
+    """[stabilisation] of an adaptive model after refinement: damping (1/s) and windows (s)."""
     table = root.table("stabilisation")
     if table is None:
         return Stabilisation()
@@ -1144,7 +1152,8 @@ def _stabilisation(root: _Root, kind: ModelKind) -> Stabilisation:
     return Stabilisation(damping, window, release)
 
 
-def _indicators(root: _Root, kind: ModelKind, interfaces: Interfaces):
+def _indicators(root: _Root, kind: ModelKind, interfaces: Interfaces) -> IndicatorSettings | None:
+    """[indicators] of an adaptive model: which refinement indicators run, and how often."""
     table = root.table("indicators")
     if table is None:
         return None
@@ -1180,6 +1189,7 @@ def _indicators(root: _Root, kind: ModelKind, interfaces: Interfaces):
 
 
 def _amplitude(table: _Table) -> Amplitude:
+    """The time curve of a prescribed motion or a load: a curve, or rise_time (s) + profile."""
     if table.has("curve"):
         for name in ("rise_time", "profile"):
             if table.has(name):
