@@ -46,6 +46,7 @@ import itertools
 import math
 import re
 import tomllib
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from enum import Enum
 from pathlib import Path
@@ -178,6 +179,29 @@ def _shown(value: Any) -> str:
     return text if len(text) <= 60 else text[:57] + "..."
 
 
+def _expect(
+    value: Any,
+    kind: type | tuple[type, ...],
+    key: str,
+    what: str,
+    ok: Callable[[Any], Any] | None = None,
+    shown: Callable[[Any], str] = _shown,
+) -> Any:
+    """The one type check of a config value: ``value`` if it is a ``kind`` (a TOML boolean is
+    a ``bool`` only, never a number) and ``ok(value)`` holds (if given); else raises
+    ``KEY: must be WHAT (got VALUE)``."""
+    kinds = kind if isinstance(kind, tuple) else (kind,)
+    right_type = isinstance(value, kinds) and (bool in kinds or not isinstance(value, bool))
+    if not right_type or (ok is not None and not ok(value)):
+        raise InputError(key, f"must be {what} (got {shown(value)})")
+    return value
+
+
+def _is_pair(value: list) -> bool:
+    """Whether a list is a pair (a point [time, scale] of a time curve)."""
+    return len(value) == 2
+
+
 def _bound_problem(spec: Key, value: float, low: float | None, high: float | None) -> str | None:
     """The problem of a number outside its bounds (the schema's, narrowed by ``low``/``high``)."""
     unit = f" {spec.unit}" if spec.unit else ""
@@ -201,8 +225,7 @@ class _Table:
     kind, so a new key cannot skip its checks."""
 
     def __init__(self, path: str, data: Any, schema: Section, reading: _Reading):
-        if not isinstance(data, dict):
-            raise InputError(path, f"must be a table (got {_type_name(data)})")
+        _expect(data, dict, path, "a table", shown=_type_name)
         for name in data:
             if name not in schema.by_name:
                 raise InputError(
@@ -237,8 +260,7 @@ class _Table:
     def _check_number(self, name: str, value: Any, key: str, low=None, high=None) -> float:
         spec = self.schema.key(name)
         unit = f" in {spec.unit}" if spec.unit else ""
-        if isinstance(value, bool) or not isinstance(value, int | float):
-            raise InputError(key, f"must be a number{unit} (got {_shown(value)})")
+        _expect(value, (int, float), key, f"a number{unit}")
         value = float(value)
         if not math.isfinite(value):
             raise InputError(key, f"must be a finite number{unit} (got {value})")
@@ -262,8 +284,7 @@ class _Table:
         # 1e5 is a float in TOML; an integral float is the integer it names
         if isinstance(value, float) and math.isfinite(value) and value.is_integer():
             value = int(value)
-        if isinstance(value, bool) or not isinstance(value, int):
-            raise InputError(key, f"must be an integer (got {_shown(value)})")
+        _expect(value, int, key, "an integer")
         problem = _bound_problem(spec, value, None, high)
         if problem is not None:
             raise InputError(key, problem.replace("must be", "must be an integer", 1))
@@ -277,19 +298,15 @@ class _Table:
 
     def boolean(self, name: str) -> bool:
         value = self._value(name, "bool")
-        if not isinstance(value, bool):
-            raise InputError(self.key(name), f"must be true or false (got {_shown(value)})")
-        return value
+        return _expect(value, bool, self.key(name), "true or false")
 
     def choice(self, name: str) -> str:
         """One of the schema's choices: the enum member if the choices are an enum's
         (``settings.kinds``), else the string."""
         value = self._value(name, "choice")
         choices = self.schema.key(name).choices
-        if not isinstance(value, str) or value not in choices:
-            raise InputError(
-                self.key(name), f"must be one of {', '.join(choices)} (got {_shown(value)})"
-            )
+        what = f"one of {', '.join(choices)}"
+        _expect(value, str, self.key(name), what, ok=lambda v: v in choices)
         kind = type(choices[0])
         return kind(value) if issubclass(kind, Enum) else value
 
@@ -297,15 +314,12 @@ class _Table:
         value = self._value(name, "string")
         if value is None:
             return None
-        if not isinstance(value, str) or not value:
-            raise InputError(self.key(name), f"must be a non-empty string (got {_shown(value)})")
-        return value
+        return _expect(value, str, self.key(name), "a non-empty string", ok=bool)
 
     def face(self, name: str, faces: list[str], single: bool = False) -> str:
         """A face group, or with & the common nodes of several (``single``: one face only)."""
         value = self._value(name, "face")
-        if not isinstance(value, str):
-            raise InputError(self.key(name), f"must be a face name (got {_shown(value)})")
+        _expect(value, str, self.key(name), "a face name")
         parts = value.split("&")
         if single and len(parts) > 1:
             raise InputError(self.key(name), f"{value!r}: a load acts on one face, not on a&b")
@@ -327,8 +341,13 @@ class _Table:
         spec = self.schema.key(name)
         what = f"[{', '.join('xyz')}]" if spec.length == 3 else "a non-empty list of numbers"
         unit = f" in {spec.unit}" if spec.unit else ""
-        if not isinstance(value, list) or not value or (spec.length and len(value) != spec.length):
-            raise InputError(self.key(name), f"must be {what}{unit} (got {_shown(value)})")
+        _expect(
+            value,
+            list,
+            self.key(name),
+            f"{what}{unit}",
+            ok=lambda v: v and not (spec.length and len(v) != spec.length),
+        )
         return tuple(
             self._check_number(name, v, f"{self.key(name)}[{i}]") for i, v in enumerate(value)
         )
@@ -338,8 +357,7 @@ class _Table:
         value = self._value(name, "ints")
         if name not in self.data:
             return value
-        if not isinstance(value, list):
-            raise InputError(self.key(name), f"must be a list of integers (got {_shown(value)})")
+        _expect(value, list, self.key(name), "a list of integers")
         out = tuple(
             self._check_integer(name, v, f"{self.key(name)}[{i}]", high)
             for i, v in enumerate(value)
@@ -354,14 +372,11 @@ class _Table:
         if name not in self.data:
             return value
         key = self.key(name)
-        if not isinstance(value, list) or not value:
-            raise InputError(
-                key, f"must be a list of [time (s), scale] pairs (got {_shown(value)})"
-            )
+        _expect(value, list, key, "a list of [time (s), scale] pairs", ok=bool)
         times, scales = [], []
         for i, pair in enumerate(value):
-            if not isinstance(pair, list) or len(pair) != 2:
-                raise InputError(f"{key}[{i}]", f"must be a [time (s), scale] pair (got {pair!r})")
+            pair_key = f"{key}[{i}]"
+            _expect(pair, list, pair_key, "a [time (s), scale] pair", ok=_is_pair, shown=repr)
             times.append(self._check_number(name, pair[0], f"{key}[{i}][0]", 0.0, MAX_TIME))
             scales.append(self._check_number(name, pair[1], f"{key}[{i}][1]"))
             if i and times[-1] < times[-2]:
@@ -382,8 +397,7 @@ class _Table:
         value = self._value(name, "tables")
         if value is None:
             return []
-        if not isinstance(value, list):
-            raise InputError(self.key(name), f"must be an array of tables (got {_shown(value)})")
+        _expect(value, list, self.key(name), "an array of tables")
         schema = section(f"{self.schema.name}.{name}")
         return [
             _Table(f"{self.key(name)}[{i}]", t, schema, self.reading) for i, t in enumerate(value)
@@ -406,8 +420,7 @@ class _Root:
     """The top level of a config: the sections of the schema, and nothing else."""
 
     def __init__(self, data: Any, reading: _Reading):
-        if not isinstance(data, dict):
-            raise InputError("config", f"must be a table (got {_type_name(data)})")
+        _expect(data, dict, "config", "a table", shown=_type_name)
         for name in data:
             if name not in TOP_LEVEL:
                 raise InputError(_name(name), f"unknown section (allowed: {', '.join(TOP_LEVEL)})")
@@ -456,6 +469,9 @@ def load_config(path: str | Path) -> RunConfig:
 def parse_config(data: dict, source: str = "<memory>", seen: set[str] | None = None) -> RunConfig:
     """Check a config (the dict of a TOML file) completely and build the run's objects.
 
+    The tables are read in a fixed order (each reader may depend on those before it), so the
+    first problem reported is always the same one.
+
     Parameters:
         data: the parsed TOML.
         source: where it came from (kept in the summary).
@@ -463,51 +479,107 @@ def parse_config(data: dict, source: str = "<memory>", seen: set[str] | None = N
     Raises:
         InputError: the first problem, one line naming the key.
     """
-    reading = _Reading(seen)
-    root = _Root(data, reading)
+    root = _Root(data, _Reading(seen))
+    model = _model(root.table("model"))
+    materials, failures = _materials(root)
+    laminate = _laminate(root.table("laminate"), materials)
+    mesh = _mesh(root.table("mesh"), model.kind, laminate)
+    _check_model_size(model, mesh, laminate)
+    _check_geometry(mesh, laminate)
+    faces = face_names(len(mesh.layers))
+    interfaces, refinements, cohesive = _interfaces(root, model.kind, laminate, mesh)
+    split = _split_boundaries(model.kind, mesh, interfaces)
+    stabilisation = _stabilisation(root, model.kind)
+    impactor = _impactor(root)
+    indicators = _indicators(root, model.kind, interfaces)
+    _check_failure_data(laminate, failures, model.ply_damage, indicators)
+    flaws = _matrix_strength(root, model.ply_damage, laminate, mesh)
+    motions, loads = _motions_and_loads(root, model.kind, faces, mesh, split, interfaces)
+    solver, probe = _solver_and_output(root, faces, mesh, split, motions)
+    return RunConfig(
+        kind=model.kind,
+        points_per_ply=model.points_per_ply,
+        mesh=mesh,
+        laminate=laminate,
+        motions=tuple(motions),
+        loads=tuple(loads),
+        solver=solver,
+        probe=probe,
+        interfaces=interfaces,
+        refinements=refinements,
+        indicators=indicators,
+        stabilisation=stabilisation,
+        failures=failures,
+        ply_damage=model.ply_damage,
+        kinematics=model.kinematics,
+        impactor=impactor,
+        matrix_strength=flaws,
+        cohesive=cohesive,
+        source=source,
+    )
 
-    model = root.table("model")
-    reading.check_units = model.boolean("check_units")
-    kind = model.choice("kind")
-    points_per_ply = model.integer("points_per_ply")
-    ply_damage = model.boolean("ply_damage")
-    kinematics = model.choice("kinematics")
-    max_memory = model.number("max_memory")
-    if kinematics == Kinematics.FINITE and ply_damage:
+
+@dataclass(frozen=True)
+class _Model:
+    """The [model] table: the kind of model and the options the other tables depend on."""
+
+    kind: ModelKind
+    points_per_ply: int
+    ply_damage: bool
+    kinematics: Kinematics
+    max_memory: float  # GB
+
+
+def _model(table: _Table) -> _Model:
+    """[model]. Its ``check_units`` is read first: every number read after it obeys it."""
+    table.reading.check_units = table.boolean("check_units")
+    model = _Model(
+        kind=table.choice("kind"),
+        points_per_ply=table.integer("points_per_ply"),
+        ply_damage=table.boolean("ply_damage"),
+        kinematics=table.choice("kinematics"),
+        max_memory=table.number("max_memory"),
+    )
+    if model.kinematics == Kinematics.FINITE and model.ply_damage:
         # the ply damage kernel samples small strains; mixing it with finite kinematics would
         # silently damage rotating plies
         raise InputError(
-            model.key("kinematics"),
+            table.key("kinematics"),
             '"finite" cannot be combined with model.ply_damage = true (the ply damage model is '
             "small-strain only)",
         )
+    return model
 
-    materials, failures = _materials(root)
-    laminate = _laminate(root.table("laminate"), materials)
-    mesh = _mesh(root.table("mesh"), kind, laminate)
+
+def _check_model_size(model: _Model, mesh: MeshConfig, laminate: Laminate) -> None:
+    """Every mesh layer has bending stiffness through its thickness, and the estimated memory
+    of the model stays within ``model.max_memory`` (GB)."""
     for k, count in enumerate(mesh.layers):
-        if count * points_per_ply < 2:
+        if count * model.points_per_ply < 2:
             raise InputError(
-                "mesh.layers" if kind == ModelKind.LAYERWISE else "laminate",
+                "mesh.layers" if model.kind == ModelKind.LAYERWISE else "laminate",
                 f"mesh layer {k} holds one ply with one integration point through the thickness:"
                 " its bending mode has no stiffness (group plies, or set model.points_per_ply = 2)",
             )
     size = model_size(mesh, laminate)
     memory = estimated_memory(size)
-    if memory > max_memory * 1e9:
+    if memory > model.max_memory * 1e9:
         raise InputError(
             "mesh.nx" if mesh.nx >= mesh.ny else "mesh.ny",
             f"the model would have {size.cells:.4g} cells of {laminate.n_plies} plies in "
             f"{size.cell_layers} cell layer(s), an estimated {memory / 1e9:.3g} GB, above "
-            f"model.max_memory = {max_memory:g} GB (raise it to run this model)",
+            f"model.max_memory = {model.max_memory:g} GB (raise it to run this model)",
         )
-    _check_geometry(mesh, laminate)
-    faces = face_names(len(mesh.layers))
-    interfaces, refinements, cohesive = _interfaces(root, kind, laminate, mesh)
-    split = _split_boundaries(kind, mesh, interfaces)
-    stabilisation = _stabilisation(root, kind)
-    impactor = _impactor(root)
-    indicators = _indicators(root, kind, interfaces)
+
+
+def _check_failure_data(
+    laminate: Laminate,
+    failures: dict[str, PlyFailure],
+    ply_damage: bool,
+    indicators: IndicatorSettings | None,
+) -> None:
+    """Ply damage and the ply failure indicator need the strengths of every material used;
+    the matrix damage indicator needs ply damage."""
     used = sorted({p.material.name for p in laminate.plies})
     needs_failure = ply_damage or (indicators is not None and indicators.ply_failure is not None)
     for name in used if needs_failure else ():
@@ -516,6 +588,13 @@ def parse_config(data: dict, source: str = "<memory>", seen: set[str] | None = N
             raise InputError(f"materials.{name}.failure", f"missing ({why} needs strengths)")
     if indicators is not None and indicators.matrix_damage and not ply_damage:
         raise InputError("indicators.matrix_damage", "needs model.ply_damage = true")
+
+
+def _matrix_strength(
+    root: _Root, ply_damage: bool, laminate: Laminate, mesh: MeshConfig
+) -> tuple[MatrixStrength, ...]:
+    """[[matrix_strength]]: plies (1-based in the file, 0-based here) whose matrix strength is
+    scaled in an x range of cell centroids (mm); only with ply damage."""
     flaws: list[MatrixStrength] = []
     for table in root.tables("matrix_strength"):
         if not ply_damage:
@@ -527,7 +606,32 @@ def parse_config(data: dict, source: str = "<memory>", seen: set[str] | None = N
         x_min, x_max = table.range("x_min", "x_max")
         _check_holds_centroids(table, mesh, x_min, x_max)
         flaws.append(MatrixStrength(tuple(p - 1 for p in plies), factor, x_min, x_max))
+    return tuple(flaws)
 
+
+def _motions_and_loads(
+    root: _Root,
+    kind: ModelKind,
+    faces: list[str],
+    mesh: MeshConfig,
+    split: tuple[bool, ...],
+    interfaces: Interfaces,
+) -> tuple[list[PrescribedMotion], list[FaceLoad]]:
+    """The boundary conditions: [[clamp]] and [[prescribed]] faces (which must not prescribe
+    one DOF twice, the symmetry interfaces' u_z = 0 included), then the [[load]] faces."""
+    motions = _motions(root, faces, mesh, split)
+    symmetry = _symmetry_motions(kind, mesh, interfaces)
+    _check_motions_agree([*motions, *symmetry], mesh, split)
+    loads = _loads(root, faces)
+    if not motions:
+        raise InputError("clamp", "the model needs at least one [[clamp]] or [[prescribed]] face")
+    return motions, loads
+
+
+def _motions(
+    root: _Root, faces: list[str], mesh: MeshConfig, split: tuple[bool, ...]
+) -> list[PrescribedMotion]:
+    """[[clamp]] (every component held at zero) then [[prescribed]] faces, each holding nodes."""
     motions: list[PrescribedMotion] = []
     for table in root.tables("clamp"):
         face = table.face("face", faces)
@@ -535,64 +639,93 @@ def parse_config(data: dict, source: str = "<memory>", seen: set[str] | None = N
         _check_has_nodes(table.key("face"), face, x_range, mesh, split)
         motions += [replace(m, x_range=x_range, key=table.key("face")) for m in clamp(face)]
     for table in root.tables("prescribed"):
-        face = table.face("face", faces)
-        component = table.choice("component")
-        if table.has("displacement") == table.has("velocity"):
-            raise InputError(
-                table.key("displacement"), "give exactly one of displacement, velocity"
-            )
-        kind_of_motion = (
-            MotionKind.DISPLACEMENT if table.has("displacement") else MotionKind.VELOCITY
-        )
-        value = table.number(kind_of_motion)
-        x_range = _x_range(table, mesh)
-        _check_has_nodes(table.key("face"), face, x_range, mesh, split)
-        motions.append(
-            PrescribedMotion(
-                face,
-                component,
-                kind_of_motion,
-                value,
-                _amplitude(table),
-                x_range,
-                key=table.key("face"),
-            )
-        )
-    _check_motions_agree([*motions, *_symmetry_motions(kind, mesh, interfaces)], mesh, split)
+        motions.append(_prescribed(table, faces, mesh, split))
+    return motions
+
+
+def _prescribed(
+    table: _Table, faces: list[str], mesh: MeshConfig, split: tuple[bool, ...]
+) -> PrescribedMotion:
+    """One [[prescribed]] face: a displacement (mm) or a velocity (mm/s) of one component."""
+    face = table.face("face", faces)
+    component = table.choice("component")
+    if table.has("displacement") == table.has("velocity"):
+        raise InputError(table.key("displacement"), "give exactly one of displacement, velocity")
+    kind = MotionKind.DISPLACEMENT if table.has("displacement") else MotionKind.VELOCITY
+    value = table.number(kind)
+    x_range = _x_range(table, mesh)
+    _check_has_nodes(table.key("face"), face, x_range, mesh, split)
+    return PrescribedMotion(
+        face, component, kind, value, _amplitude(table), x_range, key=table.key("face")
+    )
+
+
+def _loads(root: _Root, faces: list[str]) -> list[FaceLoad]:
+    """[[load]]: a total force (N) on one face each, with its time curve."""
     loads: list[FaceLoad] = []
     for table in root.tables("load"):
         face = table.face("face", faces, single=True)
         force = table.numbers("force")
         loads.append(FaceLoad(face, force, _amplitude(table), key=table.key("face")))
-    if not motions:
-        raise InputError("clamp", "the model needs at least one [[clamp]] or [[prescribed]] face")
+    return loads
 
-    solver_table = root.table("solver")
-    end_time = solver_table.number("end_time")
-    solver_options = {
-        "safety_factor": solver_table.number("safety_factor"),
-        "time_step": solver_table.number("time_step"),
-        "mass_damping": solver_table.number("mass_damping"),
+
+def _solver_and_output(
+    root: _Root,
+    faces: list[str],
+    mesh: MeshConfig,
+    split: tuple[bool, ...],
+    motions: list[PrescribedMotion],
+) -> tuple[SolverSettings, Probe]:
+    """[solver] then [output]: the time integration and output settings, and the probe."""
+    solver_options = _solver_options(root.table("solver"))
+    output_options, probe = _output(
+        root.table("output"), solver_options["end_time"], faces, mesh, split, motions
+    )
+    return SolverSettings(**solver_options, **output_options), probe
+
+
+def _solver_options(table: _Table) -> dict[str, Any]:
+    """[solver], as ``SolverSettings`` keywords; keys left out keep ``SolverSettings``' own
+    defaults (which the schema states)."""
+    options = {
+        "end_time": table.number("end_time"),
+        "safety_factor": table.number("safety_factor"),
+        "time_step": table.number("time_step"),
+        "mass_damping": table.number("mass_damping"),
     }
-    if solver_table.has("max_steps"):  # else SolverSettings' own default (the schema says it)
-        solver_options["max_steps"] = solver_table.integer("max_steps")
-    if solver_table.has("energy_error_limit"):
-        solver_options["energy_error_limit"] = solver_table.number("energy_error_limit")
+    if table.has("max_steps"):
+        options["max_steps"] = table.integer("max_steps")
+    if table.has("energy_error_limit"):
+        options["energy_error_limit"] = table.number("energy_error_limit")
+    return options
 
-    output = root.table("output")
-    interval = output.number("interval")
-    fields_interval = output.number("fields_interval")
-    checkpoint_interval = output.integer("checkpoint_interval")
+
+def _output(
+    table: _Table,
+    end_time: float,
+    faces: list[str],
+    mesh: MeshConfig,
+    split: tuple[bool, ...],
+    motions: list[PrescribedMotion],
+) -> tuple[dict[str, Any], Probe]:
+    """[output]: its intervals as ``SolverSettings`` keywords, and the probe of the history
+    (a displacement on a face holding nodes, the reaction on a clamped or prescribed face)."""
+    options = {
+        "output_interval": table.number("interval"),
+        "field_interval": table.number("fields_interval"),
+        "checkpoint_interval": table.integer("checkpoint_interval"),
+    }
     probe = Probe(
-        displacement_face=output.face("displacement_face", faces),
-        reaction_face=output.face("reaction_face", faces),
-        component=output.choice("component"),
-        displacement_x=_x_range(output, mesh, "displacement_x"),
+        displacement_face=table.face("displacement_face", faces),
+        reaction_face=table.face("reaction_face", faces),
+        component=table.choice("component"),
+        displacement_x=_x_range(table, mesh, "displacement_x"),
     )
     _check_has_nodes(
-        output.key("displacement_face"), probe.displacement_face, probe.displacement_x, mesh, split
+        table.key("displacement_face"), probe.displacement_face, probe.displacement_x, mesh, split
     )
-    if interval > end_time:
+    if options["output_interval"] > end_time:
         raise InputError("output.interval", f"is longer than solver.end_time ({end_time:g} s)")
     constrained_faces = {m.face for m in motions}
     if probe.reaction_face not in constrained_faces:
@@ -601,33 +734,7 @@ def parse_config(data: dict, source: str = "<memory>", seen: set[str] | None = N
             f"{probe.reaction_face!r} is neither clamped nor prescribed; a reaction force exists "
             f"only there ({', '.join(sorted(constrained_faces))})",
         )
-    return RunConfig(
-        kind=kind,
-        points_per_ply=points_per_ply,
-        mesh=mesh,
-        laminate=laminate,
-        motions=tuple(motions),
-        loads=tuple(loads),
-        solver=SolverSettings(
-            end_time=end_time,
-            output_interval=interval,
-            field_interval=fields_interval,
-            checkpoint_interval=checkpoint_interval,
-            **solver_options,
-        ),
-        probe=probe,
-        interfaces=interfaces,
-        refinements=refinements,
-        indicators=indicators,
-        stabilisation=stabilisation,
-        failures=failures,
-        ply_damage=ply_damage,
-        kinematics=kinematics,
-        impactor=impactor,
-        matrix_strength=tuple(flaws),
-        cohesive=cohesive,
-        source=source,
-    )
+    return options, probe
 
 
 def _materials(root: _Root) -> tuple[dict[str, PlyMaterial], dict[str, PlyFailure]]:
@@ -655,6 +762,9 @@ def _materials(root: _Root) -> tuple[dict[str, PlyMaterial], dict[str, PlyFailur
 
 
 def _laminate(table: _Table, materials: dict[str, PlyMaterial]) -> Laminate:
+    """[laminate]: plies bottom to top, as material + ply_thickness (mm) + angles (degrees),
+    or as plies = [{material, angle, thickness}, ...]."""
+
     def material(key: str, name: str) -> PlyMaterial:
         if name not in materials:
             raise InputError(key, f"unknown material {name!r} (defined: {', '.join(materials)})")
@@ -691,6 +801,8 @@ def _laminate(table: _Table, materials: dict[str, PlyMaterial]) -> Laminate:
 
 
 def _mesh(table: _Table, kind: ModelKind, laminate: Laminate) -> MeshConfig:
+    """[mesh]: the plate (mm), its cells in-plane, and the plies of each mesh layer (one layer
+    of all plies unless the model is layerwise)."""
     length = table.number("length")
     width = table.number("width")
     nx = table.integer("nx")
@@ -905,7 +1017,11 @@ def _is_zero_motion(motion: PrescribedMotion) -> bool:
     return motion.value == 0.0 or all(v == 0.0 for v in motion.amplitude.values)
 
 
-def _interfaces(root: _Root, kind: ModelKind, laminate: Laminate, mesh: MeshConfig):
+def _interfaces(
+    root: _Root, kind: ModelKind, laminate: Laminate, mesh: MeshConfig
+) -> tuple[Interfaces, tuple[Manual, ...], CohesiveLaw | None]:
+    """[interfaces] (which ply interfaces refine, delaminate, are symmetry planes), then the
+    [[refinement]] tables and the [cohesive] law that depend on it."""
     n_plies = laminate.n_plies
     table = root.table("interfaces")
     refinement_tables = root.tables("refinement")
@@ -922,76 +1038,89 @@ def _interfaces(root: _Root, kind: ModelKind, laminate: Laminate, mesh: MeshConf
         raise InputError("interfaces", "an ESL model has no interfaces to refine (use adaptive)")
     if n_plies < 2:
         raise InputError("interfaces", "a laminate of one ply has no interfaces")
-    refine = tuple(sorted(table.integers("refine", high=n_plies - 1)))
-    delaminate = tuple(sorted(table.integers("delaminate", high=n_plies - 1)))
-    symmetry = tuple(sorted(table.integers("symmetry", high=n_plies - 1)))
-    initial = table.choice("initial")
+    interfaces = Interfaces(
+        refine=tuple(sorted(table.integers("refine", high=n_plies - 1))),
+        delaminate=tuple(sorted(table.integers("delaminate", high=n_plies - 1))),
+        symmetry=tuple(sorted(table.integers("symmetry", high=n_plies - 1))),
+        initial=table.choice("initial"),
+    )
     if kind == ModelKind.LAYERWISE:
-        boundaries = list(itertools.accumulate(mesh.layers))[:-1]
-        if refine or initial != Refinement.NONE:
-            key = "interfaces.refine" if refine else "interfaces.initial"
-            raise InputError(key, "a layerwise model does not refine (its layers are fixed)")
-        for name, values in (("delaminate", delaminate), ("symmetry", symmetry)):
-            for value in values:
-                if value not in boundaries:
-                    raise InputError(
-                        f"interfaces.{name}",
-                        f"interface {value} is not a boundary between mesh layers "
-                        f"(mesh.layers puts them at {boundaries})",
-                    )
+        _check_layerwise_interfaces(interfaces, mesh)
         if refinement_tables:
             raise InputError("refinement", "only an adaptive model refines")
     else:
-        allowed = set(refine) | set(delaminate)
-        for value in symmetry:
-            if value not in allowed:
-                raise InputError(
-                    "interfaces.symmetry", f"interface {value} is not listed to refine"
-                )
-        if not allowed:
-            raise InputError("interfaces.refine", "an adaptive model needs interfaces to refine")
-    if set(symmetry) & set(delaminate):
+        _check_adaptive_interfaces(interfaces)
+    if set(interfaces.symmetry) & set(interfaces.delaminate):
         raise InputError("interfaces.symmetry", "a symmetry interface cannot also delaminate")
+    refinements = tuple(_refinement(t, interfaces, n_plies, mesh) for t in refinement_tables)
+    return interfaces, refinements, _cohesive(cohesive_table, interfaces)
 
-    refinements = []
-    for rt in refinement_tables:
-        if rt.has("time") == rt.has("displacement"):
-            raise InputError(rt.key("time"), "give exactly one trigger: time (s) or displacement")
-        time = rt.number("time") if rt.has("time") else math.inf
-        displacement = rt.number("displacement") if rt.has("displacement") else math.inf
-        chosen = rt.integers("interfaces", high=n_plies - 1)
-        if not chosen:
-            raise InputError(rt.key("interfaces"), "list the interfaces to refine")
-        kind_name = rt.choice("kind")
-        pool = delaminate if kind_name == Refinement.STRONG else set(refine) | set(delaminate)
-        for value in chosen:
-            if value not in pool:
+
+def _check_layerwise_interfaces(interfaces: Interfaces, mesh: MeshConfig) -> None:
+    """A layerwise model does not refine; it delaminates (or holds symmetric) only at the
+    boundaries between its mesh layers."""
+    boundaries = list(itertools.accumulate(mesh.layers))[:-1]
+    if interfaces.refine or interfaces.initial != Refinement.NONE:
+        key = "interfaces.refine" if interfaces.refine else "interfaces.initial"
+        raise InputError(key, "a layerwise model does not refine (its layers are fixed)")
+    for name, values in (("delaminate", interfaces.delaminate), ("symmetry", interfaces.symmetry)):
+        for value in values:
+            if value not in boundaries:
                 raise InputError(
-                    rt.key("interfaces"),
-                    f"interface {value} may not refine {kind_name}ly (see [interfaces])",
+                    f"interfaces.{name}",
+                    f"interface {value} is not a boundary between mesh layers "
+                    f"(mesh.layers puts them at {boundaries})",
                 )
-        x_min, x_max = rt.range("x_min", "x_max", strict=True)
-        _check_holds_centroids(rt, mesh, x_min, x_max)
-        refinements.append(
-            Manual(tuple(sorted(chosen)), kind_name.state, time, displacement, x_min, x_max)
-        )
 
-    cohesive = None
-    if delaminate:
-        if cohesive_table is None:
-            raise InputError("cohesive", "interfaces delaminate but [cohesive] is missing")
-        numbers = {
-            k.name: cohesive_table.number(k.name)
-            for k in cohesive_table.schema.keys
-            if k.kind == "float"
-        }
-        cohesive = CohesiveLaw(law=cohesive_table.choice("law"), **numbers)
-    elif cohesive_table is not None:
-        raise InputError("cohesive", "no interface delaminates ([interfaces] delaminate)")
-    return Interfaces(refine, delaminate, symmetry, initial), tuple(refinements), cohesive
+
+def _check_adaptive_interfaces(interfaces: Interfaces) -> None:
+    """An adaptive model refines some interface, and its symmetry interfaces are among them."""
+    allowed = set(interfaces.refine) | set(interfaces.delaminate)
+    for value in interfaces.symmetry:
+        if value not in allowed:
+            raise InputError("interfaces.symmetry", f"interface {value} is not listed to refine")
+    if not allowed:
+        raise InputError("interfaces.refine", "an adaptive model needs interfaces to refine")
+
+
+def _refinement(table: _Table, interfaces: Interfaces, n_plies: int, mesh: MeshConfig) -> Manual:
+    """One [[refinement]]: interfaces refined at a time (s) or a probe displacement (mm), in
+    an x range of cell centroids (mm); strongly only where [interfaces] lets them delaminate."""
+    if table.has("time") == table.has("displacement"):
+        raise InputError(table.key("time"), "give exactly one trigger: time (s) or displacement")
+    time = table.number("time") if table.has("time") else math.inf
+    displacement = table.number("displacement") if table.has("displacement") else math.inf
+    chosen = table.integers("interfaces", high=n_plies - 1)
+    if not chosen:
+        raise InputError(table.key("interfaces"), "list the interfaces to refine")
+    kind = table.choice("kind")
+    delaminate = interfaces.delaminate
+    pool = delaminate if kind == Refinement.STRONG else set(interfaces.refine) | set(delaminate)
+    for value in chosen:
+        if value not in pool:
+            raise InputError(
+                table.key("interfaces"),
+                f"interface {value} may not refine {kind}ly (see [interfaces])",
+            )
+    x_min, x_max = table.range("x_min", "x_max", strict=True)
+    _check_holds_centroids(table, mesh, x_min, x_max)
+    return Manual(tuple(sorted(chosen)), kind.state, time, displacement, x_min, x_max)
+
+
+def _cohesive(table: _Table | None, interfaces: Interfaces) -> CohesiveLaw | None:
+    """[cohesive]: the traction-separation law, needed exactly when an interface delaminates."""
+    if not interfaces.delaminate:
+        if table is not None:
+            raise InputError("cohesive", "no interface delaminates ([interfaces] delaminate)")
+        return None
+    if table is None:
+        raise InputError("cohesive", "interfaces delaminate but [cohesive] is missing")
+    numbers = {k.name: table.number(k.name) for k in table.schema.keys if k.kind == "float"}
+    return CohesiveLaw(law=table.choice("law"), **numbers)
 
 
 def _impactor(root: _Root) -> Impactor | None:
+    """[impactor]: a rigid body (mm, tonne, mm/s) hitting the top face, or None."""
     table = root.table("impactor")
     if table is None:
         return None
@@ -1006,6 +1135,7 @@ def _impactor(root: _Root) -> Impactor | None:
 
 
 def _stabilisation(root: _Root, kind: ModelKind) -> Stabilisation:
+    """[stabilisation] of an adaptive model after refinement: damping (1/s) and windows (s)."""
     table = root.table("stabilisation")
     if table is None:
         return Stabilisation()
@@ -1022,7 +1152,8 @@ def _stabilisation(root: _Root, kind: ModelKind) -> Stabilisation:
     return Stabilisation(damping, window, release)
 
 
-def _indicators(root: _Root, kind: ModelKind, interfaces: Interfaces):
+def _indicators(root: _Root, kind: ModelKind, interfaces: Interfaces) -> IndicatorSettings | None:
+    """[indicators] of an adaptive model: which refinement indicators run, and how often."""
     table = root.table("indicators")
     if table is None:
         return None
@@ -1058,6 +1189,7 @@ def _indicators(root: _Root, kind: ModelKind, interfaces: Interfaces):
 
 
 def _amplitude(table: _Table) -> Amplitude:
+    """The time curve of a prescribed motion or a load: a curve, or rise_time (s) + profile."""
     if table.has("curve"):
         for name in ("rise_time", "profile"):
             if table.has(name):
