@@ -36,7 +36,10 @@ field name), the forces beside the structure's own come from contributors (``mod
 the tie forces of new strong interfaces, a rigid impactor), what happens is told to observers
 (``observers.Observer``: history, fields, progress, refinements, checkpoints), and a refiner
 returns a ``RefinementEvent`` that the solver reacts to in one method
-(``react_to_refinement``). ``run()`` is the thin way to use it in one call.
+(``react_to_refinement``). ``run()`` is the thin way to use it in one call. The solver holds
+the loop; it delegates the history rows and their energy bookkeeping (sums over ranks, the
+energies at t = 0, the balances) to ``history.HistoryRecorder`` and keeps each block's work
+arrays and per-step arithmetic in a ``blocks.BlockState``.
 """
 
 from __future__ import annotations

@@ -30,6 +30,8 @@ if TYPE_CHECKING:
 
 @dataclass
 class HistoryRow:
+    """The run's state at one output time (s): one row of the history, units by field."""
+
     time: float
     displacement: float  # mm, mean over the probe face
     reaction_force: float  # N, force the supports apply to the body on the reaction face
@@ -53,6 +55,8 @@ class HistoryRow:
 
     @property
     def energy_balance(self) -> float:
+        """mJ: kinetic + internal + damping - external - impact - refinement energy (0 up to
+        the scheme's error)."""
         return (
             self.kinetic_energy
             + self.internal_energy
