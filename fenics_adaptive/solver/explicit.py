@@ -36,7 +36,10 @@ field name), the forces beside the structure's own come from contributors (``mod
 the tie forces of new strong interfaces, a rigid impactor), what happens is told to observers
 (``observers.Observer``: history, fields, progress, refinements, checkpoints), and a refiner
 returns a ``RefinementEvent`` that the solver reacts to in one method
-(``react_to_refinement``). ``run()`` is the thin way to use it in one call.
+(``react_to_refinement``). ``run()`` is the thin way to use it in one call. The solver holds
+the loop; it delegates the history rows and their energy bookkeeping (sums over ranks, the
+energies at t = 0, the balances) to ``history.HistoryRecorder`` and keeps each block's work
+arrays and per-step arithmetic in a ``blocks.BlockState``.
 """
 
 from __future__ import annotations
@@ -53,50 +56,14 @@ from mpi4py import MPI
 from fenics_adaptive.adaptivity.events import RefinementEvent
 from fenics_adaptive.errors import InputError
 from fenics_adaptive.model.forces import ForceContributor, ForceKind
-from fenics_adaptive.model.loading import COMPONENTS, face_dofs
-from fenics_adaptive.model.structure import Block, Structure
+from fenics_adaptive.model.structure import Structure
 from fenics_adaptive.model.tie_forces import TieForces
 from fenics_adaptive.settings.solver import Probe, SolverSettings
 from fenics_adaptive.solver import guards
+from fenics_adaptive.solver.blocks import BLOCK_ARRAYS, BlockState
+from fenics_adaptive.solver.history import COLUMNS as COLUMNS  # where readers find it
+from fenics_adaptive.solver.history import HistoryRecorder, HistoryRow
 from fenics_adaptive.solver.observers import Observer
-
-
-@dataclass
-class HistoryRow:
-    time: float
-    displacement: float  # mm, mean over the probe face
-    reaction_force: float  # N, force the supports apply to the body on the reaction face
-    applied_force: float  # N, resultant of the face loads
-    kinetic_energy: float  # mJ
-    internal_energy: float  # mJ, work of the internal forces
-    external_work: float  # mJ, work of loads and prescribed motions
-    damping_energy: float  # mJ, dissipated by mass damping
-    dissipated_energy: float  # mJ, dissipated by materials (ply and cohesive damage)
-    refinement_energy: float  # mJ, kinetic + strain + cohesive energy changed by refinements
-    delaminated_area: float  # mm^2, failed cohesive elements
-    time_step: float  # s
-    contact_force: float = 0.0  # N, z component of the force the structure applies to the impactor
-    impactor_displacement: float = 0.0  # mm, z displacement of the impactor
-    impact_work: float = 0.0  # mJ, energy the impactor gave up (kinetic + penalty, from t = 0)
-    cohesive_dissipation: float = 0.0  # mJ, summed from the cohesive law's damage increments
-    ply_dissipation: float = 0.0  # mJ, summed from the ply damage law's increments
-    # mJ: kinetic + strain + stored cohesive + cohesive and ply dissipation + damping - external
-    # - impact - refinement energy - the strain and cohesive energy at t = 0 (from the states)
-    state_energy_balance: float = 0.0
-
-    @property
-    def energy_balance(self) -> float:
-        return (
-            self.kinetic_energy
-            + self.internal_energy
-            + self.damping_energy
-            - self.external_work
-            - self.impact_work
-            - self.refinement_energy
-        )
-
-
-COLUMNS = [*HistoryRow.__dataclass_fields__, "energy_balance"]
 
 
 class Diverged(RuntimeError):
@@ -117,11 +84,6 @@ class Interrupted(RuntimeError):
     def __init__(self, t: float, step: int):
         super().__init__(f"interrupted at t = {t:.6g} s (step {step}); a checkpoint was written")
         self.t, self.step = t, step
-
-
-# What a checkpoint keeps of each block: every array the next step reads (u and v with their
-# ghosts; the rest owned), so that a resumed run repeats the uninterrupted one bit for bit.
-BLOCK_ARRAYS = ("u_all", "v_all", "du", "f_old", "f_ext_old", "reaction_old")
 
 
 @dataclass
@@ -194,37 +156,6 @@ def choose_time_step(structure: Structure, settings: SolverSettings) -> tuple[fl
     return settings.time_step, stable, where
 
 
-class _BlockState:
-    """Work arrays of one block, allocated once per layout of the block."""
-
-    def __init__(self, block: Block, damping: float, old: _BlockState | None = None):
-        n = block.n_owned
-        self.block = block
-        self.u = block.u.array[:n]
-        self.v = block.v.array[:n]
-        self.f = block.f.array[:n]
-        self.m = block.mass
-        # constrained DOFs (border extra nodes) have no mass of their own: they follow masters
-        self.inv_m = np.divide(1.0, self.m, out=np.zeros(n), where=self.m > 0.0)
-        self.acc, self.du, self.f_old, self.f_ext, self.f_ext_old = (np.zeros(n) for _ in range(5))
-        self.damping = np.full(n, damping)
-        self.damping[block.fixed] = 0.0
-        self.shrink, self.grow, self.v_mid = (np.zeros(n) for _ in range(3))
-        k = len(block.fixed)
-        self.u_now, self.u_next, self.v_fixed, self.a_fixed = (np.zeros(k) for _ in range(4))
-        self.reaction, self.reaction_old, self.du_fixed, self.scratch = (
-            np.zeros(k) for _ in range(4)
-        )
-        if old is not None:  # the block grew: carry the old DOFs' history over
-            n_old = len(old.du)
-            for name in ("du", "f_old", "f_ext_old"):
-                getattr(self, name)[:n_old] = getattr(old, name)
-            _, new_at, old_at = np.intersect1d(
-                block.fixed, old.block.fixed, assume_unique=True, return_indices=True
-            )
-            self.reaction_old[new_at] = old.reaction_old[old_at]
-
-
 # what a refiner is: called before every step, it refines the structure (collectively) or not
 Refiner = Callable[[float, Structure], RefinementEvent | None]
 
@@ -278,22 +209,21 @@ class ExplicitSolver:
         self._not_finite = False  # this rank saw a non-finite internal work (told at a poll)
         self._damping_changes = math.inf  # next time a stabilisation damping window closes
         self._damped = settings.mass_damping > 0.0
-        self.blocks: list[_BlockState] = []  # the work arrays: from start() or restore()
+        self.blocks: list[BlockState] = []  # the work arrays: from start() or restore()
         by_kind = {kind: [c for c in self.contributors if c.kind is kind] for kind in ForceKind}
         self._internal = by_kind[ForceKind.INTERNAL]
         self._external = by_kind[ForceKind.EXTERNAL]
         self._contact = by_kind[ForceKind.CONTACT]
         # the optional hooks (model.forces.Contributor) of those that have them
         self._moving = [c.advance for c in self.contributors if hasattr(c, "advance")]
-        self._reporting = [c.report for c in self.contributors if hasattr(c, "report")]
         self._contact_force: list[np.ndarray] = []
         self.inversion: guards.InversionGuard | None = None
         n_motions = len(structure.motions)
         self._motion_now, self._motion_next = np.zeros(n_motions), np.zeros(n_motions)
         self._f_ext_full = np.zeros_like(structure.blocks[0].u.array)
-        self._probe_indices(probe)
         self._clock = 0.0
         self.guards = _Guards(self)
+        self.recorder = HistoryRecorder(structure, probe, self.contributors, self.guards)
 
     # ------------------------------------------------------------------ read between steps
     @property
@@ -406,7 +336,7 @@ class ExplicitSolver:
     def _set_up(self) -> tuple[float, float]:
         """Collective: the work arrays and the inversion guard of the structure as it is now;
         (step, stable step) in s for it, the contributors prepared for them."""
-        self.blocks = [_BlockState(b, self.settings.mass_damping) for b in self.structure.blocks]
+        self.blocks = [BlockState(b, self.settings.mass_damping) for b in self.structure.blocks]
         self._contact_force = self._contact_arrays()
         self.inversion = guards.InversionGuard(self.structure)
         dt, stable, self.where = choose_time_step(self.structure, self.settings)
@@ -531,34 +461,7 @@ class ExplicitSolver:
         mean_dt = 0.5 * (s.dt_prev + s.dt)
         for index, state in enumerate(self.blocks):
             contact_force = self._contact_force[index] if self._contact else None
-            self._accelerate(state, contact_force, mean_dt)
-
-    def _accelerate(
-        self, state: _BlockState, contact_force: np.ndarray | None, mean_dt: float
-    ) -> None:
-        """a = (f_ext + f_contact - f_int) / m (``contact_force``: the CONTACT contributors'
-        force on this block, N, if any); on the prescribed DOFs the acceleration that takes
-        them exactly to u(t_{n+1}) and the reaction force it needs."""
-        np.subtract(state.f_ext, state.f, out=state.acc)
-        if contact_force is not None:
-            state.acc += contact_force
-        state.acc *= state.inv_m
-        if not len(state.block.fixed):
-            return
-        fixed = state.block.fixed
-        np.subtract(state.u_next, state.u_now, out=state.a_fixed)
-        state.a_fixed /= self.now.dt
-        np.take(state.v, fixed, out=state.v_fixed)
-        state.a_fixed -= state.v_fixed
-        state.a_fixed /= mean_dt
-        np.put(state.acc, fixed, state.a_fixed)
-        # reaction = m a + f_int - f_ext (- f_contact) on the prescribed DOFs
-        np.take(state.m, fixed, out=state.reaction)
-        state.reaction *= state.a_fixed
-        state.reaction += np.take(state.f, fixed, out=state.scratch)
-        state.reaction -= np.take(state.f_ext, fixed, out=state.scratch)
-        if contact_force is not None:
-            state.reaction -= np.take(contact_force, fixed, out=state.scratch)
+            state.accelerate(contact_force, s.dt, mean_dt)
 
     def update_work(self) -> None:
         """The work over the step just made (trapezoidal in the forces), this rank's share."""
@@ -592,7 +495,7 @@ class ExplicitSolver:
         if self.comm.rank == 0:
             s.work_int += event.potential_change
         self.blocks = [
-            _BlockState(b, settings.mass_damping, old)
+            BlockState(b, settings.mass_damping, old)
             for b, old in zip(structure.blocks, self.blocks, strict=True)
         ]
         self._contact_force = self._contact_arrays()
@@ -635,7 +538,7 @@ class ExplicitSolver:
         damped = self._damped or self._damping_changes < math.inf
         for state in self.blocks:
             if damped:
-                s.work_damp += self._damped_velocity(state, mean_dt)
+                s.work_damp += state.damped_velocity(mean_dt)
             else:
                 state.acc *= mean_dt
                 state.v += state.acc
@@ -655,24 +558,6 @@ class ExplicitSolver:
         s.step += 1
         s.evaluated = False
         self.set_prescribed()
-
-    @staticmethod
-    def _damped_velocity(state: _BlockState, mean_dt: float) -> float:
-        """v_{n-1/2} -> v_{n+1/2} with implicit mass-proportional damping; returns the energy
-        the damping took over the step (mJ, this block on this rank)."""
-        state.v_mid[:] = state.v
-        np.multiply(state.damping, 0.5 * mean_dt, out=state.shrink)
-        np.add(state.shrink, 1.0, out=state.grow)
-        np.subtract(1.0, state.shrink, out=state.shrink)
-        state.v *= state.shrink
-        state.acc *= mean_dt
-        state.v += state.acc
-        state.v /= state.grow
-        state.v_mid += state.v
-        state.v_mid *= 0.5
-        np.multiply(state.v_mid, state.v_mid, out=state.shrink)
-        state.shrink *= state.m
-        return mean_dt * np.dot(state.damping, state.shrink)
 
     def poll(self) -> None:
         """Collective, every 64 steps: progress; a stop request, an inversion or a non-finite
@@ -704,107 +589,13 @@ class ExplicitSolver:
         """Collective: the history row of t_n (observers get it), after the guards on
         inversion and finiteness, and before the energy guard (the row that breaks it is in
         the history)."""
-        s, structure = self.now, self.structure
-        total = self._history_sums()
-        solid, cohesive = structure.energies()
-        cohesive_dissipation, ply_dissipation = structure.damage_dissipation()
-        if s.step == 0:  # an initial velocity or displacement brings energy along
-            s.initial_energy = total[3] + solid + cohesive + total[8]
-            s.initial_potential = solid + cohesive
-            # the energy the run starts with (an impactor's kinetic energy) sets the scale of
-            # the energy guard too: impact_work is a difference of two values of it, whose
-            # round-off would otherwise be judged against the little energy transferred at
-            # the first contact
-            s.largest_energy = abs(s.initial_energy)
-        self.guards.runaway(total[3], abs(total[5]) + s.initial_energy)
-        row = HistoryRow(
-            time=s.t,
-            displacement=total[0] / max(self._n_probe, 1),
-            reaction_force=total[1],
-            applied_force=total[2],
-            kinetic_energy=total[3],
-            internal_energy=total[4],
-            external_work=total[5],
-            damping_energy=total[6],
-            dissipated_energy=total[4] - solid - cohesive,
-            refinement_energy=structure.refinement_energy,
-            delaminated_area=structure.delaminated_area(),
-            time_step=s.dt,
-        )
-        for report in self._reporting:
-            report(row, s.step == 0)
-        row.cohesive_dissipation = cohesive_dissipation
-        row.ply_dissipation = ply_dissipation
-        row.state_energy_balance = (
-            row.kinetic_energy
-            + solid
-            + cohesive
-            - s.initial_potential
-            + cohesive_dissipation
-            + ply_dissipation
-            + row.damping_energy
-            - row.external_work
-            - row.impact_work
-            - row.refinement_energy
-        )
-        if s.step == 0:
-            s.initial_balance = row.energy_balance
+        row = self.recorder.row(self.now, self.blocks, self.inversion)
         self.stats.history.append(row)
         for observer in self.observers:
             observer.on_history(row)
         self.guards.energy(row)
 
-    def _history_sums(self) -> np.ndarray:
-        """Collective: the sums over ranks of (probe displacement, reaction, applied load,
-        kinetic energy, internal, external and damping work, inverted, contributors'
-        energy); raises if an element inverted or a sum is not finite."""
-        s, base = self.now, self.blocks[0]
-        inverted = self.inversion.check(s.t)
-        kinetic = 0.0
-        reaction = 0.0
-        for state in self.blocks:
-            v_full = state.v + 0.5 * s.dt_prev * state.acc  # v_n from v_{n-1/2}
-            kinetic += 0.5 * np.dot(state.m * v_full, v_full)
-            on_face = self._reaction_motions[state.block.fixed_motion]
-            reaction += state.reaction[on_face].sum()
-        local = np.array(
-            [
-                base.u[self._probe_dofs].sum(),
-                reaction,
-                base.f_ext[self._load_dofs].sum(),
-                kinetic,
-                s.work_int,
-                s.work_ext,
-                s.work_damp,
-                float(inverted is not None),
-                sum(contributor.energy() for contributor in self.contributors),
-            ]
-        )
-        total = self.comm.allreduce(local, op=MPI.SUM)
-        self.guards.inverted(inverted, total[7] > 0.0)
-        if not np.all(np.isfinite(total)):
-            self.guards.not_finite()
-        return total
-
     # ------------------------------------------------------------------ set-up helpers
-    def _probe_indices(self, probe: Probe) -> None:
-        """Collective: the owned DOFs the history sums (probe face, loads) and which
-        prescribed motions make the reaction force."""
-        structure = self.structure
-        self._probe_dofs = face_dofs(
-            structure.base, probe.displacement_face, probe.component, x_range=probe.displacement_x
-        )
-        self._n_probe = self.comm.allreduce(len(self._probe_dofs), op=MPI.SUM)
-        self._reaction_motions = np.array(
-            [
-                m.face == probe.reaction_face and m.component == probe.component
-                for m in structure.motions
-            ],
-            dtype=bool,
-        )
-        n_owned = structure.blocks[0].n_owned
-        self._load_dofs = np.arange(COMPONENTS[probe.component], n_owned, 3)
-
     def _contact_arrays(self) -> list[np.ndarray]:
         """The contact contributors' forces per block (owned DOFs), if there are any."""
         if not self._contact:

@@ -1,0 +1,94 @@
+"""The time loop's work arrays of one DOF block and the per-block arithmetic of a step.
+
+Units: N, mm, s, tonne. A ``BlockState`` holds views of the block's owned DOFs (u, v, f) and
+arrays allocated once per layout of the block, so that the loop allocates nothing; its
+``accelerate`` and ``damped_velocity`` write into them.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from fenics_adaptive.model.structure import Block
+
+# What a checkpoint keeps of each block: every array the next step reads (u and v with their
+# ghosts; the rest owned), so that a resumed run repeats the uninterrupted one bit for bit.
+BLOCK_ARRAYS = ("u_all", "v_all", "du", "f_old", "f_ext_old", "reaction_old")
+
+
+class BlockState:
+    """Work arrays of one block, allocated once per layout of the block.
+
+    ``block``: the DOF block (``structure.Block``); ``damping``: the global mass-proportional
+    damping (1/s); ``old``: the state of the block before it grew (a refinement), whose DOFs'
+    history (``du``, ``f_old``, ``f_ext_old``, ``reaction_old``) is carried over."""
+
+    def __init__(self, block: Block, damping: float, old: BlockState | None = None):
+        n = block.n_owned
+        self.block = block
+        self.u = block.u.array[:n]
+        self.v = block.v.array[:n]
+        self.f = block.f.array[:n]
+        self.m = block.mass
+        # constrained DOFs (border extra nodes) have no mass of their own: they follow masters
+        self.inv_m = np.divide(1.0, self.m, out=np.zeros(n), where=self.m > 0.0)
+        self.acc, self.du, self.f_old, self.f_ext, self.f_ext_old = (np.zeros(n) for _ in range(5))
+        self.damping = np.full(n, damping)
+        self.damping[block.fixed] = 0.0
+        self.shrink, self.grow, self.v_mid = (np.zeros(n) for _ in range(3))
+        k = len(block.fixed)
+        self.u_now, self.u_next, self.v_fixed, self.a_fixed = (np.zeros(k) for _ in range(4))
+        self.reaction, self.reaction_old, self.du_fixed, self.scratch = (
+            np.zeros(k) for _ in range(4)
+        )
+        if old is not None:  # the block grew: carry the old DOFs' history over
+            n_old = len(old.du)
+            for name in ("du", "f_old", "f_ext_old"):
+                getattr(self, name)[:n_old] = getattr(old, name)
+            _, new_at, old_at = np.intersect1d(
+                block.fixed, old.block.fixed, assume_unique=True, return_indices=True
+            )
+            self.reaction_old[new_at] = old.reaction_old[old_at]
+
+    def accelerate(self, contact_force: np.ndarray | None, dt: float, mean_dt: float) -> None:
+        """a = (f_ext + f_contact - f_int) / m (``contact_force``: the CONTACT contributors'
+        force on this block, N, if any); on the prescribed DOFs the acceleration that takes
+        them exactly to u(t_{n+1}) and the reaction force it needs. ``dt``: dt_{n+1/2} (s);
+        ``mean_dt``: (dt_{n-1/2} + dt_{n+1/2}) / 2 (s)."""
+        np.subtract(self.f_ext, self.f, out=self.acc)
+        if contact_force is not None:
+            self.acc += contact_force
+        self.acc *= self.inv_m
+        if not len(self.block.fixed):
+            return
+        fixed = self.block.fixed
+        np.subtract(self.u_next, self.u_now, out=self.a_fixed)
+        self.a_fixed /= dt
+        np.take(self.v, fixed, out=self.v_fixed)
+        self.a_fixed -= self.v_fixed
+        self.a_fixed /= mean_dt
+        np.put(self.acc, fixed, self.a_fixed)
+        # reaction = m a + f_int - f_ext (- f_contact) on the prescribed DOFs
+        np.take(self.m, fixed, out=self.reaction)
+        self.reaction *= self.a_fixed
+        self.reaction += np.take(self.f, fixed, out=self.scratch)
+        self.reaction -= np.take(self.f_ext, fixed, out=self.scratch)
+        if contact_force is not None:
+            self.reaction -= np.take(contact_force, fixed, out=self.scratch)
+
+    def damped_velocity(self, mean_dt: float) -> float:
+        """v_{n-1/2} -> v_{n+1/2} with implicit mass-proportional damping (``mean_dt``: s);
+        returns the energy the damping took over the step (mJ, this block on this rank)."""
+        self.v_mid[:] = self.v
+        np.multiply(self.damping, 0.5 * mean_dt, out=self.shrink)
+        np.add(self.shrink, 1.0, out=self.grow)
+        np.subtract(1.0, self.shrink, out=self.shrink)
+        self.v *= self.shrink
+        self.acc *= mean_dt
+        self.v += self.acc
+        self.v /= self.grow
+        self.v_mid += self.v
+        self.v_mid *= 0.5
+        np.multiply(self.v_mid, self.v_mid, out=self.shrink)
+        self.shrink *= self.m
+        return mean_dt * np.dot(self.damping, self.shrink)
