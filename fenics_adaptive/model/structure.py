@@ -22,15 +22,16 @@ unrefined neighbour (``border``). The per-step path allocates nothing.
 The structure composes parts with one job each: ``element.rules.RuleTable`` (the packed rules of
 every ply span), ``adaptivity.refinement.RefinementState`` (interface states, the refinement
 log and energy), ``adaptivity.stabilisation.StabilisationState`` (damping windows, tie forces),
-``model.ply_damage_state.PlyDamageState`` (matrix damage per cell and ply) and the cohesive set's
-damage rows; ``state()`` / ``restore()`` gather their history-dependent arrays for a checkpoint.
+``model.ply_damage_state.PlyDamageState`` (matrix damage per cell and ply),
+``model.blocks.LumpedBlocks`` (the solver's two blocks: lumped masses, force vectors, border
+constraints, prescribed DOFs) and the cohesive set's damage rows; ``state()`` / ``restore()``
+gather their history-dependent arrays for a checkpoint.
 The stable step is computed in ``model.time_step``.
 """
 
 from __future__ import annotations
 
 from collections.abc import Iterable
-from dataclasses import dataclass
 
 import numpy as np
 from dolfinx import fem, la
@@ -49,14 +50,8 @@ from fenics_adaptive.model.assembly import (
     add_cohesive_forces,
     add_subelement_forces,
 )
-from fenics_adaptive.model.border import (
-    BorderConstraints,
-    border_constraints,
-    column_counts,
-    follow_masters,
-    transfer_forces,
-    transfer_masses,
-)
+from fenics_adaptive.model.blocks import Block, LumpedBlocks, subelement_mass_change
+from fenics_adaptive.model.border import BorderConstraints, border_constraints, column_counts
 from fenics_adaptive.model.forms import LayeredModel
 from fenics_adaptive.model.loading import (
     Amplitude,
@@ -69,24 +64,6 @@ from fenics_adaptive.model.time_step import stable_time_step
 from fenics_adaptive.model.topology import CellColumnTable
 from fenics_adaptive.settings.adaptivity import Interfaces, Stabilisation
 from fenics_adaptive.settings.kinds import InterfaceState
-
-
-@dataclass
-class Block:
-    """DOFs the solver integrates together: the base nodes, or the extra nodes. Vectors hold
-    owned then ghost entries; ``mass``, ``fixed`` refer to owned DOFs (block-unrolled, 3 per
-    node)."""
-
-    u: la.Vector
-    v: la.Vector
-    f: la.Vector  # internal force, owned entries complete after Structure.internal_force
-    mass: np.ndarray
-    fixed: np.ndarray
-    fixed_motion: np.ndarray  # index into Structure.motions
-
-    @property
-    def n_owned(self) -> int:
-        return len(self.mass)
 
 
 class Structure:
@@ -116,9 +93,6 @@ class Structure:
         self.n_base = V.dofmap.index_map.size_local + V.dofmap.index_map.num_ghosts
         self.X_base = V.tabulate_dof_coordinates()[: self.n_base].copy()
         self.v_base = fem.Function(V, name="velocity").x
-        self.f_base = fem.Function(V, name="internal_force").x
-        self.mass_base = fem.Function(V, name="mass").x
-        self.mass_base.array[:] = base.mass
         self.interfaces = interfaces or Interfaces()
         self.law_params = law_params
         self.cohesive = cohesive if cohesive is not None else CohesiveSet.empty(np.zeros(8))
@@ -151,20 +125,54 @@ class Structure:
             self._setup_ply_damage()
         self._solid_energy = 0.0
         self._cohesive_energy = 0.0
-        self.border = BorderConstraints.empty()
-        self._resize_extra_vectors()
+        self.lumped = LumpedBlocks(
+            V, base.mass, self.extra.index_map, loads.fixed, loads.fixed_motion
+        )
         self._rebuild_blocks()
 
     # ------------------------------------------------------------------ what the solver uses
     @property
     def blocks(self) -> list[Block]:
-        return [self.base_block, self.extra_block]
+        """[base block, extra block] (``model.blocks.LumpedBlocks``)."""
+        return self.lumped.blocks
+
+    @property
+    def base_block(self) -> Block:
+        return self.lumped.base_block
+
+    @property
+    def extra_block(self) -> Block:
+        return self.lumped.extra_block
+
+    @property
+    def f_base(self) -> la.Vector:
+        """Internal force (N) of the base DOFs."""
+        return self.lumped.f_base
+
+    @property
+    def f_extra(self) -> la.Vector:
+        """Internal force (N) of the extra DOFs."""
+        return self.lumped.f_extra
+
+    @property
+    def mass_base(self) -> la.Vector:
+        """Assembled lumped mass (tonne) of the base DOFs (before the border's transfer)."""
+        return self.lumped.mass_base
+
+    @property
+    def mass_extra(self) -> la.Vector:
+        """Assembled lumped mass (tonne) of the extra DOFs (before the border's transfer)."""
+        return self.lumped.mass_extra
+
+    @property
+    def border(self) -> BorderConstraints:
+        """The extra DOFs on the border of refined regions, bound to their masters."""
+        return self.lumped.border
 
     def internal_force(self) -> None:
         """f_int into both blocks' ``f`` (owned entries complete)."""
+        self.lumped.zero_forces()
         f_base, f_extra = self.f_base.array, self.f_extra.array
-        f_base.fill(0.0)
-        f_extra.fill(0.0)
         u_base = self.base.u.x.array.reshape(-1, 3)
         u_extra = self.extra.vectors["u"].array.reshape(-1, 3)
         X_extra = self.extra.vectors["X"].array.reshape(-1, 3)
@@ -184,19 +192,14 @@ class Structure:
         self._cohesive_energy = add_cohesive_forces(
             self.cohesive, self.X_base, X_extra, u_base, u_extra, fb, fx
         )
-        if len(self.border):
-            transfer_forces(*self._border_args, f_base, f_extra)
-        self.f_base.scatter_reverse(la.InsertMode.add)
-        self.f_extra.scatter_reverse(la.InsertMode.add)
+        self.lumped.complete_forces()
 
     def follow_border(self, velocity: bool = False) -> None:
         """Put the constrained extra DOFs (owned and ghosts) where their masters are (after
         the masters moved and were forward-scattered); also their velocities if asked."""
-        if not len(self.border):
-            return
-        follow_masters(*self._border_args, self.base.u.x.array, self.extra.vectors["u"].array)
+        self.lumped.follow_border(self.base.u.x.array, self.extra.vectors["u"].array)
         if velocity:
-            follow_masters(*self._border_args, self.v_base.array, self.extra.vectors["v"].array)
+            self.lumped.follow_border(self.v_base.array, self.extra.vectors["v"].array)
 
     def cell_vertices(self) -> np.ndarray:
         """Reference vertex coordinates (n_cells, 8, 3) mm of the owned cells."""
@@ -241,22 +244,16 @@ class Structure:
         return self.comm.allreduce(local, op=MPI.SUM)
 
     def kinetic_energy(self) -> float:
-        local = 0.0
-        for block in self.blocks:
-            v = block.v.array[: block.n_owned]
-            local += 0.5 * np.dot(block.mass * v, v)
-        return self.comm.allreduce(local, op=MPI.SUM)
+        """Collective: kinetic energy (mJ) of both blocks."""
+        return self.lumped.kinetic_energy()
 
     def total_mass(self) -> float:
-        local = sum(block.mass[::3].sum() for block in self.blocks)
-        return self.comm.allreduce(local, op=MPI.SUM)
+        """Collective: the mass (tonne) the solver integrates."""
+        return self.lumped.total_mass()
 
     def momentum(self) -> np.ndarray:
-        local = np.zeros(3)
-        for block in self.blocks:
-            v = block.v.array[: block.n_owned].reshape(-1, 3)
-            local += (block.mass[::3, None] * v).sum(axis=0)
-        return self.comm.allreduce(local, op=MPI.SUM)
+        """Collective: linear momentum (3,) tonne mm/s."""
+        return self.lumped.momentum()
 
     def stable_time_step(self) -> tuple[float, str]:
         """Collective: (the stable step (s) of the central-difference scheme, where it is
@@ -473,8 +470,18 @@ class Structure:
             cells = self.refinement.to_strengthen(changed, target, interface)
             self._activate_strong(cells, interface)
 
-        self._resize_extra_vectors()
-        self._update_masses(changed, old_state)
+        self.lumped.resize_extra(self.extra.index_map)
+        self.lumped.add_mass_change(
+            subelement_mass_change(
+                changed,
+                old_state[changed],
+                self.interface_state[changed],
+                self._subelement_nodes_many,
+                lambda nodes: self.gather(nodes, "X"),
+                self.rule_table,
+                self.n_base + self.extra.n_local,
+            )
+        )
         self._rebuild_maps()
         if self.ply_damage:
             self._rebuild_damaged_elements()
@@ -585,26 +592,18 @@ class Structure:
             self.cohesive.history,
         )
 
-    def _resize_extra_vectors(self) -> None:
-        """Force and (assembled) mass vectors of the extra nodes after their set changed."""
-        old_mass = getattr(self, "mass_extra", None)
-        self.f_extra = la.vector(self.extra.index_map, bs=3)
-        self.mass_extra = la.vector(self.extra.index_map, bs=3)
-        if old_mass is not None:
-            n_old = old_mass.index_map.size_local * 3
-            self.mass_extra.array[:n_old] = old_mass.array[:n_old]
-
     def _rebuild_blocks(self) -> None:
-        """Collective: border constraints, the masses the solver divides by (constrained masses
-        moved to their masters), prescribed DOFs; constrained nodes put on their masters."""
+        """Collective: border constraints and prescribed extra DOFs of the current extra nodes,
+        handed to the blocks (``LumpedBlocks.rebuild``)."""
         prescribed = extra_node_prescriptions(
             self.motions, self.base, self.extra, self.column_top, self.refinement.n_interfaces
         )
+        border = self.border
         if self.extra.index_map.size_global:  # the same on every rank: column_counts is collective
             counts = column_counts(
                 self.comm, self.base.V.dofmap.index_map, self.bottom_local, self.interface_state
             )
-            self.border = border_constraints(
+            border = border_constraints(
                 counts,
                 self.extra,
                 self.column_top,
@@ -612,62 +611,12 @@ class Structure:
                 self.n_base,
                 prescribed >= 0,
             )
-        self._border_args = (
-            self.border.dofs,
-            self.border.masters,
-            self.border.weights,
-            3 * self.n_base,
+        self.lumped.rebuild(
+            border,
+            prescribed,
+            (self.base.u.x, self.v_base),
+            (self.extra.vectors["u"], self.extra.vectors["v"]),
         )
-        mass_base, mass_extra = transfer_masses(
-            self.border, self.mass_base, self.mass_extra, self.n_base
-        )
-        self.follow_border(velocity=True)
-        n_owned = self.extra.n_owned * 3
-        fixed = np.flatnonzero(prescribed[:n_owned] >= 0).astype(np.int32)
-        self.base_block = Block(
-            u=self.base.u.x,
-            v=self.v_base,
-            f=self.f_base,
-            mass=mass_base,
-            fixed=self.loads.fixed,
-            fixed_motion=self.loads.fixed_motion,
-        )
-        self.extra_block = Block(
-            u=self.extra.vectors["u"],
-            v=self.extra.vectors["v"],
-            f=self.f_extra,
-            mass=mass_extra,
-            fixed=fixed,
-            fixed_motion=prescribed[fixed].astype(np.int32),
-        )
-
-    def _update_masses(self, cells: np.ndarray, old_state: np.ndarray) -> None:
-        """Take each changed cell's old (sub)element masses off its nodes, put the new ones on;
-        sums on shared nodes are completed by reverse scatters."""
-        cells = np.asarray(cells, dtype=np.int64)
-        parts = []
-        for states, sign in ((old_state[cells], -1.0), (self.interface_state[cells], 1.0)):
-            rows, first, stop = enr.subelement_table(states)
-            nodes = self._subelement_nodes_many(states[rows], first, stop, cells[rows])
-            parts.append((rows, first, stop, nodes, np.full(len(rows), sign)))
-        # cell by cell, old then new: the order the sums have always been taken in
-        order = np.argsort(np.concatenate([parts[0][0], parts[1][0]]), kind="stable")
-        first, stop, nodes, signs = (
-            np.concatenate([parts[0][k], parts[1][k]])[order] for k in (1, 2, 3, 4)
-        )
-        delta = np.zeros(self.n_base + self.extra.n_local)  # combined local nodes
-        if len(nodes):
-            masses = self.rule_table.lumped_masses(self.gather(nodes, "X"), first, stop)
-            masses *= signs[:, None]
-            np.add.at(delta, nodes.ravel(), masses.ravel())  # in order, as a loop would
-        delta_base, delta_extra = delta[: self.n_base], delta[self.n_base :]
-        for delta, target in ((delta_base, self.mass_base), (delta_extra, self.mass_extra)):
-            scratch = la.vector(target.index_map, bs=3)
-            scratch.array.reshape(-1, 3)[:] = delta[:, None]
-            scratch.scatter_reverse(la.InsertMode.add)
-            n_owned = target.index_map.size_local * 3
-            target.array[:n_owned] += scratch.array[:n_owned]
-            target.scatter_forward()
 
     def gather(self, nodes: np.ndarray, name: str) -> np.ndarray:
         """Values (*nodes.shape, 3) of ``name``: "u" (displacement, mm), "v" (velocity, mm/s)
