@@ -372,3 +372,60 @@ def test_blocks_move_mass_to_the_extra_nodes_of_a_refined_cell_and_keep_the_tota
     blocks.resize_extra(common.IndexMap(MPI.COMM_SELF, 10))
     np.testing.assert_array_equal(blocks.mass_extra.array[:24], kept)
     assert not blocks.mass_extra.array[24:].any()
+
+
+# --- the refined cells' elements --------------------------------------------------------------
+def test_refined_cells_of_one_cell_open_only_at_its_strong_interface():
+    """One three-ply cell, weak at interface 1 and strong at 2, its elements made by the part
+    alone: three one-ply subelements and one cohesive element; opening the strong interface by
+    a rigid lift of what lies above it stores K_n delta^2 A / 2 in the cohesive element only,
+    and its two faces get equal and opposite forces K_n delta A."""
+    from fenics_adaptive.model.refined_cells import RefinedCells
+    from fenics_adaptive.settings.materials import CohesiveLaw
+
+    law = CohesiveLaw(K_n=1e5, K_s=1e5, N=20.0, S=40.0, GIc=0.4, GIIc=1.0, law="bk", exponent=2.0)
+    table = RuleTable(LAMINATE, 2)
+    refined = RefinedCells(table, CohesiveSet.empty(law.as_array()))
+    refined.cohesive.grow_rows(1)  # the damage row of (cell 0, interface 2)
+    # combined nodes: 0-7 the cell, then interface 1 (8-11), interface 2 set A (12-15), set B
+    faces = {0: np.arange(4), 1: 8 + np.arange(4), 2: 12 + np.arange(4), 3: 4 + np.arange(4)}
+
+    def subelement_nodes(states, first, stop, cells):
+        spans = zip(first, stop, strict=True)
+        top = {**faces, 2: 16 + np.arange(4)}  # above the strong interface: set B
+        return np.array(
+            [np.concatenate([top[a] if a == 2 else faces[a], faces[b]]) for a, b in spans]
+        )
+
+    def cohesive_nodes(interfaces, cells):
+        return np.array([np.concatenate([12 + np.arange(4), 16 + np.arange(4)])])
+
+    states = np.array([[InterfaceState.WEAK, InterfaceState.STRONG]])
+    refined.rebuild(np.array([0]), states, {(0, 2): 0}, subelement_nodes, cohesive_nodes)
+    np.testing.assert_array_equal(refined.plies, [[0, 1], [1, 2], [2, 3]])
+    np.testing.assert_array_equal(refined.cells, [0, 0, 0])
+    np.testing.assert_allclose(refined.speeds, table.wave_speed(refined.plies))
+    np.testing.assert_array_equal(refined.cohesive.interface, [2])
+    nodes, cells, plies = refined.elements(
+        np.zeros((0, 8)), np.zeros(0, np.int64), np.zeros((0, 2))
+    )
+    assert nodes.dtype == np.int32 and len(nodes) == 3
+    np.testing.assert_array_equal(cells, refined.cells)
+    np.testing.assert_array_equal(plies, refined.plies)
+
+    X_base = box(1.0, 1.0, LAMINATE.thickness)[0]
+    z = LAMINATE.ply_fractions * LAMINATE.thickness
+    X_extra = np.vstack([np.column_stack([X_base[:4, :2], np.full(4, h)]) for h in z[[1, 2, 2]]])
+    delta = 1.0e-5  # mm, below the onset opening N / K_n = 2e-4 mm
+    u_base, u_extra = np.zeros((8, 3)), np.zeros((12, 3))
+    u_base[4:, 2] = delta  # the top of the cell and set B lifted
+    u_extra[8:, 2] = delta
+    f_base, f_extra = np.zeros((8, 3)), np.zeros((12, 3))
+    solid = refined.add_subelement_forces(X_base, X_extra, u_base, u_extra, f_base, f_extra, False)
+    assert abs(solid) < 1e-20
+    assert np.abs(f_base).max() < 1e-9 and np.abs(f_extra).max() < 1e-9
+    cohesive = refined.add_cohesive_forces(X_base, X_extra, u_base, u_extra, f_base, f_extra)
+    assert cohesive == pytest.approx(0.5 * law.K_n * delta**2, rel=1e-10)  # area 1 mm^2
+    assert f_extra[8:, 2].sum() == pytest.approx(law.K_n * delta, rel=1e-10)
+    assert f_extra[4:8, 2].sum() == pytest.approx(-law.K_n * delta, rel=1e-10)
+    assert refined.cohesive.damage.max() == 0.0

@@ -44,12 +44,7 @@ from fenics_adaptive.element.geometry import quad_areas, thickness_weight
 from fenics_adaptive.element.rules import RuleTable
 from fenics_adaptive.errors import InputError
 from fenics_adaptive.materials.laminate import Laminate
-from fenics_adaptive.model.assembly import (
-    CohesiveSet,
-    SubelementSet,
-    add_cohesive_forces,
-    add_subelement_forces,
-)
+from fenics_adaptive.model.assembly import CohesiveSet, SubelementSet
 from fenics_adaptive.model.blocks import Block, LumpedBlocks, subelement_mass_change
 from fenics_adaptive.model.border import BorderConstraints, border_constraints, column_counts
 from fenics_adaptive.model.forms import LayeredModel
@@ -60,6 +55,7 @@ from fenics_adaptive.model.loading import (
     extra_node_prescriptions,
 )
 from fenics_adaptive.model.ply_damage_state import PlyDamageState
+from fenics_adaptive.model.refined_cells import RefinedCells
 from fenics_adaptive.model.time_step import stable_time_step
 from fenics_adaptive.model.topology import CellColumnTable
 from fenics_adaptive.settings.adaptivity import Interfaces, Stabilisation
@@ -94,8 +90,6 @@ class Structure:
         self.X_base = V.tabulate_dof_coordinates()[: self.n_base].copy()
         self.v_base = fem.Function(V, name="velocity").x
         self.interfaces = interfaces or Interfaces()
-        self.law_params = law_params
-        self.cohesive = cohesive if cohesive is not None else CohesiveSet.empty(np.zeros(8))
         self.motions = _motions(loads, self.interfaces, len(base.layer_laminates))
 
         if len(base.layer_laminates) > 1 and (
@@ -116,10 +110,11 @@ class Structure:
         self.original_cell, self.column_top = self.columns.original_cell, self.columns.column_top
         self.extra = enr.ExtraNodes(self.comm, max(n_interfaces, 1), V.dofmap.index_map)
         self.rule_table = RuleTable(laminate, base.points_per_ply)
-        self.subelements = SubelementSet.empty(self.rule_table.packed)
-        self.subelement_cells = np.zeros(0, dtype=np.int64)
-        self.subelement_plies = np.zeros((0, 2), dtype=np.int64)
-        self.subelement_speeds = np.zeros(0)
+        self.refined_cells = RefinedCells(
+            self.rule_table,
+            cohesive if cohesive is not None else CohesiveSet.empty(np.zeros(8)),
+            law_params,
+        )
         self.ply_damage_state: PlyDamageState | None = None
         if ply_damage:
             self._setup_ply_damage()
@@ -143,6 +138,31 @@ class Structure:
     @property
     def extra_block(self) -> Block:
         return self.lumped.extra_block
+
+    @property
+    def subelements(self) -> SubelementSet:
+        """The refined cells' subelements (``RefinedCells.subelements``)."""
+        return self.refined_cells.subelements
+
+    @property
+    def subelement_cells(self) -> np.ndarray:
+        """(n,) owned cell of each subelement."""
+        return self.refined_cells.cells
+
+    @property
+    def subelement_plies(self) -> np.ndarray:
+        """(n, 2) laminate plies [first, stop) of each subelement."""
+        return self.refined_cells.plies
+
+    @property
+    def subelement_speeds(self) -> np.ndarray:
+        """(n,) dilatational wave speed (mm/s) of each subelement."""
+        return self.refined_cells.speeds
+
+    @property
+    def cohesive(self) -> CohesiveSet:
+        """The cohesive elements (an LW model's, or those of the strong interfaces)."""
+        return self.refined_cells.cohesive
 
     @property
     def f_base(self) -> la.Vector:
@@ -186,11 +206,11 @@ class Structure:
             self.base.add_internal_force(f_base)
             # the subelements use the base model's kinematics, read per call so that
             # LayeredModel.set_kinematics switches both paths together
-            self._solid_energy = add_subelement_forces(
-                self.subelements, self.X_base, X_extra, u_base, u_extra, fb, fx, self.base.finite
+            self._solid_energy = self.refined_cells.add_subelement_forces(
+                self.X_base, X_extra, u_base, u_extra, fb, fx, self.base.finite
             )
-        self._cohesive_energy = add_cohesive_forces(
-            self.cohesive, self.X_base, X_extra, u_base, u_extra, fb, fx
+        self._cohesive_energy = self.refined_cells.add_cohesive_forces(
+            self.X_base, X_extra, u_base, u_extra, fb, fx
         )
         self.lumped.complete_forces()
 
@@ -313,12 +333,7 @@ class Structure:
         unrefined = self.refinement.unrefined_cells()
         nodes = np.hstack([self.bottom_local, self.top_local])[unrefined]
         cells = unrefined.astype(np.int64)
-        plies = self.cell_plies[unrefined]
-        if len(self.subelements):
-            nodes = np.vstack([nodes, self.subelements.nodes])
-            cells = np.concatenate([cells, self.subelement_cells])
-            plies = np.vstack([plies, self.subelement_plies])
-        return nodes.astype(np.int32), cells, plies
+        return self.refined_cells.elements(nodes, cells, self.cell_plies[unrefined])
 
     # ------------------------------------------------------------------ checkpoint
     def state(self) -> dict[str, np.ndarray]:
@@ -564,32 +579,17 @@ class Structure:
         )
 
     def _rebuild_maps(self) -> None:
+        """The subelements and cohesive elements of the refined cells (``RefinedCells``)."""
         refined = self.refinement.refined_cells()
-        states = self.interface_state[refined]
-        rows, first, stop = enr.subelement_table(states)
-        cells = refined[rows]
-        nodes = self._subelement_nodes_many(states[rows], first, stop, cells)
-        spans = np.column_stack([first, stop]).astype(np.int64)
-        self.subelements = SubelementSet(
-            nodes, self.rule_table.rule_of(spans), self.subelements.rules
-        )
-        self.subelement_cells = cells.astype(np.int64)
-        self.subelement_plies = spans
-        self.subelement_speeds = self.rule_table.wave_speed(spans)
-        # cohesive elements: cells in order, interfaces bottom to top
-        rows, interface_index = np.nonzero(states == InterfaceState.STRONG)
-        cells, interfaces = refined[rows], interface_index + 1
-        pairs = zip(cells.tolist(), interfaces.tolist(), strict=True)
-        coh_rows = [self.damage_rows[pair] for pair in pairs]
-        self.cohesive = CohesiveSet(
-            self.columns.cohesive_nodes(
-                interfaces, cells, self.refinement.n_interfaces, self.extra.locate
+        n_interfaces = self.refinement.n_interfaces
+        self.refined_cells.rebuild(
+            refined,
+            self.interface_state[refined],
+            self.damage_rows,
+            self._subelement_nodes_many,
+            lambda interfaces, cells: self.columns.cohesive_nodes(
+                interfaces, cells, n_interfaces, self.extra.locate
             ),
-            np.array(coh_rows, dtype=np.int64),
-            self.cohesive.damage,
-            self.law_params if self.law_params is not None else self.cohesive.params,
-            interfaces.astype(np.int32),
-            self.cohesive.history,
         )
 
     def _rebuild_blocks(self) -> None:
