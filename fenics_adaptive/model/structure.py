@@ -32,6 +32,7 @@ The stable step is computed in ``model.time_step``.
 from __future__ import annotations
 
 from collections.abc import Iterable
+from operator import attrgetter
 
 import numpy as np
 from dolfinx import fem, la
@@ -44,9 +45,9 @@ from fenics_adaptive.element.geometry import quad_areas, thickness_weight
 from fenics_adaptive.element.rules import RuleTable
 from fenics_adaptive.errors import InputError
 from fenics_adaptive.materials.laminate import Laminate
-from fenics_adaptive.model.assembly import CohesiveSet, SubelementSet
+from fenics_adaptive.model.assembly import CohesiveSet
 from fenics_adaptive.model.blocks import Block, LumpedBlocks, subelement_mass_change
-from fenics_adaptive.model.border import BorderConstraints, border_constraints, column_counts
+from fenics_adaptive.model.border import border_constraints, column_counts
 from fenics_adaptive.model.forms import LayeredModel
 from fenics_adaptive.model.loading import (
     Amplitude,
@@ -131,63 +132,41 @@ class Structure:
         """[base block, extra block] (``model.blocks.LumpedBlocks``)."""
         return self.lumped.blocks
 
-    @property
-    def base_block(self) -> Block:
-        return self.lumped.base_block
-
-    @property
-    def extra_block(self) -> Block:
-        return self.lumped.extra_block
-
-    @property
-    def subelements(self) -> SubelementSet:
-        """The refined cells' subelements (``RefinedCells.subelements``)."""
-        return self.refined_cells.subelements
-
-    @property
-    def subelement_cells(self) -> np.ndarray:
-        """(n,) owned cell of each subelement."""
-        return self.refined_cells.cells
-
-    @property
-    def subelement_plies(self) -> np.ndarray:
-        """(n, 2) laminate plies [first, stop) of each subelement."""
-        return self.refined_cells.plies
-
-    @property
-    def subelement_speeds(self) -> np.ndarray:
-        """(n,) dilatational wave speed (mm/s) of each subelement."""
-        return self.refined_cells.speeds
-
-    @property
-    def cohesive(self) -> CohesiveSet:
-        """The cohesive elements (an LW model's, or those of the strong interfaces)."""
-        return self.refined_cells.cohesive
-
-    @property
-    def f_base(self) -> la.Vector:
-        """Internal force (N) of the base DOFs."""
-        return self.lumped.f_base
-
-    @property
-    def f_extra(self) -> la.Vector:
-        """Internal force (N) of the extra DOFs."""
-        return self.lumped.f_extra
-
-    @property
-    def mass_base(self) -> la.Vector:
-        """Assembled lumped mass (tonne) of the base DOFs (before the border's transfer)."""
-        return self.lumped.mass_base
-
-    @property
-    def mass_extra(self) -> la.Vector:
-        """Assembled lumped mass (tonne) of the extra DOFs (before the border's transfer)."""
-        return self.lumped.mass_extra
-
-    @property
-    def border(self) -> BorderConstraints:
-        """The extra DOFs on the border of refined regions, bound to their masters."""
-        return self.lumped.border
+    base_block = property(attrgetter("lumped.base_block"), doc="The base nodes' block.")
+    extra_block = property(attrgetter("lumped.extra_block"), doc="The extra nodes' block.")
+    subelements = property(
+        attrgetter("refined_cells.subelements"),
+        doc="The refined cells' subelements (``RefinedCells.subelements``).",
+    )
+    subelement_cells = property(
+        attrgetter("refined_cells.cells"), doc="(n,) owned cell of each subelement."
+    )
+    subelement_plies = property(
+        attrgetter("refined_cells.plies"),
+        doc="(n, 2) laminate plies [first, stop) of each subelement.",
+    )
+    subelement_speeds = property(
+        attrgetter("refined_cells.speeds"),
+        doc="(n,) dilatational wave speed (mm/s) of each subelement.",
+    )
+    cohesive = property(
+        attrgetter("refined_cells.cohesive"),
+        doc="The cohesive elements (an LW model's, or those of the strong interfaces).",
+    )
+    f_base = property(attrgetter("lumped.f_base"), doc="Internal force (N) of the base DOFs.")
+    f_extra = property(attrgetter("lumped.f_extra"), doc="Internal force (N) of the extra DOFs.")
+    mass_base = property(
+        attrgetter("lumped.mass_base"),
+        doc="Assembled lumped mass (tonne) of the base DOFs (before the border's transfer).",
+    )
+    mass_extra = property(
+        attrgetter("lumped.mass_extra"),
+        doc="Assembled lumped mass (tonne) of the extra DOFs (before the border's transfer).",
+    )
+    border = property(
+        attrgetter("lumped.border"),
+        doc="The extra DOFs on the border of refined regions, bound to their masters.",
+    )
 
     def internal_force(self) -> None:
         """f_int into both blocks' ``f`` (owned entries complete)."""
@@ -295,10 +274,10 @@ class Structure:
         self.base.set_ufl_cells([np.zeros(0, np.int32)] * len(self.base.layer_laminates))
         self._rebuild_damaged_elements()
 
-    @property
-    def damage_state(self) -> np.ndarray:
-        """(n_cells, n_plies, N_STATE) ply damage state of the owned cells (with ply damage)."""
-        return self.ply_damage_state.damage
+    damage_state = property(
+        attrgetter("ply_damage_state.damage"),
+        doc="(n_cells, n_plies, N_STATE) ply damage state of the owned cells (with ply damage).",
+    )
 
     def scale_matrix_strength(self, cells: np.ndarray, plies: Iterable[int], factor: float) -> None:
         """Let the matrix of these plies (0-based) in these owned cells crack at ``factor`` times
@@ -422,30 +401,26 @@ class Structure:
         return out
 
     # ------------------------------------------------------------------ refinement
-    @property
-    def interface_state(self) -> np.ndarray:
-        """(n_cells, n_interfaces) NONE, WEAK or STRONG of each owned cell's interfaces."""
-        return self.refinement.interface_state
-
-    @property
-    def weak_since(self) -> np.ndarray:
-        """(n_cells, n_interfaces) time (s) each interface became weak, inf if not yet."""
-        return self.refinement.weak_since
-
-    @property
-    def damage_rows(self) -> dict[tuple[int, int], int]:
-        """Cohesive damage row of each strong (owned cell, interface)."""
-        return self.refinement.damage_rows
-
-    @property
-    def refinement_energy(self) -> float:
-        """Mechanical energy (mJ) that refinements added in total."""
-        return self.refinement.energy
-
-    @property
-    def last_refinement_potential(self) -> float:
-        """Potential-energy part (mJ) of the last refinement's change."""
-        return self.refinement.last_potential
+    interface_state = property(
+        attrgetter("refinement.interface_state"),
+        doc="(n_cells, n_interfaces) NONE, WEAK or STRONG of each owned cell's interfaces.",
+    )
+    weak_since = property(
+        attrgetter("refinement.weak_since"),
+        doc="(n_cells, n_interfaces) time (s) each interface became weak, inf if not yet.",
+    )
+    damage_rows = property(
+        attrgetter("refinement.damage_rows"),
+        doc="Cohesive damage row of each strong (owned cell, interface).",
+    )
+    refinement_energy = property(
+        attrgetter("refinement.energy"),
+        doc="Mechanical energy (mJ) that refinements added in total.",
+    )
+    last_refinement_potential = property(
+        attrgetter("refinement.last_potential"),
+        doc="Potential-energy part (mJ) of the last refinement's change.",
+    )
 
     def refine(self, requests: Iterable[tuple[int, int, int]], t: float = 0.0) -> bool:
         """Collective: refine owned cells at time t. ``requests``: (local cell, interface, WEAK
