@@ -1,7 +1,7 @@
 """The parts ``Structure`` is built from, each alone: the geometric helpers, the rule table, the
 stabilisation, ply-damage and refinement states (their ``state()`` / ``restore()`` round trips),
-the cohesive damage rows; and the comparison's element forces, which now take the structure's
-own rules.
+the cohesive damage rows, the solver's blocks (lumped masses moved by a refinement); and the
+comparison's element forces, which now take the structure's own rules.
 
 Units: N, mm, s, tonne (stress MPa, energy mJ).
 """
@@ -262,3 +262,170 @@ def test_element_forces_of_one_ply_subelements_with_one_point_per_ply():
     expected = np.concatenate([structure.f_base.array, structure.f_extra.array]).reshape(-1, 3)
     total = cmp.element_forces(structure, np.ones(len(plies), dtype=bool))
     assert np.abs(total - expected).max() <= 1e-10 * np.abs(expected).max()
+
+
+# --- the solver's blocks: lumped masses, prescribed DOFs, totals ------------------------------
+def one_cell_space(thickness: float):
+    """A vector P1 space on one 1 x 1 x ``thickness`` mm hexahedron (DOLFINx tensor order)."""
+    from dolfinx import fem, mesh
+
+    cube = mesh.create_box(
+        MPI.COMM_SELF, [[0.0, 0.0, 0.0], [1.0, 1.0, thickness]], [1, 1, 1], mesh.CellType.hexahedron
+    )
+    return fem.functionspace(cube, ("Lagrange", 1, (3,)))
+
+
+def test_blocks_move_mass_to_the_extra_nodes_of_a_refined_cell_and_keep_the_total():
+    """A three-ply cell weakly refined at both interfaces, its masses moved by the blocks alone:
+    the total mass stays the laminate's, and each interface plane carries half of the plies on
+    either side (one-ply subelements of uniform density lump m/8 on each vertex)."""
+    from dolfinx import common, la
+
+    from fenics_adaptive.model.blocks import LumpedBlocks, subelement_mass_change
+    from fenics_adaptive.model.border import BorderConstraints
+
+    V = one_cell_space(LAMINATE.thickness)
+    cell = V.dofmap.list[0].astype(np.int64)  # bottom four, then top four
+    X_base = V.tabulate_dof_coordinates()
+    table = RuleTable(LAMINATE, 2)
+    ply_mass = np.array([p.material.rho * p.thickness for p in LAMINATE.plies])  # area 1 mm^2
+    base_mass = np.zeros(3 * len(X_base))
+    cell_masses = table.lumped_masses(X_base[cell][None], np.array([0]), np.array([3]))[0]
+    for node, m in zip(cell, cell_masses, strict=True):
+        base_mass[3 * node : 3 * node + 3] = m
+    blocks = LumpedBlocks(
+        V,
+        base_mass,
+        common.IndexMap(MPI.COMM_SELF, 0),
+        np.zeros(0, np.int32),
+        np.zeros(0, np.int32),
+    )
+
+    def fields(index_map):
+        return la.vector(index_map, bs=3), la.vector(index_map, bs=3)
+
+    base_fields = fields(V.dofmap.index_map)
+    blocks.rebuild(
+        BorderConstraints.empty(),
+        np.zeros(0, np.int64),
+        base_fields,
+        fields(blocks.f_extra.index_map),
+    )
+    assert blocks.total_mass() == pytest.approx(ply_mass.sum(), rel=1e-13)
+
+    # extra nodes 4 (i - 1) + k at interface i: combined local index n_base + that
+    n_base = len(X_base)
+    fractions = LAMINATE.ply_fractions
+
+    def subelement_nodes(states, first, stop, cells):
+        def face(level, half):
+            if level == 0 or level == LAMINATE.n_plies:
+                return cell[half]
+            return n_base + 4 * (level - 1) + np.arange(4)
+
+        return np.array(
+            [
+                np.concatenate([face(a, slice(0, 4)), face(b, slice(4, 8))])
+                for a, b in zip(first, stop, strict=True)
+            ]
+        )
+
+    def positions(nodes):
+        out = X_base[np.minimum(nodes, n_base - 1)].copy()
+        extra = nodes >= n_base
+        level = (nodes[extra] - n_base) // 4 + 1
+        out[extra] = X_base[cell[(nodes[extra] - n_base) % 4]]
+        out[extra, 2] = fractions[level] * LAMINATE.thickness
+        return out
+
+    weak = np.full((1, 2), InterfaceState.WEAK)
+    none = np.full((1, 2), InterfaceState.NONE)
+    delta = subelement_mass_change(
+        np.array([0]), none, weak, subelement_nodes, positions, table, n_base + 8
+    )
+    assert delta.sum() == pytest.approx(0.0, abs=1e-14 * ply_mass.sum())  # moved, not made
+    blocks.resize_extra(common.IndexMap(MPI.COMM_SELF, 8))
+    blocks.add_mass_change(delta)
+    # interface 1's node 0 held in z by motion 0: the extra block's one prescribed DOF
+    prescribed = np.full(24, -1, dtype=np.int64)
+    prescribed[2] = 0
+    extra_fields = fields(blocks.f_extra.index_map)
+    blocks.rebuild(BorderConstraints.empty(), prescribed, base_fields, extra_fields)
+    np.testing.assert_array_equal(blocks.extra_block.fixed, [2])
+    np.testing.assert_array_equal(blocks.extra_block.fixed_motion, [0])
+    assert blocks.total_mass() == pytest.approx(ply_mass.sum(), rel=1e-13)
+    extra = blocks.extra_block.mass[::3]
+    assert extra[:4].sum() == pytest.approx(0.5 * (ply_mass[0] + ply_mass[1]), rel=1e-12)
+    assert extra[4:].sum() == pytest.approx(0.5 * (ply_mass[1] + ply_mass[2]), rel=1e-12)
+    base = blocks.base_block.mass[::3]
+    assert base[cell[:4]].sum() == pytest.approx(0.5 * ply_mass[0], rel=1e-12)
+    assert base[cell[4:]].sum() == pytest.approx(0.5 * ply_mass[2], rel=1e-12)
+
+    # a rigid translation at w (mm/s): momentum M w, kinetic energy M |w|^2 / 2
+    w = np.array([3.0, -1.0, 2.0])
+    for v in (base_fields[1], extra_fields[1]):
+        v.array.reshape(-1, 3)[:] = w
+    np.testing.assert_allclose(blocks.momentum(), ply_mass.sum() * w, rtol=1e-12)
+    assert blocks.kinetic_energy() == pytest.approx(0.5 * ply_mass.sum() * w @ w, rel=1e-12)
+    # more extra nodes: the owned ones keep their assembled masses, the new start empty
+    kept = blocks.mass_extra.array.copy()
+    blocks.resize_extra(common.IndexMap(MPI.COMM_SELF, 10))
+    np.testing.assert_array_equal(blocks.mass_extra.array[:24], kept)
+    assert not blocks.mass_extra.array[24:].any()
+
+
+# --- the refined cells' elements --------------------------------------------------------------
+def test_refined_cells_of_one_cell_open_only_at_its_strong_interface():
+    """One three-ply cell, weak at interface 1 and strong at 2, its elements made by the part
+    alone: three one-ply subelements and one cohesive element; opening the strong interface by
+    a rigid lift of what lies above it stores K_n delta^2 A / 2 in the cohesive element only,
+    and its two faces get equal and opposite forces K_n delta A."""
+    from fenics_adaptive.model.refined_cells import RefinedCells
+    from fenics_adaptive.settings.materials import CohesiveLaw
+
+    law = CohesiveLaw(K_n=1e5, K_s=1e5, N=20.0, S=40.0, GIc=0.4, GIIc=1.0, law="bk", exponent=2.0)
+    table = RuleTable(LAMINATE, 2)
+    refined = RefinedCells(table, CohesiveSet.empty(law.as_array()))
+    refined.cohesive.grow_rows(1)  # the damage row of (cell 0, interface 2)
+    # combined nodes: 0-7 the cell, then interface 1 (8-11), interface 2 set A (12-15), set B
+    faces = {0: np.arange(4), 1: 8 + np.arange(4), 2: 12 + np.arange(4), 3: 4 + np.arange(4)}
+
+    def subelement_nodes(states, first, stop, cells):
+        spans = zip(first, stop, strict=True)
+        top = {**faces, 2: 16 + np.arange(4)}  # above the strong interface: set B
+        return np.array(
+            [np.concatenate([top[a] if a == 2 else faces[a], faces[b]]) for a, b in spans]
+        )
+
+    def cohesive_nodes(interfaces, cells):
+        return np.array([np.concatenate([12 + np.arange(4), 16 + np.arange(4)])])
+
+    states = np.array([[InterfaceState.WEAK, InterfaceState.STRONG]])
+    refined.rebuild(np.array([0]), states, {(0, 2): 0}, subelement_nodes, cohesive_nodes)
+    np.testing.assert_array_equal(refined.plies, [[0, 1], [1, 2], [2, 3]])
+    np.testing.assert_array_equal(refined.cells, [0, 0, 0])
+    np.testing.assert_allclose(refined.speeds, table.wave_speed(refined.plies))
+    np.testing.assert_array_equal(refined.cohesive.interface, [2])
+    nodes, cells, plies = refined.elements(
+        np.zeros((0, 8)), np.zeros(0, np.int64), np.zeros((0, 2))
+    )
+    assert nodes.dtype == np.int32 and len(nodes) == 3
+    np.testing.assert_array_equal(cells, refined.cells)
+    np.testing.assert_array_equal(plies, refined.plies)
+
+    X_base = box(1.0, 1.0, LAMINATE.thickness)[0]
+    z = LAMINATE.ply_fractions * LAMINATE.thickness
+    X_extra = np.vstack([np.column_stack([X_base[:4, :2], np.full(4, h)]) for h in z[[1, 2, 2]]])
+    delta = 1.0e-5  # mm, below the onset opening N / K_n = 2e-4 mm
+    u_base, u_extra = np.zeros((8, 3)), np.zeros((12, 3))
+    u_base[4:, 2] = delta  # the top of the cell and set B lifted
+    u_extra[8:, 2] = delta
+    f_base, f_extra = np.zeros((8, 3)), np.zeros((12, 3))
+    solid = refined.add_subelement_forces(X_base, X_extra, u_base, u_extra, f_base, f_extra, False)
+    assert abs(solid) < 1e-20
+    assert np.abs(f_base).max() < 1e-9 and np.abs(f_extra).max() < 1e-9
+    cohesive = refined.add_cohesive_forces(X_base, X_extra, u_base, u_extra, f_base, f_extra)
+    assert cohesive == pytest.approx(0.5 * law.K_n * delta**2, rel=1e-10)  # area 1 mm^2
+    assert f_extra[8:, 2].sum() == pytest.approx(law.K_n * delta, rel=1e-10)
+    assert f_extra[4:8, 2].sum() == pytest.approx(-law.K_n * delta, rel=1e-10)
+    assert refined.cohesive.damage.max() == 0.0

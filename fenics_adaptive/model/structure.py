@@ -22,15 +22,17 @@ unrefined neighbour (``border``). The per-step path allocates nothing.
 The structure composes parts with one job each: ``element.rules.RuleTable`` (the packed rules of
 every ply span), ``adaptivity.refinement.RefinementState`` (interface states, the refinement
 log and energy), ``adaptivity.stabilisation.StabilisationState`` (damping windows, tie forces),
-``model.ply_damage_state.PlyDamageState`` (matrix damage per cell and ply) and the cohesive set's
-damage rows; ``state()`` / ``restore()`` gather their history-dependent arrays for a checkpoint.
+``model.ply_damage_state.PlyDamageState`` (matrix damage per cell and ply),
+``model.blocks.LumpedBlocks`` (the solver's two blocks: lumped masses, force vectors, border
+constraints, prescribed DOFs) and the cohesive set's damage rows; ``state()`` / ``restore()``
+gather their history-dependent arrays for a checkpoint.
 The stable step is computed in ``model.time_step``.
 """
 
 from __future__ import annotations
 
 from collections.abc import Iterable
-from dataclasses import dataclass
+from operator import attrgetter
 
 import numpy as np
 from dolfinx import fem, la
@@ -43,20 +45,9 @@ from fenics_adaptive.element.geometry import quad_areas, thickness_weight
 from fenics_adaptive.element.rules import RuleTable
 from fenics_adaptive.errors import InputError
 from fenics_adaptive.materials.laminate import Laminate
-from fenics_adaptive.model.assembly import (
-    CohesiveSet,
-    SubelementSet,
-    add_cohesive_forces,
-    add_subelement_forces,
-)
-from fenics_adaptive.model.border import (
-    BorderConstraints,
-    border_constraints,
-    column_counts,
-    follow_masters,
-    transfer_forces,
-    transfer_masses,
-)
+from fenics_adaptive.model.assembly import CohesiveSet
+from fenics_adaptive.model.blocks import Block, LumpedBlocks, subelement_mass_change
+from fenics_adaptive.model.border import border_constraints, column_counts
 from fenics_adaptive.model.forms import LayeredModel
 from fenics_adaptive.model.loading import (
     Amplitude,
@@ -65,28 +56,11 @@ from fenics_adaptive.model.loading import (
     extra_node_prescriptions,
 )
 from fenics_adaptive.model.ply_damage_state import PlyDamageState
+from fenics_adaptive.model.refined_cells import RefinedCells
 from fenics_adaptive.model.time_step import stable_time_step
 from fenics_adaptive.model.topology import CellColumnTable
 from fenics_adaptive.settings.adaptivity import Interfaces, Stabilisation
 from fenics_adaptive.settings.kinds import InterfaceState
-
-
-@dataclass
-class Block:
-    """DOFs the solver integrates together: the base nodes, or the extra nodes. Vectors hold
-    owned then ghost entries; ``mass``, ``fixed`` refer to owned DOFs (block-unrolled, 3 per
-    node)."""
-
-    u: la.Vector
-    v: la.Vector
-    f: la.Vector  # internal force, owned entries complete after Structure.internal_force
-    mass: np.ndarray
-    fixed: np.ndarray
-    fixed_motion: np.ndarray  # index into Structure.motions
-
-    @property
-    def n_owned(self) -> int:
-        return len(self.mass)
 
 
 class Structure:
@@ -116,12 +90,7 @@ class Structure:
         self.n_base = V.dofmap.index_map.size_local + V.dofmap.index_map.num_ghosts
         self.X_base = V.tabulate_dof_coordinates()[: self.n_base].copy()
         self.v_base = fem.Function(V, name="velocity").x
-        self.f_base = fem.Function(V, name="internal_force").x
-        self.mass_base = fem.Function(V, name="mass").x
-        self.mass_base.array[:] = base.mass
         self.interfaces = interfaces or Interfaces()
-        self.law_params = law_params
-        self.cohesive = cohesive if cohesive is not None else CohesiveSet.empty(np.zeros(8))
         self.motions = _motions(loads, self.interfaces, len(base.layer_laminates))
 
         if len(base.layer_laminates) > 1 and (
@@ -142,29 +111,67 @@ class Structure:
         self.original_cell, self.column_top = self.columns.original_cell, self.columns.column_top
         self.extra = enr.ExtraNodes(self.comm, max(n_interfaces, 1), V.dofmap.index_map)
         self.rule_table = RuleTable(laminate, base.points_per_ply)
-        self.subelements = SubelementSet.empty(self.rule_table.packed)
-        self.subelement_cells = np.zeros(0, dtype=np.int64)
-        self.subelement_plies = np.zeros((0, 2), dtype=np.int64)
-        self.subelement_speeds = np.zeros(0)
+        self.refined_cells = RefinedCells(
+            self.rule_table,
+            cohesive if cohesive is not None else CohesiveSet.empty(np.zeros(8)),
+            law_params,
+        )
         self.ply_damage_state: PlyDamageState | None = None
         if ply_damage:
             self._setup_ply_damage()
         self._solid_energy = 0.0
         self._cohesive_energy = 0.0
-        self.border = BorderConstraints.empty()
-        self._resize_extra_vectors()
+        self.lumped = LumpedBlocks(
+            V, base.mass, self.extra.index_map, loads.fixed, loads.fixed_motion
+        )
         self._rebuild_blocks()
 
     # ------------------------------------------------------------------ what the solver uses
     @property
     def blocks(self) -> list[Block]:
-        return [self.base_block, self.extra_block]
+        """[base block, extra block] (``model.blocks.LumpedBlocks``)."""
+        return self.lumped.blocks
+
+    base_block = property(attrgetter("lumped.base_block"), doc="The base nodes' block.")
+    extra_block = property(attrgetter("lumped.extra_block"), doc="The extra nodes' block.")
+    subelements = property(
+        attrgetter("refined_cells.subelements"),
+        doc="The refined cells' subelements (``RefinedCells.subelements``).",
+    )
+    subelement_cells = property(
+        attrgetter("refined_cells.cells"), doc="(n,) owned cell of each subelement."
+    )
+    subelement_plies = property(
+        attrgetter("refined_cells.plies"),
+        doc="(n, 2) laminate plies [first, stop) of each subelement.",
+    )
+    subelement_speeds = property(
+        attrgetter("refined_cells.speeds"),
+        doc="(n,) dilatational wave speed (mm/s) of each subelement.",
+    )
+    cohesive = property(
+        attrgetter("refined_cells.cohesive"),
+        doc="The cohesive elements (an LW model's, or those of the strong interfaces).",
+    )
+    f_base = property(attrgetter("lumped.f_base"), doc="Internal force (N) of the base DOFs.")
+    f_extra = property(attrgetter("lumped.f_extra"), doc="Internal force (N) of the extra DOFs.")
+    mass_base = property(
+        attrgetter("lumped.mass_base"),
+        doc="Assembled lumped mass (tonne) of the base DOFs (before the border's transfer).",
+    )
+    mass_extra = property(
+        attrgetter("lumped.mass_extra"),
+        doc="Assembled lumped mass (tonne) of the extra DOFs (before the border's transfer).",
+    )
+    border = property(
+        attrgetter("lumped.border"),
+        doc="The extra DOFs on the border of refined regions, bound to their masters.",
+    )
 
     def internal_force(self) -> None:
         """f_int into both blocks' ``f`` (owned entries complete)."""
+        self.lumped.zero_forces()
         f_base, f_extra = self.f_base.array, self.f_extra.array
-        f_base.fill(0.0)
-        f_extra.fill(0.0)
         u_base = self.base.u.x.array.reshape(-1, 3)
         u_extra = self.extra.vectors["u"].array.reshape(-1, 3)
         X_extra = self.extra.vectors["X"].array.reshape(-1, 3)
@@ -178,25 +185,20 @@ class Structure:
             self.base.add_internal_force(f_base)
             # the subelements use the base model's kinematics, read per call so that
             # LayeredModel.set_kinematics switches both paths together
-            self._solid_energy = add_subelement_forces(
-                self.subelements, self.X_base, X_extra, u_base, u_extra, fb, fx, self.base.finite
+            self._solid_energy = self.refined_cells.add_subelement_forces(
+                self.X_base, X_extra, u_base, u_extra, fb, fx, self.base.finite
             )
-        self._cohesive_energy = add_cohesive_forces(
-            self.cohesive, self.X_base, X_extra, u_base, u_extra, fb, fx
+        self._cohesive_energy = self.refined_cells.add_cohesive_forces(
+            self.X_base, X_extra, u_base, u_extra, fb, fx
         )
-        if len(self.border):
-            transfer_forces(*self._border_args, f_base, f_extra)
-        self.f_base.scatter_reverse(la.InsertMode.add)
-        self.f_extra.scatter_reverse(la.InsertMode.add)
+        self.lumped.complete_forces()
 
     def follow_border(self, velocity: bool = False) -> None:
         """Put the constrained extra DOFs (owned and ghosts) where their masters are (after
         the masters moved and were forward-scattered); also their velocities if asked."""
-        if not len(self.border):
-            return
-        follow_masters(*self._border_args, self.base.u.x.array, self.extra.vectors["u"].array)
+        self.lumped.follow_border(self.base.u.x.array, self.extra.vectors["u"].array)
         if velocity:
-            follow_masters(*self._border_args, self.v_base.array, self.extra.vectors["v"].array)
+            self.lumped.follow_border(self.v_base.array, self.extra.vectors["v"].array)
 
     def cell_vertices(self) -> np.ndarray:
         """Reference vertex coordinates (n_cells, 8, 3) mm of the owned cells."""
@@ -241,22 +243,16 @@ class Structure:
         return self.comm.allreduce(local, op=MPI.SUM)
 
     def kinetic_energy(self) -> float:
-        local = 0.0
-        for block in self.blocks:
-            v = block.v.array[: block.n_owned]
-            local += 0.5 * np.dot(block.mass * v, v)
-        return self.comm.allreduce(local, op=MPI.SUM)
+        """Collective: kinetic energy (mJ) of both blocks."""
+        return self.lumped.kinetic_energy()
 
     def total_mass(self) -> float:
-        local = sum(block.mass[::3].sum() for block in self.blocks)
-        return self.comm.allreduce(local, op=MPI.SUM)
+        """Collective: the mass (tonne) the solver integrates."""
+        return self.lumped.total_mass()
 
     def momentum(self) -> np.ndarray:
-        local = np.zeros(3)
-        for block in self.blocks:
-            v = block.v.array[: block.n_owned].reshape(-1, 3)
-            local += (block.mass[::3, None] * v).sum(axis=0)
-        return self.comm.allreduce(local, op=MPI.SUM)
+        """Collective: linear momentum (3,) tonne mm/s."""
+        return self.lumped.momentum()
 
     def stable_time_step(self) -> tuple[float, str]:
         """Collective: (the stable step (s) of the central-difference scheme, where it is
@@ -278,10 +274,10 @@ class Structure:
         self.base.set_ufl_cells([np.zeros(0, np.int32)] * len(self.base.layer_laminates))
         self._rebuild_damaged_elements()
 
-    @property
-    def damage_state(self) -> np.ndarray:
-        """(n_cells, n_plies, N_STATE) ply damage state of the owned cells (with ply damage)."""
-        return self.ply_damage_state.damage
+    damage_state = property(
+        attrgetter("ply_damage_state.damage"),
+        doc="(n_cells, n_plies, N_STATE) ply damage state of the owned cells (with ply damage).",
+    )
 
     def scale_matrix_strength(self, cells: np.ndarray, plies: Iterable[int], factor: float) -> None:
         """Let the matrix of these plies (0-based) in these owned cells crack at ``factor`` times
@@ -316,12 +312,7 @@ class Structure:
         unrefined = self.refinement.unrefined_cells()
         nodes = np.hstack([self.bottom_local, self.top_local])[unrefined]
         cells = unrefined.astype(np.int64)
-        plies = self.cell_plies[unrefined]
-        if len(self.subelements):
-            nodes = np.vstack([nodes, self.subelements.nodes])
-            cells = np.concatenate([cells, self.subelement_cells])
-            plies = np.vstack([plies, self.subelement_plies])
-        return nodes.astype(np.int32), cells, plies
+        return self.refined_cells.elements(nodes, cells, self.cell_plies[unrefined])
 
     # ------------------------------------------------------------------ checkpoint
     def state(self) -> dict[str, np.ndarray]:
@@ -410,30 +401,26 @@ class Structure:
         return out
 
     # ------------------------------------------------------------------ refinement
-    @property
-    def interface_state(self) -> np.ndarray:
-        """(n_cells, n_interfaces) NONE, WEAK or STRONG of each owned cell's interfaces."""
-        return self.refinement.interface_state
-
-    @property
-    def weak_since(self) -> np.ndarray:
-        """(n_cells, n_interfaces) time (s) each interface became weak, inf if not yet."""
-        return self.refinement.weak_since
-
-    @property
-    def damage_rows(self) -> dict[tuple[int, int], int]:
-        """Cohesive damage row of each strong (owned cell, interface)."""
-        return self.refinement.damage_rows
-
-    @property
-    def refinement_energy(self) -> float:
-        """Mechanical energy (mJ) that refinements added in total."""
-        return self.refinement.energy
-
-    @property
-    def last_refinement_potential(self) -> float:
-        """Potential-energy part (mJ) of the last refinement's change."""
-        return self.refinement.last_potential
+    interface_state = property(
+        attrgetter("refinement.interface_state"),
+        doc="(n_cells, n_interfaces) NONE, WEAK or STRONG of each owned cell's interfaces.",
+    )
+    weak_since = property(
+        attrgetter("refinement.weak_since"),
+        doc="(n_cells, n_interfaces) time (s) each interface became weak, inf if not yet.",
+    )
+    damage_rows = property(
+        attrgetter("refinement.damage_rows"),
+        doc="Cohesive damage row of each strong (owned cell, interface).",
+    )
+    refinement_energy = property(
+        attrgetter("refinement.energy"),
+        doc="Mechanical energy (mJ) that refinements added in total.",
+    )
+    last_refinement_potential = property(
+        attrgetter("refinement.last_potential"),
+        doc="Potential-energy part (mJ) of the last refinement's change.",
+    )
 
     def refine(self, requests: Iterable[tuple[int, int, int]], t: float = 0.0) -> bool:
         """Collective: refine owned cells at time t. ``requests``: (local cell, interface, WEAK
@@ -473,8 +460,18 @@ class Structure:
             cells = self.refinement.to_strengthen(changed, target, interface)
             self._activate_strong(cells, interface)
 
-        self._resize_extra_vectors()
-        self._update_masses(changed, old_state)
+        self.lumped.resize_extra(self.extra.index_map)
+        self.lumped.add_mass_change(
+            subelement_mass_change(
+                changed,
+                old_state[changed],
+                self.interface_state[changed],
+                self._subelement_nodes_many,
+                lambda nodes: self.gather(nodes, "X"),
+                self.rule_table,
+                self.n_base + self.extra.n_local,
+            )
+        )
         self._rebuild_maps()
         if self.ply_damage:
             self._rebuild_damaged_elements()
@@ -557,54 +554,31 @@ class Structure:
         )
 
     def _rebuild_maps(self) -> None:
+        """The subelements and cohesive elements of the refined cells (``RefinedCells``)."""
         refined = self.refinement.refined_cells()
-        states = self.interface_state[refined]
-        rows, first, stop = enr.subelement_table(states)
-        cells = refined[rows]
-        nodes = self._subelement_nodes_many(states[rows], first, stop, cells)
-        spans = np.column_stack([first, stop]).astype(np.int64)
-        self.subelements = SubelementSet(
-            nodes, self.rule_table.rule_of(spans), self.subelements.rules
-        )
-        self.subelement_cells = cells.astype(np.int64)
-        self.subelement_plies = spans
-        self.subelement_speeds = self.rule_table.wave_speed(spans)
-        # cohesive elements: cells in order, interfaces bottom to top
-        rows, interface_index = np.nonzero(states == InterfaceState.STRONG)
-        cells, interfaces = refined[rows], interface_index + 1
-        pairs = zip(cells.tolist(), interfaces.tolist(), strict=True)
-        coh_rows = [self.damage_rows[pair] for pair in pairs]
-        self.cohesive = CohesiveSet(
-            self.columns.cohesive_nodes(
-                interfaces, cells, self.refinement.n_interfaces, self.extra.locate
+        n_interfaces = self.refinement.n_interfaces
+        self.refined_cells.rebuild(
+            refined,
+            self.interface_state[refined],
+            self.damage_rows,
+            self._subelement_nodes_many,
+            lambda interfaces, cells: self.columns.cohesive_nodes(
+                interfaces, cells, n_interfaces, self.extra.locate
             ),
-            np.array(coh_rows, dtype=np.int64),
-            self.cohesive.damage,
-            self.law_params if self.law_params is not None else self.cohesive.params,
-            interfaces.astype(np.int32),
-            self.cohesive.history,
         )
-
-    def _resize_extra_vectors(self) -> None:
-        """Force and (assembled) mass vectors of the extra nodes after their set changed."""
-        old_mass = getattr(self, "mass_extra", None)
-        self.f_extra = la.vector(self.extra.index_map, bs=3)
-        self.mass_extra = la.vector(self.extra.index_map, bs=3)
-        if old_mass is not None:
-            n_old = old_mass.index_map.size_local * 3
-            self.mass_extra.array[:n_old] = old_mass.array[:n_old]
 
     def _rebuild_blocks(self) -> None:
-        """Collective: border constraints, the masses the solver divides by (constrained masses
-        moved to their masters), prescribed DOFs; constrained nodes put on their masters."""
+        """Collective: border constraints and prescribed extra DOFs of the current extra nodes,
+        handed to the blocks (``LumpedBlocks.rebuild``)."""
         prescribed = extra_node_prescriptions(
             self.motions, self.base, self.extra, self.column_top, self.refinement.n_interfaces
         )
+        border = self.border
         if self.extra.index_map.size_global:  # the same on every rank: column_counts is collective
             counts = column_counts(
                 self.comm, self.base.V.dofmap.index_map, self.bottom_local, self.interface_state
             )
-            self.border = border_constraints(
+            border = border_constraints(
                 counts,
                 self.extra,
                 self.column_top,
@@ -612,62 +586,12 @@ class Structure:
                 self.n_base,
                 prescribed >= 0,
             )
-        self._border_args = (
-            self.border.dofs,
-            self.border.masters,
-            self.border.weights,
-            3 * self.n_base,
+        self.lumped.rebuild(
+            border,
+            prescribed,
+            (self.base.u.x, self.v_base),
+            (self.extra.vectors["u"], self.extra.vectors["v"]),
         )
-        mass_base, mass_extra = transfer_masses(
-            self.border, self.mass_base, self.mass_extra, self.n_base
-        )
-        self.follow_border(velocity=True)
-        n_owned = self.extra.n_owned * 3
-        fixed = np.flatnonzero(prescribed[:n_owned] >= 0).astype(np.int32)
-        self.base_block = Block(
-            u=self.base.u.x,
-            v=self.v_base,
-            f=self.f_base,
-            mass=mass_base,
-            fixed=self.loads.fixed,
-            fixed_motion=self.loads.fixed_motion,
-        )
-        self.extra_block = Block(
-            u=self.extra.vectors["u"],
-            v=self.extra.vectors["v"],
-            f=self.f_extra,
-            mass=mass_extra,
-            fixed=fixed,
-            fixed_motion=prescribed[fixed].astype(np.int32),
-        )
-
-    def _update_masses(self, cells: np.ndarray, old_state: np.ndarray) -> None:
-        """Take each changed cell's old (sub)element masses off its nodes, put the new ones on;
-        sums on shared nodes are completed by reverse scatters."""
-        cells = np.asarray(cells, dtype=np.int64)
-        parts = []
-        for states, sign in ((old_state[cells], -1.0), (self.interface_state[cells], 1.0)):
-            rows, first, stop = enr.subelement_table(states)
-            nodes = self._subelement_nodes_many(states[rows], first, stop, cells[rows])
-            parts.append((rows, first, stop, nodes, np.full(len(rows), sign)))
-        # cell by cell, old then new: the order the sums have always been taken in
-        order = np.argsort(np.concatenate([parts[0][0], parts[1][0]]), kind="stable")
-        first, stop, nodes, signs = (
-            np.concatenate([parts[0][k], parts[1][k]])[order] for k in (1, 2, 3, 4)
-        )
-        delta = np.zeros(self.n_base + self.extra.n_local)  # combined local nodes
-        if len(nodes):
-            masses = self.rule_table.lumped_masses(self.gather(nodes, "X"), first, stop)
-            masses *= signs[:, None]
-            np.add.at(delta, nodes.ravel(), masses.ravel())  # in order, as a loop would
-        delta_base, delta_extra = delta[: self.n_base], delta[self.n_base :]
-        for delta, target in ((delta_base, self.mass_base), (delta_extra, self.mass_extra)):
-            scratch = la.vector(target.index_map, bs=3)
-            scratch.array.reshape(-1, 3)[:] = delta[:, None]
-            scratch.scatter_reverse(la.InsertMode.add)
-            n_owned = target.index_map.size_local * 3
-            target.array[:n_owned] += scratch.array[:n_owned]
-            target.scatter_forward()
 
     def gather(self, nodes: np.ndarray, name: str) -> np.ndarray:
         """Values (*nodes.shape, 3) of ``name``: "u" (displacement, mm), "v" (velocity, mm/s)
