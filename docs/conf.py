@@ -65,7 +65,7 @@ nitpicky = True
 # Types from libraries whose inventories the (offline) build does not load.
 nitpick_ignore_regex = [
     (r"py:.*", r"(np|numpy|npt|dolfinx|fem|la|mesh|mpi4py|MPI|petsc4py|PETSc|ufl|basix)\..*"),
-    (r"py:.*", r"(numba|gmsh|collections\.abc|typing|pathlib|enum|dataclasses)\..*"),
+    (r"py:.*", r"(common|numba|gmsh|collections\.abc|typing|pathlib|enum|dataclasses)\..*"),
     (r"py:.*", r"(ndarray|ArrayLike|NDArray|Path)"),
     # pieces of string annotations that Sphinx splits at the brackets
     (r"py:.*", r".*[\[\]'].*"),

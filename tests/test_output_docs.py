@@ -105,7 +105,12 @@ def runner_summary_keys() -> set[str]:
         if isinstance(node, ast.Assign):
             for target in node.targets:
                 if _is_summary(target):
-                    add(node.value)
+                    value = node.value
+                    if isinstance(value, ast.Call) and isinstance(value.func, ast.Name):
+                        # summary = _helper(...): the dict literal that helper returns
+                        helper = next(f for f in functions if f.name == value.func.id)
+                        value = next(r.value for r in ast.walk(helper) if isinstance(r, ast.Return))
+                    add(value)
                 elif isinstance(target, ast.Subscript) and _is_summary(target.value):
                     name = _string(target.slice)
                     assert name is not None, f"line {node.lineno}: summary[<not a literal>]"

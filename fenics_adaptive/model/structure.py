@@ -26,7 +26,7 @@ log and energy), ``adaptivity.stabilisation.StabilisationState`` (damping window
 ``model.blocks.LumpedBlocks`` (the solver's two blocks: lumped masses, force vectors, border
 constraints, prescribed DOFs) and the cohesive set's damage rows; ``state()`` / ``restore()``
 gather their history-dependent arrays for a checkpoint.
-The stable step is computed in ``model.time_step``.
+The stable step is computed in ``model.stable_step``.
 """
 
 from __future__ import annotations
@@ -57,7 +57,7 @@ from fenics_adaptive.model.loading import (
 )
 from fenics_adaptive.model.ply_damage_state import PlyDamageState
 from fenics_adaptive.model.refined_cells import RefinedCells
-from fenics_adaptive.model.time_step import stable_time_step
+from fenics_adaptive.model.stable_step import stable_time_step
 from fenics_adaptive.model.topology import CellColumnTable
 from fenics_adaptive.settings.adaptivity import Interfaces, Stabilisation
 from fenics_adaptive.settings.kinds import InterfaceState
