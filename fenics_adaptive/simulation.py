@@ -23,6 +23,7 @@ from mpi4py import MPI
 
 from fenics_adaptive.adaptivity.events import RefinementEvent, refine
 from fenics_adaptive.adaptivity.indicators import front_requests, indicator_requests, spread
+from fenics_adaptive.adaptivity.refinement import Request
 from fenics_adaptive.errors import InputError, shared_errors
 from fenics_adaptive.meshes.beam import layered_mesh
 from fenics_adaptive.model.assembly import CohesiveSet
@@ -36,9 +37,6 @@ from fenics_adaptive.settings.kinds import InterfaceState, ModelKind, MotionKind
 from fenics_adaptive.settings.loads import Amplitude, PrescribedMotion
 from fenics_adaptive.solver.explicit import ExplicitSolver, HistoryRow, RunStats, choose_time_step
 from fenics_adaptive.solver.observers import Observer
-
-Request = tuple[int, int, int]
-"""A refinement request: (owned local cell, interface 1 .. n_plies - 1, InterfaceState)."""
 
 
 @dataclass(frozen=True)

@@ -26,7 +26,9 @@ from fenics_adaptive.settings.kinds import InterfaceState
 if TYPE_CHECKING:
     from fenics_adaptive.settings.adaptivity import Interfaces
 
-Request = tuple[int, int, int]  # (local cell, interface (1-based), WEAK or InterfaceState.STRONG)
+# a refinement request: (owned local cell, interface 1 .. n_plies - 1, InterfaceState WEAK or
+# STRONG)
+Request = tuple[int, int, int]
 
 
 class RefinementState:

@@ -32,7 +32,6 @@ The stable step is computed in ``model.stable_step``.
 from __future__ import annotations
 
 from collections.abc import Iterable
-from operator import attrgetter
 
 import numpy as np
 from dolfinx import fem, la
@@ -61,6 +60,18 @@ from fenics_adaptive.model.stable_step import stable_time_step
 from fenics_adaptive.model.topology import CellColumnTable
 from fenics_adaptive.settings.adaptivity import Interfaces, Stabilisation
 from fenics_adaptive.settings.kinds import InterfaceState
+
+
+def _forwarded(path: str, doc: str) -> property:
+    """A read-only attribute of ``Structure`` held by one of its parts (``path``: "part.name").
+    A plain function as the getter, so that the API pages link it to this module's source."""
+    part, name = path.split(".")
+
+    def get(structure: Structure):
+        return getattr(getattr(structure, part), name)
+
+    get.__doc__ = doc
+    return property(get, doc=doc)
 
 
 class Structure:
@@ -132,39 +143,37 @@ class Structure:
         """[base block, extra block] (``model.blocks.LumpedBlocks``)."""
         return self.lumped.blocks
 
-    base_block = property(attrgetter("lumped.base_block"), doc="The base nodes' block.")
-    extra_block = property(attrgetter("lumped.extra_block"), doc="The extra nodes' block.")
-    subelements = property(
-        attrgetter("refined_cells.subelements"),
+    base_block = _forwarded("lumped.base_block", doc="The base nodes' block.")
+    extra_block = _forwarded("lumped.extra_block", doc="The extra nodes' block.")
+    subelements = _forwarded(
+        "refined_cells.subelements",
         doc="The refined cells' subelements (``RefinedCells.subelements``).",
     )
-    subelement_cells = property(
-        attrgetter("refined_cells.cells"), doc="(n,) owned cell of each subelement."
-    )
-    subelement_plies = property(
-        attrgetter("refined_cells.plies"),
+    subelement_cells = _forwarded("refined_cells.cells", doc="(n,) owned cell of each subelement.")
+    subelement_plies = _forwarded(
+        "refined_cells.plies",
         doc="(n, 2) laminate plies [first, stop) of each subelement.",
     )
-    subelement_speeds = property(
-        attrgetter("refined_cells.speeds"),
+    subelement_speeds = _forwarded(
+        "refined_cells.speeds",
         doc="(n,) dilatational wave speed (mm/s) of each subelement.",
     )
-    cohesive = property(
-        attrgetter("refined_cells.cohesive"),
+    cohesive = _forwarded(
+        "refined_cells.cohesive",
         doc="The cohesive elements (an LW model's, or those of the strong interfaces).",
     )
-    f_base = property(attrgetter("lumped.f_base"), doc="Internal force (N) of the base DOFs.")
-    f_extra = property(attrgetter("lumped.f_extra"), doc="Internal force (N) of the extra DOFs.")
-    mass_base = property(
-        attrgetter("lumped.mass_base"),
+    f_base = _forwarded("lumped.f_base", doc="Internal force (N) of the base DOFs.")
+    f_extra = _forwarded("lumped.f_extra", doc="Internal force (N) of the extra DOFs.")
+    mass_base = _forwarded(
+        "lumped.mass_base",
         doc="Assembled lumped mass (tonne) of the base DOFs (before the border's transfer).",
     )
-    mass_extra = property(
-        attrgetter("lumped.mass_extra"),
+    mass_extra = _forwarded(
+        "lumped.mass_extra",
         doc="Assembled lumped mass (tonne) of the extra DOFs (before the border's transfer).",
     )
-    border = property(
-        attrgetter("lumped.border"),
+    border = _forwarded(
+        "lumped.border",
         doc="The extra DOFs on the border of refined regions, bound to their masters.",
     )
 
@@ -274,8 +283,8 @@ class Structure:
         self.base.set_ufl_cells([np.zeros(0, np.int32)] * len(self.base.layer_laminates))
         self._rebuild_damaged_elements()
 
-    damage_state = property(
-        attrgetter("ply_damage_state.damage"),
+    damage_state = _forwarded(
+        "ply_damage_state.damage",
         doc="(n_cells, n_plies, N_STATE) ply damage state of the owned cells (with ply damage).",
     )
 
@@ -401,24 +410,24 @@ class Structure:
         return out
 
     # ------------------------------------------------------------------ refinement
-    interface_state = property(
-        attrgetter("refinement.interface_state"),
+    interface_state = _forwarded(
+        "refinement.interface_state",
         doc="(n_cells, n_interfaces) NONE, WEAK or STRONG of each owned cell's interfaces.",
     )
-    weak_since = property(
-        attrgetter("refinement.weak_since"),
+    weak_since = _forwarded(
+        "refinement.weak_since",
         doc="(n_cells, n_interfaces) time (s) each interface became weak, inf if not yet.",
     )
-    damage_rows = property(
-        attrgetter("refinement.damage_rows"),
+    damage_rows = _forwarded(
+        "refinement.damage_rows",
         doc="Cohesive damage row of each strong (owned cell, interface).",
     )
-    refinement_energy = property(
-        attrgetter("refinement.energy"),
+    refinement_energy = _forwarded(
+        "refinement.energy",
         doc="Mechanical energy (mJ) that refinements added in total.",
     )
-    last_refinement_potential = property(
-        attrgetter("refinement.last_potential"),
+    last_refinement_potential = _forwarded(
+        "refinement.last_potential",
         doc="Potential-energy part (mJ) of the last refinement's change.",
     )
 
