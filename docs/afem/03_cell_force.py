@@ -30,7 +30,7 @@ from afem_figures import SET_COLOURS, TUTORIAL_DIR, draw_plies, finish
 from mpi4py import MPI
 
 from fenics_adaptive.adaptivity import enrichment as enr
-from fenics_adaptive.element.subelement import pack_rule, solid_shell_force, sublaminate_ply_zeta
+from fenics_adaptive.element.subelement import solid_shell_force
 from fenics_adaptive.materials.cohesive import cohesive_element_force
 from fenics_adaptive.settings.config import parse_config
 from fenics_adaptive.settings.kinds import InterfaceState
@@ -99,9 +99,11 @@ f_package = np.vstack(
 #
 # The cell's node vector lists the base nodes, then the extra nodes. For subelement i we build
 # P_i (8 rows, one 1 per row) from its index list, gather X_i = P_i X and u_i = P_i u, call the
-# layered solid-shell kernel with a rule that holds only that subelement's plies, and scatter
-# P_i^T f_i. Likewise for the cohesive element. Nothing is shared with path 1 except the two
-# element kernels and the index lists.
+# layered solid-shell kernel with the rule of that subelement's plies, and scatter P_i^T f_i.
+# Likewise for the cohesive element. Nothing is shared with path 1 except the two element
+# kernels, the index lists and the integration rules: every span of plies takes its rule from
+# the structure's one table (`structure.rule_table`, which also gives a one-ply subelement two
+# points through its thickness whatever `points_per_ply` says), not from a copy made here.
 
 # %%
 n_nodes = structure.n_base + structure.extra.n_local
@@ -118,7 +120,6 @@ columns = enr.CellColumns(
 state = structure.interface_state[cell]
 n_plies = structure.laminate.n_plies
 fractions = structure.laminate.ply_fractions
-stiffness = np.array(structure.laminate.ply_stiffnesses())
 
 
 def projection(nodes):
@@ -135,11 +136,7 @@ def formula_force(u):
             state, sub, columns, n_plies, structure.extra.index, structure.n_base
         )
         P = projection(nodes)
-        rule = pack_rule(
-            sublaminate_ply_zeta(fractions, sub.first, sub.stop),
-            stiffness[sub.first : sub.stop],
-            config.points_per_ply,
-        )
+        rule = structure.rule_table.rule(sub.first, sub.stop)
         f_sub = np.zeros((8, 3))
         solid_shell_force(P @ X_all, P @ u, *rule, f_sub)
         f_lam += P.T @ f_sub

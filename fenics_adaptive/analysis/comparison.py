@@ -6,7 +6,9 @@ Units: N, mm, s, tonne (stress MPa, energy mJ, time per step s).
   refined adaptive, layerwise). ``static.solve_static`` only knows the UFL cells of the base
   model; a refined element also has extra nodes and numba subelements. Its stiffness matrix is
   therefore *probed* from the package's own internal force (f_int is linear in u for these
-  small-strain models, so column j of K is f_int(e_j)): with a distance-2 colouring of the nodes
+  small-strain models, so column j of K is f_int(e_j); a structure with finite kinematics is
+  refused, since its probed "matrix" would depend on the probe's size and the answer be
+  wrong without a warning): with a distance-2 colouring of the nodes
   one force evaluation gives the columns of all nodes of one colour and one component at once
   (no two of them share a neighbour, so every force entry comes from exactly one of them), about
   80 evaluations for a layerwise beam. The sparse system is solved directly (PETSc LU) and the
@@ -20,6 +22,13 @@ Units: N, mm, s, tonne (stress MPa, energy mJ, time per step s).
   force that the elements above an interface put on its nodes, per unit tributary area: what a
   cohesive element in that interface would carry; exact equilibrium of the discrete solution,
   independent of any recovery. ESL recovery: ``indicators.recovered_interface_stresses``.
+- the element forces behind those tractions (``element_forces``) are the structure's own: the
+  integration rule of every span of plies from its ``rule_table`` (the one its kernels, masses
+  and ply damage use; a one-ply subelement has two points through its thickness whatever
+  ``points_per_ply`` says), its kinematics (small or finite). Summed over all elements, less the
+  cohesive forces, after the border's transfer, they are ``Structure.internal_force``
+  (``tests/test_rule_table.py``). A structure with ply damage is refused: its forces depend on
+  the damage of every (cell, ply), which undamaged element forces cannot reproduce.
 - ``CantileverBeamTheory``: laminated (narrow) beam theory of a cantilever under a uniform
   line load: classical laminate theory in bending, transverse shear and normal stresses from
   integrating equilibrium through the thickness, Timoshenko deflection with the laminate's
@@ -127,9 +136,9 @@ def _internal_force(structure: Structure, u: np.ndarray) -> np.ndarray:
     return _combined_arrays(structure)[1]
 
 
-def _check_linear_serial(structure: Structure) -> None:
-    """The probing and the per-node sums here read node neighbourhoods on one rank, and a
-    probed matrix is the stiffness only of a linear structure: refuse anything else."""
+def _check_bonded_serial(structure: Structure) -> None:
+    """The probing and the per-node sums here read node neighbourhoods on one rank, and the
+    element forces leave out cohesive elements and ply damage: refuse anything else."""
     if structure.comm.size > 1:
         raise RuntimeError("comparison: serial only (run the comparison on one rank)")
     if len(structure.cohesive) or structure.ply_damage:
@@ -141,10 +150,23 @@ def _check_linear_serial(structure: Structure) -> None:
         )
 
 
+def _check_small_strain(structure: Structure) -> None:
+    """A probed matrix is the stiffness only of a structure whose force is linear in u."""
+    if structure.base.finite:
+        raise ValueError(
+            "comparison: the structure has finite kinematics, whose internal force is not "
+            "linear in u: a probed stiffness (and a linear static solution) would be wrong; "
+            'build it with kinematics = "small"'
+        )
+
+
 def probe_stiffness(structure: Structure) -> tuple[SparseMatrix, int]:
     """K of the structure (base then extra DOFs, 3 per node) from its internal force; returns
-    (K, number of force evaluations)."""
-    _check_linear_serial(structure)
+    (K, number of force evaluations). Raises ValueError for cohesive elements, ply damage,
+    border constraints or finite kinematics (the force is then not linear in u), RuntimeError
+    on more than one rank."""
+    _check_bonded_serial(structure)
+    _check_small_strain(structure)
     nodes, _, _ = structure.elements()
     n_nodes = structure.n_base + structure.extra.n_local
     colour = node_colouring(nodes, n_nodes)
@@ -221,7 +243,7 @@ def _loads_and_constraints(structure: Structure, t: float) -> tuple[np.ndarray, 
 def equilibrium_residual(structure: Structure, t: float = 0.0) -> float:
     """|f_ext - f_int(u)| / |f_ext| over the free DOFs at the structure's current displacement
     (``Structure.internal_force``, the force the explicit solver uses)."""
-    _check_linear_serial(structure)
+    _check_bonded_serial(structure)
     f_ext, _, _, free = _loads_and_constraints(structure, t)
     structure.internal_force()
     f_int = _combined_arrays(structure)[1]
@@ -230,7 +252,8 @@ def equilibrium_residual(structure: Structure, t: float = 0.0) -> float:
 
 def solve_linear_static(structure: Structure, t: float = 0.0) -> StaticResult:
     """Static equilibrium of a bonded linear structure under its loads and prescribed motions
-    at time t; the displacement is left in the structure (base and extra vectors)."""
+    at time t; the displacement is left in the structure (base and extra vectors). Refuses
+    what ``probe_stiffness`` refuses (finite kinematics among them: ValueError)."""
     start = time.perf_counter()
     K, probes = probe_stiffness(structure)
     f_ext, fixed, values, free = _loads_and_constraints(structure, t)
@@ -303,13 +326,26 @@ def ply_values_at_interfaces(stresses: np.ndarray) -> np.ndarray:
 
 def element_forces(structure: Structure, mask: np.ndarray) -> np.ndarray:
     """Internal force (N, (n_nodes, 3), base then extra nodes) of the elements
-    ``structure.elements()[mask]`` alone, at the current displacement (numba kernel)."""
+    ``structure.elements()[mask]`` alone, at the current displacement (numba kernel), as the
+    structure computes them: the rule of each span of plies from ``structure.rule_table``, the
+    structure's kinematics (``structure.base.finite``). Cohesive elements are not included; the
+    forces are this rank's, on the nodes the elements name (no border transfer, no reverse
+    scatter). Raises ValueError for a structure with ply damage (its elements' forces depend
+    on a damage state these cannot reproduce)."""
+    if structure.ply_damage:
+        raise ValueError(
+            "comparison.element_forces: the structure has ply damage; its element forces "
+            "depend on the damage state of every (cell, ply), which undamaged element forces "
+            "cannot reproduce"
+        )
     nodes, _, plies = structure.elements()
     n_extra = structure.extra.n_local
     f_base = np.zeros((structure.n_base, 3))
     f_extra = np.zeros((n_extra, 3))
     if mask.any():
-        # the structure's own rules: the same points as its kernels use for every span of plies
+        # the structure's own rules and kinematics: a copy of either drifts (a one-ply rule
+        # packed with points_per_ply missed the table's two points: 15 % off the structure's
+        # force; small strain on a finite-kinematics structure)
         table = structure.rule_table
         elements = SubelementSet(
             np.ascontiguousarray(nodes[mask]), table.rule_of(plies[mask]), table.packed
@@ -322,6 +358,7 @@ def element_forces(structure: Structure, mask: np.ndarray) -> np.ndarray:
             structure.extra.vectors["u"].array.reshape(-1, 3),
             f_base,
             f_extra,
+            structure.base.finite,
         )
     return np.vstack([f_base, f_extra])
 
@@ -334,8 +371,9 @@ def interface_tractions(structure: Structure) -> dict[int, tuple[np.ndarray, np.
     The elements above interface i, a free body loaded on its top face only, are held by the
     force F that the lower part applies to the interface nodes: F equals their internal force
     there. The traction on the upper body's bottom face (outward normal -z) is -(tau_xz, tau_yz,
-    sigma_zz), hence the stresses -F / A per line, A the lines' tributary area."""
-    _check_linear_serial(structure)
+    sigma_zz), hence the stresses -F / A per line, A the lines' tributary area (the reference
+    area: with finite kinematics these are nominal tractions, in the global axes)."""
+    _check_bonded_serial(structure)
     nodes, _, plies = structure.elements()
     X = np.vstack([structure.X_base, structure.extra.vectors["X"].array.reshape(-1, 3)])
     tol = 1e-6 * max(float(np.ptp(X[:, 0])), 1.0)

@@ -26,13 +26,16 @@ from fenics_adaptive.element.subelement import (
 from fenics_adaptive.materials.laminate import Laminate
 
 # A one-ply (sub)element with one Gauss point through its thickness bends with zero energy (an
-# hourglass mode through the thickness): it always gets this many.
+# hourglass mode through the thickness): it always gets at least this many.
 ONE_PLY_POINTS = 2
 
 
 def points_through_ply(n_plies: int, points_per_ply: int) -> int:
-    """Gauss points through each ply of a (sub)element of ``n_plies`` plies."""
-    return points_per_ply if n_plies > 1 else ONE_PLY_POINTS
+    """Gauss points through each ply of a (sub)element of ``n_plies`` plies: ``points_per_ply``,
+    at least ``ONE_PLY_POINTS`` for one ply. The UFL forms of whole cells (``model.forms``) put
+    ``points_per_ply`` in each ply and refuse a one-ply layer with one point: the same number
+    for every layer they accept (``tests/test_rule_table.py`` holds the two paths equal)."""
+    return points_per_ply if n_plies > 1 else max(points_per_ply, ONE_PLY_POINTS)
 
 
 class RuleTable:
@@ -85,6 +88,10 @@ class RuleTable:
         """Fastest dilatational wave speed (mm/s) of the plies of each span of ``plies``."""
         plies = np.asarray(plies, dtype=np.int64).reshape(-1, 2)
         return self._speed_of_plies[plies[:, 0], plies[:, 1]]
+
+    def rule(self, first: int, stop: int) -> PackedRule:
+        """The force rule of plies [first, stop) (``solid_shell_force(X, u, *rule, f)``)."""
+        return self.rules[self.index(first, stop)]
 
     def mass_rule(self, first: int, stop: int) -> PackedMassRule:
         """The lumped-mass rule of plies [first, stop)."""
