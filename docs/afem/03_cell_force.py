@@ -102,8 +102,9 @@ f_package = np.vstack(
 # layered solid-shell kernel with the rule of that subelement's plies, and scatter P_i^T f_i.
 # Likewise for the cohesive element. Nothing is shared with path 1 except the two element
 # kernels, the index lists and the integration rules: every span of plies takes its rule from
-# the structure's one table (`structure.rule_table`, which also gives a one-ply subelement two
-# points through its thickness whatever `points_per_ply` says), not from a copy made here.
+# the structure's one table (`structure.rule_table`, which also gives a one-ply subelement at
+# least two points through its thickness, whatever `points_per_ply` says), not from a copy
+# made here.
 
 # %%
 n_nodes = structure.n_base + structure.extra.n_local

@@ -24,9 +24,9 @@ Units: N, mm, s, tonne (stress MPa, energy mJ, time per step s).
   independent of any recovery. ESL recovery: ``indicators.recovered_interface_stresses``.
 - the element forces behind those tractions (``element_forces``) are the structure's own: the
   integration rule of every span of plies from its ``rule_table`` (the one its kernels, masses
-  and ply damage use; a one-ply subelement has two points through its thickness whatever
-  ``points_per_ply`` says), its kinematics (small or finite). Summed over all elements, less the
-  cohesive forces, after the border's transfer, they are ``Structure.internal_force``
+  and ply damage use; a one-ply subelement has at least two points through its thickness,
+  whatever ``points_per_ply`` says), its kinematics (small or finite). Summed over all elements,
+  less the cohesive forces, after the border's transfer, they are ``Structure.internal_force``
   (``tests/test_rule_table.py``). A structure with ply damage is refused: its forces depend on
   the damage of every (cell, ply), which undamaged element forces cannot reproduce.
 - ``CantileverBeamTheory``: laminated (narrow) beam theory of a cantilever under a uniform
