@@ -1,7 +1,16 @@
 """Clamps, prescribed motions and face loads (``settings.loads``), resolved to DOFs of a model.
 
 Units: N, mm, s. A face is named by its group in the mesh (``fenics_adaptive.meshes.beam``: x0, x1,
-top, x1_layer3, ...). Components are "x", "y", "z"."""
+top, x1_layer3, ...). Components are "x", "y", "z".
+
+A face load is a uniform traction (total force / face area), given to the nodes as the integral
+of the traction times each node's shape function over the face (work-equivalent): assembled by
+the UFL form on the unrefined mesh, and moved by ``ResolvedLoads.refine`` onto the faces of the
+subelements of refined cells, whose extra nodes on the face then carry their share. Only side
+faces change: a refined cell's bottom and top subelements keep its base nodes on the bottom and
+top faces. An extra node on the border of a refined region (bound to masters, ``model.border``)
+hands its share to its masters with the constraint's weights, as it does its internal force, so
+the nodal loads stay work-equivalent on the constrained field too."""
 
 from __future__ import annotations
 
@@ -66,11 +75,12 @@ class ResolvedLoads:
             )
         self._scratch = _add_scaled(self.load_vectors, self.load_amplitudes, t, out, self._scratch)
         if out_extra is not None:
-            n = len(out_extra)
-            if any(len(vector) < n for vector in self.extra_vectors):
+            # every extra vector has the extra nodes' layout of the last refinement
+            n, known = len(out_extra), len(self.extra_vectors[0]) if self.extra_vectors else 0
+            if n > known:
                 raise ValueError(
-                    f"out_extra has {n} DOFs, more than the {len(self.extra_vectors[0])} local "
-                    "extra DOFs the loads were refined for"
+                    f"out_extra has {n} DOFs, more than the {known} local extra DOFs the loads "
+                    "were refined for (ResolvedLoads.refine after every refinement)"
                 )
             self._scratch_extra = _add_scaled(
                 self.extra_vectors, self.load_amplitudes, t, out_extra, self._scratch_extra
@@ -182,7 +192,7 @@ def _add_scaled(
     for vector, amplitude in zip(vectors, amplitudes, strict=True):
         scale = amplitude(t)
         if scale != 0.0:
-            np.multiply(vector[:n], scale, out=scratch)
+            np.multiply(vector if len(vector) == n else vector[:n], scale, out=scratch)
             out += scratch
     return scratch
 

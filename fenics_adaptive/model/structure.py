@@ -15,7 +15,8 @@ Units: N, mm, s, tonne.
 Refinement (``Structure.refine``) is collective and happens between steps: new extra nodes get
 positions and velocities interpolated from the cell's active nodes below and above (weak) or
 copied from set A (strong); the refined cells' old (sub)element masses are taken off their
-nodes and the new subelements' masses put on (total mass unchanged); the maps, constraints and
+nodes and the new subelements' masses put on (total mass unchanged); the maps, constraints,
+face loads (``ResolvedLoads.refine``: onto the subelement faces, extra nodes included) and
 stable time step are rebuilt. Extra nodes on the border of a refined region follow their
 unrefined neighbour (``border``). The per-step path allocates nothing.
 
