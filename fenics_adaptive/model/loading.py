@@ -75,12 +75,14 @@ class ResolvedLoads:
             )
         self._scratch = _add_scaled(self.load_vectors, self.load_amplitudes, t, out, self._scratch)
         if out_extra is not None:
-            # every extra vector has the extra nodes' layout of the last refinement
-            n, known = len(out_extra), len(self.extra_vectors[0]) if self.extra_vectors else 0
-            if n > known:
+            # every extra vector has the extra nodes' layout of the last refinement (no loads:
+            # no vectors, nothing to check)
+            n = len(out_extra)
+            if self.extra_vectors and n > len(self.extra_vectors[0]):
                 raise ValueError(
-                    f"out_extra has {n} DOFs, more than the {known} local extra DOFs the loads "
-                    "were refined for (ResolvedLoads.refine after every refinement)"
+                    f"out_extra has {n} DOFs, more than the {len(self.extra_vectors[0])} local "
+                    "extra DOFs the loads were refined for (ResolvedLoads.refine after every "
+                    "refinement)"
                 )
             self._scratch_extra = _add_scaled(
                 self.extra_vectors, self.load_amplitudes, t, out_extra, self._scratch_extra
