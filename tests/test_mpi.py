@@ -63,6 +63,9 @@ ONE_RANK_CASES = {
     "mpi_one_rank_refinement": ("extra_nodes", "cohesive", "border"),
     # an impactor, matrix cracking and the strong refinement the damage asks for, on one rank
     "mpi_one_rank_impact": ("contact_force", "ply_damage", "cohesive"),
+    # a tip load and the refinement of the loaded tip, on one rank: the load moves onto extra
+    # nodes there, the applied force (summed over both blocks and ranks) must not change
+    "mpi_one_rank_face_load": ("extra_nodes", "cohesive", "border"),
 }
 
 

@@ -52,9 +52,10 @@ class Ties:
 
 
 def tie_forces(force: np.ndarray, mass: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """(n, 3) tie force T0 (N) on node pairs (a, b) of the extra block, from its internal force
-    ``force`` (n_nodes, 3) N and lumped mass ``mass`` (n_nodes,) tonne: with T0 on a and -T0 on
-    b, the two nodes accelerate together as the continuous interface did."""
+    """(n, 3) tie force T0 (N) on node pairs (a, b) of the extra block, from its net internal
+    force ``force`` (n_nodes, 3) N (f_int - f_ext of the face loads) and lumped mass ``mass``
+    (n_nodes,) tonne: with T0 on a and -T0 on b, the two nodes accelerate together as the
+    continuous interface did."""
     m_a, m_b = mass[a, None], mass[b, None]
     return (m_b * force[a] - m_a * force[b]) / (m_a + m_b)
 
@@ -96,8 +97,8 @@ class StabilisationState:
         requested cells' nodes and set the tie forces of the requested pairs.
         ``dofs_of_cells(cells)``: owned DOFs (base block, extra block) of the nodes of owned
         cells (collective); ``extra_force_and_mass()``: the refined structure's internal force
-        (n, 3) N and lumped mass (n,) tonne of the extra nodes at t (collective; called only when
-        some rank has a pair)."""
+        less the face loads (n, 3) N and lumped mass (n,) tonne of the owned extra nodes at t
+        (collective; called only when some rank has a pair)."""
         settings = self.settings
         if settings.damps and self.comm.allreduce(len(self.new_weak_cells), op=MPI.SUM):
             for block, dofs in enumerate(dofs_of_cells(self.new_weak_cells)):

@@ -229,7 +229,7 @@ def _loads_and_constraints(structure: Structure, t: float) -> tuple[np.ndarray, 
     n_base_dofs = len(structure.base.u.x.array)
     n = n_base_dofs + len(structure.extra.vectors["u"].array)
     f_ext = np.zeros(n)
-    structure.loads.external_force(t, f_ext[:n_base_dofs])
+    structure.loads.external_force(t, f_ext[:n_base_dofs], f_ext[n_base_dofs:])
     fixed = np.concatenate(
         [structure.base_block.fixed, structure.extra_block.fixed + n_base_dofs]
     ).astype(np.int64)

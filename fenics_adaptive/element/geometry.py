@@ -36,3 +36,32 @@ def slab_vertices(
     lower = bottom + w_lower[:, None, None] * (top - bottom)
     upper = bottom + w_upper[:, None, None] * (top - bottom)
     return np.concatenate([lower, upper], axis=1)
+
+
+# DOLFINx's (Basix's) reference facets of a hexahedron, vertices in tensor order: facet 0 is the
+# bottom face, 5 the top face, 1-4 the sides (y = 0, x = 0, x = 1, y = 1 of the reference cube)
+HEX_FACETS = np.array(
+    [[0, 1, 2, 3], [0, 1, 4, 5], [0, 2, 4, 6], [1, 3, 5, 7], [2, 3, 6, 7], [4, 5, 6, 7]],
+    dtype=np.int64,
+)
+HEX_SIDE_FACETS = np.array([1, 2, 3, 4], dtype=np.int64)
+
+_GAUSS_2 = 0.5 * (1.0 + np.array([-1.0, 1.0]) / np.sqrt(3.0))  # on [0, 1], weights 1/2 each
+
+
+def quad_shape_integrals(X: np.ndarray) -> np.ndarray:
+    """Integrals (mm^2, shape X.shape[:-1]) of the bilinear shape functions over quadrilaterals
+    with vertices X (..., 4, 3) in tensor order, by 2 x 2 Gauss points: the work-equivalent
+    share of each vertex in a uniform traction (exact for planar faces, whose area element is
+    bilinear). They sum to the face's area."""
+    out = np.zeros(X.shape[:-1])
+    for s in _GAUSS_2:
+        for r in _GAUSS_2:
+            N = np.array([(1 - s) * (1 - r), s * (1 - r), (1 - s) * r, s * r])
+            dN_ds = np.array([-(1 - r), 1 - r, -r, r])
+            dN_dr = np.array([-(1 - s), -s, 1 - s, s])
+            ts = np.einsum("k,...kj->...j", dN_ds, X)
+            tr = np.einsum("k,...kj->...j", dN_dr, X)
+            area = np.linalg.norm(np.cross(ts, tr), axis=-1)  # per unit (s, r) area
+            out += 0.25 * area[..., None] * N
+    return out

@@ -1,50 +1,202 @@
 """Clamps, prescribed motions and face loads (``settings.loads``), resolved to DOFs of a model.
 
 Units: N, mm, s. A face is named by its group in the mesh (``fenics_adaptive.meshes.beam``: x0, x1,
-top, x1_layer3, ...). Components are "x", "y", "z"."""
+top, x1_layer3, ...). Components are "x", "y", "z".
+
+A face load is a uniform traction (total force / face area), given to the nodes as the integral
+of the traction times each node's shape function over the face (work-equivalent): assembled by
+the UFL form on the unrefined mesh, and moved by ``ResolvedLoads.refine`` onto the faces of the
+subelements of refined cells, whose extra nodes on the face then carry their share. Only side
+faces change: a refined cell's bottom and top subelements keep its base nodes on the bottom and
+top faces. An extra node on the border of a refined region (bound to masters, ``model.border``)
+hands its share to its masters with the constraint's weights, as it does its internal force, so
+the nodal loads stay work-equivalent on the constrained field too."""
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-from dataclasses import dataclass
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
 
 import dolfinx
 import numpy as np
 import ufl
-from dolfinx import fem
+from dolfinx import common, fem, la
 from mpi4py import MPI
 
 from fenics_adaptive.adaptivity import enrichment as enr
+from fenics_adaptive.element.geometry import HEX_FACETS, HEX_SIDE_FACETS, quad_shape_integrals
 from fenics_adaptive.errors import InputError, shared_errors
+from fenics_adaptive.model.border import BorderConstraints, transfer_forces
 from fenics_adaptive.model.forms import LayeredModel
 from fenics_adaptive.settings.loads import COMPONENTS, Amplitude, FaceLoad, PrescribedMotion
 
 
 @dataclass
 class ResolvedLoads:
-    """The loading as arrays on the base DOFs of a model: prescribed DOFs with the index of the
-    motion that drives each, and one nodal force vector per face load."""
+    """The loading as arrays on the DOFs of a model: prescribed DOFs with the index of the
+    motion that drives each, and one nodal force vector per face load on the base DOFs and one
+    on the extra DOFs (the extra nodes of refined cells on a loaded side face, ``refine``)."""
 
     motions: list[PrescribedMotion]
     fixed: np.ndarray  # owned base DOFs under a prescribed motion (sorted, unique)
     fixed_motion: np.ndarray  # index into ``motions`` for each fixed DOF
     load_vectors: list[np.ndarray]  # one nodal force vector per FaceLoad (owned + ghosts), N
     load_amplitudes: list[Amplitude]
+    # per load: its uniform traction (3,) N/mm^2 and the (owned cell, local facet) pairs of
+    # the cells' side facets on its face (the facets whose share refinement moves)
+    tractions: list[np.ndarray] = field(default_factory=list)
+    side_facets: list[np.ndarray] = field(default_factory=list)
+    # per load: the base vector as assembled on the unrefined mesh, and the extra nodes' share
+    # (local extra DOFs, owned + ghosts, N) of the current refinement (``refine``)
+    assembled: list[np.ndarray] = field(default_factory=list)
+    extra_vectors: list[np.ndarray] = field(default_factory=list)
+    # some rank's extra nodes carry load (the same on every rank)
+    has_extra: bool = False
+    # per load: this rank's sum (3,) N of the extra vector's owned entries
+    extra_resultants: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     _scratch: np.ndarray | None = None
+    _scratch_extra: np.ndarray | None = None
 
     @property
     def constrained(self) -> np.ndarray:
         return self.fixed
 
-    def external_force(self, t: float, out: np.ndarray) -> None:
-        out.fill(0.0)
-        if self._scratch is None or self._scratch.shape != out.shape:
-            self._scratch = np.empty_like(out)
-        for vector, amplitude in zip(self.load_vectors, self.load_amplitudes, strict=True):
-            scale = amplitude(t)
-            if scale != 0.0:
-                np.multiply(vector, scale, out=self._scratch)
-                out += self._scratch
+    def external_force(
+        self, t: float, out: np.ndarray, out_extra: np.ndarray | None = None
+    ) -> None:
+        """The loads at time t (s) into ``out`` (base DOFs, owned + ghosts, N) and ``out_extra``
+        (the first len(out_extra) local extra DOFs: the owned ones, or all). Raises ValueError
+        without ``out_extra`` when the loads reach extra nodes (on any rank): a caller that
+        knows only the base DOFs would lose that share of the load."""
+        if self.has_extra and out_extra is None:
+            raise ValueError(
+                "the face loads act on extra nodes of refined cells too: pass out_extra "
+                "(the extra DOFs' external force) to ResolvedLoads.external_force"
+            )
+        self._scratch = _add_scaled(self.load_vectors, self.load_amplitudes, t, out, self._scratch)
+        if out_extra is not None:
+            # every extra vector has the extra nodes' layout of the last refinement (no loads:
+            # no vectors, nothing to check)
+            n = len(out_extra)
+            if self.extra_vectors and n > len(self.extra_vectors[0]):
+                raise ValueError(
+                    f"out_extra has {n} DOFs, more than the {len(self.extra_vectors[0])} local "
+                    "extra DOFs the loads were refined for (ResolvedLoads.refine after every "
+                    "refinement)"
+                )
+            self._scratch_extra = _add_scaled(
+                self.extra_vectors, self.load_amplitudes, t, out_extra, self._scratch_extra
+            )
+
+    def extra_resultant(self, t: float) -> np.ndarray:
+        """(3,) N: this rank's sum of the loads on its owned extra DOFs at time t (s)."""
+        out = np.zeros(3)
+        for resultant, amplitude in zip(self.extra_resultants, self.load_amplitudes, strict=True):
+            out += amplitude(t) * resultant
+        return out
+
+    def extra_force(self, t: float, n: int) -> np.ndarray:
+        """(n // 3, 3) N: the loads on the first ``n`` local extra DOFs at time t (s)
+        (allocates: for refinement time, not for the time loop)."""
+        out = np.zeros(n)
+        for vector, amplitude in zip(self.extra_vectors, self.load_amplitudes, strict=True):
+            out += amplitude(t) * vector[:n]
+        return out.reshape(-1, 3)
+
+    def refine(
+        self,
+        cell_nodes: np.ndarray,
+        subelement_nodes: np.ndarray,
+        subelement_cells: np.ndarray,
+        positions: Callable[[np.ndarray], np.ndarray],
+        border: BorderConstraints,
+        base_map: common.IndexMap,
+        extra_map: common.IndexMap,
+    ) -> None:
+        """Collective: put each load's share on a side face of a refined cell onto the faces of
+        its subelements (Gauss integrals of their shape functions, work-equivalent), after a
+        refinement. ``cell_nodes`` (n_owned_cells, 8): base nodes of the owned cells;
+        ``subelement_nodes`` (m, 8): combined local nodes (i < n_base: base node i, else extra
+        node i - n_base) of the subelements of the refined cells, ``subelement_cells`` (m,)
+        their owned cells; ``positions(nodes)``: reference positions (mm) of combined nodes;
+        ``border``: the extra nodes' border constraints, whose share goes to their masters
+        with the constraint's weights (as their internal forces do); ``base_map`` /
+        ``extra_map``: the index maps of the base and extra nodes.
+
+        Recomputed from the unrefined mesh's vectors each time: top and bottom faces keep
+        their base nodes (a refined cell's outer subelements have them), side faces lose the
+        whole cell face's share and gain the subelement faces'."""
+        n_base = base_map.size_local + base_map.num_ghosts
+        n_extra = extra_map.size_local + extra_map.num_ghosts
+        refined = np.zeros(len(cell_nodes), dtype=bool)
+        refined[subelement_cells] = True
+        order = np.argsort(subelement_cells, kind="stable")
+        sorted_cells = subelement_cells[order]
+        self.load_vectors, self.extra_vectors = [], []
+        resultants = []
+        for traction, facets, assembled in zip(
+            self.tractions, self.side_facets, self.assembled, strict=True
+        ):
+            facets = facets[refined[facets[:, 0]]]
+            cells, local = facets[:, 0], facets[:, 1]
+            whole = cell_nodes[cells[:, None], HEX_FACETS[local]]  # (k, 4) base nodes
+            # the subelements of each facet's cell, the facet's vertices of each
+            start = np.searchsorted(sorted_cells, cells, side="left")
+            count = np.searchsorted(sorted_cells, cells, side="right") - start
+            facet_of = np.repeat(np.arange(len(cells)), count)
+            offsets = np.arange(len(facet_of)) - np.repeat(np.cumsum(count) - count, count)
+            subs = order[np.repeat(start, count) + offsets]
+            parts = subelement_nodes[subs[:, None], HEX_FACETS[local[facet_of]]]  # (j, 4)
+            nodes = np.concatenate([whole, parts])
+            shares = quad_shape_integrals(positions(nodes))
+            shares[: len(whole)] *= -1.0
+            combined = np.zeros((n_base + n_extra, 3))
+            np.add.at(combined, nodes.ravel(), shares.ravel()[:, None] * traction)
+            delta_base = la.vector(base_map, bs=3)
+            delta_extra = la.vector(extra_map, bs=3)
+            delta_base.array[:] = combined[:n_base].ravel()
+            delta_extra.array[:] = combined[n_base:].ravel()
+            if len(border):
+                transfer_forces(
+                    border.dofs,
+                    border.masters,
+                    border.weights,
+                    3 * n_base,
+                    delta_base.array,
+                    delta_extra.array,
+                )
+            for vector in (delta_base, delta_extra):
+                vector.scatter_reverse(la.InsertMode.add)
+                vector.scatter_forward()
+            self.load_vectors.append(assembled + delta_base.array)
+            self.extra_vectors.append(delta_extra.array.copy())
+            owned = delta_extra.array[: 3 * extra_map.size_local].reshape(-1, 3)
+            resultants.append(owned.sum(axis=0))
+        self.extra_resultants = np.array(resultants).reshape(-1, 3)
+        local = any(np.any(vector != 0.0) for vector in self.extra_vectors)
+        self.has_extra = bool(extra_map.comm.allreduce(local, op=MPI.LOR))
+
+
+def _add_scaled(
+    vectors: Sequence[np.ndarray],
+    amplitudes: Sequence[Amplitude],
+    t: float,
+    out: np.ndarray,
+    scratch: np.ndarray | None,
+) -> np.ndarray:
+    """out = sum of amplitude(t) x vector (the first len(out) entries of each), through
+    ``scratch`` (made anew only when the shape changes: no allocation per step); returns the
+    scratch array."""
+    n = len(out)
+    out.fill(0.0)
+    if scratch is None or scratch.shape != out.shape:
+        scratch = np.empty_like(out)
+    for vector, amplitude in zip(vectors, amplitudes, strict=True):
+        scale = amplitude(t)
+        if scale != 0.0:
+            np.multiply(vector if len(vector) == n else vector[:n], scale, out=scratch)
+            out += scratch
+    return scratch
 
 
 def face_nodes(
@@ -124,15 +276,23 @@ def resolve(
     fixed = np.array(sorted(owner), dtype=np.int32)
     fixed_motion = np.array([owner[int(d)] for d in fixed], dtype=np.int32)
 
-    vectors = []
+    vectors, tractions, side_facets = [], [], []
     ds = ufl.Measure("ds", domain=model.mesh, subdomain_data=model.beam.facet_tags)
     v = ufl.TestFunction(model.V)
+    tdim = model.mesh.topology.dim
+    model.mesh.topology.create_connectivity(tdim, tdim - 1)
+    n_facets = len(HEX_FACETS)
+    cell_facets = model.mesh.topology.connectivity(tdim, tdim - 1).array.reshape(-1, n_facets)
+    cell_sides = cell_facets[: model.n_owned_cells, HEX_SIDE_FACETS]
     for load in loads:
         if "&" in load.face:
             raise InputError(
                 load.key or "load", f"{load.face!r}: a load acts on one face, not on a&b"
             )
         area = face_area(model, load.face)
+        tractions.append(np.asarray(load.force, dtype=np.float64) / area)
+        cells, sides = np.nonzero(np.isin(cell_sides, model.beam.facets(load.face)))
+        side_facets.append(np.column_stack([cells, HEX_SIDE_FACETS[sides]]).astype(np.int64))
         traction = ufl.as_vector([f / area for f in load.force])
         vec = fem.assemble_vector(
             fem.form(ufl.dot(traction, v) * ds(model.beam.face_tags[load.face]))
@@ -141,7 +301,16 @@ def resolve(
         vec.scatter_forward()
         vectors.append(vec.array.copy())
     return ResolvedLoads(
-        list(motions), fixed, fixed_motion, vectors, [load.amplitude for load in loads]
+        list(motions),
+        fixed,
+        fixed_motion,
+        vectors,
+        [load.amplitude for load in loads],
+        tractions,
+        side_facets,
+        [vector.copy() for vector in vectors],
+        [np.zeros(0) for _ in loads],
+        extra_resultants=np.zeros((len(loads), 3)),
     )
 
 

@@ -15,7 +15,8 @@ Units: N, mm, s, tonne.
 Refinement (``Structure.refine``) is collective and happens between steps: new extra nodes get
 positions and velocities interpolated from the cell's active nodes below and above (weak) or
 copied from set A (strong); the refined cells' old (sub)element masses are taken off their
-nodes and the new subelements' masses put on (total mass unchanged); the maps, constraints and
+nodes and the new subelements' masses put on (total mass unchanged); the maps, constraints,
+face loads (``ResolvedLoads.refine``: onto the subelement faces, extra nodes included) and
 stable time step are rebuilt. Extra nodes on the border of a refined region follow their
 unrefined neighbour (``border``). The per-step path allocates nothing.
 
@@ -364,14 +365,21 @@ class Structure:
     def start_stabilisation(self, t: float) -> None:
         """Collective, right after a refinement at time t (s): open the damping window of the
         newly weakly refined cells' nodes and set the tie forces of the new strong node pairs from
-        the refined structure's internal forces at t."""
-        self.stabilisation_state.start(t, self._nodes_of_cells, self._extra_force_and_mass)
+        the refined structure's internal forces and face loads at t."""
+        self.stabilisation_state.start(
+            t, self._nodes_of_cells, lambda: self._extra_force_and_mass(t)
+        )
 
-    def _extra_force_and_mass(self) -> tuple[np.ndarray, np.ndarray]:
-        """Collective: the extra nodes' internal force (n, 3) N and lumped mass (n,) tonne (after
-        the border's transfer) at the current state."""
+    def _extra_force_and_mass(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        """Collective: the extra nodes' net internal force f_int - f_load (n, 3) N (the face
+        loads at time t (s) on them taken off: a node pair on a loaded face moves together
+        under both) and lumped mass (n,) tonne (after the border's transfer), owned nodes, at
+        the current state."""
         self.internal_force()  # collective (reverse scatters): on every rank
-        return self.f_extra.array.reshape(-1, 3), self.extra_block.mass.reshape(-1, 3)[:, 0]
+        mass = self.extra_block.mass.reshape(-1, 3)[:, 0]
+        n_owned = 3 * len(mass)
+        force = self.f_extra.array[:n_owned].reshape(-1, 3)
+        return force - self.loads.extra_force(t, n_owned), mass
 
     def discard_stabilisation_requests(self) -> None:
         """Forget what the last refinement would stabilise (a restart replaying refinements
@@ -488,6 +496,16 @@ class Structure:
             self.base.set_ufl_cells([self.refinement.unrefined_cells()])
         free_b = self.border.free_b
         self._rebuild_blocks()
+        # the face loads onto the subelements' faces, extra nodes included, with the new border
+        self.loads.refine(
+            np.hstack([self.bottom_local, self.top_local]),
+            self.subelements.nodes,
+            self.subelement_cells,
+            lambda nodes: self.gather(nodes, "X"),
+            self.border,
+            self.base.V.dofmap.index_map,
+            self.extra.index_map,
+        )
         # the strong node pairs that open now: new set-B nodes no longer bound to set A
         n_interfaces = self.interface_state.shape[1]
         for key in sorted(self.border.free_b - free_b):

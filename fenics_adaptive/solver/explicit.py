@@ -448,9 +448,9 @@ class ExplicitSolver:
         self.structure.internal_force()
         for contributor in self._internal:
             contributor.add_force(s.t, base.f, extra.f)
-        self.structure.loads.external_force(s.t, self._f_ext_full)
+        # the face loads on both blocks (extra nodes: of refined cells on a loaded side face)
+        self.structure.loads.external_force(s.t, self._f_ext_full, extra.f_ext)
         base.f_ext[:] = self._f_ext_full[: base.block.n_owned]
-        extra.f_ext.fill(0.0)  # only contributors load the extra nodes
         for contributor in self._external:
             contributor.add_force(s.t, base.f_ext, extra.f_ext)
         if self._contact:

@@ -35,7 +35,7 @@ class HistoryRow:
     time: float
     displacement: float  # mm, mean over the probe face
     reaction_force: float  # N, force the supports apply to the body on the reaction face
-    applied_force: float  # N, resultant of the face loads
+    applied_force: float  # N, resultant of the face loads (on base and extra nodes)
     kinetic_energy: float  # mJ
     internal_energy: float  # mJ, work of the internal forces
     external_work: float  # mJ, work of loads and prescribed motions
@@ -115,7 +115,8 @@ class HistoryRecorder:
             dtype=bool,
         )
         n_owned = structure.blocks[0].n_owned
-        self.load_dofs = np.arange(COMPONENTS[probe.component], n_owned, 3)
+        self.component = COMPONENTS[probe.component]
+        self.load_dofs = np.arange(self.component, n_owned, 3)
 
     def row(
         self, s: SolverState, blocks: Sequence[BlockState], inversion: InversionGuard
@@ -189,7 +190,10 @@ class HistoryRecorder:
             [
                 base.u[self.probe_dofs].sum(),
                 reaction,
-                base.f_ext[self.load_dofs].sum(),
+                # the loads on the base DOFs, and on the extra DOFs from the loads themselves
+                # (the extra block's f_ext also holds the tie forces, which are no load)
+                base.f_ext[self.load_dofs].sum()
+                + self.structure.loads.extra_resultant(s.t)[self.component],
                 kinetic,
                 s.work_int,
                 s.work_ext,
