@@ -44,6 +44,20 @@ def esl_model(
     return build_model(beam, [laminate], **kw)
 
 
+# A bilinear B-K cohesive law as a config's [cohesive] table (N/mm^3, MPa, N/mm): damage starts
+# at openings of N / K_n = 2e-4 mm. Tests copy it (dict(COHESIVE_LAW)) before changing it.
+COHESIVE_LAW = {
+    "K_n": 1.0e5,
+    "K_s": 1.0e5,
+    "N": 20.0,
+    "S": 40.0,
+    "GIc": 0.4,
+    "GIIc": 1.0,
+    "law": "bk",
+    "exponent": 2.0,
+}
+
+
 # ------------------------------------------------------------------ single (sub)elements
 CARBON = PlyMaterial("carbon", E1=140e3, E2=10e3, G12=5e3, nu12=0.3, nu23=0.45, rho=1.6e-9)
 GLASS = PlyMaterial(

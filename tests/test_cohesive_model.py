@@ -7,6 +7,7 @@ import math
 
 import numpy as np
 import pytest
+from helpers import COHESIVE_LAW
 
 from fenics_adaptive.materials.cohesive import critical_energy, traction_separation_curve
 from fenics_adaptive.settings.config import parse_config
@@ -14,16 +15,7 @@ from fenics_adaptive.settings.materials import CohesiveLaw
 from fenics_adaptive.simulation import build_structure
 from fenics_adaptive.solver import explicit
 
-LAW = {
-    "K_n": 1.0e5,
-    "K_s": 1.0e5,
-    "N": 20.0,
-    "S": 40.0,
-    "GIc": 0.4,
-    "GIIc": 1.0,
-    "law": "bk",
-    "exponent": 2.0,
-}
+LAW = dict(COHESIVE_LAW)  # this module's own copy
 CELL = {
     "mesh": {"length": 1.0, "width": 1.0, "nx": 1, "ny": 1},
     "materials": {

@@ -17,6 +17,7 @@ Units: N, mm, s, tonne.
 
 import numpy as np
 import pytest
+from helpers import COHESIVE_LAW
 from mpi4py import MPI
 
 from fenics_adaptive.adaptivity import enrichment as enr
@@ -238,16 +239,7 @@ def test_tie_forces_of_a_strong_refinement_on_a_loaded_face_keep_the_pairs_toget
     them (the tie force takes the net force)."""
     data = cantilever("adaptive", "x1", mesh={"nx": 4, "ny": 1})
     data["interfaces"] = {"refine": [1, 3], "delaminate": [2], "initial": "weak"}
-    data["cohesive"] = {
-        "K_n": 1.0e5,
-        "K_s": 1.0e5,
-        "N": 20.0,
-        "S": 40.0,
-        "GIc": 0.4,
-        "GIIc": 1.0,
-        "law": "bk",
-        "exponent": 2.0,
-    }
+    data["cohesive"] = dict(COHESIVE_LAW)
     data["stabilisation"] = {"release_window": 1.0e-5}
     structure = build_structure(parse_config(data))
     rng = np.random.default_rng(11)

@@ -32,6 +32,7 @@ import math
 import numpy as np
 import pytest
 from fenics_adaptive.meshes.beam import layered_mesh
+from helpers import COHESIVE_LAW
 from mpi4py import MPI
 
 from fenics_adaptive.analysis import comparison as cmp
@@ -57,16 +58,6 @@ PROTOTYPE = {
     "nu23": 0.25,
     "rho": 1.6e-9,
 }
-COHESIVE = {
-    "K_n": 1.0e5,  # N/mm^3: damage starts at openings of N / K_n = 2e-4 mm
-    "K_s": 1.0e5,
-    "N": 20.0,
-    "S": 40.0,
-    "GIc": 0.4,
-    "GIIc": 1.0,
-    "law": "bk",
-    "exponent": 2.0,
-}
 # a general small strain (1e-3) for the states below
 STRAIN = np.array([[1.0, 0.3, 0.2], [0.3, -0.5, 0.4], [0.2, 0.4, 0.7]]) * 1e-3
 
@@ -80,7 +71,7 @@ def strip(kind: str = "adaptive", points_per_ply: int = 1, kinematics: str = "sm
         "materials": {"prototype": dict(PROTOTYPE)},
         "laminate": {"material": "prototype", "ply_thickness": 0.25, "angles": [0, 45, 90, -30]},
         "interfaces": {"refine": [1, 3], "delaminate": [2]},
-        "cohesive": dict(COHESIVE),
+        "cohesive": dict(COHESIVE_LAW),
         "clamp": [{"face": "x0"}],
         "solver": {"end_time": 1.0e-6},
         "output": {
@@ -218,7 +209,7 @@ def test_element_forces_of_layerwise_models_sum_to_the_internal_force(
     data["mesh"]["layers"] = layers
     if delaminate:
         data["interfaces"] = {"delaminate": delaminate}
-        data["cohesive"] = dict(COHESIVE)
+        data["cohesive"] = dict(COHESIVE_LAW)
     structure = build_structure(parse_config(data))
     assert len(structure.cohesive) == (structure.base.n_owned_cells // len(layers)) * len(
         delaminate
