@@ -29,9 +29,22 @@ from fenics_adaptive.model.forms import LayeredModel, build_model
 CROSS_PLY = [0, 90, 0, 90, 90, 0, 90, 0]  # ply angles (degrees), bottom to top
 
 
+# The paper's TCB ply (Table 1 as corrected in the issue) as a config's [materials.NAME] table
+# (MPa, tonne/mm^3). Tests copy it (dict(PROTOTYPE_PLY)) before changing it.
+PROTOTYPE_PLY = {
+    "E1": 1.0e5,
+    "E2": 1.0e4,
+    "G12": 5.0e3,
+    "G23": 4.0e3,
+    "nu12": 0.25,
+    "nu23": 0.25,
+    "rho": 1.6e-9,
+}
+
+
 def prototype_material(name: str = "prototype", rho: float = 1.6e-9) -> PlyMaterial:
-    """The paper's TCB ply (Table 1 as corrected in the issue)."""
-    return PlyMaterial(name, E1=1e5, E2=1e4, G12=5e3, G23=4e3, nu12=0.25, nu23=0.25, rho=rho)
+    """The paper's TCB ply (``PROTOTYPE_PLY``) as a PlyMaterial, of density ``rho``."""
+    return PlyMaterial(name, **(PROTOTYPE_PLY | {"rho": rho}))
 
 
 def esl_model(

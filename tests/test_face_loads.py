@@ -17,7 +17,7 @@ Units: N, mm, s, tonne.
 
 import numpy as np
 import pytest
-from helpers import COHESIVE_LAW
+from helpers import COHESIVE_LAW, PROTOTYPE_PLY
 from mpi4py import MPI
 
 from fenics_adaptive.adaptivity import enrichment as enr
@@ -30,15 +30,6 @@ from fenics_adaptive.solver.static import solve_static
 
 pytestmark = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="serial sums over all nodes")
 
-PROTOTYPE = {
-    "E1": 100000.0,
-    "E2": 10000.0,
-    "G12": 5000.0,
-    "G23": 4000.0,
-    "nu12": 0.25,
-    "nu23": 0.25,
-    "rho": 1.6e-9,
-}
 FORCE = (1.5, -2.0, -10.0)  # N, a load with every component
 
 
@@ -56,7 +47,7 @@ def cantilever(
     data = {
         "model": {"kind": kind, "points_per_ply": 2},
         "mesh": {"length": 4.0, "width": 2.0, "nx": 4, "ny": 2} | (mesh or {}),
-        "materials": {"prototype": dict(PROTOTYPE)},
+        "materials": {"prototype": dict(PROTOTYPE_PLY)},
         "laminate": {"material": "prototype", "ply_thickness": 0.25, "angles": list(angles)},
         "clamp": [{"face": "x0"}],
         "load": [{"face": face, "force": list(force), "curve": [[0.0, 1.0]]}],

@@ -32,11 +32,11 @@ import math
 import numpy as np
 import pytest
 from fenics_adaptive.meshes.beam import layered_mesh
-from helpers import COHESIVE_LAW
+from helpers import COHESIVE_LAW, PROTOTYPE_PLY, prototype_material
 from mpi4py import MPI
 
 from fenics_adaptive.analysis import comparison as cmp
-from fenics_adaptive.materials.laminate import Laminate, PlyMaterial
+from fenics_adaptive.materials.laminate import Laminate
 from fenics_adaptive.model.assembly import add_cohesive_forces
 from fenics_adaptive.model.border import transfer_forces
 from fenics_adaptive.model.forms import build_model
@@ -49,15 +49,6 @@ from fenics_adaptive.simulation import build_structure
 pytestmark = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="the comparison is serial")
 
 WEAK, STRONG = InterfaceState.WEAK, InterfaceState.STRONG
-PROTOTYPE = {
-    "E1": 1.0e5,
-    "E2": 1.0e4,
-    "G12": 5.0e3,
-    "G23": 4.0e3,
-    "nu12": 0.25,
-    "nu23": 0.25,
-    "rho": 1.6e-9,
-}
 # a general small strain (1e-3) for the states below
 STRAIN = np.array([[1.0, 0.3, 0.2], [0.3, -0.5, 0.4], [0.2, 0.4, 0.7]]) * 1e-3
 
@@ -68,7 +59,7 @@ def strip(kind: str = "adaptive", points_per_ply: int = 1, kinematics: str = "sm
     data = {
         "model": {"kind": kind, "points_per_ply": points_per_ply, "kinematics": kinematics},
         "mesh": {"length": 6.0, "width": 3.0, "nx": 3, "ny": 2},
-        "materials": {"prototype": dict(PROTOTYPE)},
+        "materials": {"prototype": dict(PROTOTYPE_PLY)},
         "laminate": {"material": "prototype", "ply_thickness": 0.25, "angles": [0, 45, 90, -30]},
         "interfaces": {"refine": [1, 3], "delaminate": [2]},
         "cohesive": dict(COHESIVE_LAW),
@@ -223,7 +214,7 @@ def test_one_ply_layers_with_three_points_per_ply_keep_them_in_both_paths():
     """The Python API takes any points_per_ply (a config 1 or 2): with 3, the UFL form puts
     three points in a one-ply layer, and the table must too (at least two, not exactly two).
     Finite kinematics and strains of a few %, where two points and three differ by 1e-5."""
-    laminate = Laminate.from_angles(PlyMaterial("prototype", **PROTOTYPE), [0, 90], 0.25)
+    laminate = Laminate.from_angles(prototype_material(), [0, 90], 0.25)
     layers = [Laminate(laminate.plies[:1]), Laminate(laminate.plies[1:])]
     beam = layered_mesh(MPI.COMM_WORLD, 2.0, 1.0, 2, 1, [0.25, 0.25])
     model = build_model(beam, layers, points_per_ply=3, kinematics="finite")
