@@ -17,15 +17,15 @@ import math
 
 import numpy as np
 import pytest
+from helpers import GLASS, prototype_material
 
 from fenics_adaptive.element import subelement as se
 from fenics_adaptive.errors import InputError
 from fenics_adaptive.materials import ply_damage as pd
-from fenics_adaptive.materials.laminate import Laminate, Ply, PlyMaterial
+from fenics_adaptive.materials.laminate import Laminate, Ply
 from fenics_adaptive.settings import materials as sm
 
-MATERIAL = PlyMaterial("proto", E1=1e5, E2=1e4, G12=5e3, G23=4e3, nu12=0.25, nu23=0.25, rho=1.6e-9)
-GLASS = PlyMaterial("glass", E1=45e3, E2=12e3, G12=4.5e3, nu12=0.28, nu23=0.4, rho=2e-9, G23=3.5e3)
+MATERIAL = prototype_material("proto")
 FAILURE_TABLE = {"XT": 2000.0, "XC": 1200.0, "YT": 50.0, "YC": 200.0, "S12": 80.0}
 FAILURE = sm.PlyFailure.from_mapping("proto", {**FAILURE_TABLE, "G2c": 0.2, "G6c": 1.0})
 GLASS_FAILURE = sm.PlyFailure(
@@ -579,7 +579,7 @@ def test_cracks_of_a_cross_ply_cell_dissipate_G2c_per_crack_area(width_y):
 def test_nominal_ply_stresses_are_the_damaged_secant_stiffness_times_the_strain():
     """The output's vectorised ply stress equals C(d) T eps built from the damaged material
     stiffness, with the crack open under transverse tension and closed under compression."""
-    material = PlyMaterial("m", E1=1e5, E2=1e4, G12=5e3, G23=4e3, nu12=0.25, nu23=0.25, rho=1e-9)
+    material = prototype_material("m", rho=1e-9)
     plies = [Ply(material, angle, 0.25) for angle in (0.0, 30.0, 90.0)]
     rng = np.random.default_rng(7)
     strains = 1e-3 * rng.standard_normal((50, 3, 6))

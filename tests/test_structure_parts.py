@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import GLASS, prototype_material
 from mpi4py import MPI
 
 from fenics_adaptive.adaptivity.refinement import RefinementState
@@ -24,14 +25,13 @@ from fenics_adaptive.element.subelement import CORNERS, pack_rule, sublaminate_p
 from fenics_adaptive.element.timestep import characteristic_lengths, hexahedron_volumes
 from fenics_adaptive.errors import InputError
 from fenics_adaptive.materials import ply_damage as pd
-from fenics_adaptive.materials.laminate import Laminate, Ply, PlyMaterial
+from fenics_adaptive.materials.laminate import Laminate, Ply
 from fenics_adaptive.model.assembly import CohesiveSet
 from fenics_adaptive.model.ply_damage_state import PlyDamageState
 from fenics_adaptive.settings.adaptivity import Interfaces, Stabilisation
 from fenics_adaptive.settings.kinds import InterfaceState
 
-CARBON = PlyMaterial("proto", E1=1e5, E2=1e4, G12=5e3, G23=4e3, nu12=0.25, nu23=0.25, rho=1.6e-9)
-GLASS = PlyMaterial("glass", E1=45e3, E2=12e3, G12=4.5e3, nu12=0.28, nu23=0.4, rho=2e-9, G23=3.5e3)
+CARBON = prototype_material("proto")
 FAILURES = {
     "proto": pd.PlyFailure.from_mapping(
         "proto",
