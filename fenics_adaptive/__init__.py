@@ -9,7 +9,8 @@ The public API is the names below (``docs/api.md`` walks through them with a che
 - ``Simulation(config)``: the model built and ready; ``run()`` it to the end, or ``start()``
   and ``step()`` it owning the loop, reading ``t``, ``u``, ``v``, forces, ``history`` and
   ``interface_state`` between steps; ``add_indicator`` (a ``PythonIndicator``) and
-  ``add_observer`` (an ``Observer``, told of each ``HistoryRow`` and ``RefinementEvent``);
+  ``add_observer`` (an ``Observer``, told of each ``HistoryRow`` and ``RefinementEvent``),
+  ``add_contributor`` (a force of one's own: a ``Contributor`` of a ``ForceKind``);
 - ``InterfaceState``: NONE / WEAK / STRONG, the refinement state of a cell's interface;
 - ``run_config(config, out_dir)``: what ``fenics-adaptive run`` does (a run folder with the
   history, fields, checkpoints, summary and plots);
@@ -35,6 +36,8 @@ _PUBLIC = {
     "Simulation": "fenics_adaptive.simulation",
     "PythonIndicator": "fenics_adaptive.simulation",
     "Observer": "fenics_adaptive.solver.observers",
+    "Contributor": "fenics_adaptive.model.forces",
+    "ForceKind": "fenics_adaptive.model.forces",
     "HistoryRow": "fenics_adaptive.solver.explicit",
     "RefinementEvent": "fenics_adaptive.adaptivity.events",
     "run_config": "fenics_adaptive.runner",

@@ -28,6 +28,7 @@ from fenics_adaptive.errors import InputError, shared_errors
 from fenics_adaptive.meshes.beam import layered_mesh
 from fenics_adaptive.model.assembly import CohesiveSet
 from fenics_adaptive.model.contact import Contact
+from fenics_adaptive.model.forces import ForceContributor
 from fenics_adaptive.model.forms import build_model
 from fenics_adaptive.model.layerwise import cohesive_pairs
 from fenics_adaptive.model.loading import face_dofs, resolve
@@ -233,7 +234,9 @@ class Simulation:
     ``config``: a ``RunConfig`` (``load_config(path)``, ``parse_config(dict)``).
     ``observers``: ``Observer`` instances told of the run's events (history rows, field times,
     refinements, checkpoints, the end); more with ``add_observer``. ``indicators``:
-    ``PythonIndicator`` instances (or ``add_indicator``). ``comm``: the MPI communicator; every
+    ``PythonIndicator`` instances (or ``add_indicator``). ``contributors``: force contributors
+    of one's own (``model.forces.Contributor``; or ``add_contributor``), summed after the
+    structure's and the impactor's. ``comm``: the MPI communicator; every
     rank makes the same calls. ``structure``: an already built structure of this config (a
     restart restores one, ``runner.execute``); by default it is built here.
 
@@ -252,6 +255,7 @@ class Simulation:
         indicators: Iterable[PythonIndicator] = (),
         comm: MPI.Comm = MPI.COMM_WORLD,
         structure: Structure | None = None,
+        contributors: Iterable[ForceContributor] = (),
     ):
         self.config = config
         self.structure = structure if structure is not None else build_structure(config, comm)
@@ -260,7 +264,7 @@ class Simulation:
             self.structure, config.solver
         )
         self.refinement = RefinementHook(config, indicators)
-        contributors = []
+        run_contributors: list[ForceContributor] = []
         if config.impactor is not None:
             contact = Contact.on(config.impactor, self.structure)
             contact.check_penalty(
@@ -272,12 +276,13 @@ class Simulation:
                     "impactor.position",
                     f"the impactor starts {-gap:.4g} mm inside the top face; place it above",
                 )
-            contributors.append(contact)
+            run_contributors.append(contact)
+        run_contributors += contributors
         self.solver = ExplicitSolver(
             self.structure,
             config.solver,
             config.probe,
-            contributors=contributors,
+            contributors=run_contributors,
             observers=observers,
             refiner=self.refinement if self.refinement.active else None,
         )
@@ -286,6 +291,11 @@ class Simulation:
     def add_observer(self, observer: Observer) -> None:
         """Tell ``observer`` of the run's events from now on."""
         self.solver.observers.append(observer)
+
+    def add_contributor(self, contributor: ForceContributor) -> None:
+        """Add ``contributor``'s force to the run from its start (``model.forces``: its
+        ``kind`` says where its force and work go); before ``start()`` or ``run()``."""
+        self.solver.add_contributor(contributor)
 
     def add_indicator(
         self, function: Callable[[Structure, float], Iterable[Request]], interval: float = 0.0

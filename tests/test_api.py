@@ -21,6 +21,8 @@ PUBLIC = {
     "Simulation",
     "PythonIndicator",
     "Observer",
+    "Contributor",
+    "ForceKind",
     "HistoryRow",
     "RefinementEvent",
     "InterfaceState",

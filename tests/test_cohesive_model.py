@@ -103,7 +103,7 @@ def test_dissipated_energy_and_traction_separation(kind, mixity):
     model = Kinematic(kind)
     path = proportional_path(mixity, law)
     tractions, work = model.pull(path)
-    stored = model.structure.energies()[1]
+    stored = model.structure.internal_forces.energies()[1]
     assert stored == pytest.approx(0.0, abs=1e-12)  # fully separated
     assert work == pytest.approx(critical_energy(law, mixity), rel=0.01)
     expected, _, _ = traction_separation_curve(law, path)

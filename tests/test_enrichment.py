@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from fenics_adaptive.adaptivity import enrichment as enr
+from fenics_adaptive.model.diagnostics import cell_maps
 from fenics_adaptive.settings.config import parse_config
 from fenics_adaptive.settings.kinds import InterfaceState
 from fenics_adaptive.settings.solver import SolverSettings
@@ -86,7 +87,7 @@ def test_weak_then_strong_refinement_conserves_mass_momentum_and_the_field():
     A, B = set_linear_state(structure, rng)
     mass, momentum = structure.total_mass(), structure.momentum()
     structure.internal_force()
-    energy = structure.energies()[0]
+    energy = structure.internal_forces.energies()[0]
     cells = np.arange(5, 12)
     assert structure.refine([(c, i, InterfaceState.WEAK) for c in cells for i in (2, 4, 6)])
     # extra nodes start on the element's own (here linear) displacement and velocity fields
@@ -96,13 +97,13 @@ def test_weak_then_strong_refinement_conserves_mass_momentum_and_the_field():
     assert structure.total_mass() == pytest.approx(mass, rel=1e-14)
     assert np.allclose(structure.momentum(), momentum, rtol=1e-13, atol=0)
     structure.internal_force()
-    assert structure.energies()[0] == pytest.approx(energy, rel=1e-12)
+    assert structure.internal_forces.energies()[0] == pytest.approx(energy, rel=1e-12)
 
     assert structure.refine([(c, i, InterfaceState.STRONG) for c in cells for i in (2, 6)])
     assert structure.total_mass() == pytest.approx(mass, rel=1e-14)
     assert np.allclose(structure.momentum(), momentum, rtol=1e-13, atol=0)
     structure.internal_force()
-    solid, cohesive = structure.energies()
+    solid, cohesive = structure.internal_forces.energies()
     assert solid == pytest.approx(energy, rel=1e-12)
     assert cohesive == 0.0  # a just-duplicated interface is closed
     assert len(structure.cohesive) == 2 * len(cells)
@@ -173,7 +174,7 @@ def test_stable_step_drops_with_thin_subelements_and_cohesive_springs():
 def test_cell_maps_of_a_refined_cell_name_its_nodes():
     structure = structure_of(tcb(initial="none"))
     structure.refine([(0, 4, InterfaceState.WEAK), (0, 2, InterfaceState.STRONG)])
-    text = structure.cell_maps(0)
+    text = cell_maps(structure, 0)
     assert text.count("subelement") == 3
     assert "subelement 1: plies 1, 2" in text and "subelement 3: plies 5, 6, 7, 8" in text
     assert "cohesive element at interface 2" in text

@@ -255,7 +255,7 @@ def test_tie_forces_of_a_strong_refinement_on_a_loaded_face_keep_the_pairs_toget
     structure.start_stabilisation(0.0)
     force, mass = net_force()
     tie = np.zeros_like(force)
-    structure.add_tie_forces(0.0, tie.ravel())
+    structure.stabilisation_state.add_tie_forces(0.0, tie.ravel())
     acceleration = (force + tie) / mass[:, None]
     scale = max(np.abs(a).max() for a in continuous.values())
     loaded = 0

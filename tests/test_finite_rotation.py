@@ -215,7 +215,7 @@ def test_rigid_rotation_of_refined_cells_gives_no_force():
     f_base, f_extra = forces(structure)
     residual = max(np.abs(f_base).max(), np.abs(f_extra).max()) / scale
     assert residual < 1e-10, residual
-    solid, cohesive = structure.energies()
+    solid, cohesive = structure.internal_forces.energies()
     assert abs(solid) < 1e-20
     assert cohesive == 0.0
     f_coh, energy = cohesive_forces(structure)
@@ -404,7 +404,7 @@ def test_cantilever_large_tip_load_matches_elastica():
         f_base[bottom_node] += (1.0 - share) * f_extra[node]
         f_base[structure.column_top[bottom_node]] += share * f_extra[node]
     assert np.abs(f_base - f_ufl).max() < 1e-10 * np.abs(f_ufl).max()
-    assert structure.energies()[0] == pytest.approx(energy_ufl, rel=1e-12)
+    assert structure.internal_forces.energies()[0] == pytest.approx(energy_ufl, rel=1e-12)
 
 
 # --- the config switch --------------------------------------------------------------------------

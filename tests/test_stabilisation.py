@@ -58,7 +58,7 @@ def test_tie_force_makes_new_pairs_accelerate_as_the_continuous_interface():
     f = structure.f_extra.array.reshape(-1, 3)
     m = structure.mass_extra.array.reshape(-1, 3)[:, 0]
     tie = np.zeros_like(f)
-    structure.add_tie_forces(1.4e-5, tie.ravel())
+    structure.stabilisation_state.add_tie_forces(1.4e-5, tie.ravel())
     accelerations = (tie - f) / m[:, None]
     scale = max(np.abs(a).max() for a in continuous.values())
     checked = 0
@@ -71,10 +71,10 @@ def test_tie_force_makes_new_pairs_accelerate_as_the_continuous_interface():
     assert checked == 2 * 21 * 2
     # and released linearly: half of it halfway, none at the end
     half = np.zeros_like(f)
-    structure.add_tie_forces(1.4e-5 + 0.5e-5, half.ravel())
+    structure.stabilisation_state.add_tie_forces(1.4e-5 + 0.5e-5, half.ravel())
     assert np.allclose(half, 0.5 * tie, rtol=1e-12, atol=1e-12 * np.abs(tie).max())
     end = np.zeros_like(f)
-    structure.add_tie_forces(1.4e-5 + 1e-5, end.ravel())
+    structure.stabilisation_state.add_tie_forces(1.4e-5 + 1e-5, end.ravel())
     assert not end.any() and not structure.ties
 
 

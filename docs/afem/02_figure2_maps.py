@@ -23,6 +23,7 @@ from mpi4py import MPI
 from fenics_adaptive.adaptivity import enrichment as enr
 from fenics_adaptive.element.solid_shell import gauss_legendre_01
 from fenics_adaptive.element.subelement import sublaminate_ply_zeta
+from fenics_adaptive.model.diagnostics import cell_maps
 from fenics_adaptive.settings.config import parse_config
 from fenics_adaptive.settings.kinds import InterfaceState
 from fenics_adaptive.simulation import build_structure
@@ -132,7 +133,7 @@ finish(fig, "02_figure2_subelements")
 # ## A real cell and its maps
 #
 # One cell, 1 x 0.5 mm in-plane, with the same seven plies. Interface 2 may refine, interface 4
-# may also delaminate. We refine both weakly: this is Figure 2. `Structure.cell_maps` prints,
+# may also delaminate. We refine both weakly: this is Figure 2. `diagnostics.cell_maps` prints,
 # for each subelement, which node of the structure is its local node k (k = 0-3 bottom face,
 # 4-7 top face, DOLFINx vertex order). Node indices below the number of base nodes are base
 # nodes; the others are extra nodes, named by interface and set (`i2A`: interface 2, set A).
@@ -144,7 +145,7 @@ assert MPI.COMM_WORLD.size == 1, "run this script in serial"
 structure = build_structure(parse_config(data, source="02_figure2_maps"))
 cell = 0
 structure.refine([(cell, 2, InterfaceState.WEAK), (cell, 4, InterfaceState.WEAK)])
-print("\n" + structure.cell_maps(cell))
+print("\n" + cell_maps(structure, cell))
 
 # %% [markdown]
 # ## The maps as index lists
@@ -230,7 +231,7 @@ for number, sub in enumerate(enr.subelements(structure.interface_state[cell]), s
 
 # %%
 structure.refine([(cell, 4, InterfaceState.STRONG)])
-maps = structure.cell_maps(cell)
+maps = cell_maps(structure, cell)
 print("\n" + maps)
 assert [(s.first, s.stop) for s in enr.subelements(structure.interface_state[cell])] == [
     (0, 2),

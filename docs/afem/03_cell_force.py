@@ -246,7 +246,7 @@ for sign in (1.0, -1.0):
     u_base[:] = shifted[: structure.n_base]
     u_extra[:] = shifted[structure.n_base :]
     structure.internal_force()
-    energy.append(sum(structure.energies()))
+    energy.append(sum(structure.internal_forces.energies()))
 u_base[:], u_extra[:] = u_saved[: structure.n_base], u_saved[structure.n_base :]
 slope = (energy[0] - energy[1]) / (2 * h)
 predicted = float(np.sum(f_package * direction))

@@ -116,7 +116,7 @@ v_base[:, 2] = 10.0 * X[:, 0]
 def snapshot(structure):
     """What the state is made of: strain energies, mass, momentum, kinetic energy."""
     structure.internal_force()
-    solid, cohesive = structure.energies()
+    solid, cohesive = structure.internal_forces.energies()
     return {
         "solid": solid,
         "cohesive": cohesive,

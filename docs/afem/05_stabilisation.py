@@ -154,7 +154,7 @@ def build(initial="none", stabilisation=None):
 # $$s(t) = \max\left(0,\ 1 - \frac{t - t_0}{T_{\mathrm{release}}}\right),$$
 #
 # so the cohesive element takes over the load gradually. `Structure.start_stabilisation(t_0)`
-# computes T; `Structure.add_tie_forces(t, f)` adds s(t) T to an external force vector.
+# computes T; `StabilisationState.add_tie_forces(t, f)` adds s(t) T to an external force vector.
 #
 # We check it on the column, weakly refined and stretched through its thickness by hand
 # (u_z = 1e-3 z). At the same strain the stiff half carries about four times the stress of the
@@ -181,7 +181,7 @@ structure.internal_force()
 f = structure.f_extra.array.reshape(-1, 3)
 m = structure.extra_block.mass.reshape(-1, 3)[:, 0]
 tie = np.zeros_like(f)
-structure.add_tie_forces(t0, tie.ravel())
+structure.stabilisation_state.add_tie_forces(t0, tie.ravel())
 
 checked = 0
 for key, A_weak in sorted(index_weak.items()):
@@ -215,7 +215,7 @@ assert checked == 4
 # %%
 for fraction in (0.5, 1.0):
     released = np.zeros_like(f)
-    structure.add_tie_forces(t0 + fraction * 1.0e-5, released.ravel())
+    structure.stabilisation_state.add_tie_forces(t0 + fraction * 1.0e-5, released.ravel())
     print(f"t = t_0 + {fraction:.1f} T_release: tie force = {1 - fraction:.1f} x T0")
     assert np.allclose(released, (1.0 - fraction) * tie, rtol=1e-12, atol=1e-15)
 
@@ -349,7 +349,7 @@ structure.ties = copy.deepcopy(ties_at_t0)
 tie_z = []
 for t in window_time:
     released = np.zeros_like(f)
-    structure.add_tie_forces(t, released.ravel())
+    structure.stabilisation_state.add_tie_forces(t, released.ravel())
     tie_z.append(released[A, 2])
 tie_z = np.array(tie_z)
 inset.plot(1e6 * (window_time - t0), tie_z, "tab:green")

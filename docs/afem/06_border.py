@@ -281,7 +281,7 @@ for sign in (1.0, -1.0):
     structure.extra.vectors["u"].array[:] = u0_extra + sign * h * direction_extra
     structure.follow_border()
     structure.internal_force()
-    energy.append(sum(structure.energies()))
+    energy.append(sum(structure.internal_forces.energies()))
 structure.base.u.x.array[:], structure.extra.vectors["u"].array[:] = u0_base, u0_extra
 structure.follow_border()
 slope = (energy[0] - energy[1]) / (2 * h)
@@ -299,10 +299,10 @@ assert abs(slope - predicted) < 1e-6 * abs(predicted)
 
 # %%
 structure.internal_force()
-before = sum(structure.energies())
+before = sum(structure.internal_forces.energies())
 structure.refine([(int(c), 4, InterfaceState.WEAK) for c in cells_in_x_range(structure, 2.0, 3.0)])
 structure.internal_force()
-after = sum(structure.energies())
+after = sum(structure.internal_forces.energies())
 X_extra = structure.extra.vectors["X"].array.reshape(-1, 3)
 now_constrained = np.unique((structure.border.dofs - n_base_dofs) // 3)
 print(f"\nborder columns now at x = {np.unique(X_extra[now_constrained, 0])} mm")

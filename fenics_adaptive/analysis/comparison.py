@@ -276,7 +276,7 @@ def solve_linear_static(structure: Structure, t: float = 0.0) -> StaticResult:
     residual = np.linalg.norm((f_ext - f_int)[free]) / np.linalg.norm(f_ext[free])
     reaction = np.zeros(K.n)
     reaction[fixed] = (f_int - f_ext)[fixed]
-    solid, _ = structure.energies()
+    solid, _ = structure.internal_forces.energies()
     return StaticResult(
         dofs=K.n,
         force_evaluations=probes,

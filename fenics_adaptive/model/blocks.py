@@ -4,7 +4,9 @@ constraints with the masses the solver divides by, and the prescribed DOFs.
 
 Units: N, mm, s, tonne.
 
-``LumpedBlocks`` owns those vectors; the structure tells it when the extra nodes changed
+``LumpedBlocks`` owns those vectors and sums the internal-force contributors into them
+(``add_internal_forces``: the contributors' shares, the border's transfer, the reverse
+scatter); the structure tells it when the extra nodes changed
 (``resize_extra``), how the masses moved (``add_mass_change``, from ``subelement_mass_change``)
 and the new border and prescriptions (``rebuild``). The totals (mass, momentum, kinetic energy)
 are computed from the blocks alone.
@@ -12,7 +14,7 @@ are computed from the blocks alone.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 
 import numpy as np
@@ -27,6 +29,7 @@ from fenics_adaptive.model.border import (
     transfer_forces,
     transfer_masses,
 )
+from fenics_adaptive.model.forces import ForceContributor
 
 
 @dataclass
@@ -37,7 +40,7 @@ class Block:
 
     u: la.Vector
     v: la.Vector
-    f: la.Vector  # internal force, owned entries complete after Structure.internal_force
+    f: la.Vector  # internal force, owned entries complete after add_internal_forces
     mass: np.ndarray
     fixed: np.ndarray
     fixed_motion: np.ndarray  # index into Structure.motions
@@ -138,16 +141,18 @@ class LumpedBlocks:
         if len(self.border):
             follow_masters(*self._border_args, base, extra)
 
-    def zero_forces(self) -> None:
-        """Clear both internal-force vectors (owned and ghost entries)."""
-        self.f_base.array.fill(0.0)
-        self.f_extra.array.fill(0.0)
-
-    def complete_forces(self) -> None:
-        """Collective: move the constrained DOFs' forces to their masters, then sum the partial
-        forces on their owners (owned entries complete)."""
+    def add_internal_forces(self, t: float, contributors: Iterable[ForceContributor]) -> None:
+        """Collective: f_int at time t (s) of the INTERNAL ``contributors`` into both force
+        vectors (N): cleared, each contributor's share added into the local entries in order,
+        the constrained DOFs' forces moved to their masters (the border's transfer), the
+        shares summed on their owners (owned entries complete)."""
+        f_base, f_extra = self.f_base.array, self.f_extra.array
+        f_base.fill(0.0)
+        f_extra.fill(0.0)
+        for contributor in contributors:
+            contributor.add_force(t, f_base, f_extra)
         if len(self.border):
-            transfer_forces(*self._border_args, self.f_base.array, self.f_extra.array)
+            transfer_forces(*self._border_args, f_base, f_extra)
         self.f_base.scatter_reverse(la.InsertMode.add)
         self.f_extra.scatter_reverse(la.InsertMode.add)
 

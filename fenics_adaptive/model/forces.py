@@ -2,11 +2,65 @@
 
 Units: N, mm, s, tonne (forces N, energies mJ = N mm).
 
-The solver sums the contributors every step. Each one says where its force goes (``kind``),
-because the energy balance books them differently: an INTERNAL force (solid, subelements,
-cohesive elements, the border transfer of constrained extra nodes) does internal work, an
-EXTERNAL one (face loads, tie forces of a new strong interface) external work, and a CONTACT
-force (a rigid impactor) is work the impactor gives up (``impact_work``).
+A force contributor adds its force, says the energy it stores and keeps its state; the solver
+sums every contributor each step. The structure's own are its internal forces and tie forces
+(``Structure.contributors``): the UFL/FFCx form of the unrefined cells
+(``internal_forces.SolidForm``), the numba subelements of the refined cells
+(``internal_forces.Subelements``), or, with ply damage, every (sub)element through the
+damage-aware kernel (``internal_forces.DamagedSolid``), the cohesive elements
+(``internal_forces.CohesiveElements``) and the tie forces of new strong interfaces
+(``tie_forces.TieForces``). A run adds more (``ExplicitSolver(contributors=...)``,
+``Simulation.add_contributor``): a rigid impactor (``contact.Contact``), or one of a user's own.
+
+The interface (``ForceContributor``; subclass ``Contributor`` to get the optional hooks):
+
+- ``name``: unique in a run; the prefix of its state's keys in a checkpoint.
+- ``kind`` (``ForceKind``): where the force goes, in the balance of momentum and of energy.
+  INTERNAL: into f_int (m a = f_ext - f_int), its work is internal work. EXTERNAL: into f_ext,
+  its work is external work. CONTACT: on the base DOFs beside f_ext, its work is what the
+  impactor gives up (``impact_work``).
+- ``add_force(t, f_base, f_extra)``: add the force at time t (s) into flat arrays (N, x y z
+  interleaved) of the base and the extra DOFs. INTERNAL contributors add this rank's share
+  into the local arrays (owned and ghost entries), like element assembly: after every INTERNAL
+  contributor has added, the force of each constrained extra DOF on the border of a refined
+  region goes to its masters and the shares of shared DOFs are summed on their owners
+  (``LumpedBlocks.add_internal_forces``). That border transfer is no contributor: it is a map
+  applied to the sum of all of them, so it runs after them. EXTERNAL and CONTACT contributors
+  add into the owned entries, complete (a DOF's force on its owner only). Called every step:
+  allocate nothing, loop over elements in compiled code only.
+- ``energy()``: this rank's share (mJ) of the energy it holds at the state of its last
+  ``add_force``. For INTERNAL contributors the recoverable energy (strain, cohesive): the rest
+  of their work is dissipated (the history's ``dissipated_energy``); for the others the energy
+  of what they hold (an impactor: kinetic + penalty). Called on output steps.
+- ``state()`` / ``restore(state)``: what a restart needs to continue exactly, as named arrays
+  (scalars 0-d), on the same rank of the same model. The structure's contributors are
+  checkpointed with the structure (``Structure.state``), a run's with the solver.
+
+Optional hooks (``Contributor`` has them as no-ops; the solver calls only those a contributor
+overrides, so an unused hook costs nothing per step): ``prepare(dt, element_step)`` at the start
+of a run, ``advance(mean_dt, dt)`` after each step (a contributor with degrees of freedom of its
+own), ``report(row, first)`` its columns of a history row, ``suspect()`` what of it to suspect
+when a run blows up (called on every rank: may use collectives), ``refined()`` after the
+structure was refined (rebuild what depends on its cells).
+
+The order of the contributors of one kind is the order of summation, so a run's history does
+not depend on anything but the list. A linear spring of stiffness k (N/mm) to ground on some
+owned DOFs, as a user would write it::
+
+    class Springs(Contributor):
+        name, kind = "springs", ForceKind.EXTERNAL
+
+        def __init__(self, simulation, dofs, k):
+            self.u, self.dofs, self.k = simulation.u, dofs, k
+
+        def add_force(self, t, f_base, f_extra):
+            f_base[self.dofs] -= self.k * self.u[self.dofs]
+
+        def energy(self):
+            return 0.5 * self.k * float(self.u[self.dofs] @ self.u[self.dofs])
+
+(``tests/test_contributors.py`` runs it against the closed form; a real one would keep its
+work arrays instead of the temporaries of ``f_base[dofs] -= ...``.)
 """
 
 from __future__ import annotations
@@ -34,12 +88,13 @@ class ForceContributor(Protocol):
 
     def add_force(self, t: float, f_base: np.ndarray, f_extra: np.ndarray) -> None:
         """Add this contributor's force at time t (s) into this rank's base and extra DOF
-        arrays (N, flat; the explicit solver passes the owned entries)."""
+        arrays (N, flat): the local entries (owned and ghost) for INTERNAL contributors, the
+        owned entries otherwise."""
         ...
 
     def energy(self) -> float:
-        """mJ: the energy it stores now (strain, recoverable cohesive, penalty), this rank's
-        share."""
+        """mJ: the energy it holds now (strain, recoverable cohesive, penalty, kinetic), this
+        rank's share."""
         ...
 
     def state(self) -> dict[str, np.ndarray]:
@@ -53,10 +108,14 @@ class ForceContributor(Protocol):
 
 class Contributor:
     """Base of a contributor with the solver's optional hooks, all no-ops: subclass it and
-    define ``name``, ``kind`` and the four methods of ``ForceContributor``."""
+    define ``name``, ``kind``, ``add_force`` and, where it has them, ``energy``, ``state`` and
+    ``restore``."""
 
     name: str = ""
     kind: ForceKind = ForceKind.EXTERNAL
+
+    def add_force(self, t: float, f_base: np.ndarray, f_extra: np.ndarray) -> None:
+        raise NotImplementedError(f"{type(self).__name__} must define add_force")
 
     def energy(self) -> float:
         return 0.0
@@ -82,5 +141,18 @@ class Contributor:
         ``first``: the row at t = 0."""
 
     def suspect(self) -> str:
-        """What of this contributor to suspect when a run blows up ("" for nothing)."""
+        """Collective: what of this contributor to suspect when a run blows up ("" for
+        nothing)."""
         return ""
+
+    def refined(self) -> None:
+        """Collective: the structure was refined; rebuild what depends on its cells."""
+
+
+def hooks(contributors, name: str) -> list:
+    """The bound hook ``name`` of each contributor that has its own (not ``Contributor``'s
+    no-op), in order: what the solver calls."""
+    default = getattr(Contributor, name)
+    return [
+        getattr(c, name) for c in contributors if getattr(type(c), name, default) is not default
+    ]

@@ -115,13 +115,25 @@ class LayeredModel:
         self.kinematics = kinematics
         self.set_ufl_cells(self.ufl_cells)
 
-    def add_internal_force(self, out: np.ndarray) -> None:
-        """Add this rank's share of f_int(u) (N) over the UFL cells into ``out`` (owned + ghost
-        entries, no scatter)."""
+    def update_coefficients(self) -> None:
+        """The per-step pre-pass of the forms: pack what their kernels read that depends on
+        the displacement (``PackedDisplacement``). A per-cell element parameter computed from
+        u before the assembly (an enhanced-strain multiplier, say) is computed and packed here,
+        so that the force and the energy both see it."""
         self.packed.update()
+
+    def assemble_internal_force(self, out: np.ndarray) -> None:
+        """Add this rank's share of f_int(u) (N) over the UFL cells into ``out`` (owned + ghost
+        entries, no scatter), from the coefficients of the last ``update_coefficients``."""
         fem.assemble_vector(
             out, self.force_form, constants=self.packed.constants[0], coeffs=self.packed.coeffs[0]
         )
+
+    def add_internal_force(self, out: np.ndarray) -> None:
+        """Add this rank's share of f_int(u) (N) over the UFL cells into ``out`` (owned + ghost
+        entries, no scatter)."""
+        self.update_coefficients()
+        self.assemble_internal_force(out)
 
     def internal_force(self, out: dolfinx.la.Vector) -> None:
         """f_int(u) (N) into ``out``, a vector on the space's index map: owned entries complete,
@@ -130,13 +142,16 @@ class LayeredModel:
         self.add_internal_force(out.array)
         out.scatter_reverse(dolfinx.la.InsertMode.add)
 
-    def strain_energy(self) -> float:
-        """Strain energy (mJ) of the UFL cells, summed over ranks."""
-        self.packed.update()
-        local = fem.assemble_scalar(
+    def local_strain_energy(self) -> float:
+        """Strain energy (mJ) of this rank's UFL cells."""
+        self.update_coefficients()
+        return fem.assemble_scalar(
             self.energy_form, constants=self.packed.constants[1], coeffs=self.packed.coeffs[1]
         )
-        return self.comm.allreduce(local, op=MPI.SUM)
+
+    def strain_energy(self) -> float:
+        """Strain energy (mJ) of the UFL cells, summed over ranks."""
+        return self.comm.allreduce(self.local_strain_energy(), op=MPI.SUM)
 
     def total_mass(self) -> float:
         local = self.mass[: self.n_owned_dofs : 3].sum()

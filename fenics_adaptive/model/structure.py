@@ -12,22 +12,30 @@ Units: N, mm, s, tonne.
 
       f_int = f_UFL(unrefined cells) + sum_i P_i^T f^sublam_i - sum_j P_j^T f^coh_j
 
+Each term is a force contributor (``model.internal_forces``: the form, the subelements or,
+with ply damage, the damaged solid, the cohesive elements); with the tie forces of new strong
+interfaces they are the structure's ``contributors`` (``model.forces``), which the solver sums
+with a run's own. ``internal_force()`` sums the internal ones into the blocks.
+
 Refinement (``Structure.refine``) is collective and happens between steps: new extra nodes get
 positions and velocities interpolated from the cell's active nodes below and above (weak) or
 copied from set A (strong); the refined cells' old (sub)element masses are taken off their
-nodes and the new subelements' masses put on (total mass unchanged); the maps, constraints,
-face loads (``ResolvedLoads.refine``: onto the subelement faces, extra nodes included) and
-stable time step are rebuilt. Extra nodes on the border of a refined region follow their
-unrefined neighbour (``border``). The per-step path allocates nothing.
+nodes and the new subelements' masses put on (total mass unchanged); the maps, the
+contributors' cells (``Contributor.refined``), constraints, face loads
+(``ResolvedLoads.refine``: onto the subelement faces, extra nodes included) and stable time step
+are rebuilt. Extra nodes on the border of a refined region follow their unrefined neighbour
+(``border``). The per-step path allocates nothing.
 
 The structure composes parts with one job each: ``element.rules.RuleTable`` (the packed rules of
 every ply span), ``adaptivity.refinement.RefinementState`` (interface states, the refinement
 log and energy), ``adaptivity.stabilisation.StabilisationState`` (damping windows, tie forces),
 ``model.ply_damage_state.PlyDamageState`` (matrix damage per cell and ply),
-``model.blocks.LumpedBlocks`` (the solver's two blocks: lumped masses, force vectors, border
-constraints, prescribed DOFs) and the cohesive set's damage rows; ``state()`` / ``restore()``
-gather their history-dependent arrays for a checkpoint.
-The stable step is computed in ``model.stable_step``.
+``model.refined_cells.RefinedCells`` (subelements and cohesive elements),
+``model.internal_forces.InternalForces`` (the internal-force contributors and their stored
+energies), ``model.blocks.LumpedBlocks`` (the solver's two blocks: lumped masses, force vectors,
+border constraints, prescribed DOFs); ``state()`` / ``restore()`` gather their
+history-dependent arrays for a checkpoint. The stable step is computed in
+``model.stable_step``, what one reads off a structure for reports in ``model.diagnostics``.
 """
 
 from __future__ import annotations
@@ -41,14 +49,16 @@ from mpi4py import MPI
 from fenics_adaptive.adaptivity import enrichment as enr
 from fenics_adaptive.adaptivity.refinement import RefinementState
 from fenics_adaptive.adaptivity.stabilisation import DampingWindow, StabilisationState, Ties
-from fenics_adaptive.element.geometry import quad_areas, thickness_weight
+from fenics_adaptive.element.geometry import thickness_weight
 from fenics_adaptive.element.rules import RuleTable
 from fenics_adaptive.errors import InputError
 from fenics_adaptive.materials.laminate import Laminate
 from fenics_adaptive.model.assembly import CohesiveSet
 from fenics_adaptive.model.blocks import Block, LumpedBlocks, subelement_mass_change
 from fenics_adaptive.model.border import border_constraints, column_counts
+from fenics_adaptive.model.forces import ForceContributor, hooks
 from fenics_adaptive.model.forms import LayeredModel
+from fenics_adaptive.model.internal_forces import InternalForces, NodeArrays
 from fenics_adaptive.model.loading import (
     Amplitude,
     PrescribedMotion,
@@ -58,6 +68,7 @@ from fenics_adaptive.model.loading import (
 from fenics_adaptive.model.ply_damage_state import PlyDamageState
 from fenics_adaptive.model.refined_cells import RefinedCells
 from fenics_adaptive.model.stable_step import stable_time_step
+from fenics_adaptive.model.tie_forces import TieForces
 from fenics_adaptive.model.topology import CellColumnTable
 from fenics_adaptive.settings.adaptivity import Interfaces, Stabilisation
 from fenics_adaptive.settings.kinds import InterfaceState
@@ -131,8 +142,20 @@ class Structure:
         self.ply_damage_state: PlyDamageState | None = None
         if ply_damage:
             self._setup_ply_damage()
-        self._solid_energy = 0.0
-        self._cohesive_energy = 0.0
+        self.node_arrays = NodeArrays.of(self.X_base, base.u.x, self.extra)
+        self.internal_forces = InternalForces.of(
+            base,
+            self.refinement,
+            self.refined_cells,
+            self.node_arrays,
+            self.ply_damage_state,
+            self.elements,
+        )
+        # the structure's force contributors (model.forces): internal forces, then tie forces
+        self.contributors: list[ForceContributor] = [
+            *self.internal_forces.contributors,
+            TieForces(self.stabilisation_state),
+        ]
         self.lumped = LumpedBlocks(
             V, base.mass, self.extra.index_map, loads.fixed, loads.fixed_motion
         )
@@ -178,30 +201,10 @@ class Structure:
         doc="The extra DOFs on the border of refined regions, bound to their masters.",
     )
 
-    def internal_force(self) -> None:
-        """f_int into both blocks' ``f`` (owned entries complete)."""
-        self.lumped.zero_forces()
-        f_base, f_extra = self.f_base.array, self.f_extra.array
-        u_base = self.base.u.x.array.reshape(-1, 3)
-        u_extra = self.extra.vectors["u"].array.reshape(-1, 3)
-        X_extra = self.extra.vectors["X"].array.reshape(-1, 3)
-        fb, fx = f_base.reshape(-1, 3), f_extra.reshape(-1, 3)
-        if self.ply_damage:
-            # every cell through numba: the ply damage state lives per (cell, ply)
-            self._solid_energy = self.ply_damage_state.add_forces(
-                self.subelements.rules, self.X_base, X_extra, u_base, u_extra, fb, fx
-            )
-        else:
-            self.base.add_internal_force(f_base)
-            # the subelements use the base model's kinematics, read per call so that
-            # LayeredModel.set_kinematics switches both paths together
-            self._solid_energy = self.refined_cells.add_subelement_forces(
-                self.X_base, X_extra, u_base, u_extra, fb, fx, self.base.finite
-            )
-        self._cohesive_energy = self.refined_cells.add_cohesive_forces(
-            self.X_base, X_extra, u_base, u_extra, fb, fx
-        )
-        self.lumped.complete_forces()
+    def internal_force(self, t: float = 0.0) -> None:
+        """Collective: f_int at time t (s) of the structure's internal-force contributors
+        (``internal_forces``) into both blocks' ``f`` (owned entries complete)."""
+        self.lumped.add_internal_forces(t, self.internal_forces.contributors)
 
     def follow_border(self, velocity: bool = False) -> None:
         """Put the constrained extra DOFs (owned and ghosts) where their masters are (after
@@ -214,43 +217,10 @@ class Structure:
         """Reference vertex coordinates (n_cells, 8, 3) mm of the owned cells."""
         return self.X_base[self.base.V.dofmap.list[: self.base.n_owned_cells]]
 
-    def describe_dof(self, block: int, dof: int) -> str:
-        """Where an owned DOF of a block is, in words (for error messages)."""
-        node, component = divmod(dof, 3)
-        axis = "xyz"[component]
-        if block == 0:
-            x = self.X_base[node]
-            # the cells (rows) holding the node
-            cells = self.columns.cells_holding(node)
-            cell = f"cell {self.original_cell[cells[0]]}, " if len(cells) else ""
-            return f"{cell}base node at ({x[0]:.4g}, {x[1]:.4g}, {x[2]:.4g}) mm, u_{axis}"
-        n_interfaces = self.interface_state.shape[1]
-        _, interface, node_set = enr.key_parts(self.extra.owned_keys[node], n_interfaces)
-        x = self.extra.vectors["X"].array.reshape(-1, 3)[node]
-        return (
-            f"extra node of interface {interface} (set {'AB'[node_set]}) at "
-            f"({x[0]:.4g}, {x[1]:.4g}, {x[2]:.4g}) mm, u_{axis}"
-        )
-
-    def energies(self) -> tuple[float, float]:
-        """(strain energy of the solids, recoverable cohesive energy) in mJ at the state of the
-        last ``internal_force`` call, summed over ranks."""
-        local = np.array([self._solid_energy, self._cohesive_energy])
-        solid, cohesive = self.comm.allreduce(local, op=MPI.SUM)
-        return solid + self.base.strain_energy(), cohesive
-
     def _mechanical_energy(self) -> tuple[float, float]:
         """(kinetic, solid strain + recoverable cohesive) energy (mJ) of the current state."""
         self.internal_force()
-        return self.kinetic_energy(), sum(self.energies())
-
-    def delaminated_area(self) -> float:
-        """Area (mm^2) of the cohesive elements whose four points have failed, over all ranks."""
-        if not self.comm.allreduce(len(self.cohesive), op=MPI.SUM):
-            return 0.0
-        X = self.gather(self.cohesive.nodes[:, :4], "X")
-        local = quad_areas(X)[self.cohesive.failed()].sum()
-        return self.comm.allreduce(local, op=MPI.SUM)
+        return self.kinetic_energy(), sum(self.internal_forces.energies())
 
     def kinetic_energy(self) -> float:
         """Collective: kinetic energy (mJ) of both blocks."""
@@ -272,7 +242,8 @@ class Structure:
 
     def _setup_ply_damage(self) -> None:
         """Matrix damage per (cell, ply): every cell leaves the UFL form for the damage-aware
-        numba kernel (the same for ESL, adaptive and LW cells)."""
+        numba kernel (``internal_forces.DamagedSolid``, the same for ESL, adaptive and LW
+        cells)."""
         self.ply_damage_state = PlyDamageState(
             self.laminate,
             self.failures,
@@ -282,7 +253,6 @@ class Structure:
             self.comm,
         )
         self.base.set_ufl_cells([np.zeros(0, np.int32)] * len(self.base.layer_laminates))
-        self._rebuild_damaged_elements()
 
     damage_state = _forwarded(
         "ply_damage_state.damage",
@@ -299,21 +269,10 @@ class Structure:
             raise InputError("matrix_strength", "needs model.ply_damage = true")
         self.ply_damage_state.scale_matrix_strength(cells, plies, factor)
 
-    def _rebuild_damaged_elements(self) -> None:
-        self.ply_damage_state.set_elements(*self.elements(), self.rule_table)
-
     def element_rules(self, plies: np.ndarray) -> np.ndarray:
         """Index into ``subelements.rules`` of the packed rule of each (sub)element spanning
         laminate plies ``plies`` (n, 2) [first, stop), as ``elements`` gives them."""
         return self.rule_table.rule_of(plies)
-
-    def damage_dissipation(self) -> tuple[float, float]:
-        """Collective: (cohesive, ply) energy (mJ) dissipated so far, summed from the damage
-        laws' own increments (``cohesive_element_force_tracked``, ``ply_damage_update``)."""
-        ply = self.ply_damage_state.dissipated_energy() if self.ply_damage else 0.0
-        local = np.array([self.cohesive.dissipated_energy(), ply])
-        cohesive, ply = self.comm.allreduce(local, op=MPI.SUM)
-        return float(cohesive), float(ply)
 
     def elements(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Every solid element of this rank: nodes (n, 8) in combined local indices, the owned
@@ -327,12 +286,12 @@ class Structure:
     # ------------------------------------------------------------------ checkpoint
     def state(self) -> dict[str, np.ndarray]:
         """The history-dependent arrays of this rank, each part's under its prefix:
-        ``refinement_*`` (the log of refinements and their energy), ``cohesive_*`` (damage),
-        ``tie_*``, ``window_*`` (stabilisation), ``ply_damage`` (with ply damage)."""
-        parts = [("refinement_", self.refinement), ("cohesive_", self.cohesive)]
+        ``refinement_*`` (the log of refinements and their energy), ``<name>_*`` of each
+        contributor (``cohesive_*``: the cohesive damage, ``ply_*``: the ply damage),
+        ``tie_*``, ``window_*`` (stabilisation)."""
+        parts = [("refinement_", self.refinement)]
+        parts += [(f"{c.name}_", c) for c in self.contributors]
         parts.append(("", self.stabilisation_state))
-        if self.ply_damage:
-            parts.append(("ply_", self.ply_damage_state))
         return {prefix + k: v for prefix, part in parts for k, v in part.state().items()}
 
     def restore(self, state: dict[str, np.ndarray]) -> None:
@@ -347,9 +306,10 @@ class Structure:
             self.stabilisation_state.discard_requests()
 
         self.refinement.restore(part("refinement_"), replay)
-        self.cohesive.restore(part("cohesive_"))
-        if self.ply_damage:
-            self.ply_damage_state.restore(part("ply_"))
+        for contributor in self.contributors:
+            own = part(f"{contributor.name}_")
+            if own:
+                contributor.restore(own)
         self.stabilisation_state.restore(state)
 
     # ------------------------------------------------------------------ stabilisation
@@ -385,11 +345,6 @@ class Structure:
         """Forget what the last refinement would stabilise (a restart replaying refinements
         restores the stabilisation state it stored instead)."""
         self.stabilisation_state.discard_requests()
-
-    def add_tie_forces(self, t: float, f_ext_extra: np.ndarray) -> None:
-        """Add the active tie forces at time t (s) to the extra block's external force (owned
-        DOFs, flat, N)."""
-        self.stabilisation_state.add_tie_forces(t, f_ext_extra)
 
     def active_damping(self, t: float) -> list[DampingWindow]:
         """The damping windows open at time t (s)."""
@@ -490,10 +445,9 @@ class Structure:
             )
         )
         self._rebuild_maps()
-        if self.ply_damage:
-            self._rebuild_damaged_elements()
-        else:
-            self.base.set_ufl_cells([self.refinement.unrefined_cells()])
+        self.node_arrays.refresh(self.extra)
+        for refined in hooks(self.contributors, "refined"):
+            refined()
         free_b = self.border.free_b
         self._rebuild_blocks()
         # the face loads onto the subelements' faces, extra nodes included, with the new border
@@ -569,16 +523,6 @@ class Structure:
     ) -> np.ndarray:
         """(m, 8) nodes of subelements plies first:stop of ``cells`` in states ``states``."""
         return self.columns.subelement_nodes(states, first, stop, cells, self.extra.locate)
-
-    def cell_maps(self, cell: int) -> str:
-        """The gather/scatter maps (projection matrices as index lists) of one owned cell."""
-        return enr.describe_cell(
-            self.interface_state[cell],
-            self.columns.cell(cell),
-            self.laminate.n_plies,
-            self.extra.index,
-            self.n_base,
-        )
 
     def _rebuild_maps(self) -> None:
         """The subelements and cohesive elements of the refined cells (``RefinedCells``)."""

@@ -3,29 +3,31 @@
 Units: N, mm, s, tonne.
 
 After a strong refinement the structure holds each new node pair together by a tie force that
-it releases linearly to zero (``Structure.start_stabilisation``, ``Structure.add_tie_forces``).
-The tie forces act on the extra nodes as external forces; they store no energy. Their state
-(which pairs, which force, since when) belongs to the structure's stabilisation state and is
-checkpointed with the structure, so this contributor keeps none of its own.
+it releases linearly to zero (``Structure.start_stabilisation``,
+``StabilisationState.add_tie_forces``). The tie forces act on the extra nodes as external
+forces; they store no energy. Their state (which pairs, which force, since when) belongs to the
+structure's stabilisation state and is checkpointed with it, so this contributor keeps none of
+its own.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from fenics_adaptive.adaptivity.stabilisation import StabilisationState
 from fenics_adaptive.model.forces import Contributor, ForceKind
 
 
 class TieForces(Contributor):
-    """The structure's active tie forces, added to the extra nodes' external force."""
+    """The active tie forces of ``stabilisation``, added to the extra nodes' external force."""
 
     name = "ties"
     kind = ForceKind.EXTERNAL
 
-    def __init__(self, structure):
-        self.structure = structure
+    def __init__(self, stabilisation: StabilisationState):
+        self.stabilisation = stabilisation
 
     def add_force(self, t: float, f_base: np.ndarray, f_extra: np.ndarray) -> None:
         """Add the tie forces at time t (s) into ``f_extra`` (N, owned extra DOFs, flat)."""
-        if self.structure.ties:
-            self.structure.add_tie_forces(t, f_extra)
+        if self.stabilisation.ties:
+            self.stabilisation.add_tie_forces(t, f_extra)

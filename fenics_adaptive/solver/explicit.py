@@ -25,21 +25,22 @@ balance from the states (``HistoryRow.state_energy_balance``) replaces the inter
 strain and stored cohesive energy plus the dissipation the damage laws report themselves
 (``cohesive_dissipation``, ``ply_dissipation``): it checks the materials' bookkeeping too.
 
-Guards (``guards``): the run stops as failed (``ElementInverted``, ``EnergyBalanceError``, both
-``Diverged``) when an element inverts (checked every 64 steps and on output steps) or when
-|energy balance| exceeds ``energy_error_limit`` x the largest energy of the run so far (on
-output steps, from step ``guards.ENERGY_MIN_STEPS``); an explicit impactor penalty above the
-largest stable one for the step is refused (``Contact.check_penalty``).
+Guards (``guards.RunGuards``): the run stops as failed (``ElementInverted``,
+``EnergyBalanceError``, both ``Diverged``) when an element inverts (checked every 64 steps and
+on output steps) or when |energy balance| exceeds ``energy_error_limit`` x the largest energy of
+the run so far (on output steps, from step ``guards.ENERGY_MIN_STEPS``); an explicit impactor
+penalty above the largest stable one for the step is refused (``Contact.check_penalty``).
 
 The loop is an object, ``ExplicitSolver``: its scalars are one ``SolverState`` (checkpointed by
-field name), the forces beside the structure's own come from contributors (``model.forces``:
-the tie forces of new strong interfaces, a rigid impactor), what happens is told to observers
-(``observers.Observer``: history, fields, progress, refinements, checkpoints), and a refiner
-returns a ``RefinementEvent`` that the solver reacts to in one method
-(``react_to_refinement``). ``run()`` is the thin way to use it in one call. The solver holds
-the loop; it delegates the history rows and their energy bookkeeping (sums over ranks, the
-energies at t = 0, the balances) to ``history.HistoryRecorder`` and keeps each block's work
-arrays and per-step arithmetic in a ``blocks.BlockState``.
+field name), every force but the face loads comes from contributors (``model.forces``: the
+structure's internal forces and tie forces, then a run's own, e.g. a rigid impactor), summed by
+kind, what happens is told to observers (``observers.Observer``: history, fields, progress,
+refinements, checkpoints), and a refiner returns a ``RefinementEvent`` that the solver reacts
+to in one method (``react_to_refinement``). ``run()`` is the thin way to use it in one call.
+The solver holds the loop; it delegates the history rows and their energy bookkeeping (sums
+over ranks, the energies at t = 0, the balances) to ``history.HistoryRecorder``, the stops as
+failed to ``guards.RunGuards``, and keeps each block's work arrays and per-step arithmetic in a
+``blocks.BlockState``.
 """
 
 from __future__ import annotations
@@ -55,27 +56,17 @@ from mpi4py import MPI
 
 from fenics_adaptive.adaptivity.events import RefinementEvent
 from fenics_adaptive.errors import InputError
-from fenics_adaptive.model.forces import ForceContributor, ForceKind
+from fenics_adaptive.model.forces import ForceContributor, ForceKind, hooks
 from fenics_adaptive.model.structure import Structure
-from fenics_adaptive.model.tie_forces import TieForces
 from fenics_adaptive.settings.solver import Probe, SolverSettings
 from fenics_adaptive.solver import guards
 from fenics_adaptive.solver.blocks import BLOCK_ARRAYS, BlockState
+from fenics_adaptive.solver.guards import Diverged, RunGuards
+from fenics_adaptive.solver.guards import ElementInverted as ElementInverted  # for readers
+from fenics_adaptive.solver.guards import EnergyBalanceError as EnergyBalanceError
 from fenics_adaptive.solver.history import COLUMNS as COLUMNS  # where readers find it
 from fenics_adaptive.solver.history import HistoryRecorder, HistoryRow
 from fenics_adaptive.solver.observers import Observer
-
-
-class Diverged(RuntimeError):
-    pass
-
-
-class ElementInverted(Diverged):
-    """An element inverted (det F <= 0 at an integration point): the run stops as failed."""
-
-
-class EnergyBalanceError(Diverged):
-    """|energy_balance| beyond ``SolverSettings.energy_error_limit`` x the largest energy."""
 
 
 class Interrupted(RuntimeError):
@@ -127,9 +118,6 @@ class SolverState:
         )
 
 
-RUNAWAY = 100.0  # kinetic energy beyond this multiple of the work put in means instability
-
-
 @dataclass
 class RunStats:
     steps: int = 0
@@ -166,14 +154,15 @@ class ExplicitSolver:
     """The central-difference time loop of one structure, as an object with explicit state.
 
     ``structure``: the model to integrate; ``settings``, ``probe``: what to run and report;
-    ``contributors``: force contributors beside the structure's internal forces and loads
-    (``model.forces``: a rigid impactor, ``contact.Contact``); the structure's tie forces are
-    always one. ``observers``: told of history rows, field and checkpoint times, progress,
-    refinements (``observers.Observer``). ``refiner(t, structure)``: called before every step,
-    refines the structure and returns the ``RefinementEvent`` or None. ``stop_requested()``:
-    polled every 64 steps (as is ``request_stop()``); a stop writes a checkpoint (observers)
-    and raises ``Interrupted``. ``time_step``: forces the step past the stability check (for
-    tests that show what an unstable step does).
+    ``contributors``: force contributors beside the structure's own (``model.forces``: a rigid
+    impactor, ``contact.Contact``, or a user's own; more with ``add_contributor`` before the
+    start); the run sums the structure's (``Structure.contributors``: internal forces, tie
+    forces) and then these, by kind. ``observers``: told of history rows, field and checkpoint
+    times, progress, refinements (``observers.Observer``). ``refiner(t, structure)``: called
+    before every step, refines the structure and returns the ``RefinementEvent`` or None.
+    ``stop_requested()``: polled every 64 steps (as is ``request_stop()``); a stop writes a
+    checkpoint (observers) and raises ``Interrupted``. ``time_step``: forces the step past the
+    stability check (for tests that show what an unstable step does).
 
     Use: ``start()`` (or ``restore(state)``), then ``step()`` until it returns False, or
     ``run()``. Between two steps the state is complete at t_n: u_n, the forces at t_n, the
@@ -195,7 +184,9 @@ class ExplicitSolver:
         self.structure = structure
         self.settings = settings
         self.comm = structure.comm
-        self.contributors: list[ForceContributor] = [TieForces(structure), *contributors]
+        # the run's own contributors (checkpointed with the solver), after the structure's
+        self.added: list[ForceContributor] = []
+        self.contributors: list[ForceContributor] = []
         self.observers: list[Observer] = list(observers)
         self.refiner = refiner
         self.stop_requested = stop_requested
@@ -210,20 +201,39 @@ class ExplicitSolver:
         self._damping_changes = math.inf  # next time a stabilisation damping window closes
         self._damped = settings.mass_damping > 0.0
         self.blocks: list[BlockState] = []  # the work arrays: from start() or restore()
-        by_kind = {kind: [c for c in self.contributors if c.kind is kind] for kind in ForceKind}
-        self._internal = by_kind[ForceKind.INTERNAL]
-        self._external = by_kind[ForceKind.EXTERNAL]
-        self._contact = by_kind[ForceKind.CONTACT]
-        # the optional hooks (model.forces.Contributor) of those that have them
-        self._moving = [c.advance for c in self.contributors if hasattr(c, "advance")]
+        self._group_contributors(list(contributors))
         self._contact_force: list[np.ndarray] = []
         self.inversion: guards.InversionGuard | None = None
         n_motions = len(structure.motions)
         self._motion_now, self._motion_next = np.zeros(n_motions), np.zeros(n_motions)
         self._f_ext_full = np.zeros_like(structure.blocks[0].u.array)
         self._clock = 0.0
-        self.guards = _Guards(self)
-        self.recorder = HistoryRecorder(structure, probe, self.contributors, self.guards)
+        self.guards = RunGuards(self)
+        self.recorder = HistoryRecorder(structure, probe, self.added, self.guards)
+
+    def add_contributor(self, contributor: ForceContributor) -> None:
+        """One more force contributor of this run (``model.forces``), before ``start()`` or
+        ``restore()``. Raises ValueError if its name is taken."""
+        if self.started:
+            raise RuntimeError("ExplicitSolver.add_contributor after the run started")
+        self._group_contributors([*self.added, contributor])
+
+    def _group_contributors(self, added: list[ForceContributor]) -> None:
+        """The run's own contributors ``added``; every contributor of the run, the structure's
+        first, and by kind (the order of summation); the optional hooks
+        (``model.forces.Contributor``) of those that have them. Raises ValueError if two
+        have the same name (their states would share keys)."""
+        contributors = [*self.structure.contributors, *added]
+        names = [c.name for c in contributors]
+        if len(set(names)) < len(names):
+            raise ValueError(f"force contributors need unique names (got {names})")
+        self.added[:] = added  # in place: the recorder reads the same list
+        self.contributors[:] = contributors
+        by_kind = {kind: [c for c in contributors if c.kind is kind] for kind in ForceKind}
+        self._internal = by_kind[ForceKind.INTERNAL]
+        self._external = by_kind[ForceKind.EXTERNAL]
+        self._contact = by_kind[ForceKind.CONTACT]
+        self._moving = hooks(contributors, "advance")
 
     # ------------------------------------------------------------------ read between steps
     @property
@@ -310,7 +320,7 @@ class ExplicitSolver:
             block_state.block.v.array[:] = state[f"block{index}_v_all"]
             for name in BLOCK_ARRAYS[2:]:
                 getattr(block_state, name)[:] = state[f"block{index}_{name}"]
-        for contributor in self.contributors:
+        for contributor in self.added:  # the structure's: restored with the structure
             prefix = f"{contributor.name}_"
             own = {k.removeprefix(prefix): v for k, v in state.items() if k.startswith(prefix)}
             if own:
@@ -320,7 +330,8 @@ class ExplicitSolver:
 
     def state(self) -> dict[str, np.ndarray | float | int | bool]:
         """What ``restore`` needs to continue exactly (this rank): the ``SolverState`` fields
-        by name, per block ``BLOCK_ARRAYS`` as ``block<i>_<name>``, each contributor's state as
+        by name, per block ``BLOCK_ARRAYS`` as ``block<i>_<name>``, the state of each of the
+        run's own contributors (not the structure's: ``Structure.state``) as
         ``<name>_<key>``. Copies."""
         out: dict = self.now.as_dict()
         for index, block_state in enumerate(self.blocks):
@@ -328,7 +339,7 @@ class ExplicitSolver:
             out[f"block{index}_v_all"] = block_state.block.v.array.copy()
             for name in BLOCK_ARRAYS[2:]:
                 out[f"block{index}_{name}"] = getattr(block_state, name).copy()
-        for contributor in self.contributors:
+        for contributor in self.added:
             for key, value in contributor.state().items():
                 out[f"{contributor.name}_{key}"] = value
         return out
@@ -343,10 +354,8 @@ class ExplicitSolver:
         if self.forced_step is not None:
             dt = self.forced_step
         self.stats = RunStats(time_step=dt, stable_time_step=stable, critical=self.where)
-        for contributor in self.contributors:
-            prepare = getattr(contributor, "prepare", None)
-            if prepare is not None:
-                prepare(dt, stable / self.settings.safety_factor)
+        for prepare in hooks(self.contributors, "prepare"):
+            prepare(dt, stable / self.settings.safety_factor)
         return dt, stable
 
     def _begin(self) -> None:
@@ -445,9 +454,7 @@ class ExplicitSolver:
         t_n for the current structure."""
         s = self.now
         base, extra = self.blocks
-        self.structure.internal_force()
-        for contributor in self._internal:
-            contributor.add_force(s.t, base.f, extra.f)
+        self.structure.lumped.add_internal_forces(s.t, self._internal)
         # the face loads on both blocks (extra nodes: of refined cells on a loaded side face)
         self.structure.loads.external_force(s.t, self._f_ext_full, extra.f_ext)
         base.f_ext[:] = self._f_ext_full[: base.block.n_owned]
@@ -601,84 +608,6 @@ class ExplicitSolver:
         if not self._contact:
             return []
         return [np.zeros(state.block.n_owned) for state in self.blocks]
-
-
-class _Guards:
-    """The run's stops as failed, each message written once, from the solver's state at t_n
-    (time, step, time steps, where the fastest node is, what to suspect)."""
-
-    def __init__(self, solver: ExplicitSolver):
-        self.solver = solver
-
-    def runaway(self, kinetic: float, put_in: float) -> None:
-        """Collective: Diverged when the motion holds far more energy (kinetic, mJ) than was
-        ever put in (mJ)."""
-        s = self.solver.now
-        if s.step > 0 and kinetic > RUNAWAY * max(put_in, 1e-300):
-            raise Diverged(
-                f"t = {s.t:.6g} s (step {s.step}): kinetic energy {kinetic:.4g} mJ exceeds "
-                f"{RUNAWAY:g} x the work put in ({put_in:.4g} mJ), fastest "
-                f"{self.where_fastest()}: the run is unstable "
-                f"(time step {s.dt:.4g} s, stable step {s.stable:.4g} s, limited by "
-                f"{self.solver.where}; {self.likely_cause()})"
-            )
-
-    def energy(self, row: HistoryRow) -> None:
-        """Collective: EnergyBalanceError when |balance - balance at t = 0| exceeds the limit
-        share of the largest energy of the run so far."""
-        s, limit = self.solver.now, self.solver.settings.energy_error_limit
-        largest = guards.largest_energy(
-            row.external_work, row.impact_work, row.kinetic_energy, row.internal_energy
-        )
-        s.largest_energy = max(s.largest_energy, largest)
-        error = row.energy_balance - s.initial_balance
-        if guards.energy_error(error, s.largest_energy, limit, s.step):
-            raise EnergyBalanceError(
-                f"t = {s.t:.6g} s (step {s.step}): energy balance error {error:.4g} mJ "
-                f"exceeds {limit:g} x the largest energy of the run, {s.largest_energy:.4g} "
-                f"mJ (solver.energy_error_limit); fastest {self.where_fastest()}; "
-                f"{self.likely_cause()}"
-            )
-
-    def not_finite(self) -> None:
-        """Collective in parallel: the one Diverged of a solution that is no longer finite."""
-        s = self.solver.now
-        raise Diverged(
-            f"t = {s.t:.6g} s (step {s.step}): the solution is no longer finite "
-            f"{self.where_fastest()}; time step {s.dt:.4g} s, stable step {s.stable:.4g} s"
-        )
-
-    def inverted(self, message: str | None, anywhere: bool) -> None:
-        """``message``: this rank's; ``anywhere``: some rank has one (known to all ranks).
-        Collective when anywhere (the message of the lowest rank that has one)."""
-        if not anywhere:
-            return
-        if self.solver.comm.size > 1:
-            message = next(m for m in self.solver.comm.allgather(message) if m is not None)
-        raise ElementInverted(message)
-
-    def where_fastest(self) -> str:
-        """Collective: where the largest (or a non-finite) velocity is, for error messages."""
-        best = (-1.0, "")
-        for index, state in enumerate(self.solver.blocks):
-            speed = np.abs(state.v)
-            speed[~np.isfinite(speed)] = np.inf
-            if len(speed) and speed.max() > best[0]:
-                dof = int(np.argmax(speed))
-                best = (float(speed[dof]), self.solver.structure.describe_dof(index, dof))
-        speed, text = max(self.solver.comm.allgather(best))
-        return f"at {text} (|v| = {speed:.3g} mm/s)"
-
-    def likely_cause(self) -> str:
-        """Collective: what most likely made a run with a stable element step blow up."""
-        causes = [getattr(c, "suspect", lambda: "")() for c in self.solver.contributors]
-        causes = [cause for cause in causes if cause]
-        structure = self.solver.structure
-        if structure.comm.allreduce(len(structure.cohesive), op=MPI.SUM):
-            causes.append("a cohesive penalty too stiff for it?")
-        if structure.ply_damage:
-            causes.append("a damaged material?")
-        return " ".join(causes) or "an unstable time step?"
 
 
 def run(

@@ -29,17 +29,49 @@ few steps' worth of work and the start-up error of the staggered velocities (v_{
 the one-sided first step of a prescribed velocity) is of its order (the TCB runs reach 1e-3 at
 step 18, below 1e-5 afterwards).
 A non-finite balance always trips it.
+
+Divergence. A run whose kinetic energy exceeds ``RUNAWAY`` times the work ever put in, or whose
+solution is no longer finite, stops as ``Diverged``.
+
+``RunGuards`` raises each of these stops with its message written once, from the run's state at
+t_n (time, step, time steps, where the fastest node is, what to suspect).
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
+from mpi4py import MPI
 from numba import njit
+
+from fenics_adaptive.model.diagnostics import describe_dof
+
+if TYPE_CHECKING:
+    from fenics_adaptive.model.forces import ForceContributor
+    from fenics_adaptive.model.structure import Structure
+    from fenics_adaptive.settings.solver import SolverSettings
+    from fenics_adaptive.solver.blocks import BlockState
+    from fenics_adaptive.solver.explicit import SolverState
+    from fenics_adaptive.solver.history import HistoryRow
 
 # the energy guard judges from this step on (see the module docstring)
 ENERGY_MIN_STEPS = 100
+RUNAWAY = 100.0  # kinetic energy beyond this multiple of the work put in means instability
+
+
+class Diverged(RuntimeError):
+    """The run blew up (or broke a physics guard): it stops as failed."""
+
+
+class ElementInverted(Diverged):
+    """An element inverted (det F <= 0 at an integration point): the run stops as failed."""
+
+
+class EnergyBalanceError(Diverged):
+    """|energy_balance| beyond ``SolverSettings.energy_error_limit`` x the largest energy."""
 
 
 @njit(cache=True, inline="always")
@@ -259,3 +291,88 @@ def energy_error(balance: float, largest_so_far: float, limit: float, step: int)
     if not math.isfinite(balance):
         return True
     return step >= ENERGY_MIN_STEPS and abs(balance) > limit * largest_so_far
+
+
+class GuardedRun(Protocol):
+    """What the guards read of a run (``explicit.ExplicitSolver``)."""
+
+    now: SolverState  # the loop's scalars at t_n
+    settings: SolverSettings
+    where: str  # what limits the stable step
+    blocks: Sequence[BlockState]  # the work arrays of the base and extra blocks
+    structure: Structure
+    contributors: Sequence[ForceContributor]
+    comm: MPI.Comm
+
+
+class RunGuards:
+    """The run's stops as failed, each message written once, from the run's state at t_n
+    (time, step, time steps, where the fastest node is, what to suspect)."""
+
+    def __init__(self, run: GuardedRun):
+        self.run = run
+
+    def runaway(self, kinetic: float, put_in: float) -> None:
+        """Collective: Diverged when the motion holds far more energy (kinetic, mJ) than was
+        ever put in (mJ)."""
+        s = self.run.now
+        if s.step > 0 and kinetic > RUNAWAY * max(put_in, 1e-300):
+            raise Diverged(
+                f"t = {s.t:.6g} s (step {s.step}): kinetic energy {kinetic:.4g} mJ exceeds "
+                f"{RUNAWAY:g} x the work put in ({put_in:.4g} mJ), fastest "
+                f"{self.where_fastest()}: the run is unstable "
+                f"(time step {s.dt:.4g} s, stable step {s.stable:.4g} s, limited by "
+                f"{self.run.where}; {self.likely_cause()})"
+            )
+
+    def energy(self, row: HistoryRow) -> None:
+        """Collective: EnergyBalanceError when |balance - balance at t = 0| exceeds the limit
+        share of the largest energy of the run so far."""
+        s, limit = self.run.now, self.run.settings.energy_error_limit
+        largest = largest_energy(
+            row.external_work, row.impact_work, row.kinetic_energy, row.internal_energy
+        )
+        s.largest_energy = max(s.largest_energy, largest)
+        error = row.energy_balance - s.initial_balance
+        if energy_error(error, s.largest_energy, limit, s.step):
+            raise EnergyBalanceError(
+                f"t = {s.t:.6g} s (step {s.step}): energy balance error {error:.4g} mJ "
+                f"exceeds {limit:g} x the largest energy of the run, {s.largest_energy:.4g} "
+                f"mJ (solver.energy_error_limit); fastest {self.where_fastest()}; "
+                f"{self.likely_cause()}"
+            )
+
+    def not_finite(self) -> None:
+        """Collective in parallel: the one Diverged of a solution that is no longer finite."""
+        s = self.run.now
+        raise Diverged(
+            f"t = {s.t:.6g} s (step {s.step}): the solution is no longer finite "
+            f"{self.where_fastest()}; time step {s.dt:.4g} s, stable step {s.stable:.4g} s"
+        )
+
+    def inverted(self, message: str | None, anywhere: bool) -> None:
+        """``message``: this rank's; ``anywhere``: some rank has one (known to all ranks).
+        Collective when anywhere (the message of the lowest rank that has one)."""
+        if not anywhere:
+            return
+        if self.run.comm.size > 1:
+            message = next(m for m in self.run.comm.allgather(message) if m is not None)
+        raise ElementInverted(message)
+
+    def where_fastest(self) -> str:
+        """Collective: where the largest (or a non-finite) velocity is, for error messages."""
+        best = (-1.0, "")
+        for index, state in enumerate(self.run.blocks):
+            speed = np.abs(state.v)
+            speed[~np.isfinite(speed)] = np.inf
+            if len(speed) and speed.max() > best[0]:
+                dof = int(np.argmax(speed))
+                best = (float(speed[dof]), describe_dof(self.run.structure, index, dof))
+        speed, text = max(self.run.comm.allgather(best))
+        return f"at {text} (|v| = {speed:.3g} mm/s)"
+
+    def likely_cause(self) -> str:
+        """Collective: what most likely made a run with a stable element step blow up (what
+        the contributors suspect of themselves)."""
+        causes = [c.suspect() for c in self.run.contributors if hasattr(c, "suspect")]
+        return " ".join(cause for cause in causes if cause) or "an unstable time step?"

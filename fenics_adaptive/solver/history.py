@@ -17,7 +17,8 @@ from typing import TYPE_CHECKING, Protocol
 import numpy as np
 from mpi4py import MPI
 
-from fenics_adaptive.model.forces import ForceContributor
+from fenics_adaptive.model.diagnostics import damage_dissipation, delaminated_area
+from fenics_adaptive.model.forces import ForceContributor, ForceKind, hooks
 from fenics_adaptive.model.loading import COMPONENTS, face_dofs
 from fenics_adaptive.model.structure import Structure
 from fenics_adaptive.settings.solver import Probe
@@ -83,8 +84,10 @@ class HistoryGuards(Protocol):
 class HistoryRecorder:
     """Makes the history rows of one structure's run.
 
-    ``structure``: the model; ``probe``: the faces and component the row reports;
-    ``contributors``: every force contributor of the run (their energy is summed; those with a
+    ``structure``: the model (its internal forces' stored energies, its damage);
+    ``probe``: the faces and component the row reports; ``contributors``: the run's force
+    contributors beside the structure's (read at each row: those of kind INTERNAL store
+    strain energy, the energy the others hold counts in the energy at t = 0; those with a
     ``report`` hook fill their columns); ``guards``: told of inversion, non-finite sums and a
     runaway. Collective to construct (the probe face's DOF count is summed over ranks)."""
 
@@ -99,8 +102,6 @@ class HistoryRecorder:
         self.comm = structure.comm
         self.contributors = contributors
         self.guards = guards
-        # the optional hook (model.forces.Contributor) of those that have it
-        self.reporting = [c.report for c in contributors if hasattr(c, "report")]
         # the owned DOFs the history sums (probe face, loads) and which prescribed motions make
         # the reaction force
         self.probe_dofs = face_dofs(
@@ -126,8 +127,10 @@ class HistoryRecorder:
         after the guards on inversion, finiteness and runaway."""
         structure = self.structure
         total = self.sums(s, blocks, inversion)
-        solid, cohesive = structure.energies()
-        cohesive_dissipation, ply_dissipation = structure.damage_dissipation()
+        solid, cohesive = structure.internal_forces.energies()
+        if any(c.kind is ForceKind.INTERNAL for c in self.contributors):
+            solid += total[9]  # a run's own internal forces: their energy is strain energy
+        cohesive_dissipation, ply_dissipation = damage_dissipation(structure)
         if s.step == 0:  # an initial velocity or displacement brings energy along
             s.initial_energy = total[3] + solid + cohesive + total[8]
             s.initial_potential = solid + cohesive
@@ -148,10 +151,10 @@ class HistoryRecorder:
             damping_energy=total[6],
             dissipated_energy=total[4] - solid - cohesive,
             refinement_energy=structure.refinement_energy,
-            delaminated_area=structure.delaminated_area(),
+            delaminated_area=delaminated_area(structure),
             time_step=s.dt,
         )
-        for report in self.reporting:
+        for report in hooks(self.contributors, "report"):
             report(row, s.step == 0)
         row.cohesive_dissipation = cohesive_dissipation
         row.ply_dissipation = ply_dissipation
@@ -175,8 +178,9 @@ class HistoryRecorder:
         self, s: SolverState, blocks: Sequence[BlockState], inversion: InversionGuard
     ) -> np.ndarray:
         """Collective: the sums over ranks of (probe displacement, reaction, applied load,
-        kinetic energy, internal, external and damping work, inverted, contributors'
-        energy); raises (``guards``) if an element inverted or a sum is not finite."""
+        kinetic energy, internal, external and damping work, inverted, the energy the run's
+        contributors hold, the strain energy of its INTERNAL ones); raises (``guards``) if an
+        element inverted or a sum is not finite."""
         base = blocks[0]
         inverted = inversion.check(s.t)
         kinetic = 0.0
@@ -199,7 +203,8 @@ class HistoryRecorder:
                 s.work_ext,
                 s.work_damp,
                 float(inverted is not None),
-                sum(contributor.energy() for contributor in self.contributors),
+                sum(c.energy() for c in self.contributors if c.kind is not ForceKind.INTERNAL),
+                sum(c.energy() for c in self.contributors if c.kind is ForceKind.INTERNAL),
             ]
         )
         total = self.comm.allreduce(local, op=MPI.SUM)

@@ -1,0 +1,76 @@
+"""What one reads off a structure for reports and error messages, outside the structure: the
+delaminated area, the energy its damage laws dissipated, a DOF and a cell's maps in words.
+
+Units: N, mm, s, tonne (areas mm^2, energies mJ).
+
+The stored energies are the internal-force contributors' (``Structure.internal_forces``,
+``InternalForces.energies``); the mass, momentum and kinetic energy are the blocks'
+(``Structure.total_mass`` and its neighbours).
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+from mpi4py import MPI
+
+from fenics_adaptive.adaptivity import enrichment as enr
+from fenics_adaptive.element.geometry import quad_areas
+
+if TYPE_CHECKING:
+    from fenics_adaptive.model.structure import Structure
+
+
+def delaminated_area(structure: Structure) -> float:
+    """Collective: the area (mm^2) of the cohesive elements whose four points have failed,
+    over all ranks."""
+    cohesive = structure.cohesive
+    if not structure.comm.allreduce(len(cohesive), op=MPI.SUM):
+        return 0.0
+    X = structure.gather(cohesive.nodes[:, :4], "X")
+    local = quad_areas(X)[cohesive.failed()].sum()
+    return structure.comm.allreduce(local, op=MPI.SUM)
+
+
+def damage_dissipation(structure: Structure) -> tuple[float, float]:
+    """Collective: (cohesive, ply) energy (mJ) dissipated so far, summed from the damage laws'
+    own increments (``cohesive_element_force_tracked``, ``ply_damage_update``), over all
+    ranks."""
+    damage = structure.ply_damage_state
+    ply = damage.dissipated_energy() if damage is not None else 0.0
+    local = np.array([structure.cohesive.dissipated_energy(), ply])
+    cohesive, ply = structure.comm.allreduce(local, op=MPI.SUM)
+    return float(cohesive), float(ply)
+
+
+def describe_dof(structure: Structure, block: int, dof: int) -> str:
+    """Where owned DOF ``dof`` of block ``block`` (0: base, 1: extra nodes) is, in words (for
+    error messages): the cell, the node's position (mm) and the component."""
+    node, component = divmod(dof, 3)
+    axis = "xyz"[component]
+    if block == 0:
+        x = structure.X_base[node]
+        # the cells (rows) holding the node
+        cells = structure.columns.cells_holding(node)
+        cell = f"cell {structure.original_cell[cells[0]]}, " if len(cells) else ""
+        return f"{cell}base node at ({x[0]:.4g}, {x[1]:.4g}, {x[2]:.4g}) mm, u_{axis}"
+    n_interfaces = structure.interface_state.shape[1]
+    _, interface, node_set = enr.key_parts(structure.extra.owned_keys[node], n_interfaces)
+    x = structure.extra.vectors["X"].array.reshape(-1, 3)[node]
+    return (
+        f"extra node of interface {interface} (set {'AB'[node_set]}) at "
+        f"({x[0]:.4g}, {x[1]:.4g}, {x[2]:.4g}) mm, u_{axis}"
+    )
+
+
+def cell_maps(structure: Structure, cell: int) -> str:
+    """The gather/scatter maps (the paper's projection matrices, as index lists) of owned cell
+    ``cell``, in words."""
+    return enr.describe_cell(
+        structure.interface_state[cell],
+        structure.columns.cell(cell),
+        structure.laminate.n_plies,
+        structure.extra.index,
+        structure.n_base,
+    )

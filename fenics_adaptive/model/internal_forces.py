@@ -1,0 +1,259 @@
+"""The structure's internal forces as force contributors (``model.forces``, kind INTERNAL).
+
+Units: N, mm, s, tonne (energies mJ = N mm).
+
+Paper Eq. (3): f_int = f_UFL(unrefined cells) + sum_i P_i^T f^sublam_i - sum_j P_j^T f^coh_j.
+Each term is one contributor:
+
+- ``SolidForm`` ("solid"): the UFL/FFCx form of the cells that are not refined (ESL cells, the
+  cells of a layerwise model);
+- ``Subelements`` ("subelements"): the refined cells' subelements, numba;
+- ``DamagedSolid`` ("ply"): with ply damage, every solid (sub)element instead of the two above,
+  through the damage-aware numba kernel (the same for ESL, adaptive and layerwise cells); its
+  state is the ply damage;
+- ``CohesiveElements`` ("cohesive"): the cohesive elements of the strong interfaces (or of a
+  layerwise model), numba; their state is the cohesive damage.
+
+``InternalForces`` is the structure's list of them (solid first, the cohesive elements last, the
+order of summation) and their stored energies summed over ranks. Which solid contributors a
+structure has is decided once, when it is built (``InternalForces.of``); after a refinement
+each rebuilds what depends on the cells (``refined``). The element kernels read the node
+arrays of ``NodeArrays``, views the structure refreshes when its extra nodes change, so a step
+allocates nothing.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+from dolfinx import la
+from mpi4py import MPI
+
+from fenics_adaptive.adaptivity.enrichment import ExtraNodes
+from fenics_adaptive.adaptivity.refinement import RefinementState
+from fenics_adaptive.element.rules import RuleTable
+from fenics_adaptive.model.forces import Contributor, ForceKind
+from fenics_adaptive.model.forms import LayeredModel
+from fenics_adaptive.model.ply_damage_state import PlyDamageState
+from fenics_adaptive.model.refined_cells import RefinedCells
+
+
+@dataclass
+class NodeArrays:
+    """The (n, 3) arrays the element kernels read (mm): reference positions and displacements
+    of the base nodes (owned + ghosts) and of the extra nodes (owned + ghosts). Views into the
+    structure's vectors; ``refresh`` after the extra nodes changed (their vectors are new)."""
+
+    X_base: np.ndarray
+    u_base: np.ndarray
+    X_extra: np.ndarray
+    u_extra: np.ndarray
+
+    @classmethod
+    def of(cls, X_base: np.ndarray, u_base: la.Vector, extra: ExtraNodes) -> NodeArrays:
+        arrays = cls(X_base, u_base.array.reshape(-1, 3), X_base[:0], X_base[:0])
+        arrays.refresh(extra)
+        return arrays
+
+    def refresh(self, extra: ExtraNodes) -> None:
+        """Views of the extra nodes' current vectors."""
+        self.X_extra = extra.vectors["X"].array.reshape(-1, 3)
+        self.u_extra = extra.vectors["u"].array.reshape(-1, 3)
+
+    def kernel_arguments(self, f_base: np.ndarray, f_extra: np.ndarray) -> tuple[np.ndarray, ...]:
+        """(X_base, X_extra, u_base, u_extra, f_base, f_extra), all (n, 3): the node arguments
+        of the element kernels, with the flat force arrays ``f_base``, ``f_extra`` as views."""
+        return (
+            self.X_base,
+            self.X_extra,
+            self.u_base,
+            self.u_extra,
+            f_base.reshape(-1, 3),
+            f_extra.reshape(-1, 3),
+        )
+
+
+class SolidForm(Contributor):
+    """The UFL/FFCx internal force of the cells the base model's forms integrate (all cells
+    that are not refined).
+
+    ``model``: the base model (its forms and displacement); ``refinement``: the interface
+    states, from which ``refined`` takes the unrefined cells (None: the cells never change)."""
+
+    name = "solid"
+    kind = ForceKind.INTERNAL
+
+    def __init__(self, model: LayeredModel, refinement: RefinementState | None = None):
+        self.model = model
+        self.refinement = refinement
+
+    def update_coefficients(self) -> None:
+        """The per-step pre-pass before the form is assembled: everything its kernels read
+        that depends on the displacement (``LayeredModel.update_coefficients``: the packed
+        displacement; per-cell element parameters computed from it belong there too)."""
+        self.model.update_coefficients()
+
+    def add_force(self, t: float, f_base: np.ndarray, f_extra: np.ndarray) -> None:
+        """This rank's share of f_int (N) of the form's cells into ``f_base`` (local DOFs)."""
+        self.update_coefficients()
+        self.model.assemble_internal_force(f_base)
+
+    def energy(self) -> float:
+        """Strain energy (mJ) of this rank's cells of the form."""
+        return self.model.local_strain_energy()
+
+    def refined(self) -> None:
+        """The form integrates the cells that are still unrefined."""
+        if self.refinement is not None:
+            self.model.set_ufl_cells([self.refinement.unrefined_cells()])
+
+
+class Subelements(Contributor):
+    """The layered subelements of the refined cells (numba, paper Eq. (3) f^sublam), with the
+    base model's kinematics (read per call, so that ``LayeredModel.set_kinematics`` switches
+    this path with the form)."""
+
+    name = "subelements"
+    kind = ForceKind.INTERNAL
+
+    def __init__(self, cells: RefinedCells, nodes: NodeArrays, model: LayeredModel):
+        self.cells = cells
+        self.nodes = nodes
+        self.model = model
+        self._energy = 0.0
+
+    def add_force(self, t: float, f_base: np.ndarray, f_extra: np.ndarray) -> None:
+        """Add the subelements' forces (N) into the local base and extra DOFs."""
+        self._energy = self.cells.add_subelement_forces(
+            *self.nodes.kernel_arguments(f_base, f_extra), self.model.finite
+        )
+
+    def energy(self) -> float:
+        """Strain energy (mJ) of this rank's subelements at the last ``add_force``."""
+        return self._energy
+
+
+class DamagedSolid(Contributor):
+    """Every solid (sub)element through the damage-aware kernel, updating the ply damage
+    (small strain only): unrefined cells whole, refined cells by subelement.
+
+    ``damage``: the ply damage state (its elements and parameters); ``rule_table``: the packed
+    rules; ``nodes``: the node arrays; ``elements()``: the structure's solid elements now
+    (``Structure.elements``), taken again after each refinement."""
+
+    name = "ply"
+    kind = ForceKind.INTERNAL
+
+    def __init__(
+        self,
+        damage: PlyDamageState,
+        rule_table: RuleTable,
+        nodes: NodeArrays,
+        elements: Callable[[], tuple[np.ndarray, np.ndarray, np.ndarray]],
+    ):
+        self.damage = damage
+        self.rule_table = rule_table
+        self.nodes = nodes
+        self.elements = elements
+        self._energy = 0.0
+        self.refined()
+
+    def add_force(self, t: float, f_base: np.ndarray, f_extra: np.ndarray) -> None:
+        """Add the elements' forces (N) into the local base and extra DOFs, updating the ply
+        damage."""
+        self._energy = self.damage.add_forces(
+            self.rule_table.packed, *self.nodes.kernel_arguments(f_base, f_extra)
+        )
+
+    def energy(self) -> float:
+        """Secant strain energy (mJ) of this rank's elements at the last ``add_force``."""
+        return self._energy
+
+    def state(self) -> dict[str, np.ndarray]:
+        return self.damage.state()
+
+    def restore(self, state: dict[str, np.ndarray]) -> None:
+        self.damage.restore(state)
+
+    def suspect(self) -> str:
+        return "a damaged material?"
+
+    def refined(self) -> None:
+        """The kernel computes the structure's elements of now."""
+        self.damage.set_elements(*self.elements(), self.rule_table)
+
+
+class CohesiveElements(Contributor):
+    """The cohesive elements (numba, paper Eq. (3) -f^coh), updating their damage; their state
+    is the damage and history rows (``CohesiveSet.state``), which persist through refinements.
+
+    ``cells``: the refined cells' sets (the cohesive set is read per call: a refinement makes a
+    new one); ``nodes``: the node arrays; ``comm``: for ``suspect``."""
+
+    name = "cohesive"
+    kind = ForceKind.INTERNAL
+
+    def __init__(self, cells: RefinedCells, nodes: NodeArrays, comm: MPI.Comm):
+        self.cells = cells
+        self.nodes = nodes
+        self.comm = comm
+        self._energy = 0.0
+
+    def add_force(self, t: float, f_base: np.ndarray, f_extra: np.ndarray) -> None:
+        """Subtract the cohesive forces (N) from the local base and extra DOFs."""
+        self._energy = self.cells.add_cohesive_forces(*self.nodes.kernel_arguments(f_base, f_extra))
+
+    def energy(self) -> float:
+        """Recoverable cohesive energy (mJ) of this rank's elements at the last ``add_force``."""
+        return self._energy
+
+    def state(self) -> dict[str, np.ndarray]:
+        return self.cells.cohesive.state()
+
+    def restore(self, state: dict[str, np.ndarray]) -> None:
+        self.cells.cohesive.restore(state)
+
+    def suspect(self) -> str:
+        if self.comm.allreduce(len(self.cells.cohesive), op=MPI.SUM):
+            return "a cohesive penalty too stiff for it?"
+        return ""
+
+
+class InternalForces:
+    """The structure's internal-force contributors: ``solids`` (the form and the subelements,
+    or the damaged solid), then ``cohesive``; ``contributors`` is that list, the order of
+    summation."""
+
+    def __init__(self, solids: list[Contributor], cohesive: CohesiveElements, comm: MPI.Comm):
+        self.solids = solids
+        self.cohesive = cohesive
+        self.contributors: list[Contributor] = [*solids, cohesive]
+        self.comm = comm
+
+    @classmethod
+    def of(
+        cls,
+        model: LayeredModel,
+        refinement: RefinementState,
+        cells: RefinedCells,
+        nodes: NodeArrays,
+        damage: PlyDamageState | None,
+        elements: Callable[[], tuple[np.ndarray, np.ndarray, np.ndarray]],
+    ) -> InternalForces:
+        """The contributors of a structure: with ply ``damage`` (None: without) every solid
+        element through the damaged kernel, else the form of the unrefined cells and the
+        subelements; the cohesive elements in both."""
+        if damage is not None:
+            solids = [DamagedSolid(damage, cells.rule_table, nodes, elements)]
+        else:
+            solids = [SolidForm(model, refinement), Subelements(cells, nodes, model)]
+        return cls(solids, CohesiveElements(cells, nodes, model.comm), model.comm)
+
+    def energies(self) -> tuple[float, float]:
+        """Collective: (strain energy of the solids, recoverable cohesive energy) in mJ at the
+        state of their last ``add_force``, summed over ranks."""
+        local = np.array([sum(c.energy() for c in self.solids), self.cohesive.energy()])
+        solid, cohesive = self.comm.allreduce(local, op=MPI.SUM)
+        return float(solid), float(cohesive)
