@@ -117,7 +117,7 @@ def test_contributors_are_named_once_and_added_before_the_start():
     simulation.add_contributor(MassSprings(structure, 1.0, ForceKind.INTERNAL))
     with pytest.raises(ValueError, match="unique names"):
         simulation.add_contributor(MassSprings(structure, 1.0, ForceKind.EXTERNAL))
-    assert [c.name for c in simulation.solver.added] == ["springs"]
+    assert [c.name for c in simulation.solver.forces.added] == ["springs"]
     simulation.start()
     with pytest.raises(RuntimeError, match="after the run started"):
         simulation.add_contributor(MassSprings(structure, 1.0, ForceKind.EXTERNAL))

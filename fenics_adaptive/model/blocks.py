@@ -156,6 +156,24 @@ class LumpedBlocks:
         self.f_base.scatter_reverse(la.InsertMode.add)
         self.f_extra.scatter_reverse(la.InsertMode.add)
 
+    def owned_dofs(self, nodes: np.ndarray) -> list[np.ndarray]:
+        """Collective: the owned DOFs (base block, extra block; block-unrolled, sorted) of the
+        combined local ``nodes`` (i < n_base: base node i, else extra node i - n_base); a node
+        that is a ghost here is marked on its owner by a reverse scatter."""
+        nodes = np.asarray(nodes, dtype=np.int64)
+        is_base = nodes < self.n_base
+        out = []
+        for target, marked in (
+            (self.mass_base, nodes[is_base]),
+            (self.mass_extra, nodes[~is_base] - self.n_base),
+        ):
+            marks = la.vector(target.index_map, bs=3)
+            marks.array.reshape(-1, 3)[marked] = 1.0
+            marks.scatter_reverse(la.InsertMode.add)
+            n_owned = target.index_map.size_local * 3
+            out.append(np.flatnonzero(marks.array[:n_owned] > 0).astype(np.int32))
+        return out
+
     def total_mass(self) -> float:
         """Collective: the mass (tonne) the solver integrates, over all ranks."""
         local = sum(block.mass[::3].sum() for block in self.blocks)

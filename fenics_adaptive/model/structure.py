@@ -43,7 +43,7 @@ from __future__ import annotations
 from collections.abc import Iterable
 
 import numpy as np
-from dolfinx import fem, la
+from dolfinx import fem
 from mpi4py import MPI
 
 from fenics_adaptive.adaptivity import enrichment as enr
@@ -351,26 +351,10 @@ class Structure:
         return self.stabilisation_state.active_damping(t)
 
     def _nodes_of_cells(self, cells: np.ndarray) -> list[np.ndarray]:
-        """Owned DOFs (base block, extra block) of the nodes of these owned cells and of their
-        subelements; nodes on other ranks are marked there by a reverse scatter."""
-        marks = [
-            la.vector(self.mass_base.index_map, bs=3),
-            la.vector(self.mass_extra.index_map, bs=3),
-        ]
-        base_marks = marks[0].array.reshape(-1, 3)
-        extra_marks = marks[1].array.reshape(-1, 3)
+        """Collective: owned DOFs (base block, extra block) of the nodes of these owned cells
+        and of their subelements (``LumpedBlocks.owned_dofs``)."""
         nodes, owner_cells, _ = self.elements()
-        for node in nodes[np.isin(owner_cells, cells)].ravel():
-            if node < self.n_base:
-                base_marks[node] = 1.0
-            else:
-                extra_marks[node - self.n_base] = 1.0
-        out = []
-        for vector in marks:
-            vector.scatter_reverse(la.InsertMode.add)
-            n_owned = vector.index_map.size_local * 3
-            out.append(np.flatnonzero(vector.array[:n_owned] > 0).astype(np.int32))
-        return out
+        return self.lumped.owned_dofs(nodes[np.isin(owner_cells, cells)].ravel())
 
     # ------------------------------------------------------------------ refinement
     interface_state = _forwarded(
@@ -460,19 +444,23 @@ class Structure:
             self.base.V.dofmap.index_map,
             self.extra.index_map,
         )
-        # the strong node pairs that open now: new set-B nodes no longer bound to set A
-        n_interfaces = self.interface_state.shape[1]
-        for key in sorted(self.border.free_b - free_b):
-            local = self.extra.index[key]
-            if local < self.extra.n_owned:
-                g, i, _ = enr.key_parts(key, n_interfaces)
-                partner = self.extra.index[enr.extra_key(g, i, enr.SET_A, n_interfaces)]
-                self.stabilisation_state.request_pair(partner, local)
+        self._request_ties(self.border.free_b - free_b)
         # New and freed nodes sit where the cells' fields put them, so the strain energy hardly
         # changes; the lumped masses move, which changes the kinetic energy: book both
         kinetic, potential = self._mechanical_energy()
         self.refinement.book(kinetic - kinetic_before, potential - potential_before)
         return True
+
+    def _request_ties(self, opened: set) -> None:
+        """Ask the stabilisation to tie the strong node pairs that open now: the owned set-B
+        nodes (keys ``opened``) no longer bound to their set-A partners."""
+        n_interfaces = self.interface_state.shape[1]
+        for key in sorted(opened):
+            local = self.extra.index[key]
+            if local < self.extra.n_owned:
+                g, i, _ = enr.key_parts(key, n_interfaces)
+                partner = self.extra.index[enr.extra_key(g, i, enr.SET_A, n_interfaces)]
+                self.stabilisation_state.request_pair(partner, local)
 
     def _activate_weak(self, cells: np.ndarray, interface: int) -> None:
         """New set-A nodes at ``interface`` of ``cells``, placed (u, v, X) on the straight line

@@ -56,11 +56,12 @@ from mpi4py import MPI
 
 from fenics_adaptive.adaptivity.events import RefinementEvent
 from fenics_adaptive.errors import InputError
-from fenics_adaptive.model.forces import ForceContributor, ForceKind, hooks
+from fenics_adaptive.model.forces import ForceContributor
 from fenics_adaptive.model.structure import Structure
 from fenics_adaptive.settings.solver import Probe, SolverSettings
 from fenics_adaptive.solver import guards
 from fenics_adaptive.solver.blocks import BLOCK_ARRAYS, BlockState
+from fenics_adaptive.solver.forces import RunForces
 from fenics_adaptive.solver.guards import Diverged, RunGuards
 from fenics_adaptive.solver.guards import ElementInverted as ElementInverted  # for readers
 from fenics_adaptive.solver.guards import EnergyBalanceError as EnergyBalanceError
@@ -184,9 +185,8 @@ class ExplicitSolver:
         self.structure = structure
         self.settings = settings
         self.comm = structure.comm
-        # the run's own contributors (checkpointed with the solver), after the structure's
-        self.added: list[ForceContributor] = []
-        self.contributors: list[ForceContributor] = []
+        # the structure's contributors and the run's own (checkpointed with the solver)
+        self.forces = RunForces(structure, contributors)
         self.observers: list[Observer] = list(observers)
         self.refiner = refiner
         self.stop_requested = stop_requested
@@ -201,39 +201,24 @@ class ExplicitSolver:
         self._damping_changes = math.inf  # next time a stabilisation damping window closes
         self._damped = settings.mass_damping > 0.0
         self.blocks: list[BlockState] = []  # the work arrays: from start() or restore()
-        self._group_contributors(list(contributors))
-        self._contact_force: list[np.ndarray] = []
         self.inversion: guards.InversionGuard | None = None
         n_motions = len(structure.motions)
         self._motion_now, self._motion_next = np.zeros(n_motions), np.zeros(n_motions)
-        self._f_ext_full = np.zeros_like(structure.blocks[0].u.array)
         self._clock = 0.0
         self.guards = RunGuards(self)
-        self.recorder = HistoryRecorder(structure, probe, self.added, self.guards)
+        self.recorder = HistoryRecorder(structure, probe, self.forces.added, self.guards)
 
     def add_contributor(self, contributor: ForceContributor) -> None:
         """One more force contributor of this run (``model.forces``), before ``start()`` or
         ``restore()``. Raises ValueError if its name is taken."""
         if self.started:
             raise RuntimeError("ExplicitSolver.add_contributor after the run started")
-        self._group_contributors([*self.added, contributor])
+        self.forces.add(contributor)
 
-    def _group_contributors(self, added: list[ForceContributor]) -> None:
-        """The run's own contributors ``added``; every contributor of the run, the structure's
-        first, and by kind (the order of summation); the optional hooks
-        (``model.forces.Contributor``) of those that have them. Raises ValueError if two
-        have the same name (their states would share keys)."""
-        contributors = [*self.structure.contributors, *added]
-        names = [c.name for c in contributors]
-        if len(set(names)) < len(names):
-            raise ValueError(f"force contributors need unique names (got {names})")
-        self.added[:] = added  # in place: the recorder reads the same list
-        self.contributors[:] = contributors
-        by_kind = {kind: [c for c in contributors if c.kind is kind] for kind in ForceKind}
-        self._internal = by_kind[ForceKind.INTERNAL]
-        self._external = by_kind[ForceKind.EXTERNAL]
-        self._contact = by_kind[ForceKind.CONTACT]
-        self._moving = hooks(contributors, "advance")
+    @property
+    def contributors(self) -> list[ForceContributor]:
+        """Every force contributor of the run: the structure's, then the run's own."""
+        return self.forces.contributors
 
     # ------------------------------------------------------------------ read between steps
     @property
@@ -320,11 +305,7 @@ class ExplicitSolver:
             block_state.block.v.array[:] = state[f"block{index}_v_all"]
             for name in BLOCK_ARRAYS[2:]:
                 getattr(block_state, name)[:] = state[f"block{index}_{name}"]
-        for contributor in self.added:  # the structure's: restored with the structure
-            prefix = f"{contributor.name}_"
-            own = {k.removeprefix(prefix): v for k, v in state.items() if k.startswith(prefix)}
-            if own:
-                contributor.restore(own)
+        self.forces.restore(state)
         self.refresh_damping()
         self._begin()
 
@@ -339,23 +320,19 @@ class ExplicitSolver:
             out[f"block{index}_v_all"] = block_state.block.v.array.copy()
             for name in BLOCK_ARRAYS[2:]:
                 out[f"block{index}_{name}"] = getattr(block_state, name).copy()
-        for contributor in self.added:
-            for key, value in contributor.state().items():
-                out[f"{contributor.name}_{key}"] = value
+        out.update(self.forces.state())
         return out
 
     def _set_up(self) -> tuple[float, float]:
         """Collective: the work arrays and the inversion guard of the structure as it is now;
         (step, stable step) in s for it, the contributors prepared for them."""
         self.blocks = [BlockState(b, self.settings.mass_damping) for b in self.structure.blocks]
-        self._contact_force = self._contact_arrays()
         self.inversion = guards.InversionGuard(self.structure)
         dt, stable, self.where = choose_time_step(self.structure, self.settings)
         if self.forced_step is not None:
             dt = self.forced_step
         self.stats = RunStats(time_step=dt, stable_time_step=stable, critical=self.where)
-        for prepare in hooks(self.contributors, "prepare"):
-            prepare(dt, stable / self.settings.safety_factor)
+        self.forces.prepare(self.blocks, dt, stable / self.settings.safety_factor)
         return dt, stable
 
     def _begin(self) -> None:
@@ -450,25 +427,13 @@ class ExplicitSolver:
             np.take(self._motion_next, state.block.fixed_motion, out=state.u_next)
 
     def forces_and_accelerations(self) -> None:
-        """Collective: f_int, f_ext, the contributors' forces, accelerations and reactions at
-        t_n for the current structure."""
+        """Collective: the forces (``forces.RunForces``), accelerations and reactions at t_n
+        for the current structure."""
         s = self.now
-        base, extra = self.blocks
-        self.structure.lumped.add_internal_forces(s.t, self._internal)
-        # the face loads on both blocks (extra nodes: of refined cells on a loaded side face)
-        self.structure.loads.external_force(s.t, self._f_ext_full, extra.f_ext)
-        base.f_ext[:] = self._f_ext_full[: base.block.n_owned]
-        for contributor in self._external:
-            contributor.add_force(s.t, base.f_ext, extra.f_ext)
-        if self._contact:
-            for forces in self._contact_force:
-                forces.fill(0.0)
-            for contributor in self._contact:
-                contributor.add_force(s.t, *self._contact_force)
+        contact = self.forces.evaluate(s.t, self.blocks)
         mean_dt = 0.5 * (s.dt_prev + s.dt)
         for index, state in enumerate(self.blocks):
-            contact_force = self._contact_force[index] if self._contact else None
-            state.accelerate(contact_force, s.dt, mean_dt)
+            state.accelerate(contact[index] if contact else None, s.dt, mean_dt)
 
     def update_work(self) -> None:
         """The work over the step just made (trapezoidal in the forces), this rank's share."""
@@ -505,7 +470,7 @@ class ExplicitSolver:
             BlockState(b, settings.mass_damping, old)
             for b, old in zip(structure.blocks, self.blocks, strict=True)
         ]
-        self._contact_force = self._contact_arrays()
+        self.forces.resize(self.blocks)
         self.inversion.refresh()
         limit, self.where = structure.stable_time_step()
         s.stable = settings.safety_factor * limit
@@ -558,8 +523,7 @@ class ExplicitSolver:
             state.f_ext_old[:] = state.f_ext
             state.reaction_old[:] = state.reaction
         self.structure.follow_border()
-        for advance in self._moving:
-            advance(mean_dt, s.dt)
+        self.forces.advance(mean_dt, s.dt)
         s.dt_prev = s.dt
         s.t += s.dt
         s.step += 1
@@ -601,13 +565,6 @@ class ExplicitSolver:
         for observer in self.observers:
             observer.on_history(row)
         self.guards.energy(row)
-
-    # ------------------------------------------------------------------ set-up helpers
-    def _contact_arrays(self) -> list[np.ndarray]:
-        """The contact contributors' forces per block (owned DOFs), if there are any."""
-        if not self._contact:
-            return []
-        return [np.zeros(state.block.n_owned) for state in self.blocks]
 
 
 def run(

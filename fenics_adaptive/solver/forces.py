@@ -1,0 +1,108 @@
+"""The forces of a run at t_n: every force contributor, by kind, and the face loads, summed
+into the time loop's work arrays.
+
+Units: N, mm, s, tonne.
+
+The contributors (``model.forces``) are the structure's (``Structure.contributors``: internal
+forces, tie forces) and then the run's own (an impactor, a user's), whose states the solver's
+checkpoint keeps. Each step: the INTERNAL contributors into f_int (local shares, the border's
+transfer, the reverse scatter: ``LumpedBlocks.add_internal_forces``), the face loads and the
+EXTERNAL contributors into f_ext (owned DOFs), the CONTACT contributors into arrays of their own
+beside f_ext. The arrays are allocated when the blocks change (start, refinement), never in a
+step.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Sequence
+
+import numpy as np
+
+from fenics_adaptive.model.forces import ForceContributor, ForceKind, hooks
+from fenics_adaptive.model.structure import Structure
+from fenics_adaptive.solver.blocks import BlockState
+
+
+class RunForces:
+    """The force contributors of one run on ``structure``: its own, then ``contributors``.
+
+    ``contributors`` lists them all in that order, ``added`` the run's own (a list the history
+    recorder may hold: changed in place)."""
+
+    def __init__(self, structure: Structure, contributors: Iterable[ForceContributor] = ()):
+        self.structure = structure
+        self.added: list[ForceContributor] = []
+        self.contributors: list[ForceContributor] = []
+        self._group([*contributors])
+        self._contact_force: list[np.ndarray] = []
+        self._f_ext_full = np.zeros_like(structure.blocks[0].u.array)  # base, owned + ghosts
+
+    def add(self, contributor: ForceContributor) -> None:
+        """One more contributor of the run. Raises ValueError if its name is taken."""
+        self._group([*self.added, contributor])
+
+    def _group(self, added: list[ForceContributor]) -> None:
+        """The run's own contributors ``added``; every contributor of the run and by kind (the
+        order of summation); the ``advance`` hooks of those that have one. Raises ValueError
+        if two have the same name (their states would share keys)."""
+        contributors = [*self.structure.contributors, *added]
+        names = [c.name for c in contributors]
+        if len(set(names)) < len(names):
+            raise ValueError(f"force contributors need unique names (got {names})")
+        self.added[:] = added
+        self.contributors[:] = contributors
+        by_kind = {kind: [c for c in contributors if c.kind is kind] for kind in ForceKind}
+        self.internal = by_kind[ForceKind.INTERNAL]
+        self.external = by_kind[ForceKind.EXTERNAL]
+        self.contact = by_kind[ForceKind.CONTACT]
+        self._moving = hooks(contributors, "advance")
+
+    def prepare(self, blocks: Sequence[BlockState], dt: float, element_step: float) -> None:
+        """At the start of a run: the arrays for ``blocks``, the contributors told the time step
+        dt (s) and the structure's stable step without the safety factor (s)."""
+        self.resize(blocks)
+        for prepare in hooks(self.contributors, "prepare"):
+            prepare(dt, element_step)
+
+    def resize(self, blocks: Sequence[BlockState]) -> None:
+        """The contact contributors' arrays (owned DOFs per block) for ``blocks``, if there are
+        contact contributors."""
+        self._contact_force = [np.zeros(b.block.n_owned) for b in blocks] if self.contact else []
+
+    def evaluate(self, t: float, blocks: Sequence[BlockState]) -> list[np.ndarray] | None:
+        """Collective: at time t (s), f_int into the blocks' ``f``, f_ext into their ``f_ext``;
+        returns the contact force per block (N, owned DOFs), None without contact
+        contributors."""
+        base, extra = blocks
+        self.structure.lumped.add_internal_forces(t, self.internal)
+        # the face loads on both blocks (extra nodes: of refined cells on a loaded side face)
+        self.structure.loads.external_force(t, self._f_ext_full, extra.f_ext)
+        base.f_ext[:] = self._f_ext_full[: base.block.n_owned]
+        for contributor in self.external:
+            contributor.add_force(t, base.f_ext, extra.f_ext)
+        if not self.contact:
+            return None
+        for forces in self._contact_force:
+            forces.fill(0.0)
+        for contributor in self.contact:
+            contributor.add_force(t, *self._contact_force)
+        return self._contact_force
+
+    def advance(self, mean_dt: float, dt: float) -> None:
+        """The structure moved by dt (s): the contributors with degrees of freedom of their own
+        follow (``mean_dt``: (dt_{n-1/2} + dt) / 2, s)."""
+        for advance in self._moving:
+            advance(mean_dt, dt)
+
+    def state(self) -> dict[str, np.ndarray]:
+        """The run's own contributors' states, as ``<name>_<key>`` (the structure's are the
+        structure's: ``Structure.state``)."""
+        return {f"{c.name}_{k}": v for c in self.added for k, v in c.state().items()}
+
+    def restore(self, state: dict) -> None:
+        """Each of the run's own contributors from its ``<name>_*`` entries of ``state``."""
+        for contributor in self.added:
+            prefix = f"{contributor.name}_"
+            own = {k.removeprefix(prefix): v for k, v in state.items() if k.startswith(prefix)}
+            if own:
+                contributor.restore(own)
