@@ -21,9 +21,12 @@ from fenics_adaptive import watchdog
 from fenics_adaptive.adaptivity.events import RefinementEvent
 from fenics_adaptive.errors import InputError, shared_errors
 from fenics_adaptive.io import checkpoint, output
+from fenics_adaptive.io.refinement_log import FILE_NAME as LOG_FILE
+from fenics_adaptive.io.refinement_log import RefinementLog, read_log
 from fenics_adaptive.io.run_folder import RunFolder
 from fenics_adaptive.model.structure import Structure
 from fenics_adaptive.settings.config import RunConfig, check_step_count
+from fenics_adaptive.settings.kinds import ModelKind
 from fenics_adaptive.simulation import Simulation, build_structure
 from fenics_adaptive.solver import explicit
 from fenics_adaptive.solver.observers import Observer
@@ -90,7 +93,9 @@ def execute(
     progress = output.Progress(config.solver.end_time, comm) if show_progress else None
     structure = simulation.structure
     writer = CheckpointWriter(out_dir, config, structure, history, simulation.refinement, folder)
-    for observer in (history, fields, progress, writer, RefinementReport(structure, say)):
+    refinement_log = _refinement_log(config, structure, out_dir, restart, resume, folder)
+    observers = (history, fields, progress, writer, RefinementReport(structure, say))
+    for observer in (*observers, refinement_log):
         if observer is not None:
             simulation.add_observer(observer)
     stop = _StopOnSignal(comm)
@@ -119,6 +124,8 @@ def execute(
         stop.release()
         if progress is not None:
             progress.done()
+        if refinement_log is not None:
+            refinement_log.close()
     try:  # the lock is held until the last file is written
         finished = (stats, history, fields, kept_rows, resume, summary)
         return _finish(config, out_dir, comm, simulation, finished, say, folder.record)
@@ -202,6 +209,29 @@ def _announce(
         f"safety factor {step['safety_factor']}, limited by {step['limited_by']}), "
         f"{n_steps} steps to {config.solver.end_time:.4e} s"
     )
+
+
+def _refinement_log(
+    config: RunConfig,
+    structure: Structure,
+    out_dir: Path,
+    restart: str | Path | None,
+    resume: dict | None,
+    folder: RunFolder,
+) -> RefinementLog | None:
+    """Collective: the refinement log of an adaptive run (None for the other kinds), continuing
+    the log of the run a restart continues, up to its checkpoint's time."""
+    if config.kind != ModelKind.ADAPTIVE:
+        return None
+    comm, kept = structure.comm, None
+    if restart is not None:
+        rows = []  # rank 0 reads the log, the others only need to know whether it was there
+        if comm.rank == 0:
+            rows = read_log(checkpoint.locate(restart).parent / LOG_FILE, float(resume["t"]))
+        # without it, the replayed refinements are logged without their reasons
+        kept = rows if comm.bcast(rows is not None, root=0) else None
+    with shared_errors(structure.comm):  # rank 0 opens the file
+        return RefinementLog(out_dir, structure, kept, restart is not None, folder.record)
 
 
 def _open_outputs(

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 from mpi4py import MPI
 
-from fenics_adaptive.adaptivity.events import RefinementEvent, refine
+from fenics_adaptive.adaptivity.events import RefinementEvent, note, refine
 from fenics_adaptive.adaptivity.indicators import front_requests, indicator_requests, spread
 from fenics_adaptive.adaptivity.refinement import Request
 from fenics_adaptive.errors import InputError, shared_errors
@@ -52,10 +52,14 @@ class PythonIndicator:
 
     function: Callable[[Structure, float], Iterable[Request]]
     interval: float = 0.0  # s
+    name: str = ""  # in the refinement log; the function's name when empty
 
     def __post_init__(self):
         if not callable(self.function):
             raise TypeError(f"an indicator must be callable, not {type(self.function).__name__}")
+        if not self.name:
+            label = getattr(self.function, "__name__", type(self.function).__name__)
+            object.__setattr__(self, "name", label)
         if not (math.isfinite(self.interval) and self.interval >= 0.0):
             raise ValueError(f"indicator interval must be >= 0 s, not {self.interval!r}")
 
@@ -192,28 +196,34 @@ class RefinementHook:
                 )
             displacement = probe_displacement(structure, config.probe, self.probe_dofs)
         due = [k for k in self.pending if config.refinements[k].due(t, displacement)]
-        requests = []
+        requests, reasons = [], {}
         for k in due:
             self.pending.remove(k)
             entry = config.refinements[k]
             cells = cells_in_x_range(structure, entry.x_min, entry.x_max)
-            requests += [(int(c), i, entry.kind) for c in cells for i in entry.interfaces]
+            asked = [(int(c), i, entry.kind) for c in cells for i in entry.interfaces]
+            note(reasons, asked, "manual")
+            requests += asked
         evaluate = settings is not None and t >= self.next_check
         if evaluate:
-            requests += indicator_requests(structure, settings, self.strengths, t)
+            requests += indicator_requests(structure, settings, self.strengths, t, reasons)
             self.next_check = t + settings.interval
             if settings.spread:
-                requests += spread(structure, requests, settings.spread)
+                around = spread(structure, requests, settings.spread)
+                note(reasons, around, "spread")
+                requests += around
             if settings.front:
-                requests += front_requests(structure, settings.front)
+                requests += front_requests(structure, settings.front, reasons)
         python_due = np.flatnonzero(self.python_next <= t)  # the same on every rank
         for k in python_due:
             indicator = self.python[k]
-            requests += [tuple(int(x) for x in r) for r in indicator.function(structure, t)]
+            asked = [tuple(int(x) for x in r) for r in indicator.function(structure, t)]
+            note(reasons, asked, indicator.name)
+            requests += asked
             self.python_next[k] = t + indicator.interval
         if not due and not evaluate and not len(python_due):
             return None
-        return refine(structure, requests, t)
+        return refine(structure, requests, t, reasons)
 
 
 def probe_displacement(structure: Structure, probe, dofs: np.ndarray | None = None) -> float:

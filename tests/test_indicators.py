@@ -10,6 +10,7 @@ from fenics_adaptive.meshes import esl_mesh
 from mpi4py import MPI
 
 from fenics_adaptive.adaptivity import indicators as ind
+from fenics_adaptive.adaptivity.events import Reason
 from fenics_adaptive.materials.laminate import Laminate, PlyMaterial
 from fenics_adaptive.model import loading
 from fenics_adaptive.model.forms import build_model
@@ -210,6 +211,13 @@ def test_ply_failure_indicator_refines_next_to_the_failing_ply():
 
     # ply 1 -> the nearest refinable interface above it: 1, in every cell
     assert sorted(asked(1.0)) == [(c, 1, InterfaceState.WEAK) for c in range(n)]
+    # each request's reason is the indicator and the index of the ply that asked
+    reasons = {}
+    settings = IndicatorSettings(interval=1.0, ply_failure=1.0)
+    ind.indicator_requests(structure, settings, (50.0, 80.0), reasons=reasons)
+    assert {r.indicator for r in reasons.values()} == {"ply_failure"}
+    for (cell, _, _), reason in reasons.items():
+        assert reason.value == index[cell, 0] >= 1.0
     # just below the top ply's index it asks too -> the nearest refinable interface below: 2
     both = asked(0.99 * top.min())
     assert sorted({(i, k) for _, i, k in both}) == [
@@ -227,8 +235,10 @@ def test_matrix_damage_indicator_delaminates_next_to_a_cracked_ply():
     structure.damage_state[3, 0, S_D] = 0.2  # cell 3: bottom 90-degree ply cracking
     structure.damage_state[7, 2, S_D] = 0.5  # cell 7: a ply away from interface 1
     settings = IndicatorSettings(interval=1.0, matrix_damage=True)
-    requests = ind.indicator_requests(structure, settings, (50.0, 80.0))
+    reasons = {}
+    requests = ind.indicator_requests(structure, settings, (50.0, 80.0), reasons=reasons)
     assert requests == [(3, 1, InterfaceState.STRONG)]
+    assert reasons == {(3, 1, InterfaceState.STRONG): Reason("matrix_damage", 0.2)}
     assert structure.refine(requests)
     assert structure.interface_state[3, 0] == InterfaceState.STRONG
     assert ind.indicator_requests(structure, settings, (50.0, 80.0)) == []

@@ -7,6 +7,7 @@ Every program runs under a timeout: a deadlock fails the test instead of hanging
 """
 
 import json
+import math
 import os
 import signal
 import subprocess
@@ -19,6 +20,7 @@ import numpy as np
 import pytest
 
 from fenics_adaptive.io.output import COLUMN_UNITS, read_history
+from fenics_adaptive.io.refinement_log import read_log as read_refinement_log
 
 ROOT = Path(__file__).parent.parent
 DATA = Path(__file__).parent / "data"
@@ -84,6 +86,16 @@ def test_events_on_one_rank_reproduce_the_serial_history(case, tmp_path):
         holders = [r for r in ranks if r[name] > 0]
         assert len(holders) == 1, (name, ranks)  # and on one rank only
     assert_same_history(serial, parallel)
+    # the same refinements, for the same reasons, in the refinement log (gathered on rank 0)
+    logs = [
+        read_refinement_log(tmp_path / run / "refinement_log.csv", math.inf)
+        for run in ("serial", "parallel")
+    ]
+    assert len(logs[0]) > 0
+    exact, close = [0, 1, 4, 5, 6], [2, 3, 7]  # time, cell, interface, state, indicator
+    assert [[r[k] for k in exact] for r in logs[0]] == [[r[k] for k in exact] for r in logs[1]]
+    a, b = ([[r[k] for k in close] for r in log] for log in logs)
+    np.testing.assert_allclose(a, b, rtol=1e-10, atol=1e-10)
 
 
 @pytest.mark.mpi

@@ -87,6 +87,9 @@ def test_resumed_history_equals_the_uninterrupted_one(tmp_path):
     assert len(split["time"]) == len(whole["time"])
     for name, values in whole.items():
         np.testing.assert_allclose(split[name], values, rtol=1e-12, atol=1e-14, err_msg=name)
+    # the refinement log goes on from the checkpoint's as if never interrupted
+    log = "refinement_log.csv"
+    assert (tmp_path / "split" / log).read_text() == (tmp_path / "whole" / log).read_text()
     # the split really crossed open stabilisation windows and a refined, damaged structure
     assert first["refinement_events"] == 2
     assert summary["cohesive_elements_at_end"] > 0

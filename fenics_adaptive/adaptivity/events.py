@@ -13,6 +13,7 @@ the same event.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -33,6 +34,8 @@ class RefinementEvent:
         added, over all ranks (lumped masses move, so the kinetic energy changes).
     potential_change: mJ, its strain + stored cohesive part, over all ranks (the solver books it
         as internal work, so that the dissipated energy does not jump).
+    weak_reasons, strong_reasons: why each row of ``new_weak`` / ``new_strong`` refined: a
+        ``Reason`` (the indicator that asked and its value).
     """
 
     time: float
@@ -42,13 +45,60 @@ class RefinementEvent:
     new_extra_nodes: int = 0
     energy_change: float = 0.0
     potential_change: float = 0.0
+    weak_reasons: tuple[Reason, ...] = ()
+    strong_reasons: tuple[Reason, ...] = ()
 
 
-def refine(structure, requests, t: float = 0.0) -> RefinementEvent | None:
+@dataclass(frozen=True)
+class Reason:
+    """Why a (cell, interface) refined.
+
+    indicator: who asked: ``initial``, ``manual``, one of the [indicators] (``ply_failure``,
+        ``interface_stress``, ``matrix_damage``, ``strong_after``), ``spread`` or ``front``
+        (neighbours added around cells that asked), or a Python indicator's name.
+    value: what the indicator measured, compared with its threshold (a Hashin or initiation
+        index, a matrix damage, the time in s since the interface became weak), NaN when it has
+        no value.
+    """
+
+    indicator: str
+    value: float = math.nan
+
+
+UNKNOWN = Reason("unknown")
+
+# why each request was made: (cell, interface, kind) -> Reason
+Reasons = dict[tuple[int, int, int], Reason]
+
+
+def note(reasons: Reasons | None, requests, indicator: str, values=None) -> None:
+    """Record in ``reasons`` (when given) that ``indicator`` asked for ``requests`` ((cell,
+    interface, kind) each), with ``values`` (one per request) or none. A request that an earlier
+    indicator already asked for keeps that one's reason."""
+    if reasons is None:
+        return
+    values = [math.nan] * len(requests) if values is None else values
+    for request, value in zip(requests, values, strict=True):
+        key = tuple(int(x) for x in request)
+        if key not in reasons:
+            reasons[key] = Reason(indicator, float(value))
+
+
+def _reasons_of(pairs: np.ndarray, kinds: tuple[int, ...], reasons: Reasons) -> tuple:
+    """The reason of each (cell, interface) row of ``pairs``: the first of ``kinds`` asked for."""
+    out = []
+    for cell, interface in pairs.tolist():
+        found = (reasons.get((cell, interface, kind)) for kind in kinds)
+        out.append(next((r for r in found if r is not None), UNKNOWN))
+    return tuple(out)
+
+
+def refine(structure, requests, t: float = 0.0, reasons: Reasons | None = None):
     """Collective: refine ``structure`` (``Structure.refine(requests, t)``; requests: (local
     cell, interface, WEAK or STRONG)) and say what changed as a ``RefinementEvent``, or
-    ``None`` when no rank changed anything. t: s. (A structure whose ``refine`` returns the
-    event itself is passed through.)"""
+    ``None`` when no rank changed anything. t: s. ``reasons``: why each request was made (see
+    ``note``), carried into the event. (A structure whose ``refine`` returns the event itself is
+    passed through.)"""
     comm = structure.comm
     before = structure.interface_state.copy()
     energy_before = structure.refinement_energy
@@ -69,4 +119,7 @@ def refine(structure, requests, t: float = 0.0) -> RefinementEvent | None:
         new_extra_nodes=comm.allreduce(structure.extra.n_owned) - extra_before,
         energy_change=structure.refinement_energy - energy_before,
         potential_change=structure.last_refinement_potential,
+        # a strong request on an unrefined interface makes it weak on the way
+        weak_reasons=_reasons_of(weak, (InterfaceState.WEAK, InterfaceState.STRONG), reasons or {}),
+        strong_reasons=_reasons_of(strong, (InterfaceState.STRONG,), reasons or {}),
     )

@@ -32,6 +32,7 @@ from dolfinx import la
 from mpi4py import MPI
 from numba import njit
 
+from fenics_adaptive.adaptivity.events import Reasons, note
 from fenics_adaptive.element.subelement import gather_nodes
 from fenics_adaptive.materials.laminate import rotation_about_z
 from fenics_adaptive.materials.ply_damage import S_D, S_FT, S_MC, hashin_indices
@@ -248,10 +249,15 @@ def interface_initiation(recovered: np.ndarray, strength_n: float, strength_s: f
 
 # ---------------------------------------------------------------------------- decisions
 def indicator_requests(
-    structure, settings: IndicatorSettings, strengths: tuple[float, float], t: float = 0.0
+    structure,
+    settings: IndicatorSettings,
+    strengths: tuple[float, float],
+    t: float = 0.0,
+    reasons: Reasons | None = None,
 ):
     """The refinements the indicators ask for on this rank's cells at time t: (cell,
     interface, kind). ``strengths``: the cohesive law's normal and shear strengths (MPa).
+    ``reasons``: when given, each request's indicator and value are noted in it (``note``).
     Collective (the stress recovery averages over neighbouring cells on all ranks)."""
     requests = []
     state = structure.interface_state
@@ -260,7 +266,10 @@ def indicator_requests(
             due = (state[:, interface - 1] == InterfaceState.WEAK) & (
                 structure.weak_since[:, interface - 1] + settings.strong_after <= t
             )
-            requests += [(int(c), interface, InterfaceState.STRONG) for c in np.flatnonzero(due)]
+            asked = [(int(c), interface, InterfaceState.STRONG) for c in np.flatnonzero(due)]
+            waited = t - structure.weak_since[[c for c, _, _ in asked], interface - 1]
+            note(reasons, asked, "strong_after", waited)
+            requests += asked
     if settings.ply_failure is not None:
         index = ply_failure_indices(structure)
         weak = sorted(set(structure.interfaces.refine) | set(structure.interfaces.delaminate))
@@ -271,13 +280,18 @@ def indicator_requests(
             above = [i for i in weak if i >= ply + 1]
             for interface in ([below[-1]] if below else []) + ([above[0]] if above else []):
                 todo = cells[state[cells, interface - 1] == InterfaceState.NONE]
-                requests += [(int(c), interface, InterfaceState.WEAK) for c in todo]
+                asked = [(int(c), interface, InterfaceState.WEAK) for c in todo]
+                note(reasons, asked, "ply_failure", index[todo, ply])
+                requests += asked
     if settings.matrix_damage:
         damage = structure.damage_state[:, :, S_D]
         for interface in structure.interfaces.delaminate:
             cracked = (damage[:, interface - 1] > 0.0) | (damage[:, interface] > 0.0)
             todo = np.flatnonzero(cracked & (state[:, interface - 1] < InterfaceState.STRONG))
-            requests += [(int(c), interface, InterfaceState.STRONG) for c in todo]
+            asked = [(int(c), interface, InterfaceState.STRONG) for c in todo]
+            worst = np.maximum(damage[todo, interface - 1], damage[todo, interface])
+            note(reasons, asked, "matrix_damage", worst)
+            requests += asked
     if settings.interface_stress is not None:
         stresses = ply_stresses(structure)
         index = interface_initiation(recovered_interface_stresses(structure, stresses), *strengths)
@@ -285,23 +299,28 @@ def indicator_requests(
             flagged = (index[:, interface - 1] >= settings.interface_stress) & (
                 state[:, interface - 1] < InterfaceState.STRONG
             )
-            requests += [
-                (int(c), interface, InterfaceState.STRONG) for c in np.flatnonzero(flagged)
-            ]
+            todo = np.flatnonzero(flagged)
+            asked = [(int(c), interface, InterfaceState.STRONG) for c in todo]
+            note(reasons, asked, "interface_stress", index[todo, interface - 1])
+            requests += asked
     return requests
 
 
-def front_requests(structure, rings: int) -> list[tuple[int, int, int]]:
+def front_requests(
+    structure, rings: int, reasons: Reasons | None = None
+) -> list[tuple[int, int, int]]:
     """Collective: strong refinements that keep every started delamination ``rings`` cells
     inside the refined region: the cells whose cohesive element at an interface has damage > 0,
-    spread by ``rings``."""
+    spread by ``rings`` (noted in ``reasons``, when given, as ``front``)."""
     damage = structure.cohesive.damage
     started = [
         (cell, interface, InterfaceState.STRONG)
         for (cell, interface), row in structure.damage_rows.items()
         if damage[row].max() > 0.0
     ]
-    return spread(structure, started, rings)
+    requests = spread(structure, started, rings)
+    note(reasons, requests, "front")
+    return requests
 
 
 # ---------------------------------------------------------------------------- spreading

@@ -40,6 +40,7 @@ class RefinementState:
         # InterfaceState.NONE, WEAK or STRONG per (owned cell, interface - 1)
         self.interface_state = np.zeros((n_cells, max(n_interfaces, 0)), dtype=np.int8)
         self.weak_since = np.full(self.interface_state.shape, np.inf)  # s
+        self.strong_since = np.full(self.interface_state.shape, np.inf)  # s
         # cohesive damage row of each strong (cell, interface), in the order they opened
         self.damage_rows: dict[tuple[int, int], int] = {}
         # mechanical energy (kinetic + strain + recoverable cohesive, mJ) that refinements added
@@ -100,12 +101,16 @@ class RefinementState:
             & (target[cells, column] == InterfaceState.STRONG)
         ]
 
-    def mark_weak(self, cells: np.ndarray, interface: int) -> None:
+    def mark_weak(self, cells: np.ndarray, interface: int, t: float = 0.0) -> None:
+        """Make ``interface`` of ``cells`` weak at time t (s)."""
         self.interface_state[cells, interface - 1] = InterfaceState.WEAK
+        self.weak_since[cells, interface - 1] = t
 
-    def mark_strong(self, cells: np.ndarray, interface: int) -> None:
-        """Make ``interface`` of ``cells`` strong, each with a new cohesive damage row."""
+    def mark_strong(self, cells: np.ndarray, interface: int, t: float = 0.0) -> None:
+        """Make ``interface`` of ``cells`` strong at time t (s), each with a new cohesive damage
+        row."""
         self.interface_state[cells, interface - 1] = InterfaceState.STRONG
+        self.strong_since[cells, interface - 1] = t
         for cell in np.asarray(cells).tolist():
             self.damage_rows[(cell, interface)] = len(self.damage_rows)
 

@@ -315,7 +315,7 @@ class ElementWriter:
     def __call__(self, t: float) -> None:
         s = self.structure
         X, u = _combined_nodes(s)
-        nodes, _, plies = s.elements()
+        nodes, owners, plies = s.elements()
         solids = nodes[:, _VTK_HEX]
         cohesive = s.cohesive.nodes[:, :4][:, _VTK_QUAD]
         damage = s.cohesive.damage[s.cohesive.damage_row].mean(axis=1)
@@ -333,6 +333,15 @@ class ElementWriter:
             "cohesive_damage": np.concatenate([np.full(len(solids), -1.0), damage]),
             "rank": np.full(len(solids) + len(cohesive), float(self.comm.rank)),
         }
+        # when each refinable interface of the element's cell refined (s), NaN while it has
+        # not: the refinement log's times as fields
+        refinable = sorted(set(s.interfaces.refine) | set(s.interfaces.delaminate))
+        for name, since in (("weak_time", s.weak_since), ("strong_time", s.strong_since)):
+            times = np.where(np.isfinite(since), since, np.nan)[owners]
+            for interface in refinable:
+                cell_data[f"{name}_{interface}"] = np.concatenate(
+                    [times[:, interface - 1], np.full(len(cohesive), np.nan)]
+                )
         point_data = {
             "displacement": u,
             "extra_node": np.r_[np.zeros(s.n_base), np.ones(len(u) - s.n_base)],

@@ -365,6 +365,10 @@ class Structure:
         "refinement.weak_since",
         doc="(n_cells, n_interfaces) time (s) each interface became weak, inf if not yet.",
     )
+    strong_since = _forwarded(
+        "refinement.strong_since",
+        doc="(n_cells, n_interfaces) time (s) each interface became strong, inf if not yet.",
+    )
     damage_rows = _forwarded(
         "refinement.damage_rows",
         doc="Cohesive damage row of each strong (owned cell, interface).",
@@ -410,11 +414,10 @@ class Structure:
         n_interfaces = self.refinement.n_interfaces
         for interface in range(1, n_interfaces + 1):  # weak, bottom to top
             cells = self.refinement.to_weaken(changed, target, interface)
-            self._activate_weak(cells, interface)
-            self.weak_since[cells, interface - 1] = t
+            self._activate_weak(cells, interface, t)
         for interface in range(1, n_interfaces + 1):  # then strong
             cells = self.refinement.to_strengthen(changed, target, interface)
-            self._activate_strong(cells, interface)
+            self._activate_strong(cells, interface, t)
 
         self.lumped.resize_extra(self.extra.index_map)
         self.lumped.add_mass_change(
@@ -462,7 +465,7 @@ class Structure:
                 partner = self.extra.index[enr.extra_key(g, i, enr.SET_A, n_interfaces)]
                 self.stabilisation_state.request_pair(partner, local)
 
-    def _activate_weak(self, cells: np.ndarray, interface: int) -> None:
+    def _activate_weak(self, cells: np.ndarray, interface: int, t: float) -> None:
         """New set-A nodes at ``interface`` of ``cells``, placed (u, v, X) on the straight line
         through the subelement they split, then the interface made weak."""
         cells = np.asarray(cells, dtype=np.int64)
@@ -484,12 +487,12 @@ class Structure:
             values[name] = (1.0 - w[:, None, None]) * gathered[:, :4] + w[:, None, None] * (
                 gathered[:, 4:]
             )
-        self.refinement.mark_weak(cells, interface)
+        self.refinement.mark_weak(cells, interface, t)
         self.extra.activate(
             *self.columns.node_requests(cells, interface, enr.SET_A, n_interfaces, values)
         )
 
-    def _activate_strong(self, cells: np.ndarray, interface: int) -> None:
+    def _activate_strong(self, cells: np.ndarray, interface: int, t: float) -> None:
         """New set-B nodes at ``interface`` of ``cells``, where their set-A partners are, then
         the interface made strong with a fresh cohesive damage row per cell."""
         cells = np.asarray(cells, dtype=np.int64)
@@ -499,7 +502,7 @@ class Structure:
         values = {
             name: self.extra.vectors[name].array.reshape(-1, 3)[local] for name in ("u", "v", "X")
         }
-        self.refinement.mark_strong(cells, interface)
+        self.refinement.mark_strong(cells, interface, t)
         self.extra.activate(
             *self.columns.node_requests(cells, interface, enr.SET_B, n_interfaces, values)
         )
