@@ -221,7 +221,9 @@ def test_refinement_during_a_run_moves_the_load_without_a_jump():
     share = structure.loads.extra_resultant(times[-1])[2] / FORCE[2]
     assert share == pytest.approx(0.75, rel=1e-12)
     row = history[-1]
-    assert abs(row.energy_balance) < 1e-3 * max(row.external_work, 1e-30)
+    # the step falls 4-fold at the refinement: the energy balance still closes to round-off
+    # (the scheme's kinetic energy jump at the new step is booked with the refinement)
+    assert max(abs(r.energy_balance) for r in history) < 1e-12 * row.external_work
 
 
 def test_tie_forces_of_a_strong_refinement_on_a_loaded_face_keep_the_pairs_together():

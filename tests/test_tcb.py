@@ -162,13 +162,13 @@ def test_refinement_mid_run_conserves_mass_and_momentum():
 
 
 @pytest.mark.slow
-def test_energy_balance_across_refinement_converges_with_the_time_step():
-    """Kinetic + internal - refinement energy stays at its initial value up to the O(dt^2)
-    error of the discrete energy measures: a third of the step, a ninth of the error."""
-    coarse = energy_drift(free_beam_refined_halfway(0.3)[0])
-    fine = energy_drift(free_beam_refined_halfway(0.1)[0])
-    assert fine < 0.2 * coarse
-    assert fine < 1e-4
+@pytest.mark.parametrize("step_fraction", [0.3, 0.1])
+def test_energy_balance_across_refinement_closes_to_round_off(step_fraction):
+    """Kinetic + internal - refinement energy stays at its initial value to round-off, whatever
+    the step: the history measures the energies the scheme conserves and the refinement books
+    the kinetic energy change as the scheme sees it."""
+    history = free_beam_refined_halfway(step_fraction)[0]
+    assert energy_drift(history) < 1e-12
 
 
 def late_refinement(tmp_path: Path) -> Path:
@@ -202,9 +202,9 @@ def test_manual_refinement_from_the_config(tmp_path):
     assert summary["refinement_events"] == 1
     assert summary["cohesive_elements_at_end"] == 2 * 16  # cells with centroid x >= 2 mm
     assert summary["extra_nodes_at_end"] == 17 * 2 * 5
-    # a late strong refinement excites the new interface's fast modes: the balance then carries
-    # the O(dt^2) error of the energy measures (see the free-beam test for its convergence)
-    assert summary["max_energy_balance_error_relative"] < 2e-3
+    # a late strong refinement excites the new interface's fast modes and the step drops: the
+    # balance still closes to round-off (it was 7.7e-4 with the kinetic energy at v_n)
+    assert summary["max_energy_balance_error_relative"] < 1e-12
 
 
 @pytest.mark.mpi

@@ -119,6 +119,11 @@ class RefinementState:
         self.last_potential = potential_change
         self.energy += kinetic_change + potential_change
 
+    def book_kinetic(self, correction: float) -> None:
+        """Add ``correction`` (mJ) to the booked kinetic energy change of the last refinement:
+        the solver's measure of it (at full steps, with the new step) minus the structure's."""
+        self.energy += correction
+
     def state(self) -> dict[str, np.ndarray]:
         """The log and the energy as flat arrays (checkpoint keys ``times``, ``counts``,
         ``requests``, ``energy``)."""

@@ -2,7 +2,8 @@
 
 Units: N, mm, s, tonne. A ``BlockState`` holds views of the block's owned DOFs (u, v, f) and
 arrays allocated once per layout of the block, so that the loop allocates nothing; its
-``accelerate`` and ``damped_velocity`` write into them.
+``accelerate`` and ``damped_velocity`` write into them; ``energies_at_step`` measures the
+kinetic and damping energy at t_n the way the scheme sees them.
 """
 
 from __future__ import annotations
@@ -35,7 +36,7 @@ class BlockState:
         self.acc, self.du, self.f_old, self.f_ext, self.f_ext_old = (np.zeros(n) for _ in range(5))
         self.damping = np.full(n, damping)
         self.damping[block.fixed] = 0.0
-        self.shrink, self.grow, self.v_mid = (np.zeros(n) for _ in range(3))
+        self.shrink, self.grow, self.v_mid, self.v_next = (np.zeros(n) for _ in range(4))
         k = len(block.fixed)
         self.u_now, self.u_next, self.v_fixed, self.a_fixed = (np.zeros(k) for _ in range(4))
         self.reaction, self.reaction_old, self.du_fixed, self.scratch = (
@@ -76,19 +77,55 @@ class BlockState:
         if contact_force is not None:
             self.reaction -= np.take(contact_force, fixed, out=self.scratch)
 
-    def damped_velocity(self, mean_dt: float) -> float:
-        """v_{n-1/2} -> v_{n+1/2} with implicit mass-proportional damping (``mean_dt``: s);
-        returns the energy the damping took over the step (mJ, this block on this rank)."""
-        self.v_mid[:] = self.v
+    def next_velocity(self, mean_dt: float, out: np.ndarray) -> np.ndarray:
+        """v_{n+1/2} = ((1 - c h/2) v_{n-1/2} + h a_n) / (1 + c h/2) into ``out`` (mm/s; may be
+        ``v``): the one rule of the velocity update, with the implicit mass-proportional
+        damping c. ``mean_dt``: h = (dt_{n-1/2} + dt_{n+1/2}) / 2 (s). Leaves ``v`` and
+        ``acc`` as they are (unless ``out`` is ``v``)."""
         np.multiply(self.damping, 0.5 * mean_dt, out=self.shrink)
         np.add(self.shrink, 1.0, out=self.grow)
         np.subtract(1.0, self.shrink, out=self.shrink)
-        self.v *= self.shrink
-        self.acc *= mean_dt
-        self.v += self.acc
-        self.v /= self.grow
+        self.shrink *= self.v
+        np.multiply(self.acc, mean_dt, out=out)
+        out += self.shrink
+        out /= self.grow
+        return out
+
+    def damped_velocity(self, mean_dt: float) -> float:
+        """v_{n-1/2} -> v_{n+1/2} with implicit mass-proportional damping (``mean_dt``: s);
+        returns the energy the damping took over the update (mJ, this block on this rank):
+        h c v_mid.M.v_mid with v_mid = (v_{n-1/2} + v_{n+1/2}) / 2."""
+        self.v_mid[:] = self.v
+        self.next_velocity(mean_dt, out=self.v)
         self.v_mid += self.v
         self.v_mid *= 0.5
         np.multiply(self.v_mid, self.v_mid, out=self.shrink)
         self.shrink *= self.m
         return mean_dt * np.dot(self.damping, self.shrink)
+
+    def energies_at_step(self, mean_dt: float, dt: float) -> tuple[float, float]:
+        """(kinetic energy, damping work of the update under way up to t_n) in mJ, this block on
+        this rank, as the scheme itself measures them at t_n, so that the energy balance closes
+        to round-off (``explicit``'s module docstring derives them). ``mean_dt``: h = (dt_{n-1/2}
+        + dt_{n+1/2}) / 2, ``dt``: dt_{n+1/2} (s). With v- = v_{n-1/2}, v+ = v_{n+1/2} (from
+        a_n, not yet taken), w = dt / h and v_mid = (v- + v+) / 2:
+
+            kinetic = 1/2 v+.M.((1 - w) v+ + w v-)     (1/2 v+.M.v- at a constant step)
+            damping = (c M v_mid).(h v_mid - dt/2 v+)
+
+        Uses the block's scratch arrays; changes no state."""
+        v_next = self.next_velocity(mean_dt, out=self.v_next)
+        w = dt / mean_dt
+        np.multiply(self.v, w, out=self.shrink)
+        np.multiply(v_next, 1.0 - w, out=self.grow)
+        self.shrink += self.grow
+        np.multiply(self.m, v_next, out=self.grow)
+        kinetic = 0.5 * np.dot(self.grow, self.shrink)
+        np.add(self.v, v_next, out=self.v_mid)
+        self.v_mid *= 0.5
+        np.multiply(self.v_mid, mean_dt, out=self.shrink)
+        np.multiply(v_next, 0.5 * dt, out=self.grow)
+        self.shrink -= self.grow
+        np.multiply(self.v_mid, self.m, out=self.grow)
+        self.grow *= self.damping
+        return kinetic, np.dot(self.grow, self.shrink)

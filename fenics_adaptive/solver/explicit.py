@@ -14,12 +14,25 @@ vectors (the memory of the ghosted PETSc Vecs): owned entries are updated, then 
 of u are refreshed by a forward scatter, so any number of MPI ranks gives the same result up to
 the summation order of the assembly.
 
-Energies (global, on output steps): kinetic 1/2 v.M.v at full steps; internal work
-sum 1/2 (f_n + f_{n+1}).du (strain energy plus what materials dissipate); external work of loads
-and of prescribed motions (reaction forces); damping work; the mechanical energy that
-refinement adds or removes (kinetic: it redistributes lumped masses; strain and cohesive: what
-new nodes change, also added to the internal work). Balance:
-kinetic + internal + damping - external - refinement = 0 up to the scheme's O(dt^2) error.
+Energies (global, on output steps): internal work sum 1/2 (f_n + f_{n+1}).du (strain energy
+plus what materials dissipate); external work of loads and of prescribed motions (reaction
+forces), trapezoidal alike; damping work; and the kinetic energy the scheme conserves with
+them. With v- = v_{n-1/2}, v+ = v_{n+1/2}, h = (dt_{n-1/2} + dt_{n+1/2}) / 2 and w = dt_{n+1/2} / h,
+the update gives f_n.v+ = (v+ - v-).M.v+ / h (undamped), and the work of a step telescopes
+into the change of
+
+    kinetic = 1/2 v+.M.((1 - w) v+ + w v-)          (= 1/2 v+.M.v- at a constant step)
+
+so that kinetic + internal + damping - external - refinement = 0 to round-off, not O(dt^2);
+kinetic is within O(dt^2) of 1/2 v_n.M.v_n (it can be below zero at t = 0 when a motion or
+load starts abruptly: the first step's impulse). With damping c the same telescoping holds with
+the damping work of the updates made so far plus that of the update under way up to t_n,
+(c M v_mid).(h v_mid - dt_{n+1/2}/2 v+), v_mid = (v- + v+) / 2
+(``blocks.BlockState.energies_at_step``). Refinement energy: the mechanical energy refinement
+adds or removes (strain and cohesive: what new nodes change, also added to the internal work;
+kinetic: as the scheme measures it just before and just after, which includes the lumped
+masses that move, the new nodes' motion and the jump (dt_old - dt_new) / (4 h) |v+ - v-|^2_M
+of a new step size).
 Dissipated = internal work - solid strain energy - recoverable cohesive energy. A second
 balance from the states (``HistoryRow.state_energy_balance``) replaces the internal work by the
 strain and stored cohesive energy plus the dissipation the damage laws report themselves
@@ -405,6 +418,8 @@ class ExplicitSolver:
             event = self.refiner(s.t, self.structure)
             if event:
                 self.react_to_refinement(event)
+        if s.t >= self._damping_changes:  # a stabilisation window closed: the update from t_n
+            self.refresh_damping()
         if s.t >= s.next_output - 1e-9 * s.dt or s.t >= self.settings.end_time - 1e-9 * s.dt:
             self.record_history()
             while s.next_output <= s.t + 1e-9 * s.dt:
@@ -466,6 +481,8 @@ class ExplicitSolver:
         # once, on rank 0), so that the dissipated energy does not jump
         if self.comm.rank == 0:
             s.work_int += event.potential_change
+        # the old work arrays still hold v_{n-1/2}, a_n, the masses and damping of before
+        before = self._energy_at_step()
         self.blocks = [
             BlockState(b, settings.mass_damping, old)
             for b, old in zip(structure.blocks, self.blocks, strict=True)
@@ -486,8 +503,21 @@ class ExplicitSolver:
         structure.start_stabilisation(s.t)
         self.refresh_damping()
         self.forces_and_accelerations()
+        # the refinement's kinetic energy as the scheme measures it (the masses moved, the new
+        # nodes' motion, a new step, the damping of the update under way), not as the structure
+        # estimated it from the half-step velocities
+        change = self._energy_at_step() - before
+        structure.refinement.book_kinetic(change - (event.energy_change - event.potential_change))
         for observer in self.observers:
             observer.on_refinement(event, s.dt, self.where)
+
+    def _energy_at_step(self) -> float:
+        """Collective: kinetic energy + damping work of the update under way at t_n (mJ, over
+        all ranks), as the history measures them (``BlockState.energies_at_step``)."""
+        s = self.now
+        mean_dt = 0.5 * (s.dt_prev + s.dt)
+        local = sum(sum(b.energies_at_step(mean_dt, s.dt)) for b in self.blocks)
+        return self.comm.allreduce(local, op=MPI.SUM)
 
     def refresh_damping(self) -> None:
         """Per-DOF damping: the global coefficient plus the open stabilisation windows."""
@@ -505,8 +535,6 @@ class ExplicitSolver:
         constrained extra nodes, the contributors' own motion."""
         s = self.now
         mean_dt = 0.5 * (s.dt_prev + s.dt)
-        if s.t >= self._damping_changes:
-            self.refresh_damping()
         damped = self._damped or self._damping_changes < math.inf
         for state in self.blocks:
             if damped:

@@ -25,13 +25,16 @@ is one floor: ``impact_work`` is the difference of two values of the impactor's 
 in the plate impact demo), whose round-off, 1e-4 mJ there, is 98 % of the energy transferred
 at the first contact (step 24) and would trip the guard at the first touch. The other floor:
 rows before step ``ENERGY_MIN_STEPS`` are not judged: over the first steps every energy is a
-few steps' worth of work and the start-up error of the staggered velocities (v_{-1/2} = v_0,
-the one-sided first step of a prescribed velocity) is of its order (the TCB runs reach 1e-3 at
-step 18, below 1e-5 afterwards).
+few steps' worth of work, against which the round-off of larger terms (an impactor's energy,
+the forces of a stiff penalty) is not yet small. The balance itself closes to round-off
+(``explicit``'s module docstring): what trips this guard is energy that nothing books, a force
+whose work no one reports, a material that creates energy.
 A non-finite balance always trips it.
 
-Divergence. A run whose kinetic energy exceeds ``RUNAWAY`` times the work ever put in, or whose
-solution is no longer finite, stops as ``Diverged``.
+Divergence. A run whose |kinetic energy| exceeds ``RUNAWAY`` times the work ever put in, or
+whose solution is no longer finite, stops as ``Diverged``. An unstable step is caught here, not
+by the energy guard: the scheme's energy identity holds at any step, so a growing mode shows as
+a kinetic energy (as the scheme measures it, of either sign) that dwarfs the work put in.
 
 ``RunGuards`` raises each of these stops with its message written once, from the run's state at
 t_n (time, step, time steps, where the fastest node is, what to suspect).
@@ -313,12 +316,12 @@ class RunGuards:
         self.run = run
 
     def runaway(self, kinetic: float, put_in: float) -> None:
-        """Collective: Diverged when the motion holds far more energy (kinetic, mJ) than was
-        ever put in (mJ)."""
+        """Collective: Diverged when the motion holds far more energy (|kinetic|, mJ) than
+        was ever put in (mJ)."""
         s = self.run.now
         if s.step > 0 and kinetic > RUNAWAY * max(put_in, 1e-300):
             raise Diverged(
-                f"t = {s.t:.6g} s (step {s.step}): kinetic energy {kinetic:.4g} mJ exceeds "
+                f"t = {s.t:.6g} s (step {s.step}): |kinetic energy| {kinetic:.4g} mJ exceeds "
                 f"{RUNAWAY:g} x the work put in ({put_in:.4g} mJ), fastest "
                 f"{self.where_fastest()}: the run is unstable "
                 f"(time step {s.dt:.4g} s, stable step {s.stable:.4g} s, limited by "

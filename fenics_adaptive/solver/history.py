@@ -37,7 +37,7 @@ class HistoryRow:
     displacement: float  # mm, mean over the probe face
     reaction_force: float  # N, force the supports apply to the body on the reaction face
     applied_force: float  # N, resultant of the face loads (on base and extra nodes)
-    kinetic_energy: float  # mJ
+    kinetic_energy: float  # mJ, the scheme's: 1/2 v(n+1/2).M.v(n-1/2) at a constant step
     internal_energy: float  # mJ, work of the internal forces
     external_work: float  # mJ, work of loads and prescribed motions
     damping_energy: float  # mJ, dissipated by mass damping
@@ -139,7 +139,7 @@ class HistoryRecorder:
             # round-off would otherwise be judged against the little energy transferred at
             # the first contact
             s.largest_energy = abs(s.initial_energy)
-        self.guards.runaway(total[3], abs(total[5]) + s.initial_energy)
+        self.guards.runaway(abs(total[3]), abs(total[5]) + s.initial_energy)
         row = HistoryRow(
             time=s.t,
             displacement=total[0] / max(self.n_probe, 1),
@@ -178,16 +178,18 @@ class HistoryRecorder:
         self, s: SolverState, blocks: Sequence[BlockState], inversion: InversionGuard
     ) -> np.ndarray:
         """Collective: the sums over ranks of (probe displacement, reaction, applied load,
-        kinetic energy, internal, external and damping work, inverted, the energy the run's
+        kinetic energy, internal, external and damping work (``BlockState.energies_at_step``:
+        the scheme's own at t_n), inverted, the energy the run's
         contributors hold, the strain energy of its INTERNAL ones); raises (``guards``) if an
         element inverted or a sum is not finite."""
         base = blocks[0]
         inverted = inversion.check(s.t)
-        kinetic = 0.0
-        reaction = 0.0
+        kinetic = damping = reaction = 0.0
+        mean_dt = 0.5 * (s.dt_prev + s.dt)
         for state in blocks:
-            v_full = state.v + 0.5 * s.dt_prev * state.acc  # v_n from v_{n-1/2}
-            kinetic += 0.5 * np.dot(state.m * v_full, v_full)
+            block_kinetic, block_damping = state.energies_at_step(mean_dt, s.dt)
+            kinetic += block_kinetic
+            damping += block_damping
             on_face = self.reaction_motions[state.block.fixed_motion]
             reaction += state.reaction[on_face].sum()
         local = np.array(
@@ -201,7 +203,7 @@ class HistoryRecorder:
                 kinetic,
                 s.work_int,
                 s.work_ext,
-                s.work_damp,
+                s.work_damp + damping,
                 float(inverted is not None),
                 sum(c.energy() for c in self.contributors if c.kind is not ForceKind.INTERNAL),
                 sum(c.energy() for c in self.contributors if c.kind is ForceKind.INTERNAL),
