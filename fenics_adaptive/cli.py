@@ -31,6 +31,20 @@ if TYPE_CHECKING:  # mpi4py is imported when a command runs, so that --help stay
     from mpi4py import MPI
 
 
+EPILOG = """\
+exit status:
+  0    done
+  1    the run failed (diverged, an element inverted, the energy balance broke, ...):
+       one line on stderr; FENICS_ADAPTIVE_TRACEBACK=1 shows where
+  2    bad input: one line on stderr naming the file and the key
+  130  interrupted (Ctrl-C, SIGTERM): in the time loop after writing a checkpoint (the
+       line says how to continue with --restart); during start-up nothing was run
+
+documentation: README.md and docs/ of the source tree (config keys: docs/config.md,
+output files: docs/outputs.md, the Python API: docs/api.md); `make docs` builds the site.
+"""
+
+
 def main(argv: list[str] | None = None) -> int:
     """The command line (see the module docstring); returns the exit status."""
     interrupt = _StartupInterrupt()
@@ -47,6 +61,8 @@ def _command(argv: list[str] | None, interrupt: _StartupInterrupt) -> int:
         prog="fenics-adaptive",
         description="Explicit dynamics of laminated beams and plates with the adaptive "
         "thick-shell element (units: N, mm, s, tonne).",
+        epilog=EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     commands = parser.add_subparsers(dest="command", required=True)

@@ -2,6 +2,7 @@
 
 import json
 import os
+import re
 import shlex
 import subprocess
 import sys
@@ -13,6 +14,7 @@ from fenics_adaptive.io.output import read_history
 
 SMALL = Path(__file__).parent / "data" / "small_beam.toml"
 CLI = [sys.executable, "-m", "fenics_adaptive"]
+ROOT = Path(__file__).parents[1]
 
 
 def run_cli(*args, cwd=None):
@@ -143,3 +145,26 @@ def test_out_that_is_a_file_is_refused_with_one_line(tmp_path):
     lines = result.stderr.strip().splitlines()
     assert len(lines) == 1 and "--out" in lines[0] and "not a folder" in lines[0], lines
     assert (tmp_path / "taken").read_text() == "a file"
+
+
+def test_help_lists_the_exit_statuses_and_where_the_docs_are(capsys):
+    """``--help`` names every exit status the command returns (the module docstring's list)
+    and documentation files that exist."""
+    from fenics_adaptive import cli
+
+    with pytest.raises(SystemExit) as stop:
+        cli.main(["--help"])
+    assert stop.value.code == 0
+    text = capsys.readouterr().out
+    listed = {int(m) for m in re.findall(r"^\s+(\d+)\s{2,}\S", text, flags=re.MULTILINE)}
+    source = Path(cli.__file__).read_text()
+    returned = {
+        int(m)
+        for m in re.findall(r"return (\d+)\b|fail_ranks\(\s*errors,\s*(\d+)", source)
+        for m in m
+        if m
+    }
+    assert listed == {0, 1, 2, 130}
+    assert returned <= listed, returned - listed
+    for path in re.findall(r"docs/\w+\.md", text):
+        assert (ROOT / path).is_file(), path

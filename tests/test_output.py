@@ -12,16 +12,21 @@ import pytest
 
 from fenics_adaptive.io.output import (
     COLUMN_UNITS,
+    HEADER,
     STRESS_NAMES,
     ElementWriter,
+    HistoryWriter,
     PlyWriter,
     json_safe,
+    parse_history,
+    read_history,
     write_summary,
 )
 from fenics_adaptive.materials.ply_damage import strain_rotation
 from fenics_adaptive.settings.config import parse_config
 from fenics_adaptive.simulation import build_structure
 from fenics_adaptive.solver.explicit import COLUMNS
+from fenics_adaptive.solver.history import HistoryRow
 
 DATA = Path(__file__).parent / "data"
 
@@ -34,6 +39,44 @@ def decode(array: ET.Element, dtype: str) -> np.ndarray:
 
 def test_every_history_column_has_a_unit():
     assert set(COLUMN_UNITS) == set(COLUMNS)
+
+
+def test_the_history_header_carries_the_units_and_reads_back_exactly(tmp_path):
+    """history.csv's header is ``<column>_<unit>``; numpy reads the units with the names,
+    ``read_history`` and the restart's parser give the plain names and the exact values, also
+    from a file of the earlier header without units."""
+    from mpi4py import MPI
+
+    rng = np.random.default_rng(3)
+    fields = list(HistoryRow.__dataclass_fields__)
+    rows = [
+        HistoryRow(**dict(zip(fields, rng.normal(size=len(fields)), strict=True))) for _ in range(3)
+    ]
+    writer = HistoryWriter(tmp_path, MPI.COMM_SELF)
+    for row in rows:
+        writer.on_history(row)
+    writer.close(completed=True)
+    path = tmp_path / "history.csv"
+    header = path.read_text().splitlines()[0].split(",")
+    assert header == HEADER
+    assert header[:5] == [
+        "time_s",
+        "displacement_mm",
+        "reaction_force_N",
+        "applied_force_N",
+        "kinetic_energy_mJ",
+    ]
+    assert "delaminated_area_mm2" in header and "energy_balance_mJ" in header
+    table = np.genfromtxt(path, delimiter=",", names=True)
+    np.testing.assert_array_equal(table["kinetic_energy_mJ"], [r.kinetic_energy for r in rows])
+    columns = read_history(path)
+    assert list(columns) == COLUMNS
+    np.testing.assert_array_equal(columns["energy_balance"], [r.energy_balance for r in rows])
+    assert parse_history(path.read_text(), str(path)) == rows
+    # the earlier header (names only) reads the same
+    old = path.read_text().replace(",".join(HEADER), ",".join(COLUMNS), 1)
+    assert old.splitlines()[0] == ",".join(COLUMNS)
+    assert parse_history(old, "old") == rows
 
 
 def test_element_file_holds_subelements_extra_nodes_and_cohesive_elements(tmp_path):

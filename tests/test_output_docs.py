@@ -187,7 +187,10 @@ def test_every_file_of_a_real_run_is_documented(tiny_run):
 @pytest.mark.slow
 def test_history_header_is_the_documented_columns(tiny_run):
     header = (tiny_run / "history.csv").read_text().splitlines()[0].split(",")
-    assert header == list(COLUMNS)
+    # each documented column with its documented unit: `<column>_<unit>`
+    rows = history_table()
+    units = {"mm²": "mm2"}
+    assert header == [f"{c}_{units.get(rows[c][0], rows[c][0])}" for c in COLUMNS]
     examples = re.findall(r"`(\w+/\w+_\d+\.vtu)`", doc_text())
     assert examples, "the doc names no example field file such as elements/elements_000000.vtu"
     for name in examples:

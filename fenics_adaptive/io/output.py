@@ -65,6 +65,19 @@ COLUMN_UNITS = {
 }
 
 
+# the header of history.csv: each column's name with its unit, as ``kinetic_energy_mJ``
+UNIT_SUFFIX = {"s": "s", "mm": "mm", "N": "N", "mJ": "mJ", "mm^2": "mm2"}
+HEADER = [f"{name}_{UNIT_SUFFIX[COLUMN_UNITS[name]]}" for name in COLUMNS]
+# header cell -> column name; a header without units (files before 0.2) reads as well
+_NAME_OF = {**{name: name for name in COLUMNS}, **dict(zip(HEADER, COLUMNS, strict=True))}
+
+
+def column_name(header_cell: str) -> str:
+    """The column name (a ``HistoryRow`` field or ``energy_balance``) of a history.csv header
+    cell, with or without its unit suffix; an unknown cell is returned as it is."""
+    return _NAME_OF.get(header_cell, header_cell)
+
+
 def _cells(row: HistoryRow) -> list[str]:
     """A history row as CSV cells: full double precision, so a restart reads it back exactly."""
     return [repr(float(getattr(row, name))) for name in COLUMNS]
@@ -74,7 +87,7 @@ def history_text(rows: list[HistoryRow]) -> str:
     """History rows as the CSV text of history.csv (header and rows)."""
     buffer = io.StringIO(newline="")
     writer = csv.writer(buffer)
-    writer.writerow(COLUMNS)
+    writer.writerow(HEADER)
     writer.writerows(_cells(row) for row in rows)
     return buffer.getvalue()
 
@@ -84,7 +97,7 @@ def parse_history(text: str, source: str) -> list[HistoryRow]:
     ``source`` if it is not such a table."""
     try:
         table = list(csv.reader(io.StringIO(text, newline="")))
-        header, body = table[0], table[1:]
+        header, body = [column_name(cell) for cell in table[0]], table[1:]
         index = {name: header.index(name) for name in HistoryRow.__dataclass_fields__}
         return [HistoryRow(**{n: float(r[i]) for n, i in index.items()}) for r in body]
     except (IndexError, ValueError) as error:
@@ -103,7 +116,7 @@ class HistoryWriter(Observer):
         if comm.rank == 0:
             self.file = open(self.partial, "w", newline="")
             self.writer = csv.writer(self.file)
-            self.writer.writerow(COLUMNS)
+            self.writer.writerow(HEADER)
         for row in rows:  # a restart keeps the rows up to its checkpoint
             self(row)
 
@@ -131,10 +144,12 @@ class HistoryWriter(Observer):
 
 
 def read_history(path: str | Path) -> dict[str, list[float]]:
+    """A history.csv as a dict of lists by column name (``time``, ``kinetic_energy``, ...: the
+    header's names without their unit suffix)."""
     with open(path, newline="") as f:
         rows = list(csv.reader(f))
     header, body = rows[0], rows[1:]
-    return {name: [float(r[i]) for r in body] for i, name in enumerate(header)}
+    return {column_name(name): [float(r[i]) for r in body] for i, name in enumerate(header)}
 
 
 def history_until(out_dir: Path, t: float) -> list[HistoryRow]:
