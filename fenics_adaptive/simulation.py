@@ -152,6 +152,9 @@ class RefinementHook:
         self.probe_dofs: np.ndarray | None = None
         cohesive = config.cohesive
         self.strengths = (cohesive.N, cohesive.S) if cohesive is not None else None
+        # N, the forces from outside on the base DOFs besides the face loads (reactions,
+        # contact) at the time of the call: the solver's, set by ``Simulation``
+        self.face_force: Callable[[], np.ndarray] | None = None
 
     @property
     def active(self) -> bool:
@@ -206,7 +209,10 @@ class RefinementHook:
             requests += asked
         evaluate = settings is not None and t >= self.next_check
         if evaluate:
-            requests += indicator_requests(structure, settings, self.strengths, t, reasons)
+            face_force = self.face_force() if self.face_force is not None else None
+            requests += indicator_requests(
+                structure, settings, self.strengths, t, reasons, face_force
+            )
             self.next_check = t + settings.interval
             if settings.spread:
                 around = spread(structure, requests, settings.spread)
@@ -296,6 +302,8 @@ class Simulation:
             observers=observers,
             refiner=self.refinement if self.refinement.active else None,
         )
+        # the interlaminar estimate takes the supports' and the impactor's forces on the faces
+        self.refinement.face_force = self.solver.face_force
 
     # ------------------------------------------------------------------ set up
     def add_observer(self, observer: Observer) -> None:

@@ -7,7 +7,9 @@ Units: N, mm, s, tonne (stresses MPa).
   factors, 1 = failure, fibre or matrix) reaches a fraction of 1 in a cell: the refinable
   interfaces nearest below and above that ply refine weakly, for a better through-thickness
   field around it (the paper: the bottom 0/90 interface refines when the lowermost ply fails).
-- ``interface_stress`` (strong): the cohesive initiation criterion
+- ``interface_stress`` (strong): the cohesive initiation criterion on ``interlaminar_stresses``
+  (the recovery below, corrected to the face tractions and to the cell's own resultants); the
+  criterion
   sqrt((<sigma_zz>/N)^2 + (tau/S)^2) evaluated at an interface with *recovered* out-of-plane
   stresses reaches a fraction of 1. The unrefined shell's constitutive transverse stresses are
   poor (constant shear through the thickness, no peel), so they are recovered from equilibrium
@@ -239,6 +241,91 @@ def recovered_interface_stresses(structure, stresses: np.ndarray | None = None) 
     return np.concatenate([sigma_zz[:, :, None], tau], axis=2)
 
 
+def _through_thickness_mean(values: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """Mean over the thickness of values (n_cells, n_plies + 1, m) at the ply boundaries,
+    linear in each ply (t: ply thicknesses, mm): (n_cells, m)."""
+    return np.einsum("k,ckm->cm", t, 0.5 * (values[:, 1:] + values[:, :-1])) / t.sum()
+
+
+def face_tractions(structure, nodal_force: np.ndarray) -> np.ndarray:
+    """(n_cells, 2, 3): the traction (N/mm^2 = MPa, global axes) that nodal forces on the
+    bottom (0) and top (1) faces apply to each owned cell, the mean over the face's four
+    nodes of force / tributary area (a quarter of each adjacent cell's face): a force at a
+    node is smeared over the cells around it, its total kept. ``nodal_force``: N on the base
+    DOFs (owned, flat). Collective."""
+    index_map = structure.base.V.dofmap.index_map
+    n_owned = index_map.size_local
+    out = np.zeros((structure.base.n_owned_cells, 2, 3))
+    for side, nodes in enumerate((structure.bottom_local, structure.top_local)):
+        X = structure.X_base[nodes]  # (n, 4, 3), tensor order
+        area = 0.5 * np.linalg.norm(
+            np.cross(X[:, 3] - X[:, 0], X[:, 2] - X[:, 1]), axis=1
+        )  # a quad's area from its diagonals
+        areas = la.vector(index_map, bs=1)
+        np.add.at(areas.array, nodes.ravel(), np.repeat(0.25 * area, 4))
+        areas.scatter_reverse(la.InsertMode.add)
+        areas.scatter_forward()
+        force = np.zeros((n_owned + index_map.num_ghosts, 3))
+        force[:n_owned] = nodal_force.reshape(-1, 3)[:n_owned]
+        traction = la.vector(index_map, bs=3)
+        on_face = np.unique(nodes.ravel())
+        on_face = on_face[on_face < n_owned]
+        traction.array.reshape(-1, 3)[on_face] = force[on_face] / areas.array[on_face, None]
+        traction.scatter_forward()
+        out[:, side] = traction.array.reshape(-1, 3)[nodes].mean(axis=1)
+    return out
+
+
+def interlaminar_stresses(
+    structure,
+    t: float = 0.0,
+    stresses: np.ndarray | None = None,
+    face_force: np.ndarray | None = None,
+) -> np.ndarray:
+    """(n_cells, n_plies + 1, 3): estimate of (sigma_zz, tau_xz, tau_yz) in MPa at every ply
+    boundary of every owned cell, bottom face (0) to top face (n_plies), at time t (s), from
+    three load paths, each exact in the case it is made for:
+
+    - the *variation* through the thickness from equilibrium recovery
+      (``recovered_interface_stresses``): the shear and peel that in-plane stress gradients
+      carry (bending under transverse shear, a pressure's bending);
+    - the *face tractions* on the top and bottom faces: the face loads
+      (``ResolvedLoads.face_traction``) and ``face_force`` (N on the base DOFs, owned: the
+      reactions of prescribed motions and contact forces, ``face_tractions``): the values at
+      the faces, a linear correction taking the recovered profile onto them;
+    - the cell's *own resultants*: the thickness mean of its constitutive sigma_zz, tau_xz,
+      tau_yz, which the element gets right whatever loads it (its thickness stretch and its
+      transverse shear are in equilibrium with what acts on the cell: the opening of a DCB's
+      arms, a punch, a prescribed motion or contact on the faces): a parabola that vanishes on
+      both faces, 6 (z/h)(1 - z/h), scaled so that the estimate has the cell's mean.
+
+    ``stresses``: the ply-centre stresses (``ply_stresses``) if already computed. Collective.
+    """
+    stresses = ply_stresses(structure) if stresses is None else stresses
+    recovered = recovered_interface_stresses(structure, stresses)
+    thickness = np.array([p.thickness for p in structure.laminate.plies])
+    z = np.concatenate([[0.0], np.cumsum(thickness)]) / thickness.sum()  # z/h, ply boundaries
+    # sigma_i3 on the faces: the top face's outward normal is +z (sigma_i3 = T_i), the bottom
+    # face's -z (sigma_i3 = -T_i); components in the (sigma_zz, tau_xz, tau_yz) order
+    order = [2, 0, 1]
+    on_faces = np.zeros((len(stresses), 2, 3))
+    on_faces[:, 0] = structure.loads.face_traction(t, "bottom")
+    on_faces[:, 1] = structure.loads.face_traction(t, "top")
+    if face_force is not None:
+        on_faces += face_tractions(structure, face_force)
+    bottom, top = -on_faces[:, 0, order], on_faces[:, 1, order]
+    estimate = recovered + bottom[:, None, :]
+    estimate += z[None, :, None] * (top - bottom - recovered[:, -1, :])[:, None, :]
+    bubble = 6.0 * z * (1.0 - z)
+    own = np.einsum("k,ckm->cm", thickness, stresses[:, :, [2, 4, 3]]) / thickness.sum()
+    missing = own - _through_thickness_mean(estimate, thickness)
+    scale = _through_thickness_mean(
+        np.broadcast_to(bubble[None, :, None], (1, len(z), 1)), thickness
+    )
+    estimate += (missing / scale[0, 0])[:, None, :] * bubble[None, :, None]
+    return estimate
+
+
 def interface_initiation(recovered: np.ndarray, strength_n: float, strength_s: float):
     """sqrt((<sigma_zz>/N)^2 + (tau/S)^2) at the inner interfaces 1 .. n-1: (n_cells, n - 1)."""
     inner = recovered[:, 1:-1, :]
@@ -254,10 +341,13 @@ def indicator_requests(
     strengths: tuple[float, float],
     t: float = 0.0,
     reasons: Reasons | None = None,
+    face_force: np.ndarray | None = None,
 ):
     """The refinements the indicators ask for on this rank's cells at time t: (cell,
     interface, kind). ``strengths``: the cohesive law's normal and shear strengths (MPa).
     ``reasons``: when given, each request's indicator and value are noted in it (``note``).
+    ``face_force``: the supports' and contact forces on the base DOFs (N, owned), for the
+    interlaminar estimate (``interlaminar_stresses``).
     Collective (the stress recovery averages over neighbouring cells on all ranks)."""
     requests = []
     state = structure.interface_state
@@ -294,7 +384,8 @@ def indicator_requests(
             requests += asked
     if settings.interface_stress is not None:
         stresses = ply_stresses(structure)
-        index = interface_initiation(recovered_interface_stresses(structure, stresses), *strengths)
+        estimate = interlaminar_stresses(structure, t, stresses, face_force)
+        index = interface_initiation(estimate, *strengths)
         for interface in structure.interfaces.delaminate:
             flagged = (index[:, interface - 1] >= settings.interface_stress) & (
                 state[:, interface - 1] < InterfaceState.STRONG

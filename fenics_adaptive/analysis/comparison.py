@@ -13,7 +13,8 @@ Units: N, mm, s, tonne (stress MPa, energy mJ, time per step s).
   (no two of them share a neighbour, so every force entry comes from exactly one of them), about
   80 evaluations for a layerwise beam. The sparse system is solved directly (PETSc LU) and the
   answer checked against the package's force: ``StaticResult.residual`` is
-  |f_ext - f_int(u)| / |f_ext| over the free DOFs, evaluated with ``Structure.internal_force``,
+  |f_ext - f_int(u)| over the free DOFs / |f_ext| there (or the reactions' norm when only
+  prescribed displacements load the body), evaluated with ``Structure.internal_force``,
   not with the probed matrix. Serial only (the probing reads node neighbourhoods locally).
 - stresses each model offers through the thickness: per-ply constitutive stresses at the ply
   mid-points (``column_ply_stresses``), their interface values as a post-processor shows them
@@ -273,7 +274,10 @@ def solve_linear_static(structure: Structure, t: float = 0.0) -> StaticResult:
         obj.destroy()
 
     f_int = _internal_force(structure, u)  # the package's force, not the probed matrix
-    residual = np.linalg.norm((f_ext - f_int)[free]) / np.linalg.norm(f_ext[free])
+    # relative to the forces that load the body: the loads, or (a case driven by prescribed
+    # displacements alone) the reactions
+    scale = max(np.linalg.norm(f_ext[free]), np.linalg.norm((f_int - f_ext)[fixed]))
+    residual = np.linalg.norm((f_ext - f_int)[free]) / max(scale, 1e-300)
     reaction = np.zeros(K.n)
     reaction[fixed] = (f_int - f_ext)[fixed]
     solid, _ = structure.internal_forces.energies()

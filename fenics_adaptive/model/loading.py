@@ -52,6 +52,7 @@ class ResolvedLoads:
     extra_vectors: list[np.ndarray] = field(default_factory=list)
     # some rank's extra nodes carry load (the same on every rank)
     has_extra: bool = False
+    faces: list[str] = field(default_factory=list)  # per load: the face it acts on
     # per load: this rank's sum (3,) N of the extra vector's owned entries
     extra_resultants: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     _scratch: np.ndarray | None = None
@@ -60,6 +61,17 @@ class ResolvedLoads:
     @property
     def constrained(self) -> np.ndarray:
         return self.fixed
+
+    def face_traction(self, t: float, face: str) -> np.ndarray:
+        """The traction (3,) in N/mm^2 = MPa that the loads on ``face`` apply at time t (s),
+        uniform over the face (zero without such loads)."""
+        total = np.zeros(3)
+        for on, traction, amplitude in zip(
+            self.faces, self.tractions, self.load_amplitudes, strict=True
+        ):
+            if on == face:
+                total += amplitude(t) * traction
+        return total
 
     def external_force(
         self, t: float, out: np.ndarray, out_extra: np.ndarray | None = None
@@ -311,6 +323,7 @@ def resolve(
         [vector.copy() for vector in vectors],
         [np.zeros(0) for _ in loads],
         extra_resultants=np.zeros((len(loads), 3)),
+        faces=[load.face for load in loads],
     )
 
 

@@ -259,6 +259,26 @@ class ExplicitSolver:
         """N, f_ext(t_n) on the base DOFs (owned, flat; a view)."""
         return self.blocks[0].f_ext
 
+    def face_force(self, out: np.ndarray | None = None) -> np.ndarray:
+        """N, the forces from outside on the top and bottom faces at t_n, besides the face
+        loads, on the base DOFs (owned, flat): the reactions of the prescribed motions of those
+        faces (``top``, ``bottom``, or an edge of theirs such as ``top&x0``) and the CONTACT
+        contributors' forces (an impactor). Into ``out`` if given, else a new array."""
+        base = self.blocks[0]
+        out = np.zeros(base.block.n_owned) if out is None else out
+        out[:] = 0.0
+        on_faces = np.array(
+            [bool({"top", "bottom"} & set(m.face.split("&"))) for m in self.structure.motions],
+            dtype=bool,
+        )
+        if len(on_faces):
+            held = on_faces[base.block.fixed_motion]
+            np.put(out, base.block.fixed[held], base.reaction[held])
+        contact = self.forces.contact_force
+        if contact is not None:
+            out += contact[0]
+        return out
+
     @property
     def last_row(self) -> HistoryRow | None:
         """The last history row of this run (energies in mJ), None before the first."""

@@ -88,6 +88,12 @@ class RunForces:
             contributor.add_force(t, *self._contact_force)
         return self._contact_force
 
+    @property
+    def contact_force(self) -> list[np.ndarray] | None:
+        """The CONTACT contributors' force per block at the last ``evaluate`` (N, owned
+        DOFs), None without contact contributors."""
+        return self._contact_force if self.contact else None
+
     def advance(self, mean_dt: float, dt: float) -> None:
         """The structure moved by dt (s): the contributors with degrees of freedom of their own
         follow (``mean_dt``: (dt_{n-1/2} + dt) / 2, s)."""
