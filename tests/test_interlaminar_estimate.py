@@ -23,6 +23,7 @@ from mpi4py import MPI
 import fenics_adaptive as fa
 from fenics_adaptive.adaptivity import indicators as ind
 from fenics_adaptive.analysis import comparison as cmp
+from fenics_adaptive.model.loading import on_top_or_bottom
 from fenics_adaptive.settings.config import parse_config
 from fenics_adaptive.simulation import build_structure
 
@@ -72,7 +73,7 @@ def support_force(structure) -> np.ndarray:
     structure.internal_force(0.0)
     base = structure.blocks[0]
     out = np.zeros(base.n_owned)
-    faces = np.array([bool({"top", "bottom"} & set(m.face.split("&"))) for m in structure.motions])
+    faces = np.array([on_top_or_bottom(m.face) for m in structure.motions], bool)
     held = base.fixed[faces[base.fixed_motion]]
     out[held] = base.f.array[held]
     return out

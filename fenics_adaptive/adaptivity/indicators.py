@@ -7,11 +7,11 @@ Units: N, mm, s, tonne (stresses MPa).
   factors, 1 = failure, fibre or matrix) reaches a fraction of 1 in a cell: the refinable
   interfaces nearest below and above that ply refine weakly, for a better through-thickness
   field around it (the paper: the bottom 0/90 interface refines when the lowermost ply fails).
-- ``interface_stress`` (strong): the cohesive initiation criterion on ``interlaminar_stresses``
-  (the recovery below, corrected to the face tractions and to the cell's own resultants); the
-  criterion
-  sqrt((<sigma_zz>/N)^2 + (tau/S)^2) evaluated at an interface with *recovered* out-of-plane
-  stresses reaches a fraction of 1. The unrefined shell's constitutive transverse stresses are
+- ``interface_stress`` (strong): the cohesive initiation criterion
+  sqrt((<sigma_zz>/N)^2 + (tau/S)^2), evaluated at an interface with the out-of-plane stresses
+  of ``interlaminar_stresses``, reaches a fraction of 1. Those are the recovered stresses
+  below, taken onto the face tractions and scaled to the cell's own resultants. The unrefined
+  shell's constitutive transverse stresses are
   poor (constant shear through the thickness, no peel), so they are recovered from equilibrium
   instead, as in the authors' ESL work: in-plane stresses of each ply, averaged on the nodes
   (columns), give in-plane derivatives on each cell; integrating
@@ -35,6 +35,7 @@ from mpi4py import MPI
 from numba import njit
 
 from fenics_adaptive.adaptivity.events import Reasons, note
+from fenics_adaptive.element.geometry import quad_areas
 from fenics_adaptive.element.subelement import gather_nodes
 from fenics_adaptive.materials.laminate import rotation_about_z
 from fenics_adaptive.materials.ply_damage import S_D, S_FT, S_MC, hashin_indices
@@ -257,10 +258,7 @@ def face_tractions(structure, nodal_force: np.ndarray) -> np.ndarray:
     n_owned = index_map.size_local
     out = np.zeros((structure.base.n_owned_cells, 2, 3))
     for side, nodes in enumerate((structure.bottom_local, structure.top_local)):
-        X = structure.X_base[nodes]  # (n, 4, 3), tensor order
-        area = 0.5 * np.linalg.norm(
-            np.cross(X[:, 3] - X[:, 0], X[:, 2] - X[:, 1]), axis=1
-        )  # a quad's area from its diagonals
+        area = quad_areas(structure.X_base[nodes])  # the faces' nodes are in tensor order
         areas = la.vector(index_map, bs=1)
         np.add.at(areas.array, nodes.ravel(), np.repeat(0.25 * area, 4))
         areas.scatter_reverse(la.InsertMode.add)
@@ -319,10 +317,9 @@ def interlaminar_stresses(
     bubble = 6.0 * z * (1.0 - z)
     own = np.einsum("k,ckm->cm", thickness, stresses[:, :, [2, 4, 3]]) / thickness.sum()
     missing = own - _through_thickness_mean(estimate, thickness)
-    scale = _through_thickness_mean(
-        np.broadcast_to(bubble[None, :, None], (1, len(z), 1)), thickness
-    )
-    estimate += (missing / scale[0, 0])[:, None, :] * bubble[None, :, None]
+    # the bubble's mean as the estimate's is measured (linear between ply boundaries)
+    bubble_mean = np.dot(thickness, 0.5 * (bubble[1:] + bubble[:-1])) / thickness.sum()
+    estimate += (missing / bubble_mean)[:, None, :] * bubble[None, :, None]
     return estimate
 
 

@@ -211,6 +211,12 @@ def _add_scaled(
     return scratch
 
 
+def on_top_or_bottom(face: str) -> bool:
+    """Whether a face group (``a&b`` as in ``face_nodes``) lies on the top or bottom face:
+    ``top``, ``bottom`` or an edge of theirs such as ``x0&top``."""
+    return bool({"top", "bottom"} & set(face.split("&")))
+
+
 def face_nodes(
     model: LayeredModel, face: str, x_range: tuple[float, float] | None = None
 ) -> np.ndarray:

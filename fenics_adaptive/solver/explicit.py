@@ -70,6 +70,7 @@ from mpi4py import MPI
 from fenics_adaptive.adaptivity.events import RefinementEvent
 from fenics_adaptive.errors import InputError
 from fenics_adaptive.model.forces import ForceContributor
+from fenics_adaptive.model.loading import on_top_or_bottom
 from fenics_adaptive.model.structure import Structure
 from fenics_adaptive.settings.solver import Probe, SolverSettings
 from fenics_adaptive.solver import guards
@@ -267,10 +268,7 @@ class ExplicitSolver:
         base = self.blocks[0]
         out = np.zeros(base.block.n_owned) if out is None else out
         out[:] = 0.0
-        on_faces = np.array(
-            [bool({"top", "bottom"} & set(m.face.split("&"))) for m in self.structure.motions],
-            dtype=bool,
-        )
+        on_faces = np.array([on_top_or_bottom(m.face) for m in self.structure.motions], bool)
         if len(on_faces):
             held = on_faces[base.block.fixed_motion]
             np.put(out, base.block.fixed[held], base.reaction[held])
