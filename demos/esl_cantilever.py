@@ -32,6 +32,7 @@ from fenics_adaptive.runner import run_config
 from fenics_adaptive.settings.config import load_config
 
 HERE = Path(__file__).parent
+PROG = "demos/esl_cantilever.py"  # the name its messages and --help give
 
 
 def beam_theory(config) -> dict:
@@ -47,8 +48,8 @@ def beam_theory(config) -> dict:
     return {"force_N": force, "EI_N_mm2": EI, "bending_mm": bending, "total_mm": bending + shear}
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def main(argv: list[str] | None = None, prog: str = PROG) -> None:
+    parser = argparse.ArgumentParser(prog=prog, description=__doc__.splitlines()[0].lstrip("# "))
     parser.add_argument("--config", default=HERE / "esl_cantilever.toml")
     parser.add_argument("--out", default="results/esl_cantilever")
     parser.add_argument(
@@ -56,7 +57,7 @@ def main() -> None:
         action="store_true",
         help="reuse run folders that hold other files (only this program's own files go)",
     )
-    args = parser.parse_args()
+    args = parser.parse_args(argv)
 
     # 1. the run itself: the same function the command-line program calls
     config = load_config(args.config)
@@ -94,4 +95,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    script_main(main, "demos/esl_cantilever.py")
+    script_main(main, PROG)

@@ -144,6 +144,7 @@ from fenics_adaptive.simulation import build_structure
 from fenics_adaptive.solver import explicit
 
 HERE = Path(__file__).parent
+PROG = "demos/esl_vs_lw.py"  # the name its messages and --help give
 MODELS = {
     "esl_constitutive": "(a) ESL, constitutive",
     "esl_recovered": "(b) ESL, recovered",
@@ -656,11 +657,11 @@ def _json(value):
     raise TypeError(f"not JSON serialisable: {type(value).__name__}")
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0].lstrip("# "))
+def main(argv: list[str] | None = None, prog: str = PROG) -> None:
+    parser = argparse.ArgumentParser(prog=prog, description=__doc__.splitlines()[0].lstrip("# "))
     parser.add_argument("--config", default=HERE / "esl_vs_lw.toml")
     parser.add_argument("--out", default="results/esl_vs_lw")
-    args = parser.parse_args()
+    args = parser.parse_args(argv)
     if MPI.COMM_WORLD.size > 1:
         raise SystemExit("demos/esl_vs_lw.py runs on one rank (its static solver is serial)")
     summary = run(load_settings(args.config), Path(args.out))
@@ -676,4 +677,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    script_main(main, "demos/esl_vs_lw.py")
+    script_main(main, PROG)

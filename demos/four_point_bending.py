@@ -50,6 +50,7 @@ from fenics_adaptive.settings.kinds import InterfaceState
 from fenics_adaptive.solver.explicit import Diverged
 
 HERE = Path(__file__).parent
+PROG = "demos/four_point_bending.py"  # the name its messages and --help give
 RUNS = FOUR_POINT_BENDING_RUNS
 
 
@@ -111,8 +112,8 @@ def plot(histories: dict, path: Path) -> None:
     plt.close(fig)
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def main(argv: list[str] | None = None, prog: str = PROG) -> None:
+    parser = argparse.ArgumentParser(prog=prog, description=__doc__.splitlines()[0].lstrip("# "))
     parser.add_argument("--config", default=HERE / "four_point_bending.toml")
     parser.add_argument("--out", default="results/four_point_bending")
     parser.add_argument(
@@ -123,7 +124,7 @@ def main() -> None:
     parser.add_argument(
         "--plot-only", action="store_true", help="redraw the plot from the results in --out"
     )
-    args = parser.parse_args()
+    args = parser.parse_args(argv)
     base = tomllib.loads(Path(args.config).read_text())
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -171,4 +172,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    script_main(main, "demos/four_point_bending.py")
+    script_main(main, PROG)

@@ -44,6 +44,7 @@ from fenics_adaptive.settings.config import parse_config
 from fenics_adaptive.settings.kinds import InterfaceState
 
 HERE = Path(__file__).parent
+PROG = "demos/plate_impact.py"  # the name its messages and --help give
 RUNS = PLATE_IMPACT_RUNS
 STYLES = {
     "esl": dict(color="tab:gray", lw=1.2, ls="--"),
@@ -149,8 +150,8 @@ def plot_cscan(maps: dict, refined: dict, size: tuple[float, float], path: Path)
     plt.close(fig)
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def main(argv: list[str] | None = None, prog: str = PROG) -> None:
+    parser = argparse.ArgumentParser(prog=prog, description=__doc__.splitlines()[0].lstrip("# "))
     parser.add_argument("--config", default=HERE / "plate_impact.toml")
     parser.add_argument("--out", default="results/plate_impact")
     parser.add_argument(
@@ -160,7 +161,7 @@ def main() -> None:
     )
     parser.add_argument("--runs", default=",".join(RUNS), help="which runs, comma separated")
     parser.add_argument("--end-time", type=float, default=None, help="s (default: the config's)")
-    args = parser.parse_args()
+    args = parser.parse_args(argv)
     base = tomllib.loads(Path(args.config).read_text())
     if args.end_time is not None:
         base["solver"]["end_time"] = args.end_time
@@ -198,4 +199,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    script_main(main, "demos/plate_impact.py")
+    script_main(main, PROG)

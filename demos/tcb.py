@@ -50,6 +50,7 @@ from fenics_adaptive.settings.kinds import InterfaceState
 from fenics_adaptive.simulation import build_structure
 
 HERE = Path(__file__).parent
+PROG = "demos/tcb.py"  # the name its messages and --help give
 RUNS = TCB_RUNS
 
 
@@ -175,8 +176,8 @@ def deformed(structures: dict, out: Path, length: float) -> None:
     plt.close(fig)
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def main(argv: list[str] | None = None, prog: str = PROG) -> None:
+    parser = argparse.ArgumentParser(prog=prog, description=__doc__.splitlines()[0].lstrip("# "))
     parser.add_argument("--config", default=HERE / "tcb.toml")
     parser.add_argument("--out", default="results/tcb")
     parser.add_argument("--quick", action="store_true", help="20 mm beam, for a fast look")
@@ -185,7 +186,7 @@ def main() -> None:
         action="store_true",
         help="reuse run folders that hold other files (only this program's own files go)",
     )
-    args = parser.parse_args()
+    args = parser.parse_args(argv)
     base = tomllib.loads(Path(args.config).read_text())
     if args.quick:
         base = tcb_quick(base)
@@ -216,4 +217,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    script_main(main, "demos/tcb.py")
+    script_main(main, PROG)

@@ -1,5 +1,6 @@
 """Command line: ``fenics-adaptive run CONFIG.toml --out DIR [--restart CHECKPOINT]
-[--overwrite]`` and ``fenics-adaptive check``.
+[--overwrite]``, ``fenics-adaptive check CONFIG.toml``, ``fenics-adaptive demo [NAME ...]``
+(the demos the package holds) and ``fenics-adaptive init CASE.toml`` (a starting config).
 
 Exit status: 0 done, 2 bad input (one line on stderr naming the key), 1 the run failed, 130 the
 run was interrupted (SIGINT or SIGTERM) after writing a checkpoint to continue from, or by
@@ -89,7 +90,26 @@ def _command(argv: list[str] | None, interrupt: _StartupInterrupt) -> int:
     )
     check = commands.add_parser("check", help="check a config and report the time step, no run")
     check.add_argument("config", help="TOML run configuration")
+    demo = commands.add_parser(
+        "demo", help="run a demo the package holds (without NAME: list them)"
+    )
+    demo.add_argument("name", nargs="?", help="the demo (fenics-adaptive demo lists them)")
+    demo.add_argument(
+        "demo_args",
+        nargs=argparse.REMAINDER,
+        metavar="...",
+        help="the demo's own options, e.g. --out DIR (fenics-adaptive demo NAME --help)",
+    )
+    init = commands.add_parser(
+        "init", help="write a commented starting config (a cantilever that runs as it is)"
+    )
+    init.add_argument("path", metavar="CASE.toml", help="the file to write")
+    init.add_argument("--force", action="store_true", help="replace the file if it exists")
     args = parser.parse_args(argv)
+    if args.command == "init":
+        return _init(Path(args.path), args.force)
+    if args.command == "demo":
+        return _demo(args.name, args.demo_args, interrupt)
 
     from mpi4py import MPI
 
@@ -136,6 +156,64 @@ def _command(argv: list[str] | None, interrupt: _StartupInterrupt) -> int:
             f"fenics-adaptive: run failed: {type(error).__name__}: {error} "
             "(FENICS_ADAPTIVE_TRACEBACK=1 shows where)",
         )
+    return 0
+
+
+def _init(path: Path, force: bool) -> int:
+    """Write the starting config (``templates/case.toml``) to ``path``; never over a file
+    unless ``force``."""
+    template = Path(__file__).parent / "templates" / "case.toml"
+    if path.is_dir():
+        print(f"fenics-adaptive: init: {path} is a folder; name the file to write", file=sys.stderr)
+        return 2
+    if path.exists() and not force:
+        print(
+            f"fenics-adaptive: init: {path} exists; choose another name or add --force",
+            file=sys.stderr,
+        )
+        return 2
+    if not path.parent.is_dir():
+        print(f"fenics-adaptive: init: no folder {path.parent}", file=sys.stderr)
+        return 2
+    path.write_text(template.read_text())
+    print(f"wrote {path} (units: N, mm, s, tonne); next: fenics-adaptive check {path}")
+    return 0
+
+
+def _demo(name: str | None, demo_args: list[str], interrupt: _StartupInterrupt) -> int:
+    """Run demo ``name`` of ``fenics_adaptive.demos`` with its own options, or list them."""
+    from fenics_adaptive import demos
+
+    if name is None:
+        print("demos (fenics-adaptive demo NAME --out DIR; NAME --help for its options):")
+        for known in demos.NAMES:
+            print(f"  {known:20s} {demos.describe(known)}")
+        return 0
+    if name not in demos.NAMES:
+        print(
+            f"fenics-adaptive: demo: no demo {name!r}; the demos: {', '.join(demos.NAMES)}",
+            file=sys.stderr,
+        )
+        return 2
+    import importlib
+
+    module = importlib.import_module(f"fenics_adaptive.demos.{name}")
+    try:
+        module.main(demo_args, prog=f"fenics-adaptive demo {name}")
+    except InputError as error:
+        print(f"fenics-adaptive: demo {name}: {error}", file=sys.stderr)
+        return 2
+    except Exception as error:
+        if interrupt.fired:
+            return _interrupted(error)
+        if os.environ.get("FENICS_ADAPTIVE_TRACEBACK"):
+            traceback.print_exc()
+        print(
+            f"fenics-adaptive: demo {name} failed: {type(error).__name__}: {error} "
+            "(FENICS_ADAPTIVE_TRACEBACK=1 shows where)",
+            file=sys.stderr,
+        )
+        return 1
     return 0
 
 

@@ -254,7 +254,7 @@ def _open_outputs(
             if comm.rank == 0:
                 record(fields_dir, folder=True)
                 fields_dir.mkdir(exist_ok=True)
-        fields = output.FieldOutputs(fields_dir, simulation.structure, record)
+        fields = output.FieldOutputs(fields_dir, simulation.structure, record, config.fields)
     return history, fields
 
 

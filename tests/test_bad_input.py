@@ -65,6 +65,14 @@ BAD = [
     (SMALL, "rho = 1.6e-9", "rho = 1600", "did you mean 1.6e-09 (kg/m^3 -> tonne/mm^3)"),
     (SMALL, "E1 = 100000.0", "E1 = 100e9", "materials.prototype.E1"),
     (SMALL, "end_time = 2.0e-4", "end_time = 1e300", "solver.max_steps"),
+    (SMALL, "[output]", "[output]\nfields_plies = [1, 9]", "output.fields_plies[1]"),
+    (
+        SMALL,
+        "[output]",
+        "[output]\nfields_box = [0, 10, 1, 0, 0, 5]",
+        "output.fields_box: y_min 1 mm is above y_max 0 mm",
+    ),
+    (SMALL, "[output]", "[output]\nfields_box = [0, 10]", "output.fields_box"),
 ]
 
 

@@ -36,7 +36,8 @@ def test_run_writes_every_result(small_run):
     out, result = small_run
     for name in ("history.csv", "summary.json", "force_displacement.png", "energies.png"):
         assert (out / name).stat().st_size > 0, name
-    assert (out / "displacement.bp").is_dir()
+    assert (out / "displacement.xdmf").is_file() and (out / "displacement.h5").is_file()
+    assert (out / "cohesive.pvd").is_file() and (out / "elements.pvd").is_file()
     assert not (out / "history.partial.csv").exists()
     assert "time step" in result.stdout
 
@@ -180,3 +181,69 @@ def test_help_lists_the_exit_statuses_and_where_the_docs_are(capsys):
     assert returned <= listed, returned - listed
     for path in re.findall(r"docs/\w+\.md", text):
         assert (ROOT / path).is_file(), path
+
+
+# ------------------------------------------------------------------ init and demo
+def test_init_writes_a_starting_config_that_runs_and_never_overwrites(tmp_path):
+    """The starting config parses as it is (ESL), and with its "#>" lines uncommented as the
+    adaptive model it names; an existing file is refused (left as it was) unless --force."""
+    from fenics_adaptive.settings.config import load_config
+
+    case = tmp_path / "case.toml"
+    result = run_cli("init", case)
+    assert result.returncode == 0, result.stderr
+    text = case.read_text()
+    assert "Units: N, mm, s, tonne" in text
+    config = load_config(case)
+    assert config.kind == "esl" and config.laminate.n_plies == 8
+    adaptive = tmp_path / "adaptive.toml"
+    adaptive.write_text(
+        re.sub(r"(?m)^#> ?", "", text).replace('kind = "esl" ', 'kind = "adaptive" ', 1)
+    )
+    config = load_config(adaptive)
+    assert config.kind == "adaptive" and config.interfaces.delaminate == (4,)
+    assert config.indicators is not None and config.cohesive.GIc == 0.4
+    case.write_text("mine")
+    for args in (("init", case), ("init", tmp_path)):
+        result = run_cli(*args)
+        assert result.returncode == 2 and len(result.stderr.splitlines()) == 1, result.stderr
+    assert case.read_text() == "mine"
+    assert run_cli("init", case, "--force").returncode == 0
+    assert case.read_text() == text
+
+
+def test_demo_lists_every_demo_and_refuses_an_unknown_one():
+    from fenics_adaptive import demos
+
+    assert sorted(demos.NAMES) == sorted(
+        p.stem for p in (ROOT / "demos").glob("*.py") if p.stem != "__init__"
+    )
+    result = run_cli("demo")
+    assert result.returncode == 0
+    for name in demos.NAMES:
+        assert re.search(rf"(?m)^  {name}\s+\S", result.stdout), name
+    result = run_cli("demo", "nope")
+    assert result.returncode == 2 and "esl_cantilever" in result.stderr
+    result = run_cli("demo", "tcb", "--help")
+    assert result.returncode == 0 and "usage: fenics-adaptive demo tcb" in result.stdout
+
+
+@pytest.mark.slow
+def test_demo_runs_from_the_package_and_checks_itself(tmp_path):
+    """`fenics-adaptive demo esl_cantilever`, from a folder outside the source tree, on a
+    coarser copy of its config: results in --out and a tip deflection within 3 % of beam
+    theory with shear."""
+    import tomllib
+
+    from helpers import toml_text
+
+    data = tomllib.loads((ROOT / "demos" / "esl_cantilever.toml").read_text())
+    data["mesh"].update(nx=20, ny=1)
+    config = tmp_path / "coarse.toml"
+    config.write_text(toml_text(data))
+    out = tmp_path / "results"
+    result = run_cli("demo", "esl_cantilever", "--config", config, "--out", out, cwd=tmp_path)
+    assert result.returncode == 0, result.stderr
+    summary = json.loads((out / "summary.json").read_text())
+    assert abs(summary["beam_theory"]["relative_difference"]) < 0.03
+    assert (out / "cantilever_vs_beam_theory.png").stat().st_size > 0

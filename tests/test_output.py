@@ -1,7 +1,7 @@
-"""Output files: the enriched-mesh VTU (extra nodes and subelements visible), the history
-columns' documentation, and summary.json as valid JSON whatever its values."""
+"""Output files: the enriched-mesh, cohesive and ply VTU series read back with VTK's own
+reader (types, names, values), the displacement XDMF, the field selection, the history columns'
+documentation, and summary.json as valid JSON whatever its values."""
 
-import base64
 import json
 import tomllib
 import xml.etree.ElementTree as ET
@@ -14,7 +14,9 @@ from fenics_adaptive.io.output import (
     COLUMN_UNITS,
     HEADER,
     STRESS_NAMES,
+    CohesiveWriter,
     ElementWriter,
+    FieldWriter,
     HistoryWriter,
     PlyWriter,
     json_safe,
@@ -24,6 +26,7 @@ from fenics_adaptive.io.output import (
 )
 from fenics_adaptive.materials.ply_damage import strain_rotation
 from fenics_adaptive.settings.config import parse_config
+from fenics_adaptive.settings.solver import FieldSelection
 from fenics_adaptive.simulation import build_structure
 from fenics_adaptive.solver.explicit import COLUMNS
 from fenics_adaptive.solver.history import HistoryRow
@@ -31,10 +34,33 @@ from fenics_adaptive.solver.history import HistoryRow
 DATA = Path(__file__).parent / "data"
 
 
-def decode(array: ET.Element, dtype: str) -> np.ndarray:
-    raw = base64.b64decode(array.text)
-    n = np.frombuffer(raw[:4], dtype="<u4")[0]
-    return np.frombuffer(raw[4 : 4 + n], dtype=dtype)
+def cell_points(cell) -> list[int]:
+    return [cell.GetPointId(k) for k in range(cell.GetNumberOfPoints())]
+
+
+def read_vtu(path: Path) -> dict:
+    """A .vtu through VTK's XML reader (what ParaView runs): points, cells (k points each),
+    VTK cell types, and every point and cell array with its VTK type name."""
+    from vtkmodules.util.numpy_support import vtk_to_numpy
+    from vtkmodules.vtkIOXML import vtkXMLUnstructuredGridReader
+
+    reader = vtkXMLUnstructuredGridReader()
+    reader.SetFileName(str(path))
+    reader.Update()
+    assert reader.GetErrorCode() == 0
+    grid = reader.GetOutput()
+    out = {
+        "points": vtk_to_numpy(grid.GetPoints().GetData()) if grid.GetNumberOfPoints() else None,
+        "types": np.array([grid.GetCellType(i) for i in range(grid.GetNumberOfCells())]),
+        "cells": np.array([cell_points(grid.GetCell(i)) for i in range(grid.GetNumberOfCells())]),
+        "point": {},
+        "cell": {},
+    }
+    for kind, data in (("point", grid.GetPointData()), ("cell", grid.GetCellData())):
+        for i in range(data.GetNumberOfArrays()):
+            array = data.GetArray(i)
+            out[kind][array.GetName()] = (vtk_to_numpy(array), array.GetDataTypeAsString())
+    return out
 
 
 def test_every_history_column_has_a_unit():
@@ -79,34 +105,142 @@ def test_the_history_header_carries_the_units_and_reads_back_exactly(tmp_path):
     assert parse_history(old, "old") == rows
 
 
-def test_element_file_holds_subelements_extra_nodes_and_cohesive_elements(tmp_path):
+def refined_beam():
     data = tomllib.loads((DATA / "tcb_adaptive.toml").read_text())  # refined from the start
     structure = build_structure(parse_config(data))
     rng = np.random.default_rng(0)
     structure.base.u.x.array[:] = rng.normal(size=structure.base.u.x.array.shape)
+    extra_u = structure.extra.vectors["u"].array
+    extra_u[:] = rng.normal(size=extra_u.shape)
+    return structure
+
+
+def test_element_file_holds_subelements_and_extra_nodes_with_integer_fields(tmp_path):
+    structure = refined_beam()
     writer = ElementWriter(tmp_path, structure)
     writer(0.0)
     writer(1.0)
     collection = ET.parse(tmp_path / "elements.pvd").getroot()
     files = [d.get("file") for d in collection.iter("DataSet")]
     assert files == ["elements/elements_000000.vtu", "elements/elements_000001.vtu"]
-    piece = ET.parse(tmp_path / files[1]).getroot().find("UnstructuredGrid/Piece")
-    n_points, n_cells = int(piece.get("NumberOfPoints")), int(piece.get("NumberOfCells"))
-    # 20 cells x 4 subelements (interfaces 2, 4, 6 refined) + 20 x 2 cohesive elements
-    assert n_cells == 80 + 40
-    assert n_points == structure.n_base + structure.extra.n_local
-    arrays = {a.get("Name"): a for a in piece.iter("DataArray")}
-    types = decode(arrays["types"], "u1")
-    assert (types == 12).sum() == 80 and (types == 9).sum() == 40
-    points = decode(piece.find("Points/DataArray"), "<f8").reshape(-1, 3)
+    assert b"vtkZLibDataCompressor" in (tmp_path / files[1]).read_bytes()[:600]
+    grid = read_vtu(tmp_path / files[1])
+    # 20 cells x 4 subelements (interfaces 2, 4, 6 refined); no cohesive quads in this file
+    assert grid["types"].tolist() == [12] * 80
     X = np.vstack([structure.X_base, structure.extra.vectors["X"].array.reshape(-1, 3)])
-    np.testing.assert_array_equal(points, X)
-    u = decode(arrays["displacement"], "<f8").reshape(-1, 3)
-    np.testing.assert_array_equal(u[: structure.n_base], structure.base.u.x.array.reshape(-1, 3))
-    extra = decode(arrays["extra_node"], "<f8")
-    assert extra.sum() == structure.extra.n_local
-    plies = decode(arrays["first_ply"], "<f8")[:80], decode(arrays["last_ply"], "<f8")[:80]
-    assert sorted(set(zip(*plies, strict=True))) == [(1, 2), (3, 4), (5, 6), (7, 8)]
+    u = np.vstack([structure.base.u.x.array.reshape(-1, 3),
+                   structure.extra.vectors["u"].array.reshape(-1, 3)])  # fmt: skip
+    nodes, _, spans = structure.elements()
+    # the file's points are the elements' nodes, VTK-ordered, with their displacement
+    vtk_order = [0, 1, 3, 2, 4, 5, 7, 6]
+    np.testing.assert_array_equal(grid["points"][grid["cells"]], X[nodes[:, vtk_order]])
+    displacement, kind = grid["point"]["displacement"]
+    assert kind == "double"
+    np.testing.assert_array_equal(displacement[grid["cells"]], u[nodes[:, vtk_order]])
+    extra, kind = grid["point"]["extra_node"]
+    assert kind == "unsigned char" and extra.sum() == structure.extra.n_local
+    first, kind = grid["cell"]["first_ply"]
+    assert kind == "int" and grid["cell"]["last_ply"][1] == "int"
+    np.testing.assert_array_equal(first, spans[:, 0] + 1)
+    assert sorted(set(zip(first, grid["cell"]["last_ply"][0], strict=True))) == [
+        (1, 2), (3, 4), (5, 6), (7, 8)]  # fmt: skip
+    assert grid["cell"]["rank"][1] == "int"
+    assert "cohesive_damage" not in grid["cell"]
+
+
+def test_cohesive_file_holds_the_interfaces_with_damage_and_opening(tmp_path):
+    structure = refined_beam()
+    cohesive = structure.cohesive
+    cohesive.damage[:] = np.random.default_rng(1).uniform(size=cohesive.damage.shape)
+    CohesiveWriter(tmp_path, structure)(0.0)
+    grid = read_vtu(tmp_path / "cohesive/cohesive_000000.vtu")
+    assert grid["types"].tolist() == [9] * 40  # 20 cells x 2 delaminating interfaces
+    interface, kind = grid["cell"]["interface"]
+    assert kind == "int"
+    np.testing.assert_array_equal(interface, cohesive.interface)
+    damage, kind = grid["cell"]["cohesive_damage"]
+    assert kind == "double" and damage.min() >= 0.0
+    np.testing.assert_allclose(damage, cohesive.damage[cohesive.damage_row].mean(axis=1))
+    X = np.vstack([structure.X_base, structure.extra.vectors["X"].array.reshape(-1, 3)])
+    u = np.vstack([structure.base.u.x.array.reshape(-1, 3),
+                   structure.extra.vectors["u"].array.reshape(-1, 3)])  # fmt: skip
+    lower, upper = cohesive.nodes[:, [0, 1, 3, 2]], cohesive.nodes[:, [4, 5, 7, 6]]
+    np.testing.assert_array_equal(grid["points"][grid["cells"]], X[lower])
+    opening = grid["point"]["opening"][0][grid["cells"]]
+    np.testing.assert_allclose(opening, u[upper] - u[lower], rtol=0, atol=1e-14)
+    mid = grid["point"]["displacement"][0][grid["cells"]]
+    np.testing.assert_allclose(mid, 0.5 * (u[upper] + u[lower]), rtol=0, atol=1e-14)
+
+
+def test_field_selection_keeps_the_box_and_the_plies_and_thins_the_ply_frames(tmp_path):
+    structure = refined_beam()
+    box = (2.0, 4.0, -1.0, 2.0, -1.0, 5.0)  # x from 2 to 4 mm of the 10 mm beam
+    selection = FieldSelection(plies=(1, 8), box=box, ply_every=3)
+    ElementWriter(tmp_path, structure, selection=selection)(0.0)
+    grid = read_vtu(tmp_path / "elements/elements_000000.vtu")
+    centroids = grid["points"][grid["cells"]].mean(axis=1)
+    assert len(centroids) == 4 * 4  # the 0.5 mm cells centred in [2, 4] mm, 4 subelements each
+    assert np.all((centroids[:, 0] >= 2.0) & (centroids[:, 0] <= 4.0))
+    plies = PlyWriter(tmp_path, structure, selection=selection)
+    for t in range(7):
+        plies(float(t))
+    frames = [d.get("timestep") for d in ET.parse(tmp_path / "plies.pvd").getroot().iter("DataSet")]
+    assert frames == ["0.0", "3.0", "6.0"]
+    grid = read_vtu(tmp_path / "plies/plies_000000.vtu")
+    assert sorted(set(grid["cell"]["ply"][0])) == [1, 8] and len(grid["types"]) == 4 * 2
+    # a box that holds no element writes an empty, valid file
+    empty = FieldSelection(box=(100.0, 101.0, 0.0, 1.0, 0.0, 1.0))
+    CohesiveWriter(tmp_path, structure, selection=empty)(0.0)
+    assert len(read_vtu(tmp_path / "cohesive/cohesive_000000.vtu")["types"]) == 0
+
+
+# h5py in a process of its own: its HDF5 library and DOLFINx's cannot share one process
+_READ_HDF5 = """
+import sys
+import h5py
+import numpy as np
+with h5py.File(sys.argv[1], "r") as f:
+    np.savez(sys.argv[2], **{str(i): f[path][()] for i, path in enumerate(sys.argv[3:])})
+"""
+
+
+def test_displacement_xdmf_holds_the_mesh_once_and_every_time(tmp_path):
+    """The XDMF names the mesh once and one displacement per time; the HDF5 data it points at
+    (read by h5py, not DOLFINx) are the nodes and the displacement of each time."""
+    import subprocess
+    import sys
+
+    structure = refined_beam()
+    u = structure.base.u
+    first = u.x.array.copy()
+    writer = FieldWriter(tmp_path, [u])
+    writer(0.0)
+    u.x.array[:] *= 2.0
+    writer(1.5e-4)
+    writer.close()
+    root = ET.parse(tmp_path / "displacement.xdmf").getroot()
+    assert len(root.findall(".//Topology")) == 1
+    assert root.find(".//Topology").get("TopologyType") == "Hexahedron"
+    steps = [g for g in root.iter("Grid") if g.find("Time") is not None]
+    assert [float(g.find("Time").get("Value")) for g in steps] == [0.0, 1.5e-4]
+    items = [root.find(".//Geometry/DataItem").text.strip()]
+    items += [g.find("Attribute[@Name='displacement']/DataItem").text.strip() for g in steps]
+    files, paths = zip(*(item.split(":") for item in items), strict=True)
+    assert set(files) == {"displacement.h5"}
+    read = tmp_path / "read.npz"
+    subprocess.run(
+        [sys.executable, "-c", _READ_HDF5, tmp_path / "displacement.h5", read, *paths],
+        check=True,
+    )
+    with np.load(read) as back:
+        points, values = back["0"], [back["1"], back["2"]]
+    assert points.shape == (structure.n_base, 3)
+    # the file's node order is the geometry's, not the function's dofs: match by position
+    file_order = np.lexsort(np.round(points, 9).T)
+    dof_order = np.lexsort(np.round(structure.X_base, 9).T)
+    np.testing.assert_allclose(points[file_order], structure.X_base[dof_order], atol=1e-12)
+    for value, expected in zip(values, (first, 2.0 * first), strict=True):
+        np.testing.assert_array_equal(value[file_order], expected.reshape(-1, 3)[dof_order])
 
 
 @pytest.mark.slow
@@ -125,12 +259,11 @@ def test_ply_file_holds_every_ply_as_a_slab_with_its_stress(tmp_path):
     ):
         u[:] = (X @ strain.T).ravel()
     PlyWriter(tmp_path, structure)(0.0)
-    piece = ET.parse(tmp_path / "plies/plies_000000.vtu").getroot().find("UnstructuredGrid/Piece")
-    assert int(piece.get("NumberOfCells")) == 20 * 8
-    arrays = {a.get("Name"): a for a in piece.iter("DataArray")}
-    ply = decode(arrays["ply"], "<f8").astype(int)
-    assert np.all(np.bincount(ply)[1:] == 20)
-    points = decode(piece.find("Points/DataArray"), "<f8").reshape(-1, 8, 3)
+    grid = read_vtu(tmp_path / "plies/plies_000000.vtu")
+    assert len(grid["types"]) == 20 * 8
+    ply, kind = grid["cell"]["ply"]
+    assert kind == "int" and np.all(np.bincount(ply)[1:] == 20)
+    points = grid["points"][grid["cells"]]
     z = structure.laminate.ply_fractions * structure.laminate.thickness  # bottom face z = 0
     np.testing.assert_allclose(points[:, 0, 2], z[ply - 1], atol=1e-12)
     np.testing.assert_allclose(points[:, 4, 2], z[ply], atol=1e-12)
@@ -139,7 +272,7 @@ def test_ply_file_holds_every_ply_as_a_slab_with_its_stress(tmp_path):
     for k, p in enumerate(structure.laminate.plies):
         expected = p.material.stiffness() @ strain_rotation(p.angle) @ voigt
         for i, name in enumerate(STRESS_NAMES):
-            values = decode(arrays[name], "<f8")[ply == k + 1]
+            values = grid["cell"][name][0][ply == k + 1]
             np.testing.assert_allclose(values, expected[i], rtol=1e-9, atol=1e-9)
 
 

@@ -6,8 +6,9 @@ A run writes into its output folder
                            run ended)
   force_displacement.png   reaction force vs probe displacement
   energies.png             energy balance vs time
-  displacement.bp/         displacement field over time (ADIOS2/VTX, opens in ParaView >= 5.9)
-  elements.pvd, elements/  the enriched mesh as computed: subelements, extra and cohesive elements
+  displacement.xdmf, .h5   displacement of the base mesh over time (XDMF/HDF5, any ParaView)
+  elements.pvd, elements/  the enriched mesh as computed: subelements and extra nodes
+  cohesive.pvd, cohesive/  the cohesive elements: interface, damage
   plies.pvd, plies/        every ply of every cell as a slab: stress, Hashin indices, damage
   checkpoint/              the state to restart from (``checkpoint``)
 The field files come every ``fields_interval``. Every name is added to the folder's run
@@ -19,7 +20,6 @@ history.csv is always a finished run.
 
 from __future__ import annotations
 
-import base64
 import csv
 import io
 import json
@@ -27,6 +27,7 @@ import math
 import os
 import sys
 import time
+import zlib
 from collections.abc import Callable
 from pathlib import Path
 from typing import TextIO
@@ -39,6 +40,7 @@ from fenics_adaptive.adaptivity.indicators import ply_failure_indices, ply_strai
 from fenics_adaptive.element.geometry import slab_vertices, thickness_weight
 from fenics_adaptive.errors import InputError, shared_errors
 from fenics_adaptive.materials.ply_damage import S_D, S_FC, S_FT, S_MC, S_MT, nominal_ply_stresses
+from fenics_adaptive.settings.solver import FieldSelection
 from fenics_adaptive.solver.explicit import COLUMNS, HistoryRow
 from fenics_adaptive.solver.observers import Observer
 
@@ -236,34 +238,33 @@ def plot_history(history: list[HistoryRow], out_dir: Path, title: str) -> None:
 
 
 class FieldWriter:
-    """Displacement field over time for ParaView (VTX: ADIOS2 .bp folder). ADIOS2 names the
-    files in the folder itself; the run manifest lists the folder (and, after each write,
-    the files it holds)."""
+    """Displacement of the base mesh over time, as XDMF (``displacement.xdmf``, the XML a reader
+    opens) with its HDF5 data (``displacement.h5``): the mesh once, then one displacement per
+    output time. Every ParaView build reads it (the Xdmf3 readers), Debian's included; adaptive
+    runs' cracks are in the element series (``ElementWriter``), not here: the base mesh is the
+    ESL one."""
 
     def __init__(self, out_dir: Path, functions: list, record: Callable[..., None] | None = None):
-        self.folder = out_dir / "displacement.bp"
-        self.comm = functions[0].function_space.mesh.comm
-        self.record = record
-        if record is not None and self.comm.rank == 0:
-            record(self.folder, folder=True)
-        self.writer = dolfinx.io.VTXWriter(self.comm, self.folder, functions, engine="BP4")
+        self.path = out_dir / "displacement.xdmf"
+        self.functions = functions
+        mesh = functions[0].function_space.mesh
+        if record is not None and mesh.comm.rank == 0:
+            record(self.path, self.path.with_suffix(".h5"))
+        self.file = dolfinx.io.XDMFFile(mesh.comm, self.path, "w")
+        self.file.write_mesh(mesh)
 
     def __call__(self, t: float) -> None:
-        self.writer.write(t)
-        self._record_files()
-
-    def _record_files(self) -> None:
-        if self.record is not None and self.comm.rank == 0 and self.folder.is_dir():
-            self.record(*sorted(self.folder.iterdir()))
+        for function in self.functions:
+            self.file.write_function(function, t)
 
     def close(self) -> None:
-        self.writer.close()
-        self._record_files()
+        self.file.close()
 
 
 # DOLFINx hexahedron vertex order -> VTK_HEXAHEDRON order (cyclic faces)
 _VTK_HEX = np.array([0, 1, 3, 2, 4, 5, 7, 6])
 _VTK_QUAD = np.array([0, 1, 3, 2])
+VTK_HEXAHEDRON, VTK_QUAD = 12, 9
 
 
 class _VtuSeries:
@@ -283,7 +284,9 @@ class _VtuSeries:
                 self.folder.mkdir(parents=True, exist_ok=True)
         self.steps: list[tuple[float, str]] = []
 
-    def write(self, t: float, X, connectivity, offsets, types, point_data, cell_data) -> None:
+    def write(self, t: float, X, cells: np.ndarray, cell_type: int, point_data, cell_data) -> None:
+        """Write one time: points X (n, 3) mm, ``cells`` (m, k) VTK-ordered point indices of one
+        ``cell_type``, point and cell data {name: array} (their dtypes kept)."""
         stem = f"{self.name}_{len(self.steps):06d}"
         parallel = self.comm.size > 1
         piece = f"{stem}_r{self.comm.rank}.vtu" if parallel else f"{stem}.vtu"
@@ -292,7 +295,7 @@ class _VtuSeries:
                 pieces = [f"{stem}_r{r}.vtu" for r in range(self.comm.size)] + [f"{stem}.pvtu"]
                 names = pieces if parallel else [piece]
                 self.record(self.pvd, *(self.folder / n for n in names))
-            write_vtu(self.folder / piece, X, connectivity, offsets, types, point_data, cell_data)
+            write_vtu(self.folder / piece, X, cells, cell_type, point_data, cell_data)
             if parallel and self.comm.rank == 0:
                 _write_pvtu(
                     self.folder / f"{stem}.pvtu", stem, self.comm.size, point_data, cell_data
@@ -316,14 +319,38 @@ def _combined_nodes(structure) -> tuple[np.ndarray, np.ndarray]:
     return X, u
 
 
+def _compact(nodes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The nodes ``nodes`` (m, k) uses, and ``nodes`` renumbered into that list: a file holds
+    only the points of its cells."""
+    used, inverse = np.unique(nodes, return_inverse=True)
+    return used, inverse.reshape(nodes.shape).astype(np.int64)
+
+
+def _in_box(X: np.ndarray, nodes: np.ndarray, box: tuple[float, ...] | None) -> np.ndarray:
+    """Which elements of ``nodes`` (m, k) have their reference centroid in ``box`` (x_min,
+    x_max, y_min, y_max, z_min, z_max; mm); all of them without a box."""
+    if box is None:
+        return np.ones(len(nodes), dtype=bool)
+    centre = X[nodes].mean(axis=1) if len(nodes) else np.zeros((0, 3))
+    low, high = np.array(box[0::2]), np.array(box[1::2])
+    return np.all((centre >= low) & (centre <= high), axis=1)
+
+
 class ElementWriter:
     """The enriched mesh for ParaView: every solid element as it is computed (unrefined cells,
     and the subelements of refined ones, so the extra nodes and the sublaminates show, as in the
-    paper's Figure 4), the cohesive elements as quads with their damage, displacements on all
-    nodes (base and extra). Written to ``elements/`` and ``elements.pvd``."""
+    paper's Figure 4), displacements on all their nodes (base and extra). Written to
+    ``elements/`` and ``elements.pvd``; the cohesive elements are ``CohesiveWriter``'s."""
 
-    def __init__(self, out_dir: Path, structure, record: Callable[..., None] | None = None):
+    def __init__(
+        self,
+        out_dir: Path,
+        structure,
+        record: Callable[..., None] | None = None,
+        selection: FieldSelection | None = None,
+    ):
         self.structure = structure
+        self.selection = selection or FieldSelection()
         self.comm = structure.comm
         self.series = _VtuSeries(out_dir, "elements", self.comm, record)
 
@@ -331,22 +358,13 @@ class ElementWriter:
         s = self.structure
         X, u = _combined_nodes(s)
         nodes, owners, plies = s.elements()
-        solids = nodes[:, _VTK_HEX]
-        cohesive = s.cohesive.nodes[:, :4][:, _VTK_QUAD]
-        damage = s.cohesive.damage[s.cohesive.damage_row].mean(axis=1)
-        connectivity = np.concatenate([solids.ravel(), cohesive.ravel()])
-        offsets = np.concatenate(
-            [
-                8 * np.arange(1, len(solids) + 1),
-                8 * len(solids) + 4 * np.arange(1, len(cohesive) + 1),
-            ]
-        )
-        types = np.concatenate([np.full(len(solids), 12), np.full(len(cohesive), 9)])
+        kept = _in_box(X, nodes, self.selection.box)
+        nodes, owners, plies = nodes[kept], owners[kept], plies[kept]
+        used, cells = _compact(nodes[:, _VTK_HEX])
         cell_data = {
-            "first_ply": np.concatenate([plies[:, 0] + 1, np.zeros(len(cohesive))]),
-            "last_ply": np.concatenate([plies[:, 1], np.zeros(len(cohesive))]),
-            "cohesive_damage": np.concatenate([np.full(len(solids), -1.0), damage]),
-            "rank": np.full(len(solids) + len(cohesive), float(self.comm.rank)),
+            "first_ply": (plies[:, 0] + 1).astype(np.int32),
+            "last_ply": plies[:, 1].astype(np.int32),
+            "rank": np.full(len(nodes), self.comm.rank, dtype=np.int32),
         }
         # when each refinable interface of the element's cell refined (s), NaN while it has
         # not: the refinement log's times as fields
@@ -354,14 +372,54 @@ class ElementWriter:
         for name, since in (("weak_time", s.weak_since), ("strong_time", s.strong_since)):
             times = np.where(np.isfinite(since), since, np.nan)[owners]
             for interface in refinable:
-                cell_data[f"{name}_{interface}"] = np.concatenate(
-                    [times[:, interface - 1], np.full(len(cohesive), np.nan)]
-                )
+                cell_data[f"{name}_{interface}"] = times[:, interface - 1]
         point_data = {
-            "displacement": u,
-            "extra_node": np.r_[np.zeros(s.n_base), np.ones(len(u) - s.n_base)],
+            "displacement": u[used],
+            "extra_node": (used >= s.n_base).astype(np.uint8),
         }
-        self.series.write(t, X, connectivity, offsets, types, point_data, cell_data)
+        self.series.write(t, X[used], cells, VTK_HEXAHEDRON, point_data, cell_data)
+
+    def close(self) -> None:
+        pass
+
+
+class CohesiveWriter:
+    """The cohesive elements for ParaView, each as a quadrilateral of its own four points on the
+    interface's mid-surface (the mean of its lower and upper faces' displacements), with the
+    ``opening`` (upper minus lower face displacement, mm) at its points, its interface (1-based)
+    and the mean damage of its four integration points (0 intact, 1 open). Written to
+    ``cohesive/`` and ``cohesive.pvd``."""
+
+    def __init__(
+        self,
+        out_dir: Path,
+        structure,
+        record: Callable[..., None] | None = None,
+        selection: FieldSelection | None = None,
+    ):
+        self.structure = structure
+        self.selection = selection or FieldSelection()
+        self.series = _VtuSeries(out_dir, "cohesive", structure.comm, record)
+
+    def __call__(self, t: float) -> None:
+        s = self.structure
+        X, u = _combined_nodes(s)
+        cohesive = s.cohesive
+        kept = _in_box(X, cohesive.nodes[:, :4], self.selection.box)
+        lower = cohesive.nodes[kept, :4][:, _VTK_QUAD].ravel()
+        upper = cohesive.nodes[kept, 4:][:, _VTK_QUAD].ravel()
+        n = int(kept.sum())
+        cell_data = {
+            "interface": cohesive.interface[kept].astype(np.int32),
+            "cohesive_damage": cohesive.damage[cohesive.damage_row[kept]].mean(axis=1),
+            "rank": np.full(n, s.comm.rank, dtype=np.int32),
+        }
+        point_data = {
+            "displacement": 0.5 * (u[lower] + u[upper]),
+            "opening": u[upper] - u[lower],
+        }
+        cells = np.arange(4 * n, dtype=np.int64).reshape(n, 4)
+        self.series.write(t, X[lower], cells, VTK_QUAD, point_data, cell_data)
 
     def close(self) -> None:
         pass
@@ -377,21 +435,41 @@ class PlyWriter:
     angle, the material-frame stress at the ply's centre (MPa, with the matrix damage of the
     ply), the Hashin exposure factors (largest so far when the ply damage model runs, else of
     the current stress; only for materials with failure data) and the matrix damage. Written to
-    ``plies/`` and ``plies.pvd``; threshold on ``ply`` to look at one ply of the laminate."""
+    ``plies/`` and ``plies.pvd``; threshold on ``ply`` to look at one ply of the laminate.
+    ``selection``: the plies, the box and every how many field frames (the largest output)."""
 
-    def __init__(self, out_dir: Path, structure, record: Callable[..., None] | None = None):
+    def __init__(
+        self,
+        out_dir: Path,
+        structure,
+        record: Callable[..., None] | None = None,
+        selection: FieldSelection | None = None,
+    ):
         self.structure = structure
+        self.selection = selection or FieldSelection()
         self.series = _VtuSeries(out_dir, "plies", structure.comm, record)
+        self.calls = 0
 
     def __call__(self, t: float) -> None:
+        due = self.calls % self.selection.ply_every == 0
+        self.calls += 1
+        if due:
+            self.write(t)
+
+    def write(self, t: float) -> None:
         s = self.structure
         plies = s.laminate.plies
         fractions = s.laminate.ply_fractions
         X, u = _combined_nodes(s)
         nodes, cells, spans = s.elements()
+        kept = _in_box(X, nodes, self.selection.box)
+        nodes, cells, spans = nodes[kept], cells[kept], spans[kept]
         counts = spans[:, 1] - spans[:, 0]
         element = np.repeat(np.arange(len(nodes)), counts)
         ply = np.concatenate([np.arange(a, b) for a, b in spans]) if len(spans) else element
+        if self.selection.plies is not None:
+            wanted = np.isin(ply + 1, self.selection.plies)
+            element, ply = element[wanted], ply[wanted]
         s0 = thickness_weight(fractions, ply, spans[element, 0], spans[element, 1])
         s1 = thickness_weight(fractions, ply + 1, spans[element, 0], spans[element, 1])
         slab_points = []
@@ -399,14 +477,13 @@ class PlyWriter:
             lower, upper = values[nodes[element, :4]], values[nodes[element, 4:]]
             slab_points.append(slab_vertices(lower, upper, s0, s1).reshape(-1, 3))
         n = len(element)
-        connectivity = (8 * np.arange(n)[:, None] + _VTK_HEX[None, :]).ravel()
-        offsets = 8 * np.arange(1, n + 1)
+        connectivity = 8 * np.arange(n)[:, None] + _VTK_HEX[None, :]
         owner = cells[element]
         damage = s.damage_state[:, :, S_D] if s.ply_damage else None
         stress = nominal_ply_stresses(ply_strains(s), plies, damage)[owner, ply]
         cell_data = {
-            "ply": ply + 1.0,
-            "angle": np.array([p.angle for p in plies])[ply],
+            "ply": (ply + 1).astype(np.int32),
+            "angle": np.array([p.angle for p in plies], dtype=float)[ply],
             **{name: stress[:, i] for i, name in enumerate(STRESS_NAMES)},
         }
         if s.ply_damage:
@@ -416,59 +493,98 @@ class PlyWriter:
         elif all(p.material.name in s.failures for p in plies):
             cell_data["hashin_max"] = ply_failure_indices(s)[owner, ply]
         point_data = {"displacement": slab_points[1]}
-        types = np.full(n, 12)
-        self.series.write(t, slab_points[0], connectivity, offsets, types, point_data, cell_data)
+        self.series.write(t, slab_points[0], connectivity, VTK_HEXAHEDRON, point_data, cell_data)
 
     def close(self) -> None:
         pass
 
 
-def _encode(values: np.ndarray, dtype: str) -> str:
-    """Inline binary DataArray payload: base64 of a UInt32 byte count and the raw data."""
-    raw = np.ascontiguousarray(values, dtype=dtype).tobytes()
-    return base64.b64encode(np.uint32(len(raw)).tobytes() + raw).decode("ascii")
+# numpy dtype -> VTK XML type name
+_VTK_TYPES = {
+    np.dtype(np.float64): "Float64",
+    np.dtype(np.float32): "Float32",
+    np.dtype(np.int64): "Int64",
+    np.dtype(np.int32): "Int32",
+    np.dtype(np.uint8): "UInt8",
+}
+# uncompressed bytes per zlib block (VTK's own writers' default)
+_BLOCK = 1 << 15
 
 
-def _data_array(name: str, values: np.ndarray, components: int = 1) -> str:
-    return (
-        f'<DataArray type="Float64" Name="{name}" NumberOfComponents="{components}" '
-        f'format="binary">{_encode(values, "<f8")}</DataArray>'
+def _vtk_array(values: np.ndarray) -> np.ndarray:
+    """``values`` little-endian and contiguous, in a type VTK names (bool as UInt8)."""
+    values = np.asarray(values)
+    if values.dtype == bool:
+        values = values.astype(np.uint8)
+    if values.dtype.newbyteorder("=") not in _VTK_TYPES:
+        raise TypeError(f"no VTK type for {values.dtype}")
+    return np.ascontiguousarray(values, dtype=values.dtype.newbyteorder("<"))
+
+
+def _compressed(values: np.ndarray) -> bytes:
+    """One DataArray of VTK's appended raw data, zlib compressed: a UInt64 header (number of
+    blocks, block size, size of the last block, compressed size of each block), the blocks."""
+    raw = values.tobytes()
+    blocks = [zlib.compress(raw[i : i + _BLOCK], 6) for i in range(0, len(raw), _BLOCK)]
+    last = len(raw) - _BLOCK * (len(blocks) - 1) if blocks else 0
+    header = np.array([len(blocks), _BLOCK, last, *map(len, blocks)], dtype="<u8")
+    return header.tobytes() + b"".join(blocks)
+
+
+def _components(values: np.ndarray) -> int:
+    return values.shape[1] if values.ndim == 2 else 1
+
+
+def write_vtu(path, X, cells, cell_type: int, point_data, cell_data) -> None:
+    """Write one VTK unstructured-grid piece (.vtu, zlib-compressed appended raw binary, as
+    VTK's own writers do): points X (n, 3) mm, ``cells`` (m, k) point indices in VTK order, all
+    of ``cell_type`` (12 hexahedron, 9 quadrilateral), point and cell data {name: array} in the
+    run's units, each written in its own dtype (integers stay integers)."""
+    cells = np.asarray(cells, dtype=np.int64)
+    arrays = [
+        ("Points", None, np.asarray(X, dtype=np.float64).reshape(-1, 3)),
+        ("Cells", "connectivity", cells.ravel()),
+        ("Cells", "offsets", cells.shape[1] * np.arange(1, len(cells) + 1, dtype=np.int64)),
+        ("Cells", "types", np.full(len(cells), cell_type, dtype=np.uint8)),
+        *(("PointData", k, v) for k, v in point_data.items()),
+        *(("CellData", k, v) for k, v in cell_data.items()),
+    ]
+    sections: dict[str, list[str]] = {"Points": [], "Cells": [], "PointData": [], "CellData": []}
+    payload, offset = [], 0
+    for section, name, values in arrays:
+        values = _vtk_array(values)
+        data = _compressed(values)
+        label = f' Name="{name}"' if name else ""
+        sections[section].append(
+            f'<DataArray type="{_VTK_TYPES[values.dtype.newbyteorder("=")]}"{label} '
+            f'NumberOfComponents="{_components(values)}" format="appended" offset="{offset}"/>'
+        )
+        payload.append(data)
+        offset += len(data)
+    xml = (
+        '<?xml version="1.0"?>\n<VTKFile type="UnstructuredGrid" version="1.0" '
+        'byte_order="LittleEndian" header_type="UInt64" '
+        'compressor="vtkZLibDataCompressor">\n'
+        f'<UnstructuredGrid><Piece NumberOfPoints="{len(arrays[0][2])}" '
+        f'NumberOfCells="{len(cells)}">\n'
+        + "".join(f"<{k}>{''.join(v)}</{k}>\n" for k, v in sections.items())
+        + '</Piece></UnstructuredGrid>\n<AppendedData encoding="raw">\n_'
     )
-
-
-def write_vtu(path, X, connectivity, offsets, types, point_data, cell_data) -> None:
-    """Write one VTK unstructured-grid piece: points X (n, 3) mm, cells as VTK connectivity,
-    offsets and types, point and cell data {name: array} in the run's units."""
-    pd = "".join(_data_array(k, v, 3 if np.ndim(v) == 2 else 1) for k, v in point_data.items())
-    cd = "".join(_data_array(k, v) for k, v in cell_data.items())
-    path.write_text(
-        '<?xml version="1.0"?>\n<VTKFile type="UnstructuredGrid" version="0.1" '
-        'byte_order="LittleEndian" header_type="UInt32">\n'
-        f'<UnstructuredGrid><Piece NumberOfPoints="{len(X)}" NumberOfCells="{len(types)}">\n'
-        '<Points><DataArray type="Float64" NumberOfComponents="3" format="binary">'
-        f"{_encode(X, '<f8')}</DataArray></Points>\n"
-        '<Cells><DataArray type="Int64" Name="connectivity" format="binary">'
-        f"{_encode(connectivity, '<i8')}</DataArray>"
-        '<DataArray type="Int64" Name="offsets" format="binary">'
-        f"{_encode(offsets, '<i8')}</DataArray>"
-        '<DataArray type="UInt8" Name="types" format="binary">'
-        f"{_encode(types, 'u1')}</DataArray></Cells>\n"
-        f"<PointData>{pd}</PointData>\n<CellData>{cd}</CellData>\n"
-        "</Piece></UnstructuredGrid></VTKFile>\n"
-    )
+    path.write_bytes(xml.encode() + b"".join(payload) + b"\n</AppendedData></VTKFile>\n")
 
 
 def _write_pvtu(path, name, ranks, point_data, cell_data) -> None:
     def declare(data):
         return "".join(
-            f'<PDataArray type="Float64" Name="{k}" '
-            f'NumberOfComponents="{3 if np.ndim(v) == 2 else 1}"/>'
+            f'<PDataArray type="{_VTK_TYPES[_vtk_array(v).dtype.newbyteorder("=")]}" '
+            f'Name="{k}" NumberOfComponents="{_components(np.asarray(v))}"/>'
             for k, v in data.items()
         )
 
     pieces = "".join(f'<Piece Source="{name}_r{r}.vtu"/>' for r in range(ranks))
     path.write_text(
-        '<?xml version="1.0"?>\n<VTKFile type="PUnstructuredGrid" version="0.1">\n'
+        '<?xml version="1.0"?>\n<VTKFile type="PUnstructuredGrid" version="1.0" '
+        'byte_order="LittleEndian" header_type="UInt64">\n'
         '<PUnstructuredGrid GhostLevel="0"><PPoints><PDataArray type="Float64" '
         'NumberOfComponents="3"/></PPoints>'
         f"<PPointData>{declare(point_data)}</PPointData>"
@@ -478,15 +594,23 @@ def _write_pvtu(path, name, ranks, point_data, cell_data) -> None:
 
 
 class FieldOutputs(Observer):
-    """All field outputs of a run: the base displacement (VTX), the enriched mesh and the
-    ply-by-ply results (VTU series). ``record``: the run folder's ``RunFolder.record``. An
-    observer of the solver (``on_fields``)."""
+    """All field outputs of a run: the base displacement (XDMF), the enriched mesh, the
+    cohesive elements and the ply-by-ply results (VTU series), limited as ``selection`` says.
+    ``record``: the run folder's ``RunFolder.record``. An observer of the solver
+    (``on_fields``)."""
 
-    def __init__(self, out_dir: Path, structure, record: Callable[..., None] | None = None):
+    def __init__(
+        self,
+        out_dir: Path,
+        structure,
+        record: Callable[..., None] | None = None,
+        selection: FieldSelection | None = None,
+    ):
         self.writers = [
             FieldWriter(out_dir, [structure.base.u], record),
-            ElementWriter(out_dir, structure, record),
-            PlyWriter(out_dir, structure, record),
+            ElementWriter(out_dir, structure, record, selection),
+            CohesiveWriter(out_dir, structure, record, selection),
+            PlyWriter(out_dir, structure, record, selection),
         ]
 
     def __call__(self, t: float) -> None:

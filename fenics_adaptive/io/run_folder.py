@@ -39,9 +39,10 @@ LOCK = ".fenics-adaptive.lock"
 
 # The names the program gives to what it writes, as paths relative to the run folder. One
 # table for both --overwrite and the check that no such file is left unlisted.
+# (displacement.bp/: the ADIOS2 folder earlier versions wrote, still removed by --overwrite)
 _FIELDS = (
-    r"elements\.pvd|plies\.pvd"
-    r"|elements/elements_\d+(_r\d+)?\.p?vtu|plies/plies_\d+(_r\d+)?\.p?vtu"
+    r"elements\.pvd|plies\.pvd|cohesive\.pvd|displacement\.xdmf|displacement\.h5"
+    r"|(elements|plies|cohesive)/(elements|plies|cohesive)_\d+(_r\d+)?\.p?vtu"
     r"|displacement\.bp/(data\.\d+|md\.\d+|md\.idx|mmd\.\d+|profiling\.json)"
 )
 _OWN_FILE = re.compile(
@@ -51,7 +52,7 @@ _OWN_FILE = re.compile(
     rf"|{_FIELDS}|restart_step\d+/({_FIELDS}))"
 )
 _OWN_FOLDER = re.compile(
-    r"((restart_step\d+/)?(displacement\.bp|elements|plies)|checkpoint(\.partial|\.old)?"
+    r"((restart_step\d+/)?(displacement\.bp|elements|plies|cohesive)|checkpoint(\.partial|\.old)?"
     r"|restart_step\d+)"
 )
 # folders a library fills with files of its own naming (ADIOS2): a listed folder of this kind
@@ -193,18 +194,6 @@ class RunFolder:
             raise self._in_use(holder)
         if fresh:
             self._removals()
-            library = path / "displacement.bp"
-            foreign = [
-                e.name
-                for e in (sorted(library.iterdir()) if library.is_dir() else ())
-                if not is_own_name(f"{library.name}/{e.name}")
-            ]
-            if foreign:
-                raise InputError(
-                    "--out",
-                    f"{library} holds files this program did not write ({', '.join(foreign[:3])})"
-                    "; the field writer (ADIOS2) replaces that folder whole: move them first",
-                )
 
     def _in_use(self, info: dict) -> InputError:
         return InputError(

@@ -30,6 +30,7 @@ Sections (see demos/*.toml for complete examples and ``config_schema`` for every
                  max_steps (default 1e9: more steps are refused), energy_error_limit (share of
                  the largest energy of the run the energy balance error may reach)
   [output]       interval (s between history rows), fields_interval (s, optional),
+                 fields_plies, fields_box (mm), ply_fields_every (what the field files hold),
                  checkpoint_interval (steps, optional), displacement_face, reaction_face,
                  component
   [impactor]     shape ("sphere" | "cylinder", axis along y), radius (mm), mass (tonne),
@@ -77,7 +78,7 @@ from fenics_adaptive.settings.schema import (
     implausible,
     section,
 )
-from fenics_adaptive.settings.solver import Probe, SolverSettings
+from fenics_adaptive.settings.solver import FieldSelection, Probe, SolverSettings
 
 BASE_FACES = ("x0", "x1", "y0", "y1", "bottom", "top")
 SIDE_FACES = ("x0", "x1", "y0", "y1")
@@ -124,6 +125,7 @@ class RunConfig:
     impactor: Impactor | None = None
     matrix_strength: tuple[MatrixStrength, ...] = ()
     cohesive: CohesiveLaw | None = None
+    fields: FieldSelection = field(default_factory=FieldSelection)
     source: str = "<memory>"
 
     @property
@@ -339,7 +341,13 @@ class _Table:
         if name not in self.data:
             return value
         spec = self.schema.key(name)
-        what = f"[{', '.join('xyz')}]" if spec.length == 3 else "a non-empty list of numbers"
+        what = (
+            f"[{', '.join('xyz')}]"
+            if spec.length == 3
+            else f"a list of {spec.length} numbers"
+            if spec.length
+            else "a non-empty list of numbers"
+        )
         unit = f" in {spec.unit}" if spec.unit else ""
         _expect(
             value,
@@ -495,7 +503,7 @@ def parse_config(data: dict, source: str = "<memory>", seen: set[str] | None = N
     _check_failure_data(laminate, failures, model.ply_damage, indicators)
     flaws = _matrix_strength(root, model.ply_damage, laminate, mesh)
     motions, loads = _motions_and_loads(root, model.kind, faces, mesh, split, interfaces)
-    solver, probe = _solver_and_output(root, faces, mesh, split, motions)
+    solver, probe, fields = _solver_and_output(root, faces, mesh, split, motions, laminate.n_plies)
     return RunConfig(
         kind=model.kind,
         points_per_ply=model.points_per_ply,
@@ -515,6 +523,7 @@ def parse_config(data: dict, source: str = "<memory>", seen: set[str] | None = N
         impactor=impactor,
         matrix_strength=flaws,
         cohesive=cohesive,
+        fields=fields,
         source=source,
     )
 
@@ -676,13 +685,34 @@ def _solver_and_output(
     mesh: MeshConfig,
     split: tuple[bool, ...],
     motions: list[PrescribedMotion],
-) -> tuple[SolverSettings, Probe]:
-    """[solver] then [output]: the time integration and output settings, and the probe."""
+    n_plies: int,
+) -> tuple[SolverSettings, Probe, FieldSelection]:
+    """[solver] then [output]: the time integration and output settings, the probe and what
+    the field files hold."""
     solver_options = _solver_options(root.table("solver"))
-    output_options, probe = _output(
-        root.table("output"), solver_options["end_time"], faces, mesh, split, motions
+    table = root.table("output")
+    output_options, probe = _output(table, solver_options["end_time"], faces, mesh, split, motions)
+    fields = _field_selection(table, n_plies)
+    return SolverSettings(**solver_options, **output_options), probe, fields
+
+
+def _field_selection(table: _Table, n_plies: int) -> FieldSelection:
+    """[output] fields_plies, fields_box, ply_fields_every."""
+    plies = table.integers("fields_plies", high=n_plies)
+    box = table.numbers("fields_box")
+    if box is not None:
+        for axis, (low, high) in zip("xyz", zip(box[0::2], box[1::2], strict=True), strict=True):
+            if low > high:
+                raise InputError(
+                    table.key("fields_box"),
+                    f"{axis}_min {low:g} mm is above {axis}_max {high:g} mm; the box is "
+                    "[x_min, x_max, y_min, y_max, z_min, z_max]",
+                )
+    return FieldSelection(
+        plies=tuple(sorted(plies)) if plies else None,
+        box=box,
+        ply_every=table.integer("ply_fields_every"),
     )
-    return SolverSettings(**solver_options, **output_options), probe
 
 
 def _solver_options(table: _Table) -> dict[str, Any]:

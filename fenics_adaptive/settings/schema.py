@@ -568,6 +568,31 @@ SECTIONS: tuple[Section, ...] = (
                 open_min=True,
             ),
             Key(
+                "fields_plies",
+                "ints",
+                "plies (1-based) in the ply field file plies.pvd (default: all)",
+                "",
+                OPTIONAL,
+                1,
+            ),
+            Key(
+                "fields_box",
+                "floats",
+                "field files hold only the elements whose centroid lies in "
+                "[x_min, x_max, y_min, y_max, z_min, z_max] (default: all)",
+                "mm",
+                OPTIONAL,
+                length=6,
+            ),
+            Key(
+                "ply_fields_every",
+                "int",
+                "the ply field file at every n-th field output only",
+                "",
+                1,
+                1,
+            ),
+            Key(
                 "checkpoint_interval",
                 "int",
                 "steps between checkpoints (default: none)",

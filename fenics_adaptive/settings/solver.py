@@ -39,3 +39,22 @@ class Probe:
     reaction_face: str
     component: str
     displacement_x: tuple[float, float] | None = None  # only the face's nodes in this x range
+
+
+@dataclass(frozen=True)
+class FieldSelection:
+    """What of the model the field files hold ([output] fields_plies, fields_box,
+    ply_fields_every): the element, cohesive and ply files only the elements whose reference
+    centroid lies in ``box`` (x_min, x_max, y_min, y_max, z_min, z_max; mm; None: all), the ply
+    file only the plies ``plies`` (1-based; None: all), and only every ``ply_every``-th field
+    output (the ply file is the largest: one hexahedron per ply per element)."""
+
+    plies: tuple[int, ...] | None = None
+    box: tuple[float, ...] | None = None
+    ply_every: int = 1
+
+    def __post_init__(self) -> None:
+        if self.box is not None and len(self.box) != 6:
+            raise ValueError(f"box needs 6 numbers (x_min, x_max, ...), got {len(self.box)}")
+        if self.ply_every < 1:
+            raise ValueError(f"ply_every must be at least 1 (got {self.ply_every})")
