@@ -3,8 +3,10 @@
 # The image brings DOLFINx 0.11.0 (real PETSc, MPICH), Python 3.12, numpy, mpi4py and petsc4py.
 # The native install (scripts/install.sh) takes the same DOLFINx release from the
 # dolfinx-solver-real wheel pinned in requirements/native.txt. Every other dependency comes from
-# requirements/common.txt, the file native.txt includes, so both installs get the same pins.
-# tests/test_packaging.py checks that the two stay in step.
+# requirements/common.txt, the file native.txt includes, under the constraints of
+# requirements/lock.txt (everything they bring, pinned), so both installs get the same versions.
+# gmsh: the image's own if it has one, else the pinned wheel (requirements/gmsh.txt) with the
+# libraries it links against; never both. tests/test_packaging.py checks that these stay in step.
 #
 #   docker build -t fenics-adaptive .
 #   docker run --rm -v "$PWD/results:/results" fenics-adaptive
@@ -19,17 +21,21 @@ ENV PYTHONUNBUFFERED=1 \
     PIP_DISABLE_PIP_VERSION_CHECK=1 \
     PIP_ROOT_USER_ACTION=ignore
 
-# Shared libraries the gmsh wheel links against (the base image has most of them already).
-RUN apt-get update \
-    && apt-get install -y --no-install-recommends \
-        libglu1-mesa libxcursor1 libxft2 libxinerama1 libxrender1 \
-    && rm -rf /var/lib/apt/lists/*
-
 # python3 and pip are those of the image's virtual environment (/dolfinx-env, first on PATH),
 # where DOLFINx's Python packages live.
 WORKDIR /opt/fenics-adaptive
 COPY requirements/ requirements/
-RUN python3 -m pip install --no-cache-dir -r requirements/common.txt -r requirements/docs.txt
+RUN python3 -m pip install --no-cache-dir -c requirements/lock.txt \
+        -r requirements/common.txt -r requirements/docs.txt
+RUN if python3 -c 'import gmsh' 2>/dev/null; then \
+        echo "gmsh: the image's own, $(python3 -c 'import gmsh; print(gmsh.__version__)')"; \
+    else \
+        apt-get update \
+        && apt-get install -y --no-install-recommends \
+            libglu1-mesa libxcursor1 libxft2 libxinerama1 libxrender1 \
+        && rm -rf /var/lib/apt/lists/* \
+        && python3 -m pip install --no-cache-dir -c requirements/lock.txt -r requirements/gmsh.txt; \
+    fi
 COPY . .
 RUN python3 -m pip install --no-cache-dir --no-deps . \
     && cd / \

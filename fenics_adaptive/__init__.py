@@ -22,8 +22,14 @@ The names are imported on first use, so that ``import fenics_adaptive`` (and
 
 from importlib import import_module
 
-# mpi4py first: the DOLFINx wheel finds libmpi through it, whatever order modules import in.
-from mpi4py import MPI  # noqa: F401
+# mpi4py first: the DOLFINx wheel finds libmpi through it, whatever order modules import in
+# (a script of one's own that imports dolfinx before anything else must do the same). Without
+# it (an install without DOLFINx's stack) the package still imports: the command line then says
+# what is missing (``cli.missing_runtime``).
+try:
+    from mpi4py import MPI  # noqa: F401
+except ImportError:
+    pass
 
 __version__ = "0.1.0"
 

@@ -38,6 +38,8 @@ exit status:
   1    the run failed (diverged, an element inverted, the energy balance broke, ...):
        one line on stderr; FENICS_ADAPTIVE_TRACEBACK=1 shows where
   2    bad input: one line on stderr naming the file and the key
+  3    the installation is incomplete: DOLFINx, mpi4py, numba or gmsh cannot be imported
+       (one line says which and how to install it)
   130  interrupted (Ctrl-C, SIGTERM): in the time loop after writing a checkpoint (the
        line says how to continue with --restart); during start-up nothing was run
 
@@ -108,6 +110,12 @@ def _command(argv: list[str] | None, interrupt: _StartupInterrupt) -> int:
     args = parser.parse_args(argv)
     if args.command == "init":
         return _init(Path(args.path), args.force)
+    if args.command == "demo" and args.name is None:
+        return _demo(None, [], interrupt)  # the list needs no runtime
+    missing = missing_runtime()
+    if missing:
+        print(f"fenics-adaptive: {missing}", file=sys.stderr)
+        return 3
     if args.command == "demo":
         return _demo(args.name, args.demo_args, interrupt)
 
@@ -157,6 +165,37 @@ def _command(argv: list[str] | None, interrupt: _StartupInterrupt) -> int:
             "(FENICS_ADAPTIVE_TRACEBACK=1 shows where)",
         )
     return 0
+
+
+# What a run imports, with what to say when it cannot: (module, name, how to get it)
+_NATIVE = (
+    'pip install "fenics-adaptive[native]" (Python >= 3.12), or the Docker image (docs/docker.md)'
+)
+_GMSH_LIBRARIES = "libglu1-mesa libxcursor1 libxft2 libxinerama1 libxrender1"
+RUNTIME = (
+    ("mpi4py.MPI", "mpi4py (MPI)", _NATIVE),
+    ("dolfinx", "DOLFINx", _NATIVE),
+    ("numba", "numba", "pip install numba (requirements/common.txt pins the version)"),
+    (
+        "gmsh",
+        "gmsh",
+        f"pip install gmsh; its wheel needs the system libraries {_GMSH_LIBRARIES} "
+        f"(Debian/Ubuntu: apt-get install {_GMSH_LIBRARIES})",
+    ),
+)
+
+
+def missing_runtime() -> str | None:
+    """One line naming the first module of ``RUNTIME`` that cannot be imported, why, and how
+    to install it; None when all import."""
+    import importlib
+
+    for module, name, how in RUNTIME:
+        try:
+            importlib.import_module(module)
+        except ImportError as error:
+            return f"{name} cannot be imported ({error}); install it: {how}"
+    return None
 
 
 def _init(path: Path, force: bool) -> int:

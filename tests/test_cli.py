@@ -247,3 +247,41 @@ def test_demo_runs_from_the_package_and_checks_itself(tmp_path):
     summary = json.loads((out / "summary.json").read_text())
     assert abs(summary["beam_theory"]["relative_difference"]) < 0.03
     assert (out / "cantilever_vs_beam_theory.png").stat().st_size > 0
+
+
+# ------------------------------------------------------------------ an incomplete install
+_WITHOUT = """
+import sys
+
+class Refuse:
+    def find_spec(self, name, path=None, target=None):
+        if name.split(".")[0] in sys.argv[1].split(","):
+            raise ImportError(f"No module named {name!r}")
+
+sys.meta_path.insert(0, Refuse())
+from fenics_adaptive.cli import main
+sys.exit(main(sys.argv[2:]))
+"""
+
+
+@pytest.mark.parametrize(
+    ("missing", "named"),
+    [("dolfinx", "DOLFINx"), ("mpi4py,dolfinx", "mpi4py"), ("gmsh", "libglu1-mesa")],
+)
+def test_a_missing_dependency_is_one_line_with_how_to_install_it(missing, named):
+    def cli(*args):
+        return subprocess.run(
+            [sys.executable, "-c", _WITHOUT, missing, *map(str, args)],
+            capture_output=True,
+            text=True,
+        )
+
+    result = cli("check", SMALL)
+    assert result.returncode == 3, result.stderr
+    (line,) = result.stderr.strip().splitlines()
+    assert named in line and "install" in line and "Traceback" not in line
+    if missing != "gmsh":
+        assert "fenics-adaptive[native]" in line
+    # what needs no runtime still answers
+    assert cli("--version").returncode == 0
+    assert cli("demo").returncode == 0

@@ -127,7 +127,7 @@ def docker_requirement_files() -> list[Path]:
         if keyword == "RUN" and "pip install" in rest:
             words = shlex.split(rest)
             files += [
-                ROOT / words[k + 1]
+                ROOT / words[k + 1].rstrip(";")  # a shell command may end at the file
                 for k, w in enumerate(words[:-1])
                 if w in ("-r", "--requirement")
             ]
@@ -217,7 +217,7 @@ def test_requirement_files_are_copied_before_they_are_installed():
             words = shlex.split(rest)
             for k, w in enumerate(words[:-1]):
                 if w in ("-r", "--requirement"):
-                    path = words[k + 1]
+                    path = words[k + 1].rstrip(";")
                     assert any(c == "." or path == c or path.startswith(c + "/") for c in copied), (
                         f"RUN installs {path} before any COPY brings it into the image"
                     )
@@ -419,3 +419,87 @@ def test_every_marker_the_tests_use_is_registered():
     used -= PYTEST_BUILTIN_MARKERS
     assert used, "the scan found no marker"
     assert used <= registered, f"markers used but not registered: {sorted(used - registered)}"
+
+
+# ------------------------------------------------------------------ (f) the lock
+LOCK = ROOT / "requirements" / "lock.txt"
+# tools of the environment, not dependencies of the project
+NOT_LOCKED = {"pip", "fenics-adaptive"}
+
+
+def lock() -> dict[str, str]:
+    """Canonical name -> pinned version of requirements/lock.txt."""
+    out = {}
+    for line in requirement_lines(LOCK):
+        requirement = Requirement(line)
+        (specifier,) = requirement.specifier
+        assert specifier.operator == "==", f"lock.txt: {line} is not an exact pin"
+        name = canonicalize_name(requirement.name)
+        assert name not in out, f"lock.txt pins {name} twice"
+        out[name] = specifier.version
+    return out
+
+
+def test_the_lock_pins_every_requirement_at_its_version():
+    locked = lock()
+    files = [*install_script_requirement_files(), *docker_requirement_files()]
+    for name, requirement in pins(files).items():
+        (specifier,) = requirement.specifier
+        assert locked.get(name) == specifier.version, (
+            f"{requirement} but lock.txt pins {name}=={locked.get(name)}: run scripts/lock.sh"
+        )
+
+
+def test_the_lock_holds_every_distribution_of_this_install():
+    """Where the native install runs these tests, every distribution it holds is locked at
+    the version it holds: a fresh install under the lock is this one."""
+    try:
+        importlib.metadata.version(DOLFINX_WHEEL)
+    except importlib.metadata.PackageNotFoundError:
+        pytest.skip("not the native install (the Docker image has its own DOLFINx stack)")
+    locked = lock()
+    installed = {
+        canonicalize_name(d.metadata["Name"]): d.version for d in importlib.metadata.distributions()
+    }
+    differ = {
+        name: (version, locked.get(name))
+        for name, version in installed.items()
+        if name not in NOT_LOCKED and locked.get(name) != version
+    }
+    assert not differ, f"installed vs locked (run scripts/lock.sh): {differ}"
+
+
+def test_every_pip_install_is_constrained_by_the_lock():
+    lines = [
+        line for line in INSTALL_SCRIPT.read_text().splitlines() if re.search(r"pip install", line)
+    ]
+    lines += [rest for keyword, rest in dockerfile_instructions() if keyword == "RUN"]
+    requirement_installs = [line for line in lines if re.search(r"pip install[^\n]* -r ", line)]
+    assert len(requirement_installs) >= 4
+    text = INSTALL_SCRIPT.read_text()
+    assert re.search(r'lock=\(-c "\$root/requirements/lock\.txt"\)', text)
+    for line in requirement_installs:
+        for segment in re.split(r"&&|;", line):
+            if "pip install" in segment and " -r " in segment:
+                assert "-c requirements/lock.txt" in segment or '"${lock[@]}"' in segment, (
+                    f"installs without the lock: {segment.strip()}"
+                )
+
+
+def test_docker_takes_gmsh_from_the_image_or_the_wheel_never_both():
+    (run,) = [
+        rest for keyword, rest in dockerfile_instructions() if "requirements/gmsh.txt" in rest
+    ]
+    condition, wheel = run.split("else", 1)
+    assert "import gmsh" in condition and "pip install" not in condition
+    assert "pip install" in wheel and "libglu1-mesa" in wheel
+    common = requirement_lines(ROOT / "requirements" / "common.txt")
+    assert not any(canonicalize_name(Requirement(r).name) == "gmsh" for r in common
+                   if not r.startswith("-"))  # fmt: skip
+
+
+def test_the_native_extra_brings_the_pinned_dolfinx_wheel():
+    extra = [Requirement(r) for r in pyproject()["project"]["optional-dependencies"]["native"]]
+    native = pins([ROOT / "requirements" / "native.txt"])
+    assert [canonicalize_name(r.name) for r in extra] == [DOLFINX_WHEEL]
+    assert extra[0].specifier == native[DOLFINX_WHEEL].specifier
