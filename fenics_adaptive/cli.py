@@ -199,9 +199,9 @@ def missing_runtime() -> str | None:
 
 
 def _init(path: Path, force: bool) -> int:
-    """Write the starting config (``templates/case.toml``) to ``path``; never over a file
+    """Write the starting config (``settings/case_template.toml``) to ``path``; never over a file
     unless ``force``."""
-    template = Path(__file__).parent / "templates" / "case.toml"
+    template = Path(__file__).parent / "settings" / "case_template.toml"
     if path.is_dir():
         print(f"fenics-adaptive: init: {path} is a folder; name the file to write", file=sys.stderr)
         return 2
