@@ -2,9 +2,10 @@
 [--overwrite]``, ``fenics-adaptive check CONFIG.toml``, ``fenics-adaptive demo [NAME ...]``
 (the demos the package holds) and ``fenics-adaptive init CASE.toml`` (a starting config).
 
-Exit status: 0 done, 2 bad input (one line on stderr naming the key), 1 the run failed, 130 the
-run was interrupted (SIGINT or SIGTERM) after writing a checkpoint to continue from, or by
-Ctrl-C during start-up (one line: nothing was run).
+Exit status: 0 done, 2 bad input (one line on stderr naming the key), 1 the run failed, 3 the
+installation is incomplete (``missing_runtime``), 130 the run was interrupted (SIGINT or
+SIGTERM) after writing a checkpoint to continue from, or by Ctrl-C during start-up (one line:
+nothing was run).
 
 ``check`` builds the model without running it and reports its size, the time step, the number
 of steps (the count the run takes; refused above ``[solver] max_steps``), history rows and field
@@ -341,9 +342,20 @@ def _check(config_path: str, config, simulation, comm) -> int:
             f"to {solver.end_time:.4e} s (solver.max_steps = {solver.max_steps})\n"
             f"  output: {rows} history rows, {frames} field frames{checkpoints}\n"
             f"  estimate: peak memory {memory / 1e9:.3g} GB (all ranks), wall time "
-            f"{_duration(wall)}{refined}"
+            f"{_duration(wall)}{refined}{_compile_note(config)}"
         )
     return 0
+
+
+def _compile_note(config) -> str:
+    """What a first run adds before its time loop, when numba's cache lacks kernels."""
+    from fenics_adaptive import kernels
+
+    variant = kernels.variant_of(config)
+    share = len(kernels.missing(variant)) / len(kernels.kernels())
+    if not share:
+        return ""
+    return f", plus about {kernels.COLD_SECONDS[variant] * share:.0f} s compiling kernels first"
 
 
 def _duration(seconds: float) -> str:

@@ -17,7 +17,7 @@ import numba
 from mpi4py import MPI
 
 import fenics_adaptive
-from fenics_adaptive import watchdog
+from fenics_adaptive import kernels, watchdog
 from fenics_adaptive.adaptivity.events import RefinementEvent
 from fenics_adaptive.errors import InputError, shared_errors
 from fenics_adaptive.io import checkpoint, output
@@ -77,6 +77,9 @@ def execute(
     say = log if (log is not None and comm.rank == 0) else (lambda _: None)
     summary = _summary_at_start(config, simulation, comm)
     _announce(config, simulation, summary, say)
+    # still start-up: a first run's numba compilation is announced, stops at Ctrl-C and stays
+    # out of the time loop and its timings
+    summary["kernel_compile_time_s"] = kernels.prepare(config, comm, say)
 
     # the config and the model are checked: only now is anything in the folder removed
     folder.open(fresh)
