@@ -344,6 +344,10 @@ def _check(config_path: str, config, simulation, comm) -> int:
             f"  estimate: peak memory {memory / 1e9:.3g} GB (all ranks), wall time "
             f"{_duration(wall)}{refined}{_compile_note(config)}"
         )
+        from fenics_adaptive.element.rules import integration_warnings
+
+        for line in integration_warnings(config.layer_laminates(), config.points_per_ply):
+            print(f"  {line}")
     return 0
 
 

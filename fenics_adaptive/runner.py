@@ -19,6 +19,7 @@ from mpi4py import MPI
 import fenics_adaptive
 from fenics_adaptive import kernels, watchdog
 from fenics_adaptive.adaptivity.events import RefinementEvent
+from fenics_adaptive.element.rules import integration_warnings
 from fenics_adaptive.errors import InputError, shared_errors
 from fenics_adaptive.io import checkpoint, output
 from fenics_adaptive.io.refinement_log import FILE_NAME as LOG_FILE
@@ -212,6 +213,8 @@ def _announce(
         f"safety factor {step['safety_factor']}, limited by {step['limited_by']}), "
         f"{n_steps} steps to {config.solver.end_time:.4e} s"
     )
+    for line in integration_warnings(config.layer_laminates(), config.points_per_ply):
+        say(line)
 
 
 def _refinement_log(

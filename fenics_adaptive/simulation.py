@@ -80,7 +80,13 @@ def build_structure(
         [laminate.thickness for laminate in layers],
         [b in config.interfaces.delaminate for b in boundaries],
     )
-    model = build_model(beam, layers, config.points_per_ply, kinematics=config.kinematics)
+    model = build_model(
+        beam,
+        layers,
+        config.points_per_ply,
+        kinematics=config.kinematics,
+        shear_correction=config.shear_correction,
+    )
     motions = list(config.motions)
     cohesive = None
     params = config.cohesive.as_array() if config.cohesive is not None else None

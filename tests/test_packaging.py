@@ -10,6 +10,7 @@ import json
 import re
 import shlex
 import sys
+import sysconfig
 import tomllib
 from pathlib import Path, PurePosixPath
 
@@ -458,8 +459,12 @@ def test_the_lock_holds_every_distribution_of_this_install():
     except importlib.metadata.PackageNotFoundError:
         pytest.skip("not the native install (the Docker image has its own DOLFINx stack)")
     locked = lock()
+    # the environment's own site-packages: not the copies setuptools vendors and puts on
+    # sys.path once imported (as FFCx's compiler does)
+    folders = sorted({sysconfig.get_paths()["purelib"], sysconfig.get_paths()["platlib"]})
     installed = {
-        canonicalize_name(d.metadata["Name"]): d.version for d in importlib.metadata.distributions()
+        canonicalize_name(d.metadata["Name"]): d.version
+        for d in importlib.metadata.distributions(path=folders)
     }
     differ = {
         name: (version, locked.get(name))

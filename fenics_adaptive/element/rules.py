@@ -23,7 +23,7 @@ from fenics_adaptive.element.subelement import (
     solid_shell_lumped_masses,
     sublaminate_ply_zeta,
 )
-from fenics_adaptive.materials.laminate import Laminate
+from fenics_adaptive.materials.laminate import Laminate, shear_correction_factors
 
 # A one-ply (sub)element with one Gauss point through its thickness bends with zero energy (an
 # hourglass mode through the thickness): it always gets at least this many.
@@ -41,9 +41,12 @@ def points_through_ply(n_plies: int, points_per_ply: int) -> int:
 class RuleTable:
     """Packed rules of all spans [first, stop) of the plies of ``laminate``, in the order
     (0, 1), (0, 2), ..., (0, n), (1, 2), ... (``spans``); ``points_per_ply``: Gauss points
-    through each ply of spans of more than one ply."""
+    through each ply of spans of more than one ply; ``shear_correction``: each span's transverse
+    shear correction from the whole laminate's shear distribution
+    (``materials.laminate.shear_correction_factors``; (1, 1) without), as the UFL forms of the
+    same spans have it (``model.forms.LayeredModel.shear_factors``)."""
 
-    def __init__(self, laminate: Laminate, points_per_ply: int):
+    def __init__(self, laminate: Laminate, points_per_ply: int, shear_correction: bool = False):
         n = laminate.n_plies
         fractions = laminate.ply_fractions
         stiffness = np.array(laminate.ply_stiffnesses())
@@ -52,6 +55,7 @@ class RuleTable:
         ply_speeds = np.array([p.material.dilatational_wave_speed() for p in laminate.plies])
         self.n_plies = n
         self.points_per_ply = points_per_ply
+        self.shear_correction = shear_correction
         self.spans: list[tuple[int, int]] = []
         self.rules: list[PackedRule] = []
         self.mass_rules: list[PackedMassRule] = []
@@ -65,7 +69,12 @@ class RuleTable:
                 self._speed_of_plies[first, stop] = ply_speeds[first:stop].max()
                 self.spans.append((first, stop))
                 points = points_through_ply(stop - first, points_per_ply)
-                self.rules.append(pack_rule(zeta, stiffness[first:stop], points))
+                factors = (
+                    shear_correction_factors(laminate, first, stop)
+                    if shear_correction
+                    else (1.0, 1.0)
+                )
+                self.rules.append(pack_rule(zeta, stiffness[first:stop], points, factors))
                 self.mass_rules.append(pack_mass_rule(zeta, density[first:stop]))
         self.packed: PackedRules = concatenate_rules(self.rules)
 
@@ -107,3 +116,50 @@ class RuleTable:
             rule = self.mass_rule(*divmod(int(span), self.n_plies + 1))
             masses[members] = solid_shell_lumped_masses(X[members], *rule)
         return masses
+
+
+def bending_stiffness_error(laminate: Laminate, points_per_ply: int) -> float:
+    """Relative error of the bending stiffnesses D_11 and D_22 (the larger of the two) of an
+    element of ``laminate`` as its rule integrates them through the thickness with
+    ``points_per_ply`` Gauss points in each ply, against the exact integral (about the neutral
+    plane, each ply's reduced plane-stress moduli). Negative: too flexible. One point per ply
+    misses each ply's own h^3 / 12: about -1 / n^2 for n equal plies; two points are exact."""
+    from fenics_adaptive.element.solid_shell import gauss_legendre_01
+    from fenics_adaptive.materials.laminate import reduced_plane_stress_stiffness
+
+    z = laminate.ply_fractions * laminate.thickness
+    h = np.diff(z)
+    Q = np.array([reduced_plane_stress_stiffness(ply.stiffness()) for ply in laminate.plies])
+    s, w = gauss_legendre_01(points_per_ply)
+    worst = 0.0
+    for i in (0, 1):
+        E = Q[:, i, i]
+        z_n = np.sum(E * (z[1:] ** 2 - z[:-1] ** 2) / 2) / np.sum(E * h)
+        exact = np.sum(E * ((z[1:] - z_n) ** 3 - (z[:-1] - z_n) ** 3) / 3)
+        points = z[:-1, None] + h[:, None] * s[None, :]
+        ruled = np.sum(E[:, None] * h[:, None] * w[None, :] * (points - z_n) ** 2)
+        error = ruled / exact - 1.0
+        worst = error if abs(error) > abs(worst) else worst
+    return float(worst)
+
+
+def integration_warnings(layer_laminates: list[Laminate], points_per_ply: int) -> list[str]:
+    """One line for each mesh layer whose elements' bending stiffness the rule integrates off
+    by more than 0.1 % (``bending_stiffness_error``): what a config with ``points_per_ply = 1``
+    costs in accuracy. Refined subelements of one ply always get two points."""
+    lines = []
+    for k, laminate in enumerate(layer_laminates):
+        error = bending_stiffness_error(laminate, points_per_ply)
+        if abs(error) > 1e-3:
+            where = (
+                f"mesh layer {k + 1} ({laminate.n_plies} plies)"
+                if len(layer_laminates) > 1
+                else f"the laminate ({laminate.n_plies} plies)"
+            )
+            lines.append(
+                f"warning: model.points_per_ply = {points_per_ply} integrates the bending "
+                f"stiffness of {where} {100 * abs(error):.2g} % too "
+                f"{'low' if error < 0 else 'high'} (one point per ply misses each ply's own "
+                "h^3/12); points_per_ply = 2 integrates it exactly"
+            )
+    return lines

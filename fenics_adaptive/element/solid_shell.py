@@ -109,7 +109,27 @@ class PlyGroup:
     mass_weights: np.ndarray
 
 
-def ply_groups(laminate: Laminate, points_per_ply: int) -> list[PlyGroup]:
+def shear_weights(shear_factors: tuple[float, float]) -> dict[str, float]:
+    """The factor on the weights of each energy term for transverse shear correction factors
+    (k_xz, k_yz) (``materials.laminate.shear_correction_factors``): scaling the points' weights
+    scales the term's energy exactly as scaling C_55, C_44 (and C_45 by sqrt(k_xz k_yz)) would,
+    in the elastic and the damaged kernels alike, and leaves the point-averaged strains as
+    they are."""
+    k_xz, k_yz = shear_factors
+    return {
+        "normal": 1.0,
+        "shear_xz": float(k_xz),
+        "shear_yz": float(k_yz),
+        "shear_cross": float(np.sqrt(k_xz * k_yz)),
+    }
+
+
+def ply_groups(
+    laminate: Laminate, points_per_ply: int, shear_factors: tuple[float, float] = (1.0, 1.0)
+) -> list[PlyGroup]:
+    """The plies of an element of ``laminate`` grouped by stiffness, each with its rules;
+    ``shear_factors``: (k_xz, k_yz) on its transverse shear terms (``shear_weights``)."""
+    factor = shear_weights(shear_factors)
     fractions = laminate.ply_fractions
     keys: dict[tuple, list[int]] = {}
     for k, ply in enumerate(laminate.plies):
@@ -131,7 +151,9 @@ def ply_groups(laminate: Laminate, points_per_ply: int) -> list[PlyGroup]:
                 stiffness=ply.stiffness(),
                 rho=ply.material.rho,
                 ply_indices=tuple(indices),
-                rules={t: (np.vstack(p), np.concatenate(w)) for t, (p, w) in rules.items()},
+                rules={
+                    t: (np.vstack(p), factor[t] * np.concatenate(w)) for t, (p, w) in rules.items()
+                },
                 mass_points=np.vstack(mass_points),
                 mass_weights=np.concatenate(mass_weights),
             )

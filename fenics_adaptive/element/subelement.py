@@ -145,7 +145,12 @@ class PackedRule(NamedTuple):
         return np.column_stack([self.positions[self.position_of_point], self.zeta])
 
 
-def pack_rule(ply_zeta: np.ndarray, ply_stiffness: np.ndarray, points_per_ply: int) -> PackedRule:
+def pack_rule(
+    ply_zeta: np.ndarray,
+    ply_stiffness: np.ndarray,
+    points_per_ply: int,
+    shear_factors: tuple[float, float] = (1.0, 1.0),
+) -> PackedRule:
     """Pack the selective solid-shell rule of a (sub)element.
 
     ``ply_zeta``: the bounds of its plies inside its OWN reference thickness [0, 1], bottom to
@@ -155,7 +160,9 @@ def pack_rule(ply_zeta: np.ndarray, ply_stiffness: np.ndarray, points_per_ply: i
     (MPa, Voigt xx, yy, zz, yz, xz, xy, engineering shears), symmetric and monoclinic (no
     normal/transverse-shear coupling: the selective rule drops it). ``points_per_ply``: Gauss
     points through the thickness of each ply. The points are those of ``solid_shell.ply_rules``,
-    ply by ply, and ply k uses ``stiffness[k]``."""
+    ply by ply, and ply k uses ``stiffness[k]``. ``shear_factors``: the (sub)element's transverse
+    shear correction (k_xz, k_yz), on the weights of its shear terms
+    (``solid_shell.shear_weights``)."""
     bounds = _ply_bounds(ply_zeta)
     C = np.ascontiguousarray(ply_stiffness, dtype=np.float64)
     if C.shape != (len(bounds), 6, 6):
@@ -168,10 +175,11 @@ def pack_rule(ply_zeta: np.ndarray, ply_stiffness: np.ndarray, points_per_ply: i
         raise ValueError(f"points_per_ply must be an integer >= 1 (got {points_per_ply})")
     position_index = {(xi, eta): q for q, (xi, eta) in enumerate(IN_PLANE_POSITIONS)}
     points, weights, terms, plies = [], [], [], []
+    factor = solid_shell.shear_weights(shear_factors)
     for k, (lo, hi) in enumerate(bounds):
         for term, (p, w) in solid_shell.ply_rules(lo, hi, int(points_per_ply)).items():
             points.append(p)
-            weights.append(w)
+            weights.append(factor[term] * w)
             terms.append(np.full(len(w), TERM_CODES[term], dtype=np.int64))
             plies.append(np.full(len(w), k, dtype=np.int64))
     points = np.vstack(points)

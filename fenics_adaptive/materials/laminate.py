@@ -223,3 +223,62 @@ def reduced_plane_stress_stiffness(C: np.ndarray) -> np.ndarray:
     S = np.linalg.inv(C)
     in_plane = [0, 1, 5]
     return np.linalg.inv(S[np.ix_(in_plane, in_plane)])
+
+
+def shear_correction_factors(
+    laminate: Laminate, first: int = 0, stop: int | None = None
+) -> tuple[float, float]:
+    """Transverse shear correction factors (k_xz, k_yz) of an element spanning plies
+    [first, stop) of ``laminate`` (default: all of them), for an element whose transverse shear
+    strain is constant through its thickness, as a solid-shell's is.
+
+    The exact distribution of the transverse shear stress in a laminate bent by a shear force
+    Q follows from equilibrium with the plies' bending stresses (Whitney, J. Compos. Mater. 7,
+    1973; the "laminated shell theory" of LS-DYNA's shells): tau_xz(z) = Q g(z) with
+    g(z) = 1/D int_{z_bottom}^{z} E(s) (z_n - s) ds, where E is each ply's reduced plane-stress
+    modulus Qbar_11 (Qbar_22 for yz), z_n the laminate's neutral plane and D its bending
+    stiffness, so that int g dz = 1 over the laminate. On the span [a, b] the element carries
+    the share Q_s = Q int_a^b g dz with a constant strain; its complementary energy equals the
+    exact one, 1/2 Q^2 int_a^b g^2 / G dz, when its shear moduli G(z) (C_55, C_44 in the shell
+    frame) are scaled by
+
+        k = (int_a^b g dz)^2 / (int_a^b G dz * int_a^b g^2 / G dz)   (<= 1, Cauchy-Schwarz).
+
+    A homogeneous section gives 5/6; a thin span inside the laminate, where g hardly varies,
+    tends to 1, so a refined model converges to the layerwise one as its sublaminates thin.
+    The distribution is the laminate's as a whole: that of the intact laminate, which a
+    sublaminate of a delaminated cell only approximates.
+
+    Returns:
+        (k_xz, k_yz), each in (0, 1].
+    """
+    stop = laminate.n_plies if stop is None else stop
+    if not 0 <= first < stop <= laminate.n_plies:
+        raise ValueError(f"no ply span [{first}, {stop}) in a laminate of {laminate.n_plies} plies")
+    z = laminate.ply_fractions * laminate.thickness
+    stiffness = [ply.stiffness() for ply in laminate.plies]
+    in_plane = np.array([reduced_plane_stress_stiffness(C) for C in stiffness])
+    # 3 Gauss points per ply integrate g^2 (a quartic within a ply) exactly
+    x, w = np.polynomial.legendre.leggauss(3)
+    factors = []
+    for modulus, shear in ((in_plane[:, 0, 0], 4), (in_plane[:, 1, 1], 3)):
+        G = np.array([C[shear, shear] for C in stiffness])
+        h = np.diff(z)
+        z_n = np.sum(modulus * (z[1:] ** 2 - z[:-1] ** 2) / 2) / np.sum(modulus * h)
+        D = np.sum(modulus * ((z[1:] - z_n) ** 3 - (z[:-1] - z_n) ** 3) / 3)
+
+        def primitive(k: int, s: np.ndarray, E=modulus, z_n=z_n) -> np.ndarray:
+            """int_{z_k}^{s} E_k (z_n - t) dt within ply k."""
+            return E[k] * (z_n * (s - z[k]) - (s**2 - z[k] ** 2) / 2)
+
+        g_bottom = (
+            np.concatenate([[0.0], np.cumsum([primitive(k, z[k + 1]) for k in range(len(h))])]) / D
+        )
+        share = energy = 0.0
+        for k in range(first, stop):
+            s = z[k] + 0.5 * h[k] * (x + 1)
+            g = g_bottom[k] + primitive(k, s) / D
+            share += 0.5 * h[k] * np.sum(w * g)
+            energy += 0.5 * h[k] * np.sum(w * g**2) / G[k]
+        factors.append(share**2 / (np.sum(G[first:stop] * h[first:stop]) * energy))
+    return factors[0], factors[1]

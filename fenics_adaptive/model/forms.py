@@ -24,7 +24,7 @@ from numba import njit
 
 from fenics_adaptive.element import solid_shell
 from fenics_adaptive.element.timestep import characteristic_lengths
-from fenics_adaptive.materials.laminate import Laminate
+from fenics_adaptive.materials.laminate import Laminate, shear_correction_factors
 from fenics_adaptive.meshes.beam import BeamMesh
 from fenics_adaptive.settings.kinds import Kinematics
 
@@ -61,6 +61,8 @@ class LayeredModel:
     force_form: fem.Form | None = None
     energy_form: fem.Form | None = None
     kinematics: str = "small"  # "small" | "finite" (solid_shell.KINEMATICS)
+    # transverse shear correction of each layer's elements (laminate.shear_correction_factors)
+    shear_correction: bool = False
 
     @property
     def finite(self) -> bool:
@@ -94,8 +96,9 @@ class LayeredModel:
         v = ufl.TestFunction(self.V)
         kernels = solid_shell.SeparateKernels(self.mesh)
         energy = 0
-        for laminate, cells in zip(self.layer_laminates, self.ufl_cells, strict=True):
-            groups = solid_shell.ply_groups(laminate, self.points_per_ply)
+        factors = self.shear_factors()
+        for laminate, cells, k in zip(self.layer_laminates, self.ufl_cells, factors, strict=True):
+            groups = solid_shell.ply_groups(laminate, self.points_per_ply, k)
             energy += solid_shell.strain_energy_form(
                 self.u, groups, kernels, cells, self.selective, self.kinematics
             )
@@ -103,6 +106,25 @@ class LayeredModel:
         self.force_form = fem.form(self.force_ufl, jit_options=JIT_OPTIONS)
         self.energy_form = fem.form(energy, jit_options=JIT_OPTIONS)
         self.packed = PackedDisplacement([self.force_form, self.energy_form], self.u, self.V)
+
+    @property
+    def laminate(self) -> Laminate:
+        """The whole laminate, all layers' plies bottom to top."""
+        return Laminate(tuple(p for layer in self.layer_laminates for p in layer.plies))
+
+    def shear_factors(self) -> list[tuple[float, float]]:
+        """(k_xz, k_yz) of each layer's elements: the whole laminate's shear distribution over
+        the layer's plies, or (1, 1) without ``shear_correction``."""
+        laminate, first, out = self.laminate, 0, []
+        for layer in self.layer_laminates:
+            stop = first + layer.n_plies
+            out.append(
+                shear_correction_factors(laminate, first, stop)
+                if self.shear_correction
+                else (1.0, 1.0)
+            )
+            first = stop
+        return out
 
     def set_kinematics(self, kinematics: str) -> None:
         """Switch the strain measure ("small" or "finite") and rebuild the forms over the same
@@ -183,9 +205,13 @@ def build_model(
     points_per_ply: int = 1,
     selective: bool = True,
     kinematics: str = "small",
+    shear_correction: bool = False,
 ) -> LayeredModel:
     """``selective=False`` gives the plain fully integrated hexahedron (locks; for comparison).
-    ``kinematics``: "small" (linear strain) or "finite" (total Lagrangian, Green-Lagrange)."""
+    ``kinematics``: "small" (linear strain) or "finite" (total Lagrangian, Green-Lagrange).
+    ``shear_correction``: the laminate's transverse shear correction on each layer's elements
+    (``materials.laminate.shear_correction_factors``); off, the constant shear strain of the
+    element carries the plies' full shear moduli."""
     if kinematics not in solid_shell.KINEMATICS:
         raise ValueError(
             f"kinematics must be one of {', '.join(solid_shell.KINEMATICS)} (got {kinematics!r})"
@@ -215,6 +241,7 @@ def build_model(
         u=fem.Function(V, name="displacement"),
         mass=np.zeros(0),
         kinematics=kinematics,
+        shear_correction=shear_correction,
     )
     cells = [model.layer_cells(k) for k in range(len(layer_laminates))]
     model.set_ufl_cells(cells)

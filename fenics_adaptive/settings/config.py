@@ -17,7 +17,8 @@ check_units``); the step count against ``[solver] max_steps`` once the time step
 Sections (see demos/*.toml for complete examples and ``config_schema`` for every key):
   [model]        kind = "esl" | "adaptive" | "layerwise"; points_per_ply (1 or 2); kinematics =
                  "small" (default) | "finite" (total Lagrangian: large rotations; no ply_damage);
-                 ply_damage; check_units (default true); max_memory (GB, default 16)
+                 ply_damage; shear_correction (default false); check_units (default true);
+                 max_memory (GB, default 16)
   [mesh]         length, width (mm), nx, ny (cells in-plane); layers = [plies per mesh layer]
                  for a layerwise model (default: one layer per ply)
   [materials.NAME]  E1, E2, G12, nu12, nu23, rho, optional G23; [materials.NAME.failure]
@@ -122,6 +123,8 @@ class RunConfig:
     failures: dict[str, PlyFailure] = field(default_factory=dict)
     ply_damage: bool = False
     kinematics: Kinematics = Kinematics.SMALL
+    # transverse shear correction of the elements (materials.laminate.shear_correction_factors)
+    shear_correction: bool = False
     impactor: Impactor | None = None
     matrix_strength: tuple[MatrixStrength, ...] = ()
     cohesive: CohesiveLaw | None = None
@@ -507,6 +510,7 @@ def parse_config(data: dict, source: str = "<memory>", seen: set[str] | None = N
     return RunConfig(
         kind=model.kind,
         points_per_ply=model.points_per_ply,
+        shear_correction=model.shear_correction,
         mesh=mesh,
         laminate=laminate,
         motions=tuple(motions),
@@ -537,6 +541,7 @@ class _Model:
     ply_damage: bool
     kinematics: Kinematics
     max_memory: float  # GB
+    shear_correction: bool
 
 
 def _model(table: _Table) -> _Model:
@@ -548,6 +553,7 @@ def _model(table: _Table) -> _Model:
         ply_damage=table.boolean("ply_damage"),
         kinematics=table.choice("kinematics"),
         max_memory=table.number("max_memory"),
+        shear_correction=table.boolean("shear_correction"),
     )
     if model.kinematics == Kinematics.FINITE and model.ply_damage:
         # the ply damage kernel samples small strains; mixing it with finite kinematics would

@@ -248,6 +248,13 @@ SECTIONS: tuple[Section, ...] = (
                 maximum=2,
             ),
             Key(
+                "shear_correction",
+                "bool",
+                "the laminate's transverse shear correction factors on every element "
+                "(from the exact shear distribution of the laminate; false: none)",
+                default=False,
+            ),
+            Key(
                 "kinematics",
                 "choice",
                 "small strain, or finite (total Lagrangian, large rotations; not with ply_damage)",
