@@ -111,6 +111,22 @@ def test_two_ranks_reproduce_the_serial_history(tmp_path):
         histories.append(read_history(out / "history.csv"))
     assert histories[0]["time_step"] == histories[1]["time_step"]
     assert_same_history(*histories)
+    # the field files of both, read by VTK's readers: the same cells, integer fields as integers
+    from vtkmodules.vtkIOXML import vtkXMLPUnstructuredGridReader, vtkXMLUnstructuredGridReader
+
+    grids = []
+    for reader, name in (
+        (vtkXMLUnstructuredGridReader(), "ranks1/plies/plies_000002.vtu"),
+        (vtkXMLPUnstructuredGridReader(), "ranks2/plies/plies_000002.pvtu"),
+    ):
+        reader.SetFileName(str(tmp_path / name))
+        reader.Update()
+        assert reader.GetErrorCode() == 0, name
+        grids.append(reader.GetOutput())
+    assert grids[0].GetNumberOfCells() == grids[1].GetNumberOfCells() > 0
+    for grid in grids:
+        assert grid.GetCellData().GetArray("ply").GetDataTypeAsString() == "int"
+    assert (tmp_path / "ranks2" / "displacement.xdmf").is_file()
 
 
 # ---------------------------------------------------------------------------- errors
