@@ -336,11 +336,11 @@ def _in_box(X: np.ndarray, nodes: np.ndarray, box: tuple[float, ...] | None) -> 
     return np.all((centre >= low) & (centre <= high), axis=1)
 
 
-class ElementWriter:
-    """The enriched mesh for ParaView: every solid element as it is computed (unrefined cells,
-    and the subelements of refined ones, so the extra nodes and the sublaminates show, as in the
-    paper's Figure 4), displacements on all their nodes (base and extra). Written to
-    ``elements/`` and ``elements.pvd``; the cohesive elements are ``CohesiveWriter``'s."""
+class _SeriesWriter:
+    """A VTU series (``<name>/``, ``<name>.pvd``) of what ``structure`` holds, limited as
+    ``selection`` says (``FieldSelection``); subclasses write one time in ``__call__``."""
+
+    name = ""
 
     def __init__(
         self,
@@ -351,8 +351,19 @@ class ElementWriter:
     ):
         self.structure = structure
         self.selection = selection or FieldSelection()
-        self.comm = structure.comm
-        self.series = _VtuSeries(out_dir, "elements", self.comm, record)
+        self.series = _VtuSeries(out_dir, self.name, structure.comm, record)
+
+    def close(self) -> None:
+        pass
+
+
+class ElementWriter(_SeriesWriter):
+    """The enriched mesh for ParaView: every solid element as it is computed (unrefined cells,
+    and the subelements of refined ones, so the extra nodes and the sublaminates show, as in the
+    paper's Figure 4), displacements on all their nodes (base and extra). Written to
+    ``elements/`` and ``elements.pvd``; the cohesive elements are ``CohesiveWriter``'s."""
+
+    name = "elements"
 
     def __call__(self, t: float) -> None:
         s = self.structure
@@ -364,7 +375,7 @@ class ElementWriter:
         cell_data = {
             "first_ply": (plies[:, 0] + 1).astype(np.int32),
             "last_ply": plies[:, 1].astype(np.int32),
-            "rank": np.full(len(nodes), self.comm.rank, dtype=np.int32),
+            "rank": np.full(len(nodes), s.comm.rank, dtype=np.int32),
         }
         # when each refinable interface of the element's cell refined (s), NaN while it has
         # not: the refinement log's times as fields
@@ -379,27 +390,15 @@ class ElementWriter:
         }
         self.series.write(t, X[used], cells, VTK_HEXAHEDRON, point_data, cell_data)
 
-    def close(self) -> None:
-        pass
 
-
-class CohesiveWriter:
+class CohesiveWriter(_SeriesWriter):
     """The cohesive elements for ParaView, each as a quadrilateral of its own four points on the
     interface's mid-surface (the mean of its lower and upper faces' displacements), with the
     ``opening`` (upper minus lower face displacement, mm) at its points, its interface (1-based)
     and the mean damage of its four integration points (0 intact, 1 open). Written to
     ``cohesive/`` and ``cohesive.pvd``."""
 
-    def __init__(
-        self,
-        out_dir: Path,
-        structure,
-        record: Callable[..., None] | None = None,
-        selection: FieldSelection | None = None,
-    ):
-        self.structure = structure
-        self.selection = selection or FieldSelection()
-        self.series = _VtuSeries(out_dir, "cohesive", structure.comm, record)
+    name = "cohesive"
 
     def __call__(self, t: float) -> None:
         s = self.structure
@@ -421,15 +420,12 @@ class CohesiveWriter:
         cells = np.arange(4 * n, dtype=np.int64).reshape(n, 4)
         self.series.write(t, X[lower], cells, VTK_QUAD, point_data, cell_data)
 
-    def close(self) -> None:
-        pass
-
 
 # Per-ply cell data of PlyWriter: material-frame stress components (MPa)
 STRESS_NAMES = ("s11", "s22", "s33", "s23", "s13", "s12")
 
 
-class PlyWriter:
+class PlyWriter(_SeriesWriter):
     """Ply-by-ply results for ParaView: each ply of each cell as its own hexahedron (the slab
     between the ply's bottom and top within the element that holds it), with the ply number and
     angle, the material-frame stress at the ply's centre (MPa, with the matrix damage of the
@@ -438,17 +434,8 @@ class PlyWriter:
     ``plies/`` and ``plies.pvd``; threshold on ``ply`` to look at one ply of the laminate.
     ``selection``: the plies, the box and every how many field frames (the largest output)."""
 
-    def __init__(
-        self,
-        out_dir: Path,
-        structure,
-        record: Callable[..., None] | None = None,
-        selection: FieldSelection | None = None,
-    ):
-        self.structure = structure
-        self.selection = selection or FieldSelection()
-        self.series = _VtuSeries(out_dir, "plies", structure.comm, record)
-        self.calls = 0
+    name = "plies"
+    calls = 0  # field outputs so far (ply_every counts them)
 
     def __call__(self, t: float) -> None:
         due = self.calls % self.selection.ply_every == 0
@@ -494,9 +481,6 @@ class PlyWriter:
             cell_data["hashin_max"] = ply_failure_indices(s)[owner, ply]
         point_data = {"displacement": slab_points[1]}
         self.series.write(t, slab_points[0], connectivity, VTK_HEXAHEDRON, point_data, cell_data)
-
-    def close(self) -> None:
-        pass
 
 
 # numpy dtype -> VTK XML type name
