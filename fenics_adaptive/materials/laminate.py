@@ -225,6 +225,20 @@ def reduced_plane_stress_stiffness(C: np.ndarray) -> np.ndarray:
     return np.linalg.inv(S[np.ix_(in_plane, in_plane)])
 
 
+def bending_about_neutral_plane(laminate: Laminate) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """What a laminate bends with, in x and in y: the ply boundaries z (n + 1,) mm from the
+    bottom face, and for the two directions each ply's reduced plane-stress modulus E (2, n)
+    MPa (Qbar_11, Qbar_22), the neutral plane z_n (2,) mm and the exact bending stiffness
+    D = int E (z - z_n)^2 dz (2,) N mm (per unit width)."""
+    z = laminate.ply_fractions * laminate.thickness
+    Q = np.array([reduced_plane_stress_stiffness(ply.stiffness()) for ply in laminate.plies])
+    E = np.stack([Q[:, 0, 0], Q[:, 1, 1]])
+    z_n = np.sum(E * (z[1:] ** 2 - z[:-1] ** 2) / 2, axis=1) / np.sum(E * np.diff(z), axis=1)
+    lower, upper = z[:-1] - z_n[:, None], z[1:] - z_n[:, None]
+    D = np.sum(E * (upper**3 - lower**3) / 3, axis=1)
+    return z, E, np.stack([z_n, D])
+
+
 def shear_correction_factors(
     laminate: Laminate, first: int = 0, stop: int | None = None
 ) -> tuple[float, float]:
@@ -255,17 +269,14 @@ def shear_correction_factors(
     stop = laminate.n_plies if stop is None else stop
     if not 0 <= first < stop <= laminate.n_plies:
         raise ValueError(f"no ply span [{first}, {stop}) in a laminate of {laminate.n_plies} plies")
-    z = laminate.ply_fractions * laminate.thickness
+    z, moduli, (neutral, bending) = bending_about_neutral_plane(laminate)
+    h = np.diff(z)
     stiffness = [ply.stiffness() for ply in laminate.plies]
-    in_plane = np.array([reduced_plane_stress_stiffness(C) for C in stiffness])
     # 3 Gauss points per ply integrate g^2 (a quartic within a ply) exactly
     x, w = np.polynomial.legendre.leggauss(3)
     factors = []
-    for modulus, shear in ((in_plane[:, 0, 0], 4), (in_plane[:, 1, 1], 3)):
+    for modulus, z_n, D, shear in zip(moduli, neutral, bending, (4, 3), strict=True):
         G = np.array([C[shear, shear] for C in stiffness])
-        h = np.diff(z)
-        z_n = np.sum(modulus * (z[1:] ** 2 - z[:-1] ** 2) / 2) / np.sum(modulus * h)
-        D = np.sum(modulus * ((z[1:] - z_n) ** 3 - (z[:-1] - z_n) ** 3) / 3)
 
         def primitive(k: int, s: np.ndarray, E=modulus, z_n=z_n) -> np.ndarray:
             """int_{z_k}^{s} E_k (z_n - t) dt within ply k."""

@@ -52,7 +52,6 @@ from fenics_adaptive.adaptivity.stabilisation import DampingWindow, Stabilisatio
 from fenics_adaptive.element.geometry import thickness_weight
 from fenics_adaptive.element.rules import RuleTable
 from fenics_adaptive.errors import InputError
-from fenics_adaptive.materials.laminate import Laminate
 from fenics_adaptive.model.assembly import CohesiveSet
 from fenics_adaptive.model.blocks import Block, LumpedBlocks, subelement_mass_change
 from fenics_adaptive.model.border import border_constraints, column_counts
@@ -122,7 +121,7 @@ class Structure:
             raise ValueError("only an ESL mesh (one cell through the thickness) can refine")
         # the whole laminate (an LW model spreads it over its mesh layers) and the plies of each
         # owned cell
-        laminate = Laminate(tuple(p for layer in base.layer_laminates for p in layer.plies))
+        laminate = base.laminate
         self.laminate = laminate
         n_interfaces = laminate.n_plies - 1
         self.cell_plies = _cell_plies(base)
