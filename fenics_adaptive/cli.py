@@ -157,15 +157,19 @@ def _command(argv: list[str] | None, interrupt: _StartupInterrupt) -> int:
     except Exception as error:  # the run itself failed: say why in one line
         if interrupt.fired:  # Ctrl-C killed a compiler or Gmsh under us: not a failure
             return _interrupted(error)
-        if os.environ.get("FENICS_ADAPTIVE_TRACEBACK"):
-            traceback.print_exc()
-        return fail_ranks(
-            errors,
-            1,
-            f"fenics-adaptive: run failed: {type(error).__name__}: {error} "
-            "(FENICS_ADAPTIVE_TRACEBACK=1 shows where)",
-        )
+        return fail_ranks(errors, 1, _failure_line("run", error))
     return 0
+
+
+def _failure_line(what: str, error: Exception) -> str:
+    """The one line of a failed ``what`` ("run", "demo tcb"); the traceback too on stderr when
+    FENICS_ADAPTIVE_TRACEBACK is set."""
+    if os.environ.get("FENICS_ADAPTIVE_TRACEBACK"):
+        traceback.print_exc()
+    return (
+        f"fenics-adaptive: {what} failed: {type(error).__name__}: {error} "
+        "(FENICS_ADAPTIVE_TRACEBACK=1 shows where)"
+    )
 
 
 # What a run imports, with what to say when it cannot: (module, name, how to get it)
@@ -246,13 +250,7 @@ def _demo(name: str | None, demo_args: list[str], interrupt: _StartupInterrupt) 
     except Exception as error:
         if interrupt.fired:
             return _interrupted(error)
-        if os.environ.get("FENICS_ADAPTIVE_TRACEBACK"):
-            traceback.print_exc()
-        print(
-            f"fenics-adaptive: demo {name} failed: {type(error).__name__}: {error} "
-            "(FENICS_ADAPTIVE_TRACEBACK=1 shows where)",
-            file=sys.stderr,
-        )
+        print(_failure_line(f"demo {name}", error), file=sys.stderr)
         return 1
     return 0
 
@@ -355,11 +353,8 @@ def _compile_note(config) -> str:
     """What a first run adds before its time loop, when numba's cache lacks kernels."""
     from fenics_adaptive import kernels
 
-    variant = kernels.variant_of(config)
-    share = len(kernels.missing(variant)) / len(kernels.kernels())
-    if not share:
-        return ""
-    return f", plus about {kernels.COLD_SECONDS[variant] * share:.0f} s compiling kernels first"
+    estimate = kernels.compile_estimate(config)
+    return f", plus about {estimate:.0f} s compiling kernels first" if estimate else ""
 
 
 def _duration(seconds: float) -> str:

@@ -191,6 +191,14 @@ def compile_all(variant: str) -> None:
     Simulation(config, comm=MPI.COMM_SELF).run()
 
 
+def compile_estimate(config) -> float:
+    """Seconds a run of ``config`` (a ``RunConfig``) will spend compiling kernels before its
+    time loop: 0 with a warm cache, else ``COLD_SECONDS`` of its variant times the share of
+    kernels missing (this process's view of the cache)."""
+    variant = variant_of(config)
+    return COLD_SECONDS[variant] * len(missing(variant)) / len(kernels())
+
+
 def prepare(config, comm: MPI.Comm, say: Callable[[str], None] = print) -> float:
     """Collective: make sure every kernel a run of ``config`` (a ``RunConfig``) calls is
     compiled and cached before its time loop. Rank 0 checks the cache; if it lacks any kernel,
@@ -198,12 +206,10 @@ def prepare(config, comm: MPI.Comm, say: Callable[[str], None] = print) -> float
     other ranks wait, so that no two processes write one cache file. Returns the seconds spent
     compiling (0 when the cache was warm)."""
     variant = variant_of(config)
-    share = len(missing(variant)) / len(kernels()) if comm.rank == 0 else None
-    share = comm.bcast(share, root=0)
-    if not share:
+    estimate = comm.bcast(compile_estimate(config) if comm.rank == 0 else None, root=0)
+    if not estimate:
         return 0.0
     if comm.rank == 0:
-        estimate = COLD_SECONDS[variant] * share
         say(
             f"compiling the numba kernels (first run only, about {estimate:.0f} s; Ctrl-C stops it)"
         )
