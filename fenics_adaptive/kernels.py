@@ -98,14 +98,23 @@ def missing(variant: str) -> list[str]:
     Kernels that numba inlines into others and never caches on their own do not count: the
     warm-up's record lists the ones it found cached."""
     found = kernels()
+    cached = _recorded_variants(_sources()).get(variant)
+    if not isinstance(cached, list):
+        return list(found)
+    return [name for name in cached if not is_cached(found.get(name))]
+
+
+def _recorded_variants(sources: str) -> dict:
+    """The warm-up record's kernels by variant, if it was made from ``sources`` (``_sources``);
+    empty for a missing, unreadable or outdated record."""
     try:
         record = json.loads(_stamp_path().read_text())
     except (OSError, ValueError, AttributeError):
-        return list(found)
-    cached = record.get("variants", {}).get(variant) if isinstance(record, dict) else None
-    if record.get("sources") != _sources() or not isinstance(cached, list):
-        return list(found)
-    return [name for name in cached if not is_cached(found.get(name))]
+        return {}
+    if not isinstance(record, dict) or record.get("sources") != sources:
+        return {}
+    variants = record.get("variants")
+    return variants if isinstance(variants, dict) else {}
 
 
 def _record_warm_up(variant: str) -> None:
@@ -113,11 +122,7 @@ def _record_warm_up(variant: str) -> None:
     cached = [name for name, dispatcher in kernels().items() if is_cached(dispatcher)]
     path = _stamp_path()
     sources = _sources()
-    try:
-        record = json.loads(path.read_text())
-        variants = record["variants"] if record.get("sources") == sources else {}
-    except (OSError, ValueError, KeyError, TypeError, AttributeError):
-        variants = {}
+    variants = _recorded_variants(sources)
     variants[variant] = cached
     partial = path.with_suffix(".partial")
     try:
