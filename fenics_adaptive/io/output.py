@@ -336,7 +336,7 @@ def _in_box(X: np.ndarray, nodes: np.ndarray, box: tuple[float, ...] | None) -> 
     return np.all((centre >= low) & (centre <= high), axis=1)
 
 
-class _SeriesWriter:
+class SeriesWriter:
     """A VTU series (``<name>/``, ``<name>.pvd``) of what ``structure`` holds, limited as
     ``selection`` says (``FieldSelection``); subclasses write one time in ``__call__``."""
 
@@ -357,7 +357,7 @@ class _SeriesWriter:
         pass
 
 
-class ElementWriter(_SeriesWriter):
+class ElementWriter(SeriesWriter):
     """The enriched mesh for ParaView: every solid element as it is computed (unrefined cells,
     and the subelements of refined ones, so the extra nodes and the sublaminates show, as in the
     paper's Figure 4), displacements on all their nodes (base and extra). Written to
@@ -391,7 +391,7 @@ class ElementWriter(_SeriesWriter):
         self.series.write(t, X[used], cells, VTK_HEXAHEDRON, point_data, cell_data)
 
 
-class CohesiveWriter(_SeriesWriter):
+class CohesiveWriter(SeriesWriter):
     """The cohesive elements for ParaView, each as a quadrilateral of its own four points on the
     interface's mid-surface (the mean of its lower and upper faces' displacements), with the
     ``opening`` (upper minus lower face displacement, mm) at its points, its interface (1-based)
@@ -425,7 +425,7 @@ class CohesiveWriter(_SeriesWriter):
 STRESS_NAMES = ("s11", "s22", "s33", "s23", "s13", "s12")
 
 
-class PlyWriter(_SeriesWriter):
+class PlyWriter(SeriesWriter):
     """Ply-by-ply results for ParaView: each ply of each cell as its own hexahedron (the slab
     between the ply's bottom and top within the element that holds it), with the ply number and
     angle, the material-frame stress at the ply's centre (MPa, with the matrix damage of the
