@@ -256,6 +256,7 @@ def _demo(name: str | None, demo_args: list[str], interrupt: _StartupInterrupt) 
 
 
 AGREE_TIMEOUT = 10.0  # s: how long a failed rank waits for the others to fail too
+ABORT_GRACE = 1.0  # s: a rank aborting alone waits this long for mpiexec to forward its line
 
 
 def fail_ranks(errors: MPI.Comm | None, status: int, line: str) -> int:
@@ -276,6 +277,9 @@ def fail_ranks(errors: MPI.Comm | None, status: int, line: str) -> int:
             if time.monotonic() > deadline:
                 print(f"{line} [rank {comm.rank} alone; aborting the MPI job]", file=sys.stderr)
                 sys.stderr.flush()
+                # mpiexec forwards each rank's stderr through a pipe, and an abort kills the
+                # ranks and the forwarders at once: without a pause the line may be lost
+                time.sleep(ABORT_GRACE)
                 comm.Abort(status)
             time.sleep(0.01)
     if comm.rank == 0:
