@@ -304,6 +304,7 @@ def _check(config_path: str, config, simulation, comm) -> int:
     """
     from mpi4py import MPI
 
+    from fenics_adaptive.model.diagnostics import insert_film_area
     from fenics_adaptive.settings.config import (
         ModelSize,
         check_step_count,
@@ -322,6 +323,7 @@ def _check(config_path: str, config, simulation, comm) -> int:
     rows, frames = output_counts(solver, simulation.time_step)
     memory = estimated_memory(size, comm.size)
     wall = steps * estimated_step_seconds(size, comm.size)
+    films = insert_film_area(simulation.structure)  # collective
     if comm.rank == 0:
         refined = (
             " (unrefined; refined cells cost 3 .. 7 x more)"
@@ -348,6 +350,8 @@ def _check(config_path: str, config, simulation, comm) -> int:
         )
         from fenics_adaptive.element.rules import integration_warnings
 
+        if films:
+            print(f"  insert films: {films:.6g} mm^2 delaminated at t = 0")
         for line in integration_warnings(config.layer_laminates(), config.points_per_ply):
             print(f"  {line}")
     return 0

@@ -25,6 +25,7 @@ from fenics_adaptive.io import checkpoint, output
 from fenics_adaptive.io.refinement_log import FILE_NAME as LOG_FILE
 from fenics_adaptive.io.refinement_log import RefinementLog, read_log
 from fenics_adaptive.io.run_folder import RunFolder
+from fenics_adaptive.model.diagnostics import insert_film_area
 from fenics_adaptive.model.structure import Structure
 from fenics_adaptive.settings.config import RunConfig, check_step_count
 from fenics_adaptive.settings.kinds import ModelKind
@@ -176,6 +177,7 @@ def _summary_at_start(config: RunConfig, simulation: Simulation, comm: MPI.Comm)
             "total_mass_tonne": structure.total_mass(),
             "extra_nodes_at_start": comm.allreduce(structure.extra.n_owned, op=MPI.SUM),
             "cohesive_elements_at_start": comm.allreduce(len(structure.cohesive), op=MPI.SUM),
+            "insert_film_area_mm2": insert_film_area(structure),
         },
         "time_step": {
             "used_s": simulation.time_step,
@@ -208,6 +210,8 @@ def _announce(
     n_extra, n_cohesive = model["extra_nodes_at_start"], model["cohesive_elements_at_start"]
     if n_extra or n_cohesive:
         say(f"{n_extra} extra nodes, {n_cohesive} cohesive elements")
+    if model["insert_film_area_mm2"]:
+        say(f"insert films: {model['insert_film_area_mm2']:.6g} mm^2 delaminated at t = 0")
     say(
         f"time step {step['used_s']:.4e} s (stable {step['stable_s']:.4e} s with "
         f"safety factor {step['safety_factor']}, limited by {step['limited_by']}), "

@@ -33,6 +33,7 @@ from fenics_adaptive.model.forms import build_model
 from fenics_adaptive.model.layerwise import cohesive_pairs
 from fenics_adaptive.model.loading import face_dofs, resolve
 from fenics_adaptive.model.structure import Structure, cells_in_x_range
+from fenics_adaptive.settings.adaptivity import Delamination
 from fenics_adaptive.settings.config import RunConfig
 from fenics_adaptive.settings.kinds import InterfaceState, ModelKind, MotionKind, Refinement
 from fenics_adaptive.settings.loads import Amplitude, PrescribedMotion
@@ -120,25 +121,46 @@ def build_structure(
     for region in config.matrix_strength:
         cells = cells_in_x_range(structure, region.x_min, region.x_max)
         structure.scale_matrix_strength(cells, region.plies, region.factor)
-    if (
-        refine_initially
-        and config.kind == ModelKind.ADAPTIVE
-        and config.interfaces.initial != Refinement.NONE
-    ):
-        structure.refine(initial_refinement(structure, config))
+    if refine_initially:  # a restart replays the refinements and restores the damage instead
+        if config.kind == ModelKind.ADAPTIVE and (
+            config.interfaces.initial != Refinement.NONE or config.delaminations
+        ):
+            structure.refine(initial_refinement(structure, config))
+        insert_films(structure, config.delaminations)
     return structure
 
 
 def initial_refinement(structure: Structure, config: RunConfig) -> list[Request]:
-    """Every owned cell refined at the listed interfaces: weak at ``refine``, and at
-    ``delaminate`` weak or strong as ``initial`` says."""
+    """Every owned cell refined at the listed interfaces (weak at ``refine``, and at
+    ``delaminate`` weak or strong as ``initial`` says), and strongly at an insert film's
+    interface where the film lies ([[delamination]])."""
     interfaces = config.interfaces
     strong = interfaces.initial == Refinement.STRONG
     cells = range(structure.base.n_owned_cells)
-    requests = [(c, i, InterfaceState.WEAK) for c in cells for i in interfaces.refine]
-    delaminate = InterfaceState.STRONG if strong else InterfaceState.WEAK
-    requests += [(c, i, delaminate) for c in cells for i in interfaces.delaminate]
+    requests = []
+    if interfaces.initial != Refinement.NONE:
+        requests += [(c, i, InterfaceState.WEAK) for c in cells for i in interfaces.refine]
+        delaminate = InterfaceState.STRONG if strong else InterfaceState.WEAK
+        requests += [(c, i, delaminate) for c in cells for i in interfaces.delaminate]
+    centroids = structure.cell_vertices().mean(axis=1)
+    for film in config.delaminations:
+        under = np.flatnonzero(film.holds(centroids[:, 0], centroids[:, 1]))
+        requests += [(int(c), film.interface, InterfaceState.STRONG) for c in under]
     return requests
+
+
+def insert_films(structure: Structure, films: Iterable[Delamination]) -> None:
+    """Fail the cohesive elements of the insert films ``films`` (those whose centroid lies in
+    a film's region at its interface: an LW model's, or an adaptive model's after its initial
+    refinement), marking them as inserts (``CohesiveSet.delaminate``)."""
+    cohesive = structure.cohesive
+    films = list(films)
+    if not films or not len(cohesive):
+        return
+    centroids = structure.gather(cohesive.nodes[:, :4], "X").mean(axis=1)
+    for film in films:
+        at = (cohesive.interface == film.interface) & film.holds(centroids[:, 0], centroids[:, 1])
+        cohesive.delaminate(np.flatnonzero(at))
 
 
 class RefinementHook:

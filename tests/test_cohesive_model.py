@@ -35,9 +35,11 @@ CELL = {
 }
 
 
-def single_cohesive(kind: str, law: dict = LAW) -> dict:
+def single_cohesive(kind: str, law: dict = LAW, insert: bool = False) -> dict:
     data = copy.deepcopy(CELL)
     data["cohesive"] = dict(law)
+    if insert:  # an insert film over the whole interface
+        data["delamination"] = [{"interface": 1, "x_min": 0.0, "x_max": 1.0}]
     if kind == "adaptive":
         data["model"] = {"kind": "adaptive"}
         data["interfaces"] = {"delaminate": [1], "initial": "strong"}
@@ -54,8 +56,8 @@ class Kinematic:
     element's lower face) at rest, upper side moved by the opening. The plies move rigidly, so
     the only force is the cohesive one; the upper nodes' internal force is traction x area."""
 
-    def __init__(self, kind: str, law: dict = LAW):
-        self.structure = build_structure(parse_config(single_cohesive(kind, law)))
+    def __init__(self, kind: str, law: dict = LAW, insert: bool = False):
+        self.structure = build_structure(parse_config(single_cohesive(kind, law, insert)))
         s = self.structure
         assert len(s.cohesive) == 1
         nodes = s.cohesive.nodes[0]
@@ -93,6 +95,27 @@ def proportional_path(mixity: float, law: CohesiveLaw, points: int = 3000) -> np
     direction = np.array([math.sin(math.atan(beta)), 0.0, math.cos(math.atan(beta))])
     final = 2.0 * max(law.GIc, law.GIIc) / min(law.N, law.S) * 1.5
     return np.linspace(0.0, final, points)[:, None] * direction
+
+
+@pytest.mark.parametrize("kind", ["adaptive", "layerwise"])
+def test_an_insert_film_carries_no_tension_or_shear_but_keeps_its_faces_apart(kind):
+    """[[delamination]]: the element starts failed (no traction when opened or sheared, no
+    energy dissipated), and closing it meets the undamaged normal penalty: the faces of an
+    insert cannot interpenetrate, and slide without friction."""
+    law = CohesiveLaw.from_mapping(LAW)
+    model = Kinematic(kind, insert=True)
+    cohesive = model.structure.cohesive
+    assert cohesive.failed().all() and cohesive.inserted().all()
+    for opening in ([0.0, 0.0, 0.01], [0.01, 0.0, 0.0], [0.0, 0.02, 0.005], [0.03, 0.0, -1e-4]):
+        opening = np.array(opening)
+        t = model.force(opening)
+        normal = law.K_n * min(opening[2], 0.0)
+        assert np.abs(t - [0.0, 0.0, normal]).max() <= 1e-12 * law.K_n * 0.01, opening
+    assert cohesive.dissipated_energy() == 0.0
+    # an intact element under the same closing carries the same compression
+    intact = Kinematic(kind)
+    closing = np.array([0.0, 0.0, -1e-4])
+    assert model.force(closing)[2] == pytest.approx(intact.force(closing)[2], rel=1e-12)
 
 
 @pytest.mark.slow

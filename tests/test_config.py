@@ -426,6 +426,9 @@ def every_config() -> list[tuple[str, dict]]:
     tcb = tomllib.loads((root / "tests" / "data" / "tcb_adaptive.toml").read_text())
     tcb["interfaces"]["initial"] = "none"
     tcb["refinement"] = [{"time": 1e-5, "interfaces": [2], "kind": "strong"}]
+    tcb["delamination"] = [
+        {"interface": 6, "x_min": 8.0, "x_max": 10.0, "y_min": 0.0, "y_max": 0.5}
+    ]
     configs.append(("refinement", tcb))
     return configs
 

@@ -152,6 +152,7 @@ def test_cohesive_file_holds_the_interfaces_with_damage_and_opening(tmp_path):
     structure = refined_beam()
     cohesive = structure.cohesive
     cohesive.damage[:] = np.random.default_rng(1).uniform(size=cohesive.damage.shape)
+    cohesive.delaminate(np.arange(5))  # an insert film's elements
     CohesiveWriter(tmp_path, structure)(0.0)
     grid = read_vtu(tmp_path / "cohesive/cohesive_000000.vtu")
     assert grid["types"].tolist() == [9] * 40  # 20 cells x 2 delaminating interfaces
@@ -161,6 +162,8 @@ def test_cohesive_file_holds_the_interfaces_with_damage_and_opening(tmp_path):
     damage, kind = grid["cell"]["cohesive_damage"]
     assert kind == "double" and damage.min() >= 0.0
     np.testing.assert_allclose(damage, cohesive.damage[cohesive.damage_row].mean(axis=1))
+    insert, kind = grid["cell"]["insert"]
+    assert kind == "unsigned char" and insert.tolist() == [1] * 5 + [0] * 35
     X = np.vstack([structure.X_base, structure.extra.vectors["X"].array.reshape(-1, 3)])
     u = np.vstack([structure.base.u.x.array.reshape(-1, 3),
                    structure.extra.vectors["u"].array.reshape(-1, 3)])  # fmt: skip

@@ -63,6 +63,7 @@ COLUMN_UNITS = {
     "cohesive_dissipation": "mJ",
     "ply_dissipation": "mJ",
     "state_energy_balance": "mJ",
+    "crack_growth_area": "mm^2",
     "energy_balance": "mJ",
 }
 
@@ -395,7 +396,8 @@ class CohesiveWriter(SeriesWriter):
     """The cohesive elements for ParaView, each as a quadrilateral of its own four points on the
     interface's mid-surface (the mean of its lower and upper faces' displacements), with the
     ``opening`` (upper minus lower face displacement, mm) at its points, its interface (1-based)
-    and the mean damage of its four integration points (0 intact, 1 open). Written to
+    the mean damage of its four integration points (0 intact, 1 open) and ``insert`` (1: an
+    insert film's element, [[delamination]], failed from t = 0). Written to
     ``cohesive/`` and ``cohesive.pvd``."""
 
     name = "cohesive"
@@ -411,6 +413,7 @@ class CohesiveWriter(SeriesWriter):
         cell_data = {
             "interface": cohesive.interface[kept].astype(np.int32),
             "cohesive_damage": cohesive.damage[cohesive.damage_row[kept]].mean(axis=1),
+            "insert": cohesive.inserted()[kept].astype(np.uint8),
             "rank": np.full(n, s.comm.rank, dtype=np.int32),
         }
         point_data = {

@@ -66,10 +66,14 @@ class CohesiveSet:
     # (rows, 4, cohesive.HISTORY) per point: last local opening and dissipated energy (mJ);
     # persists with ``damage``
     history: np.ndarray | None = None
+    # (rows,) the rows of an insert film ([[delamination]]): failed from t = 0, not grown
+    insert: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         if self.history is None:
             self.history = np.zeros((len(self.damage), 4, HISTORY))
+        if self.insert is None:
+            self.insert = np.zeros(len(self.damage), dtype=bool)
 
     @classmethod
     def empty(cls, params: np.ndarray) -> CohesiveSet:
@@ -89,6 +93,17 @@ class CohesiveSet:
         """Elements whose four points are fully damaged (the delaminated area)."""
         return self.damage[self.damage_row].min(axis=1) >= 1.0
 
+    def inserted(self) -> np.ndarray:
+        """Elements of an insert film (delaminated from t = 0, not grown)."""
+        return self.insert[self.damage_row]
+
+    def delaminate(self, elements: np.ndarray) -> None:
+        """Make ``elements`` an insert film: their four points fully damaged, no energy
+        dissipated (the film was never bonded)."""
+        rows = self.damage_row[elements]
+        self.damage[rows] = 1.0
+        self.insert[rows] = True
+
     def grow_rows(self, n_rows: int) -> None:
         """Damage and history rows for ``n_rows`` (>= the present number) elements; the new rows
         undamaged."""
@@ -98,16 +113,21 @@ class CohesiveSet:
         history = np.zeros((n_rows, *self.history.shape[1:]))
         history[: len(self.history)] = self.history
         self.history = history
+        insert = np.zeros(n_rows, dtype=bool)
+        insert[: len(self.insert)] = self.insert
+        self.insert = insert
 
     def state(self) -> dict[str, np.ndarray]:
-        """The history-dependent arrays: {"damage": (rows, 4), "history": (rows, 4, HISTORY)}."""
-        return {"damage": self.damage, "history": self.history}
+        """The history-dependent arrays: {"damage": (rows, 4), "history": (rows, 4, HISTORY),
+        "insert": (rows,)}."""
+        return {"damage": self.damage, "history": self.history, "insert": self.insert}
 
     def restore(self, state: dict[str, np.ndarray]) -> None:
-        """Put back the damage and history of ``state`` (as ``state`` gives them) into the
-        rows the set holds."""
+        """Put back the damage, history and insert rows of ``state`` (as ``state`` gives them)
+        into the rows the set holds (a checkpoint written before inserts existed has none)."""
         self.damage[:] = state["damage"]
         self.history[:] = state["history"]
+        self.insert[:] = state.get("insert", False)
 
     def __len__(self) -> int:
         return len(self.nodes)

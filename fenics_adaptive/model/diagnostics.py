@@ -1,5 +1,6 @@
 """What one reads off a structure for reports and error messages, outside the structure: the
-delaminated area, the energy its damage laws dissipated, a DOF and a cell's maps in words.
+delaminated area (and its grown part), the energy its damage laws dissipated, a DOF and a
+cell's maps in words.
 
 Units: N, mm, s, tonne (areas mm^2, energies mJ).
 
@@ -22,15 +23,24 @@ if TYPE_CHECKING:
     from fenics_adaptive.model.structure import Structure
 
 
-def delaminated_area(structure: Structure) -> float:
-    """Collective: the area (mm^2) of the cohesive elements whose four points have failed,
-    over all ranks."""
+def delaminated_areas(structure: Structure) -> tuple[float, float]:
+    """Collective: the area (mm^2) of the cohesive elements whose four points have failed, and
+    its part that has grown (the insert films' elements left out), over all ranks."""
     cohesive = structure.cohesive
     if not structure.comm.allreduce(len(cohesive), op=MPI.SUM):
-        return 0.0
-    X = structure.gather(cohesive.nodes[:, :4], "X")
-    local = quad_areas(X)[cohesive.failed()].sum()
-    return structure.comm.allreduce(local, op=MPI.SUM)
+        return 0.0, 0.0
+    areas = quad_areas(structure.gather(cohesive.nodes[:, :4], "X"))
+    failed = cohesive.failed()
+    local = np.array([areas[failed].sum(), areas[failed & ~cohesive.inserted()].sum()])
+    total, grown = structure.comm.allreduce(local, op=MPI.SUM)
+    return float(total), float(grown)
+
+
+def insert_film_area(structure: Structure) -> float:
+    """Collective: the area (mm^2) of the insert films' cohesive elements ([[delamination]]),
+    over all ranks."""
+    total, grown = delaminated_areas(structure)
+    return total - grown
 
 
 def damage_dissipation(structure: Structure) -> tuple[float, float]:

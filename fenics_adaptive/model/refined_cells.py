@@ -85,6 +85,7 @@ class RefinedCells:
             self.law_params if self.law_params is not None else self.cohesive.params,
             interfaces.astype(np.int32),
             self.cohesive.history,
+            self.cohesive.insert,
         )
 
     def elements(

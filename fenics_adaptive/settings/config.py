@@ -37,7 +37,8 @@ Sections (see demos/*.toml for complete examples and ``config_schema`` for every
   [impactor]     shape ("sphere" | "cylinder", axis along y), radius (mm), mass (tonne),
                  position = [x, y, z] (mm), velocity = [vx, vy, vz] (mm/s), optional penalty
                  (N/mm per node); a rigid body hitting the top face (``contact``)
-  [interfaces], [[refinement]], [cohesive], [[matrix_strength]], [indicators], [stabilisation]
+  [interfaces], [[refinement]], [cohesive], [[delamination]] (insert films), [[matrix_strength]],
+                 [indicators], [stabilisation]
 Time curve (for prescribed/load): rise_time + profile ("smooth" or "linear"): 0 -> 1 over
 rise_time, then held; or curve = [[t0, s0], [t1, s1], ...] (piecewise linear, held after).
 """
@@ -56,7 +57,13 @@ from typing import Any
 
 from fenics_adaptive.errors import InputError
 from fenics_adaptive.materials.laminate import Laminate, Ply, PlyMaterial
-from fenics_adaptive.settings.adaptivity import IndicatorSettings, Interfaces, Manual, Stabilisation
+from fenics_adaptive.settings.adaptivity import (
+    Delamination,
+    IndicatorSettings,
+    Interfaces,
+    Manual,
+    Stabilisation,
+)
 from fenics_adaptive.settings.kinds import (
     IndicatorKind,
     Kinematics,
@@ -128,6 +135,7 @@ class RunConfig:
     impactor: Impactor | None = None
     matrix_strength: tuple[MatrixStrength, ...] = ()
     cohesive: CohesiveLaw | None = None
+    delaminations: tuple[Delamination, ...] = ()
     fields: FieldSelection = field(default_factory=FieldSelection)
     source: str = "<memory>"
 
@@ -505,6 +513,7 @@ def parse_config(data: dict, source: str = "<memory>", seen: set[str] | None = N
     indicators = _indicators(root, model.kind, interfaces)
     _check_failure_data(laminate, failures, model.ply_damage, indicators)
     flaws = _matrix_strength(root, model.ply_damage, laminate, mesh)
+    delaminations = _delaminations(root, model.kind, interfaces, mesh)
     motions, loads = _motions_and_loads(root, model.kind, faces, mesh, split, interfaces)
     solver, probe, fields = _solver_and_output(root, faces, mesh, split, motions, laminate.n_plies)
     return RunConfig(
@@ -527,6 +536,7 @@ def parse_config(data: dict, source: str = "<memory>", seen: set[str] | None = N
         impactor=impactor,
         matrix_strength=flaws,
         cohesive=cohesive,
+        delaminations=delaminations,
         fields=fields,
         source=source,
     )
@@ -622,6 +632,32 @@ def _matrix_strength(
         _check_holds_centroids(table, mesh, x_min, x_max)
         flaws.append(MatrixStrength(tuple(p - 1 for p in plies), factor, x_min, x_max))
     return tuple(flaws)
+
+
+def _delaminations(
+    root: _Root, kind: ModelKind, interfaces: Interfaces, mesh: MeshConfig
+) -> tuple[Delamination, ...]:
+    """[[delamination]]: insert films, each on an interface that may delaminate, over a region
+    (mm) that holds at least one cell centroid."""
+    inserts: list[Delamination] = []
+    for table in root.tables("delamination"):
+        if kind == ModelKind.ESL:
+            raise InputError(
+                table.key("interface"), "an ESL model has no interfaces (use layerwise or adaptive)"
+            )
+        interface = table.integer("interface")
+        if interface not in interfaces.delaminate:
+            allowed = list(interfaces.delaminate) or "none"
+            raise InputError(
+                table.key("interface"),
+                f"interface {interface} does not delaminate ([interfaces] delaminate: {allowed})",
+            )
+        x_min, x_max = table.range("x_min", "x_max", strict=True)
+        y_min, y_max = table.range("y_min", "y_max", strict=True)
+        _check_holds_centroids(table, mesh, x_min, x_max)
+        _check_holds_centroids(table, mesh, y_min, y_max, axis="y")
+        inserts.append(Delamination(interface, x_min, x_max, y_min, y_max))
+    return tuple(inserts)
 
 
 def _motions_and_loads(
@@ -920,15 +956,20 @@ def _x_range(table: _Table, mesh: MeshConfig, name: str = "x") -> tuple[float, f
     return table.range("x_min", "x_max")
 
 
-def _check_holds_centroids(table: _Table, mesh: MeshConfig, x_min: float, x_max: float) -> None:
-    """An x range of cell centroids must hold at least one (else it would do nothing)."""
-    dx = mesh.length / mesh.nx
-    first = math.ceil(max(x_min, 0.0) / dx - 0.5 - 1e-9)  # first centroid (i + 1/2) dx >= x_min
-    if first >= mesh.nx or (first + 0.5) * dx > x_max + 1e-9 * dx:
+def _check_holds_centroids(
+    table: _Table, mesh: MeshConfig, low: float, high: float, axis: str = "x"
+) -> None:
+    """A range of cell centroids along ``axis`` ("x" or "y") must hold at least one (else it
+    would do nothing)."""
+    size, count = (mesh.length, mesh.nx) if axis == "x" else (mesh.width, mesh.ny)
+    h = size / count
+    first = math.ceil(max(low, 0.0) / h - 0.5 - 1e-9)  # first centroid (i + 1/2) h >= low
+    if first >= count or (first + 0.5) * h > high + 1e-9 * h:
+        upper = f"{axis}_max"
         raise InputError(
-            table.key("x_max" if table.has("x_max") else "x_min"),
-            f"the range [{x_min:g}, {x_max:g}] mm holds no cell centroid (cells are {dx:g} mm "
-            "long)",
+            table.key(upper if table.has(upper) else f"{axis}_min"),
+            f"the range [{low:g}, {high:g}] mm holds no cell centroid along {axis} (cells are "
+            f"{h:g} mm {'long' if axis == 'x' else 'wide'})",
         )
 
 

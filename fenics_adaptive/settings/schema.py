@@ -651,6 +651,39 @@ SECTIONS: tuple[Section, ...] = (
         ),
     ),
     Section(
+        "delamination",
+        "an insert film: a region of an interface delaminated at t = 0 (cells whose centroid"
+        " lies in it; layerwise: failed cohesive elements, adaptive: cells refined strongly there"
+        " with failed cohesive elements; the crack faces still meet in the cohesive law's"
+        " undamaged compression branch, frictionless)",
+        (
+            Key(
+                "interface", "int", "the interface, one of [interfaces] delaminate", "", REQUIRED, 1
+            ),
+            Key("x_min", "float", "lower end of the region's x range", "mm", REQUIRED),
+            Key(
+                "x_max",
+                "float",
+                "upper end of the region's x range",
+                "mm",
+                REQUIRED,
+                upper_of="x_min",
+            ),
+            Key(
+                "y_min", "float", "lower end of the region's y range (default: all)", "mm", OPTIONAL
+            ),
+            Key(
+                "y_max",
+                "float",
+                "upper end of the region's y range (default: all)",
+                "mm",
+                OPTIONAL,
+                upper_of="y_min",
+            ),
+        ),
+        array=True,
+    ),
+    Section(
         "refinement",
         "adaptive: a manual refinement at a time or a probe displacement",
         (

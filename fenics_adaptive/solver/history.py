@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, Protocol
 import numpy as np
 from mpi4py import MPI
 
-from fenics_adaptive.model.diagnostics import damage_dissipation, delaminated_area
+from fenics_adaptive.model.diagnostics import damage_dissipation, delaminated_areas
 from fenics_adaptive.model.forces import ForceContributor, ForceKind, hooks
 from fenics_adaptive.model.loading import COMPONENTS, face_dofs
 from fenics_adaptive.model.structure import Structure
@@ -43,7 +43,7 @@ class HistoryRow:
     damping_energy: float  # mJ, dissipated by mass damping
     dissipated_energy: float  # mJ, dissipated by materials (ply and cohesive damage)
     refinement_energy: float  # mJ, kinetic + strain + cohesive energy changed by refinements
-    delaminated_area: float  # mm^2, failed cohesive elements
+    delaminated_area: float  # mm^2, failed cohesive elements (insert films included)
     time_step: float  # s
     contact_force: float = 0.0  # N, z component of the force the structure applies to the impactor
     impactor_displacement: float = 0.0  # mm, z displacement of the impactor
@@ -53,6 +53,7 @@ class HistoryRow:
     # mJ: kinetic + strain + stored cohesive + cohesive and ply dissipation + damping - external
     # - impact - refinement energy - the strain and cohesive energy at t = 0 (from the states)
     state_energy_balance: float = 0.0
+    crack_growth_area: float = 0.0  # mm^2, failed cohesive elements outside the insert films
 
     @property
     def energy_balance(self) -> float:
@@ -131,6 +132,7 @@ class HistoryRecorder:
         if any(c.kind is ForceKind.INTERNAL for c in self.contributors):
             solid += total[9]  # a run's own internal forces: their energy is strain energy
         cohesive_dissipation, ply_dissipation = damage_dissipation(structure)
+        delaminated, grown = delaminated_areas(structure)
         if s.step == 0:  # an initial velocity or displacement brings energy along
             s.initial_energy = total[3] + solid + cohesive + total[8]
             s.initial_potential = solid + cohesive
@@ -151,8 +153,9 @@ class HistoryRecorder:
             damping_energy=total[6],
             dissipated_energy=total[4] - solid - cohesive,
             refinement_energy=structure.refinement_energy,
-            delaminated_area=delaminated_area(structure),
+            delaminated_area=delaminated,
             time_step=s.dt,
+            crack_growth_area=grown,
         )
         for report in hooks(self.contributors, "report"):
             report(row, s.step == 0)
