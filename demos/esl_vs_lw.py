@@ -138,7 +138,7 @@ from fenics_adaptive.analysis.timing import time_call, time_per_step
 from fenics_adaptive.errors import script_main
 from fenics_adaptive.model.structure import Structure
 from fenics_adaptive.settings.config import RunConfig, parse_config
-from fenics_adaptive.settings.loads import Amplitude, FaceLoad
+from fenics_adaptive.settings.loads import Amplitude
 from fenics_adaptive.settings.solver import SolverSettings
 from fenics_adaptive.simulation import build_structure
 from fenics_adaptive.solver import explicit
@@ -376,7 +376,7 @@ def explicit_check(settings: dict, static_tip: float) -> dict:
     omega = 2.0 * math.pi / period
     end_time = check["end_periods"] * period
     load = base.loads[0]
-    ramped = FaceLoad(load.face, load.force, Amplitude.ramp(check["ramp_periods"] * period))
+    ramped = dataclasses.replace(load, amplitude=Amplitude.ramp(check["ramp_periods"] * period))
     solver = SolverSettings(
         end_time=end_time,
         output_interval=end_time / 200,

@@ -15,6 +15,8 @@ faces' shape functions), and border extra nodes hand their share to their master
 Units: N, mm, s, tonne.
 """
 
+import itertools
+
 import numpy as np
 import pytest
 from helpers import COHESIVE_LAW, PROTOTYPE_PLY
@@ -150,7 +152,7 @@ def test_nodal_loads_are_work_equivalent_for_an_affine_field(face):
     rng = np.random.default_rng(5)
     a, B = rng.standard_normal(3), rng.standard_normal((3, 3))
     low, high = face_box(structure, face)
-    traction = structure.loads.tractions[0]
+    traction = structure.loads.tractions[0].vector
     sides = high - low
     area = np.prod(sides[sides > 0])
     expected = traction @ (a * area + B @ (0.5 * (low + high)) * area)
@@ -170,7 +172,7 @@ def test_nodal_loads_are_work_equivalent_for_a_field_kinked_at_the_interfaces(fa
     g, v = rng.standard_normal(len(z)), rng.standard_normal(3)
     low, high = face_box(structure, face)
     length_along = np.max((high - low)[:2])
-    traction = structure.loads.tractions[0]
+    traction = structure.loads.tractions[0].vector
     integral = length_along * np.sum(np.diff(z) * 0.5 * (g[1:] + g[:-1]))  # of g over the face
     work = virtual_work(structure, lambda X: np.interp(X[:, 2], z, g)[:, None] * v)
     assert work == pytest.approx(traction @ v * integral, rel=1e-12)
@@ -283,3 +285,150 @@ def test_a_caller_without_the_extra_dofs_is_told_the_loads_reach_extra_nodes():
     top = build_structure(parse_config(cantilever("adaptive", "top")))
     top.loads.external_force(0.0, out)
     assert out.reshape(-1, 3).sum(axis=0) == pytest.approx(FORCE, rel=1e-12)
+
+
+# --- loads on part of a face, pressures and their distribution along x -------------------------
+
+
+def loaded(face: str, load: dict, kind: str = "adaptive", initial: str = "weak"):
+    """The 4 x 2 mm [0/90/90/0] cantilever of ``cantilever`` under the [[load]] ``load`` on
+    ``face`` (a total force or a pressure)."""
+    data = cantilever(kind, face, initial=initial)
+    data["load"] = [{"face": face, "curve": [[0.0, 1.0]]} | load]
+    return build_structure(parse_config(data))
+
+
+def gauss_integral(f, low: float, high: float, breaks=(), points: int = 5) -> float:
+    """The integral of f over [low, high] by Gauss-Legendre on each piece between the breaks
+    (exact for polynomials of degree < 2 points on each piece)."""
+    edges = np.unique(np.clip([low, *breaks, high], low, high))
+    s, w = np.polynomial.legendre.leggauss(points)
+    total = 0.0
+    for a, b in itertools.pairwise(edges):
+        x = 0.5 * (a + b) + 0.5 * (b - a) * s
+        total += 0.5 * (b - a) * np.sum(w * f(x))
+    return total
+
+
+PRESSURE = 2.5  # MPa
+DISTRIBUTION = [[0.0, 0.0], [1.5, 1.0], [4.0, 0.5]]  # a kink inside a cell too
+
+
+def factor(x):
+    return np.interp(x, *np.array(DISTRIBUTION).T)
+
+
+@pytest.mark.parametrize("face", ["y0", "top"])
+def test_a_distributed_pressure_is_work_equivalent_on_refined_and_unrefined_faces(face):
+    """A pressure p f(x) on y0 (outward normal -y: the traction is p f(x) e_y) or on top
+    (traction -p f(x) e_z), refined cells included: the nodal loads do the work of the exact
+    integral of t . u over the face for an affine u. f has a kink at x = 1.5 mm, inside a
+    cell, so the 2 x 2 Gauss integration is not exact there: the test allows its error."""
+    structure = loaded(face, {"pressure": PRESSURE, "distribution": DISTRIBUTION})
+    rng = np.random.default_rng(3)
+    a, B = rng.standard_normal(3), rng.standard_normal((3, 3))
+    low, high = face_box(structure, face)
+    normal = {"y0": np.array([0.0, -1.0, 0.0]), "top": np.array([0.0, 0.0, 1.0])}[face]
+    # the face spans x and one of y (top) or z (y0); the field is affine in that other
+    # coordinate too, so its mean over it is the field at the mid value
+    mid = 0.5 * (low + high)
+    across = np.max(np.delete(high - low, [0, int(np.argmax(np.abs(normal)))]))
+
+    def integrand(x):
+        X = np.column_stack([x, np.full_like(x, mid[1]), np.full_like(x, mid[2])])
+        return -PRESSURE * factor(x) * ((a + X @ B.T) @ normal)
+
+    exact = across * gauss_integral(integrand, low[0], high[0], breaks=[1.5])
+    work = virtual_work(structure, lambda X: a + X @ B.T)
+    assert work == pytest.approx(exact, rel=2e-2)
+    # with the kink on a cell boundary the integration is exact
+    kinked_at_2 = [[0.0, 0.0], [2.0, 1.0], [4.0, 0.5]]
+    structure = loaded(face, {"pressure": PRESSURE, "distribution": kinked_at_2})
+    f2 = lambda x: np.interp(x, *np.array(kinked_at_2).T)  # noqa: E731
+
+    def integrand2(x):
+        X = np.column_stack([x, np.full_like(x, mid[1]), np.full_like(x, mid[2])])
+        return -PRESSURE * f2(x) * ((a + X @ B.T) @ normal)
+
+    exact = across * gauss_integral(integrand2, low[0], high[0], breaks=[2.0])
+    assert virtual_work(structure, lambda X: a + X @ B.T) == pytest.approx(exact, rel=1e-12)
+
+
+def test_a_uniform_pressure_on_top_is_the_equal_downward_force():
+    """Two independent paths: pressure p on the top face, and the total force (0, 0, -p A)."""
+    area = 4.0 * 2.0
+    by_pressure = nodal_loads(loaded("top", {"pressure": PRESSURE}))
+    by_force = nodal_loads(loaded("top", {"force": [0.0, 0.0, -PRESSURE * area]}))
+    for a, b in zip(by_pressure, by_force, strict=True):
+        np.testing.assert_allclose(a, b, rtol=0, atol=1e-13 * PRESSURE * area)
+
+
+def test_a_load_on_part_of_a_face_reaches_only_the_facets_in_its_region():
+    """A force on the top face's facets with centroid in x in [2, 3], y in [0, 1] mm: one
+    facet (2 < x < 3, 0 < y < 1), its total the force, its moment the force at the facet's
+    centre; the interlaminar estimate sees its traction on that cell only."""
+    force = np.array([0.5, 0.0, -8.0])
+    load = {"force": list(force), "x_min": 2.0, "x_max": 3.0, "y_min": 0.0, "y_max": 1.0}
+    structure = loaded("top", load, initial="none")
+    f_base, f_extra = nodal_loads(structure)
+    assert not f_extra.any()
+    carrying = np.flatnonzero(np.abs(f_base).sum(axis=1) > 0)
+    X = structure.X_base[carrying]
+    assert len(carrying) == 4
+    assert sorted(np.round(X[:, 0], 9)) == [2.0, 2.0, 3.0, 3.0]
+    assert sorted(np.round(X[:, 1], 9)) == [0.0, 0.0, 1.0, 1.0]
+    np.testing.assert_allclose(f_base.sum(axis=0), force, rtol=1e-12)
+    moment = np.cross(structure.X_base, f_base).sum(axis=0)
+    centre = np.array([2.5, 0.5, structure.X_base[:, 2].max()])
+    np.testing.assert_allclose(moment, np.cross(centre, force), rtol=1e-9, atol=1e-9)
+    on_cells = structure.loads.cell_face_tractions(0.0, structure.base.n_owned_cells)
+    cells = np.flatnonzero(np.abs(on_cells).sum(axis=(1, 2)) > 0)
+    assert len(cells) == 1
+    np.testing.assert_allclose(on_cells[cells[0], 1], force / 1.0, rtol=1e-9)  # 1 mm^2
+    assert not on_cells[:, 0].any()
+
+
+def test_the_estimate_sees_a_distributed_pressure_cell_by_cell():
+    structure = loaded("top", {"pressure": PRESSURE, "distribution": [[0.0, 1.0], [4.0, 3.0]]})
+    on_cells = structure.loads.cell_face_tractions(0.0, structure.base.n_owned_cells)
+    x = structure.cell_vertices().mean(axis=1)[:, 0]
+    expected = -PRESSURE * (1.0 + 0.5 * x)  # linear: the facet's mean is its centre's value
+    np.testing.assert_allclose(on_cells[:, 1, 2], expected, rtol=1e-12)
+    np.testing.assert_allclose(on_cells[:, 1, :2], 0.0, atol=1e-14)
+
+
+@pytest.mark.parametrize(
+    ("load", "key", "words"),
+    [
+        ({"force": [0, 0, 1], "pressure": 1.0}, "load[0].force", "exactly one of"),
+        ({}, "load[0].force", "exactly one of"),
+        (
+            {"force": [0, 0, 1], "distribution": [[0, 1], [1, 2]]},
+            "load[0].distribution",
+            "pressure",
+        ),
+        (
+            {"pressure": 1.0, "distribution": [[1, 1], [1, 2]]},
+            "load[0].distribution[1][0]",
+            "increase",
+        ),
+        ({"pressure": 1.0, "distribution": [[0, 1], [1]]}, "load[0].distribution[1]", "pair"),
+        ({"pressure": 1.0, "x_min": 3.0, "x_max": 2.0}, "load[0].x_max", ">= x_min"),
+    ],
+)
+def test_the_config_refuses_a_load_it_cannot_apply(load, key, words):
+    from fenics_adaptive.errors import InputError
+
+    data = cantilever("adaptive", "top")
+    data["load"] = [{"face": "top", "curve": [[0.0, 1.0]]} | load]
+    with pytest.raises(InputError) as error:
+        parse_config(data)
+    assert error.value.key == key and words in str(error.value), str(error.value)
+
+
+def test_a_region_without_facets_is_refused_naming_the_load():
+    from fenics_adaptive.errors import InputError
+
+    with pytest.raises(InputError, match="no facet of face 'top'") as error:
+        loaded("top", {"pressure": 1.0, "x_min": 1.1, "x_max": 1.4})
+    assert error.value.key == "load[0].face"

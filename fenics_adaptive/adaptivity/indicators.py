@@ -288,7 +288,7 @@ def interlaminar_stresses(
       (``recovered_interface_stresses``): the shear and peel that in-plane stress gradients
       carry (bending under transverse shear, a pressure's bending);
     - the *face tractions* on the top and bottom faces: the face loads
-      (``ResolvedLoads.face_traction``) and ``face_force`` (N on the base DOFs, owned: the
+      (``ResolvedLoads.cell_face_tractions``) and ``face_force`` (N on the base DOFs, owned: the
       reactions of prescribed motions and contact forces, ``face_tractions``): the values at
       the faces, a linear correction taking the recovered profile onto them;
     - the cell's *own resultants*: the thickness mean of its constitutive sigma_zz, tau_xz,
@@ -306,9 +306,7 @@ def interlaminar_stresses(
     # sigma_i3 on the faces: the top face's outward normal is +z (sigma_i3 = T_i), the bottom
     # face's -z (sigma_i3 = -T_i); components in the (sigma_zz, tau_xz, tau_yz) order
     order = [2, 0, 1]
-    on_faces = np.zeros((len(stresses), 2, 3))
-    on_faces[:, 0] = structure.loads.face_traction(t, "bottom")
-    on_faces[:, 1] = structure.loads.face_traction(t, "top")
+    on_faces = structure.loads.cell_face_tractions(t, len(stresses))
     if face_force is not None:
         on_faces += face_tractions(structure, face_force)
     bottom, top = -on_faces[:, 0, order], on_faces[:, 1, order]

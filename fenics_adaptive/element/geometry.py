@@ -9,6 +9,8 @@ opposite); a hexahedron's bottom face is vertices 0-3, its top face 4-7.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 
 
@@ -47,6 +49,34 @@ HEX_FACETS = np.array(
 HEX_SIDE_FACETS = np.array([1, 2, 3, 4], dtype=np.int64)
 
 _GAUSS_2 = 0.5 * (1.0 + np.array([-1.0, 1.0]) / np.sqrt(3.0))  # on [0, 1], weights 1/2 each
+
+
+def quad_traction_integrals(
+    X: np.ndarray,
+    outward: np.ndarray,
+    traction: Callable[[np.ndarray, np.ndarray], np.ndarray],
+) -> np.ndarray:
+    """Work-equivalent nodal forces (k, 4, 3) N of a traction over quadrilaterals with vertices
+    X (k, 4, 3) in tensor order: the integral of N_i t(x) over each, by 2 x 2 Gauss points
+    (exact for planar faces and a traction linear in x). ``outward`` (k, 3): a vector pointing
+    out of the body at each face (the unit normals are turned to agree with it);
+    ``traction(points, normals)``: (m, 3) N/mm^2 at points (m, 3) mm with outward unit normals
+    (m, 3)."""
+    out = np.zeros(X.shape)
+    for s in _GAUSS_2:
+        for r in _GAUSS_2:
+            N = np.array([(1 - s) * (1 - r), s * (1 - r), (1 - s) * r, s * r])
+            dN_ds = np.array([-(1 - r), 1 - r, -r, r])
+            dN_dr = np.array([-(1 - s), -s, 1 - s, s])
+            ts = np.einsum("k,...kj->...j", dN_ds, X)
+            tr = np.einsum("k,...kj->...j", dN_dr, X)
+            normal = np.cross(ts, tr)
+            area = np.linalg.norm(normal, axis=-1)  # per unit (s, r) area
+            normal /= np.where(area > 0.0, area, 1.0)[:, None]
+            normal *= np.where(np.einsum("kj,kj->k", normal, outward) < 0.0, -1.0, 1.0)[:, None]
+            t = traction(np.einsum("k,...kj->...j", N, X), normal)
+            out += 0.25 * (area[:, None] * t)[:, None, :] * N[None, :, None]
+    return out
 
 
 def quad_shape_integrals(X: np.ndarray) -> np.ndarray:

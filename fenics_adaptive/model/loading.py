@@ -3,10 +3,13 @@
 Units: N, mm, s. A face is named by its group in the mesh (``fenics_adaptive.meshes.beam``: x0, x1,
 top, x1_layer3, ...). Components are "x", "y", "z".
 
-A face load is a uniform traction (total force / face area), given to the nodes as the integral
-of the traction times each node's shape function over the face (work-equivalent): assembled by
-the UFL form on the unrefined mesh, and moved by ``ResolvedLoads.refine`` onto the faces of the
-subelements of refined cells, whose extra nodes on the face then carry their share. Only side
+A face load acts on the facets of its face whose centroid lies in its region: a uniform traction
+(total force / area of those facets), or a pressure against the outward normal, shaped along x
+by its distribution. It is given to the nodes as the integral of the traction times each
+node's shape function over the facets (work-equivalent, ``quad_traction_integrals``): on the
+unrefined mesh, and moved by ``ResolvedLoads.refine`` onto the faces of the subelements of
+refined cells, whose extra nodes on the face then carry their share (the same integrals, so
+the two never disagree). Only side
 faces change: a refined cell's bottom and top subelements keep its base nodes on the bottom and
 top faces. An extra node on the border of a refined region (bound to masters, ``model.border``)
 hands its share to its masters with the constraint's weights, as it does its internal force, so
@@ -17,14 +20,17 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
-import dolfinx
 import numpy as np
-import ufl
 from dolfinx import common, fem, la
 from mpi4py import MPI
 
 from fenics_adaptive.adaptivity import enrichment as enr
-from fenics_adaptive.element.geometry import HEX_FACETS, HEX_SIDE_FACETS, quad_shape_integrals
+from fenics_adaptive.element.geometry import (
+    HEX_FACETS,
+    HEX_SIDE_FACETS,
+    quad_areas,
+    quad_traction_integrals,
+)
 from fenics_adaptive.errors import InputError, shared_errors
 from fenics_adaptive.model.border import BorderConstraints, transfer_forces
 from fenics_adaptive.model.forms import LayeredModel
@@ -42,17 +48,19 @@ class ResolvedLoads:
     fixed_motion: np.ndarray  # index into ``motions`` for each fixed DOF
     load_vectors: list[np.ndarray]  # one nodal force vector per FaceLoad (owned + ghosts), N
     load_amplitudes: list[Amplitude]
-    # per load: its uniform traction (3,) N/mm^2 and the (owned cell, local facet) pairs of
-    # the cells' side facets on its face (the facets whose share refinement moves)
-    tractions: list[np.ndarray] = field(default_factory=list)
-    side_facets: list[np.ndarray] = field(default_factory=list)
+    # per load: its traction at amplitude 1 and the (owned cell, local facet) pairs of the
+    # facets it acts on (refinement moves the share of the side facets among them)
+    tractions: list[FaceTraction] = field(default_factory=list)
+    facets: list[np.ndarray] = field(default_factory=list)
     # per load: the base vector as assembled on the unrefined mesh, and the extra nodes' share
     # (local extra DOFs, owned + ghosts, N) of the current refinement (``refine``)
     assembled: list[np.ndarray] = field(default_factory=list)
     extra_vectors: list[np.ndarray] = field(default_factory=list)
     # some rank's extra nodes carry load (the same on every rank)
     has_extra: bool = False
-    faces: list[str] = field(default_factory=list)  # per load: the face it acts on
+    # per load on the bottom or top face: the mean traction (n_owned_cells, 2, 3) N/mm^2 it
+    # puts on each owned cell's bottom (0) and top (1) face at amplitude 1
+    cell_tractions: list[np.ndarray] = field(default_factory=list)
     # per load: this rank's sum (3,) N of the extra vector's owned entries
     extra_resultants: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     _scratch: np.ndarray | None = None
@@ -62,15 +70,13 @@ class ResolvedLoads:
     def constrained(self) -> np.ndarray:
         return self.fixed
 
-    def face_traction(self, t: float, face: str) -> np.ndarray:
-        """The traction (3,) in N/mm^2 = MPa that the loads on ``face`` apply at time t (s),
-        uniform over the face (zero without such loads)."""
-        total = np.zeros(3)
-        for on, traction, amplitude in zip(
-            self.faces, self.tractions, self.load_amplitudes, strict=True
-        ):
-            if on == face:
-                total += amplitude(t) * traction
+    def cell_face_tractions(self, t: float, n_cells: int) -> np.ndarray:
+        """(n_cells, 2, 3) N/mm^2 = MPa: the mean traction the loads put on the bottom (0) and
+        top (1) face of each of the ``n_cells`` owned cells at time t (s)."""
+        total = np.zeros((n_cells, 2, 3))
+        for tractions, amplitude in zip(self.cell_tractions, self.load_amplitudes, strict=True):
+            if len(tractions):
+                total += amplitude(t) * tractions
         return total
 
     def external_force(
@@ -147,9 +153,9 @@ class ResolvedLoads:
         self.load_vectors, self.extra_vectors = [], []
         resultants = []
         for traction, facets, assembled in zip(
-            self.tractions, self.side_facets, self.assembled, strict=True
+            self.tractions, self.facets, self.assembled, strict=True
         ):
-            facets = facets[refined[facets[:, 0]]]
+            facets = facets[refined[facets[:, 0]] & np.isin(facets[:, 1], HEX_SIDE_FACETS)]
             cells, local = facets[:, 0], facets[:, 1]
             whole = cell_nodes[cells[:, None], HEX_FACETS[local]]  # (k, 4) base nodes
             # the subelements of each facet's cell, the facet's vertices of each
@@ -160,10 +166,15 @@ class ResolvedLoads:
             subs = order[np.repeat(start, count) + offsets]
             parts = subelement_nodes[subs[:, None], HEX_FACETS[local[facet_of]]]  # (j, 4)
             nodes = np.concatenate([whole, parts])
-            shares = quad_shape_integrals(positions(nodes))
+            X = positions(nodes)
+            # out of the body: from the cell's centre to the facet's (a part shares its facet's)
+            outward = positions(whole).mean(axis=1) - positions(cell_nodes[cells]).mean(axis=1)
+            shares = quad_traction_integrals(
+                X, np.concatenate([outward, outward[facet_of]]), traction
+            )
             shares[: len(whole)] *= -1.0
             combined = np.zeros((n_base + n_extra, 3))
-            np.add.at(combined, nodes.ravel(), shares.ravel()[:, None] * traction)
+            np.add.at(combined, nodes.ravel(), shares.reshape(-1, 3))
             delta_base = la.vector(base_map, bs=3)
             delta_extra = la.vector(extra_map, bs=3)
             delta_base.array[:] = combined[:n_base].ravel()
@@ -254,13 +265,6 @@ def face_dofs(
     return dofs.astype(np.int32)
 
 
-def face_area(model: LayeredModel, face: str) -> float:
-    ds = ufl.Measure("ds", domain=model.mesh, subdomain_data=model.beam.facet_tags)
-    tags = model.beam.face_tags[face]
-    area = fem.assemble_scalar(fem.form(1.0 * ds(tags)))
-    return model.comm.allreduce(area, op=MPI.SUM)
-
-
 def resolve(
     model: LayeredModel, motions: Sequence[PrescribedMotion], loads: Sequence[FaceLoad]
 ) -> ResolvedLoads:
@@ -294,30 +298,55 @@ def resolve(
     fixed = np.array(sorted(owner), dtype=np.int32)
     fixed_motion = np.array([owner[int(d)] for d in fixed], dtype=np.int32)
 
-    vectors, tractions, side_facets = [], [], []
-    ds = ufl.Measure("ds", domain=model.mesh, subdomain_data=model.beam.facet_tags)
-    v = ufl.TestFunction(model.V)
+    vectors, tractions, facet_lists, cell_tractions = [], [], [], []
     tdim = model.mesh.topology.dim
     model.mesh.topology.create_connectivity(tdim, tdim - 1)
     n_facets = len(HEX_FACETS)
     cell_facets = model.mesh.topology.connectivity(tdim, tdim - 1).array.reshape(-1, n_facets)
-    cell_sides = cell_facets[: model.n_owned_cells, HEX_SIDE_FACETS]
+    cell_facets = cell_facets[: model.n_owned_cells]
+    cell_nodes = model.V.dofmap.list[: model.n_owned_cells]
+    X_nodes = model.V.tabulate_dof_coordinates()
+    index_map = model.V.dofmap.index_map
     for load in loads:
         if "&" in load.face:
             raise InputError(
                 load.key or "load", f"{load.face!r}: a load acts on one face, not on a&b"
             )
-        area = face_area(model, load.face)
-        tractions.append(np.asarray(load.force, dtype=np.float64) / area)
-        cells, sides = np.nonzero(np.isin(cell_sides, model.beam.facets(load.face)))
-        side_facets.append(np.column_stack([cells, HEX_SIDE_FACETS[sides]]).astype(np.int64))
-        traction = ufl.as_vector([f / area for f in load.force])
-        vec = fem.assemble_vector(
-            fem.form(ufl.dot(traction, v) * ds(model.beam.face_tags[load.face]))
+        # the (owned cell, local facet) pairs on the face with their centroid in the region
+        cells, local = np.nonzero(np.isin(cell_facets, model.beam.facets(load.face)))
+        X = X_nodes[cell_nodes[cells[:, None], HEX_FACETS[local]]]  # (k, 4, 3)
+        centre = X.mean(axis=1)
+        x_min, x_max, y_min, y_max = load.region
+        inside = (
+            (centre[:, 0] >= x_min)
+            & (centre[:, 0] <= x_max)
+            & (centre[:, 1] >= y_min)
+            & (centre[:, 1] <= y_max)
         )
-        vec.scatter_reverse(dolfinx.la.InsertMode.add)
-        vec.scatter_forward()
-        vectors.append(vec.array.copy())
+        cells, local, X, centre = cells[inside], local[inside], X[inside], centre[inside]
+        area = model.comm.allreduce(float(quad_areas(X).sum()), op=MPI.SUM)
+        if area == 0.0:
+            raise InputError(
+                load.key or "load",
+                f"no facet of face {load.face!r} has its centroid in the load's region "
+                f"x in [{x_min:g}, {x_max:g}], y in [{y_min:g}, {y_max:g}] mm",
+            )
+        traction = FaceTraction.of(load, area)
+        outward = centre - X_nodes[cell_nodes[cells]].mean(axis=1)
+        shares = quad_traction_integrals(X, outward, traction)  # (k, 4, 3)
+        vector = la.vector(index_map, bs=3)
+        nodal = vector.array.reshape(-1, 3)
+        np.add.at(
+            nodal, cell_nodes[cells[:, None], HEX_FACETS[local]].ravel(), shares.reshape(-1, 3)
+        )
+        vector.scatter_reverse(la.InsertMode.add)
+        vector.scatter_forward()
+        vectors.append(vector.array.copy())
+        tractions.append(traction)
+        facet_lists.append(np.column_stack([cells, local]).astype(np.int64))
+        cell_tractions.append(
+            _cell_face_tractions(load.face, cells, shares, X, model.n_owned_cells)
+        )
     return ResolvedLoads(
         list(motions),
         fixed,
@@ -325,12 +354,47 @@ def resolve(
         vectors,
         [load.amplitude for load in loads],
         tractions,
-        side_facets,
+        facet_lists,
         [vector.copy() for vector in vectors],
         [np.zeros(0) for _ in loads],
         extra_resultants=np.zeros((len(loads), 3)),
-        faces=[load.face for load in loads],
+        cell_tractions=cell_tractions,
     )
+
+
+@dataclass(frozen=True)
+class FaceTraction:
+    """The traction (N/mm^2) of a face load at amplitude 1, as ``quad_traction_integrals``
+    takes it: uniform ``vector`` (a total force over the loaded area), or the load's pressure
+    times its distribution's factor at x, against the outward normal."""
+
+    load: FaceLoad
+    vector: np.ndarray | None = None
+
+    @classmethod
+    def of(cls, load: FaceLoad, area: float) -> FaceTraction:
+        """The traction of ``load`` acting on ``area`` mm^2 (over all ranks)."""
+        if load.pressure is not None:
+            return cls(load)
+        return cls(load, np.asarray(load.force, dtype=np.float64) / area)
+
+    def __call__(self, points: np.ndarray, normals: np.ndarray) -> np.ndarray:
+        if self.vector is not None:
+            return np.broadcast_to(self.vector, points.shape)
+        return -self.load.pressure * self.load.factor(points[:, 0])[:, None] * normals
+
+
+def _cell_face_tractions(
+    face: str, cells: np.ndarray, shares: np.ndarray, X: np.ndarray, n_cells: int
+) -> np.ndarray:
+    """(n_cells, 2, 3) mean traction (N/mm^2) of a load on the bottom (0) or top (1) face of
+    the owned cells ``cells`` (its nodal shares (k, 4, 3) N over the facets X (k, 4, 3)); empty
+    for a load on another face."""
+    if face not in ("bottom", "top"):
+        return np.zeros((0, 2, 3))
+    out = np.zeros((n_cells, 2, 3))
+    out[cells, int(face == "top")] = shares.sum(axis=1) / quad_areas(X)[:, None]
+    return out
 
 
 def _motion_key(motion: PrescribedMotion) -> str:

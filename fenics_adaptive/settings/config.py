@@ -404,6 +404,23 @@ class _Table:
                 )
         return tuple(times), tuple(scales)
 
+    def pairs(self, name: str) -> tuple[tuple[float, ...], tuple[float, ...]] | None:
+        """A list [[x0, v0], [x1, v1], ...] of finite numbers, x strictly increasing."""
+        value = self._value(name, "pairs")
+        if name not in self.data:
+            return value
+        key = self.key(name)
+        _expect(value, list, key, "a list of [x, value] pairs", ok=bool)
+        xs, values = [], []
+        for i, pair in enumerate(value):
+            pair_key = f"{key}[{i}]"
+            _expect(pair, list, pair_key, "an [x, value] pair", ok=_is_pair, shown=repr)
+            xs.append(self._check_number(name, pair[0], f"{key}[{i}][0]"))
+            values.append(self._check_number(name, pair[1], f"{key}[{i}][1]"))
+            if i and xs[-1] <= xs[-2]:
+                raise InputError(f"{key}[{i}][0]", f"x must increase ({xs[-2]:g} before)")
+        return tuple(xs), tuple(values)
+
     def table(self, name: str) -> _Table | None:
         """A sub-table, read against the schema section ``<this section>.<name>``."""
         value = self._value(name, "table")
@@ -712,12 +729,33 @@ def _prescribed(
 
 
 def _loads(root: _Root, faces: list[str]) -> list[FaceLoad]:
-    """[[load]]: a total force (N) on one face each, with its time curve."""
+    """[[load]]: a total force (N) or a pressure (MPa, optionally distributed along x) on one
+    face each, or on the part of it in an x, y region (mm), with its time curve."""
     loads: list[FaceLoad] = []
     for table in root.tables("load"):
         face = table.face("face", faces, single=True)
+        if table.has("force") == table.has("pressure"):
+            raise InputError(
+                table.key("force"), "give exactly one of force (N, total) or pressure (MPa)"
+            )
         force = table.numbers("force")
-        loads.append(FaceLoad(face, force, _amplitude(table), key=table.key("face")))
+        pressure = table.number("pressure")
+        distribution = table.pairs("distribution")
+        if distribution is not None and pressure is None:
+            raise InputError(table.key("distribution"), "shapes a pressure: give pressure")
+        x_min, x_max = table.range("x_min", "x_max")
+        y_min, y_max = table.range("y_min", "y_max")
+        loads.append(
+            FaceLoad(
+                face,
+                force,
+                _amplitude(table),
+                key=table.key("face"),
+                pressure=pressure,
+                distribution=distribution,
+                region=(x_min, x_max, y_min, y_max),
+            )
+        )
     return loads
 
 

@@ -1,5 +1,5 @@
 """Loads as the config gives them: time curves, clamps, prescribed motions, face loads and the
-impactor (standard library only; ``model.loading`` resolves them to the DOFs of a model,
+impactor (standard library and numpy only; ``model.loading`` resolves them to the DOFs of a model,
 ``model.contact`` makes the impactor act).
 
 Units: N, mm, s, tonne. A face is named by its group in the mesh (``fenics_adaptive.meshes.beam``:
@@ -13,6 +13,8 @@ import functools
 import itertools
 import math
 from dataclasses import dataclass, field
+
+import numpy as np
 
 from fenics_adaptive.settings.kinds import ImpactorShape, MotionKind
 
@@ -125,12 +127,34 @@ class PrescribedMotion:
 
 @dataclass(frozen=True)
 class FaceLoad:
-    """A total force (N, vector) spread over a face as a uniform traction, times amplitude(t)."""
+    """A load on a face, times amplitude(t): a total force ``force`` (N, vector) spread as a
+    uniform traction, or a ``pressure`` (MPa, normal to the face; positive pushes into the
+    body, against the outward normal) shaped along x by ``distribution``. ``region``
+    (x_min, x_max, y_min, y_max, mm) limits it to the face's facets whose centroid lies in it.
+
+    ``distribution``: (x (mm), factor) points, x increasing; the pressure at x is ``pressure``
+    times the factor interpolated linearly, held at the end values outside the points (None:
+    a factor of 1 everywhere)."""
 
     face: str
-    force: tuple[float, float, float]
+    force: tuple[float, float, float] | None
     amplitude: Amplitude
     key: str = field(default="", compare=False)  # the config key that made it (for errors)
+    pressure: float | None = None
+    distribution: tuple[tuple[float, ...], tuple[float, ...]] | None = None
+    region: tuple[float, float, float, float] = (-math.inf, math.inf, -math.inf, math.inf)
+
+    def __post_init__(self) -> None:
+        if (self.force is None) == (self.pressure is None):
+            raise ValueError("a face load has either a force or a pressure")
+        if self.distribution is not None and self.pressure is None:
+            raise ValueError("a distribution shapes a pressure")
+
+    def factor(self, x):
+        """The distribution's factor at x (mm, a number or an array)."""
+        if self.distribution is None:
+            return np.ones_like(x, dtype=float)
+        return np.interp(x, *self.distribution)
 
 
 def clamp(face: str) -> list[PrescribedMotion]:

@@ -43,6 +43,7 @@ MAX_LENGTH = 1.0e5  # mm: largest length, width, ply thickness, radius, coordina
 MIN_LENGTH = 1.0e-4  # mm: smallest cell size or ply thickness (Gmsh's tolerance is 1e-8 mm)
 MAX_ASPECT = 1.0e4  # largest ratio of a cell's longest to its shortest side (and of plies)
 MAX_FORCE = 1.0e12  # N: largest force component
+MAX_PRESSURE = 1.0e7  # MPa: largest pressure (10 TPa, far above any material's strength)
 MAX_DISPLACEMENT = 1.0e5  # mm: largest prescribed displacement
 MAX_SPEED = 1.0e8  # mm/s: largest prescribed or impactor velocity component
 MAX_TIME = 1.0e6  # s: largest time in a time curve, rise time or trigger
@@ -86,7 +87,8 @@ class Key:
 
     ``kind``: "float", "int", "bool", "choice", "string", "face" (a face name or faces joined
     by &), "floats" (a list of numbers, ``length`` of them if given), "ints" (a list of
-    integers), "curve" (a list of [time, scale] pairs), "tables" (an array of tables: the
+    integers), "curve" (a list of [time, scale] pairs), "pairs" (a list of [x, value] pairs, x
+    increasing), "tables" (an array of tables: the
     section ``<section>.<name>``), "table" (a sub-table: the section ``<section>.<name>``).
     ``default``: REQUIRED, OPTIONAL (may be left out, no value) or the value. Bounds
     ``minimum``/``maximum`` apply to the number or to each element of a list; ``open_min`` /
@@ -126,7 +128,7 @@ class Key:
         if self.upper_of:
             parts.append(f">= {self.upper_of}")
         text = ", ".join(parts)
-        if self.kind in ("float", "floats", "curve"):
+        if self.kind in ("float", "floats", "curve", "pairs"):
             text = f"finite{', ' + text if text else ''}"
         if self.length:
             text = f"{self.length} values{', ' + text if text else ''}"
@@ -482,18 +484,54 @@ SECTIONS: tuple[Section, ...] = (
     ),
     Section(
         "load",
-        "a total force spread over one face as a uniform traction, times a time curve",
+        "a total force spread over one face (or the part of it in a region) as a uniform"
+        " traction, or a pressure normal to it, times a time curve; give force or pressure",
         (
             Key("face", "face", "face group the load acts on (one face, not an edge a&b)"),
             Key(
                 "force",
                 "floats",
-                "[Fx, Fy, Fz], total over the face",
+                "[Fx, Fy, Fz], total over the face (or its region)",
                 "N",
-                REQUIRED,
+                OPTIONAL,
                 -MAX_FORCE,
                 MAX_FORCE,
                 length=3,
+            ),
+            Key(
+                "pressure",
+                "float",
+                "normal to the face; positive pushes into the body (against the outward normal)",
+                "MPa",
+                OPTIONAL,
+                -MAX_PRESSURE,
+                MAX_PRESSURE,
+            ),
+            Key(
+                "distribution",
+                "pairs",
+                "the pressure's factor along x: [[x, factor], ...], x increasing, linear between"
+                " the points, held at the end values outside them (default: 1)",
+                "mm",
+                OPTIONAL,
+            ),
+            Key("x_min", "float", "only the facets with centroid x >= x_min", "mm", OPTIONAL),
+            Key(
+                "x_max",
+                "float",
+                "only the facets with centroid x <= x_max",
+                "mm",
+                OPTIONAL,
+                upper_of="x_min",
+            ),
+            Key("y_min", "float", "only the facets with centroid y >= y_min", "mm", OPTIONAL),
+            Key(
+                "y_max",
+                "float",
+                "only the facets with centroid y <= y_max",
+                "mm",
+                OPTIONAL,
+                upper_of="y_min",
             ),
             *_TIME_CURVE,
         ),
@@ -977,6 +1015,7 @@ def _type_text(key: Key) -> str:
         "floats": "list of numbers",
         "ints": "list of integers",
         "curve": "list of [t, s]",
+        "pairs": "list of [x, value]",
         "tables": "array of tables",
         "table": "table",
     }[key.kind]
