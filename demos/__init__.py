@@ -13,7 +13,14 @@ from pathlib import Path
 
 HERE = Path(__file__).parent
 # in the order of the README
-NAMES = ("esl_cantilever", "tcb", "four_point_bending", "plate_impact", "esl_vs_lw")
+NAMES = (
+    "esl_cantilever",
+    "tcb",
+    "four_point_bending",
+    "plate_impact",
+    "esl_vs_lw",
+    "fracture_tests",
+)
 
 
 def describe(name: str) -> str:

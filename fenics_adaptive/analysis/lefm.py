@@ -104,3 +104,125 @@ def lefm_comparison(config: RunConfig, history: dict, interface: int = 6) -> dic
         "force_over_lefm_max": float(ratio.max()) if on_branch.any() else None,
         "root_rotation_chi": root_rotation_correction(config.laminate.plies[0].material),
     }
+
+
+def dcb_force(
+    opening: np.ndarray, modulus: float, width: float, arm: float, GIc: float, crack: float
+) -> np.ndarray:
+    """Force (N) of a symmetric double cantilever beam (two equal arms) against the total
+    opening Delta (mm) of its load line, by corrected beam theory: the linear branch
+    P = 3 E I Delta / (2 a^3) of the crack length ``crack`` a (mm, from the load line; pass
+    a0 + chi h for the root-rotation correction) until G = P^2 a^2 / (b E I) reaches GIc, then
+    the propagation branch P = (b E I GIc)^(3/4) sqrt(2 / (3 E I Delta)), which the correction
+    leaves unchanged. E I = E1 b h^3 / 12 of one arm (``arm``: its thickness h, mm).
+
+    Parameters:
+        opening: the load line's openings Delta (mm), any shape.
+        modulus: the arms' bending modulus E1 (MPa).
+        width: the beam's width b (mm).
+        arm: one arm's thickness h (mm).
+        GIc: the mode-I fracture energy (N/mm).
+        crack: the initial (effective) crack length (mm).
+
+    Returns:
+        The force at each opening (N), the shape of ``opening``.
+    """
+    EI = modulus * width * arm**3 / 12.0
+    opening = np.maximum(np.asarray(opening, dtype=float), SMALLEST_OPENING)
+    linear = 3.0 * EI * opening / (2.0 * crack**3)
+    branch = (width * EI * GIc) ** 0.75 * np.sqrt(2.0 / (3.0 * EI * opening))
+    return np.minimum(linear, branch)
+
+
+def dcb_initiation_force(modulus: float, width: float, arm: float, GIc: float, crack: float):
+    """The force (N) at which a symmetric DCB with crack length ``crack`` (mm, effective)
+    reaches GIc: sqrt(b E I GIc) / a (``dcb_force``'s two branches meet there)."""
+    EI = modulus * width * arm**3 / 12.0
+    return float(np.sqrt(width * EI * GIc) / crack)
+
+
+def dcb_comparison(config: RunConfig, history: dict, bin_width: float = 5.0) -> dict:
+    """A DCB run against corrected beam theory (``dcb_force``). The specimen: two equal arms
+    above and below the interface of its first insert film ([[delamination]]), which reaches
+    the load line at x = length; the history's ``displacement`` is the top arm's load-line
+    displacement (the opening is twice it) and ``reaction_force`` the force on it.
+
+    Parameters:
+        config: the run's config.
+        history: its history columns (``io.output.read_history``).
+        bin_width: the crack-length bins (mm) of the propagation branch.
+
+    Returns:
+        The initial crack ``a0_mm`` and its root-rotation correction ``chi`` (x arm thickness),
+        ``initiation_force_N`` (analytic, effective crack a0 + chi h) against ``peak_force_N``;
+        ``initial_stiffness_N_per_mm`` against corrected beam theory's; on the propagation
+        branch (crack longer than a0 + 5 arm thicknesses): the run's force over the theory's,
+        mean, min, max and per ``bin_width`` bin; ``dissipation_rate_over_GIc``: the slope of
+        the cohesive dissipation against the grown area, over GIc; ``kinetic_energy_share``:
+        the largest kinetic energy over the work put in (once that is 1 % of its final value).
+
+    Raises:
+        ValueError: no insert film, or arms of unequal thickness.
+    """
+    if not config.delaminations:
+        raise ValueError("dcb_comparison: the config has no insert film ([[delamination]])")
+    film = config.delaminations[0]
+    arm = arm_thickness(config.laminate, film.interface)
+    if abs(arm - (config.laminate.thickness - arm)) > 1e-9 * arm:
+        raise ValueError(f"dcb_comparison: the arms are {arm:g} and "
+                         f"{config.laminate.thickness - arm:g} mm thick, not equal")  # fmt: skip
+    material = config.laminate.plies[0].material
+    width, GIc = config.mesh.width, config.cohesive.GIc
+    a0 = config.mesh.length - film.x_min
+    chi = root_rotation_correction(material)
+    effective = a0 + chi * arm
+    opening = 2.0 * np.asarray(history["displacement"])
+    force = np.asarray(history["reaction_force"])
+    grown = np.asarray(history["crack_growth_area"])
+    crack = a0 + grown / width
+    theory = dcb_force(opening, material.E1, width, arm, GIc, effective)
+    initiation = dcb_initiation_force(material.E1, width, arm, GIc, effective)
+    EI = material.E1 * width * arm**3 / 12.0
+    elastic = (grown == 0.0) & (force > 0.05 * initiation) & (force < 0.5 * initiation)
+    stiffness = (
+        float(np.polyfit(opening[elastic], force[elastic], 1)[0]) if elastic.sum() > 1 else None
+    )
+    on_branch = crack > a0 + 5.0 * arm
+    ratio = force[on_branch] / theory[on_branch]
+    bins = {}
+    for low in np.arange(a0 + 5.0 * arm, crack.max(), bin_width):
+        chosen = on_branch & (crack >= low) & (crack < low + bin_width)
+        if chosen.any():
+            bins[f"{low:.1f}-{low + bin_width:.1f}"] = float(
+                np.mean(force[chosen] / theory[chosen])
+            )
+    growing = grown > 0.0
+    dissipation = np.asarray(history["cohesive_dissipation"])
+    rate = (
+        float(np.polyfit(grown[growing], dissipation[growing], 1)[0] / GIc)
+        if len(np.unique(grown[growing])) > 1
+        else None
+    )
+    work = np.asarray(history["external_work"])
+    loaded = work > 0.01 * work.max() if work.max() > 0 else np.zeros(len(work), bool)
+    kinetic = np.asarray(history["kinetic_energy"])
+    return {
+        "a0_mm": a0,
+        "chi": chi,
+        "arm_thickness_mm": arm,
+        "initiation_force_N": initiation,
+        "peak_force_N": float(force.max()),
+        "peak_over_initiation": float(force.max() / initiation),
+        "initial_stiffness_N_per_mm": stiffness,
+        "theory_stiffness_N_per_mm": 3.0 * EI / (2.0 * effective**3),
+        "crack_length_range_mm": [float(a0), float(crack.max())],
+        "branch_points": int(on_branch.sum()),
+        "force_over_theory_mean": float(ratio.mean()) if on_branch.any() else None,
+        "force_over_theory_min": float(ratio.min()) if on_branch.any() else None,
+        "force_over_theory_max": float(ratio.max()) if on_branch.any() else None,
+        "force_over_theory_bins": bins,
+        "dissipation_rate_over_GIc": rate,
+        "kinetic_energy_share": float((kinetic[loaded] / work[loaded]).max())
+        if loaded.any()
+        else None,
+    }
