@@ -257,7 +257,10 @@ def _open_outputs(
     comm, record = simulation.structure.comm, folder.record
     record(out_dir / "history.partial.csv", out_dir / "history.csv")
     with shared_errors(comm):  # rank 0 opens the file
-        history = output.HistoryWriter(out_dir, comm, kept_rows)
+        bodies = [
+            f"{b.name}_{what}" for b in config.rigid_bodies for what in ("force", "displacement")
+        ]
+        history = output.HistoryWriter(out_dir, comm, kept_rows, bodies)
     fields = None
     if config.solver.field_interval:
         with shared_errors(comm):  # rank 0 makes the folder; its error reaches every rank

@@ -36,7 +36,7 @@ from fenics_adaptive.model.structure import Structure, cells_in_x_range
 from fenics_adaptive.settings.adaptivity import Delamination
 from fenics_adaptive.settings.config import RunConfig
 from fenics_adaptive.settings.kinds import InterfaceState, ModelKind, MotionKind, Refinement
-from fenics_adaptive.settings.loads import Amplitude, PrescribedMotion
+from fenics_adaptive.settings.loads import Amplitude, PrescribedMotion, RigidBody
 from fenics_adaptive.solver.explicit import ExplicitSolver, HistoryRow, RunStats, choose_time_step
 from fenics_adaptive.solver.observers import Observer
 
@@ -309,18 +309,9 @@ class Simulation:
         )
         self.refinement = RefinementHook(config, indicators)
         run_contributors: list[ForceContributor] = []
-        if config.impactor is not None:
-            contact = Contact.on(config.impactor, self.structure)
-            contact.check_penalty(
-                self.time_step, self.stable_time_step / config.solver.safety_factor
-            )
-            gap = contact.initial_gap()
-            if gap <= 0.0:
-                raise InputError(
-                    "impactor.position",
-                    f"the impactor starts {-gap:.4g} mm inside the top face; place it above",
-                )
-            run_contributors.append(contact)
+        bodies = [config.impactor.body()] if config.impactor is not None else []
+        for body in [*bodies, *config.rigid_bodies]:
+            run_contributors.append(self._contact(body))
         run_contributors += contributors
         self.solver = ExplicitSolver(
             self.structure,
@@ -332,6 +323,23 @@ class Simulation:
         )
         # the interlaminar estimate takes the supports' and the impactor's forces on the faces
         self.refinement.face_force = self.solver.face_force
+
+    def _contact(self, body: RigidBody) -> Contact:
+        """Collective: the contact of a rigid body, refused (InputError) if the body starts
+        inside its face or its penalty is too stiff for the time step."""
+        contact = Contact.on(body, self.structure)
+        contact.check_penalty(
+            self.time_step, self.stable_time_step / self.config.solver.safety_factor
+        )
+        gap = contact.initial_gap()
+        if gap <= 0.0:
+            side = "above" if body.face == "top" else "below"
+            raise InputError(
+                f"{contact.key}.position",
+                f"the {'impactor' if body.name == 'impactor' else 'body'} starts {-gap:.4g} mm "
+                f"inside the {body.face} face; place it {side}",
+            )
+        return contact
 
     # ------------------------------------------------------------------ set up
     def add_observer(self, observer: Observer) -> None:

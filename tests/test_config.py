@@ -430,6 +430,24 @@ def every_config() -> list[tuple[str, dict]]:
         {"interface": 6, "x_min": 8.0, "x_max": 10.0, "y_min": 0.0, "y_max": 0.5}
     ]
     configs.append(("refinement", tcb))
+    bodies = tomllib.loads((root / "tests" / "data" / "three_point_bending.toml").read_text())
+    bodies["rigid"][2].update(displacement=[0.0, 0.0, -0.5], curve=[[0.0, 0.0], [4e-3, 1.0]])
+    for key in ("velocity", "rise_time", "profile"):
+        del bodies["rigid"][2][key]
+    bodies["rigid"].append(
+        {
+            "name": "ball",
+            "shape": "sphere",
+            "radius": 1.0,
+            "position": [30.0, 2.5, 6.0],
+            "face": "top",
+            "motion": "free",
+            "mass": 1e-6,
+            "velocity": [0.0, 0.0, -100.0],
+            "penalty": 1.0e4,
+        }
+    )
+    configs.append(("rigid bodies", bodies))
     return configs
 
 

@@ -20,14 +20,14 @@ DATA = Path(__file__).parent / "data"
 def test_penalty_force_points_away_from_the_centre_and_stores_its_energy():
     x = np.array([[0.0, 0.0, 0.9], [0.6, 0.0, 0.8], [0.0, 0.0, 2.0]])  # two inside R = 1
     f, on_impactor = np.zeros_like(x), np.zeros(3)
-    energy = penalty_forces(x, np.zeros(3), 1.0, False, 100.0, f, on_impactor)
+    energy = penalty_forces(x, np.zeros(3), 1.0, -1, 100.0, f, on_impactor)
     np.testing.assert_allclose(f[0], [0.0, 0.0, 100.0 * 0.1])
     assert np.all(f[2] == 0.0)
     np.testing.assert_allclose(on_impactor, -f.sum(axis=0))
     assert energy == pytest.approx(0.5 * 100.0 * (0.1**2 + 0.0**2))  # the second sits on R
     # a cylinder along y ignores y
     f_cyl = np.zeros_like(x)
-    penalty_forces(x + np.array([0.0, 5.0, 0.0]), np.zeros(3), 1.0, True, 100.0, f_cyl, np.zeros(3))
+    penalty_forces(x + np.array([0.0, 5.0, 0.0]), np.zeros(3), 1.0, 1, 100.0, f_cyl, np.zeros(3))
     np.testing.assert_allclose(f_cyl, f)
 
 

@@ -74,17 +74,22 @@ def test_the_history_header_carries_the_units_and_reads_back_exactly(tmp_path):
     from mpi4py import MPI
 
     rng = np.random.default_rng(3)
-    fields = list(HistoryRow.__dataclass_fields__)
+    fields = [name for name in HistoryRow.__dataclass_fields__ if name != "bodies"]
+    bodies = ["nose_force", "nose_displacement"]  # a [[rigid]] body's columns
     rows = [
-        HistoryRow(**dict(zip(fields, rng.normal(size=len(fields)), strict=True))) for _ in range(3)
+        HistoryRow(
+            **dict(zip(fields, rng.normal(size=len(fields)), strict=True)),
+            bodies=dict(zip(bodies, rng.normal(size=2), strict=True)),
+        )
+        for _ in range(3)
     ]
-    writer = HistoryWriter(tmp_path, MPI.COMM_SELF)
+    writer = HistoryWriter(tmp_path, MPI.COMM_SELF, bodies=bodies)
     for row in rows:
         writer.on_history(row)
     writer.close(completed=True)
     path = tmp_path / "history.csv"
     header = path.read_text().splitlines()[0].split(",")
-    assert header == HEADER
+    assert header == [*HEADER, "nose_force_N", "nose_displacement_mm"]
     assert header[:5] == [
         "time_s",
         "displacement_mm",
@@ -96,12 +101,12 @@ def test_the_history_header_carries_the_units_and_reads_back_exactly(tmp_path):
     table = np.genfromtxt(path, delimiter=",", names=True)
     np.testing.assert_array_equal(table["kinetic_energy_mJ"], [r.kinetic_energy for r in rows])
     columns = read_history(path)
-    assert list(columns) == COLUMNS
+    assert list(columns) == [*COLUMNS, *bodies]
     np.testing.assert_array_equal(columns["energy_balance"], [r.energy_balance for r in rows])
     assert parse_history(path.read_text(), str(path)) == rows
     # the earlier header (names only) reads the same
     old = path.read_text().replace(",".join(HEADER), ",".join(COLUMNS), 1)
-    assert old.splitlines()[0] == ",".join(COLUMNS)
+    assert old.splitlines()[0].startswith(",".join(COLUMNS) + ",nose_force_N")
     assert parse_history(old, "old") == rows
 
 

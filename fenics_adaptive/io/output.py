@@ -28,7 +28,7 @@ import os
 import sys
 import time
 import zlib
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TextIO
 
@@ -75,23 +75,44 @@ HEADER = [f"{name}_{UNIT_SUFFIX[COLUMN_UNITS[name]]}" for name in COLUMNS]
 _NAME_OF = {**{name: name for name in COLUMNS}, **dict(zip(HEADER, COLUMNS, strict=True))}
 
 
+def body_unit(column: str) -> str:
+    """The unit of a rigid body's history column: ``<name>_force`` N, ``<name>_displacement``
+    mm."""
+    return "N" if column.endswith("_force") else "mm"
+
+
+def history_header(bodies: Sequence[str] = ()) -> list[str]:
+    """The header of history.csv: every history's columns, then the rigid bodies' ``bodies``
+    (``HistoryRow.bodies`` keys), each with its unit."""
+    return HEADER + [f"{name}_{UNIT_SUFFIX[body_unit(name)]}" for name in bodies]
+
+
 def column_name(header_cell: str) -> str:
-    """The column name (a ``HistoryRow`` field or ``energy_balance``) of a history.csv header
-    cell, with or without its unit suffix; an unknown cell is returned as it is."""
-    return _NAME_OF.get(header_cell, header_cell)
+    """The column name (a ``HistoryRow`` field, ``energy_balance`` or a rigid body's column)
+    of a history.csv header cell, with or without its unit suffix; an unknown cell is returned
+    as it is."""
+    if header_cell in _NAME_OF:
+        return _NAME_OF[header_cell]
+    for ending, suffix in (("_force", "_N"), ("_displacement", "_mm")):
+        if header_cell.endswith(ending + suffix):
+            return header_cell.removesuffix(suffix)
+    return header_cell
 
 
-def _cells(row: HistoryRow) -> list[str]:
+def _cells(row: HistoryRow, bodies: Sequence[str] = ()) -> list[str]:
     """A history row as CSV cells: full double precision, so a restart reads it back exactly."""
-    return [repr(float(getattr(row, name))) for name in COLUMNS]
+    return [repr(float(getattr(row, name))) for name in COLUMNS] + [
+        repr(float(row.bodies[name])) for name in bodies
+    ]
 
 
 def history_text(rows: list[HistoryRow]) -> str:
     """History rows as the CSV text of history.csv (header and rows)."""
+    bodies = list(rows[0].bodies) if rows else []
     buffer = io.StringIO(newline="")
     writer = csv.writer(buffer)
-    writer.writerow(HEADER)
-    writer.writerows(_cells(row) for row in rows)
+    writer.writerow(history_header(bodies))
+    writer.writerows(_cells(row, bodies) for row in rows)
     return buffer.getvalue()
 
 
@@ -101,8 +122,16 @@ def parse_history(text: str, source: str) -> list[HistoryRow]:
     try:
         table = list(csv.reader(io.StringIO(text, newline="")))
         header, body = [column_name(cell) for cell in table[0]], table[1:]
-        index = {name: header.index(name) for name in HistoryRow.__dataclass_fields__}
-        return [HistoryRow(**{n: float(r[i]) for n, i in index.items()}) for r in body]
+        fields = [n for n in HistoryRow.__dataclass_fields__ if n != "bodies"]
+        index = {name: header.index(name) for name in fields}
+        bodies = {n: i for i, n in enumerate(header) if n not in index and n != "energy_balance"}
+        return [
+            HistoryRow(
+                **{n: float(r[i]) for n, i in index.items()},
+                bodies={n: float(r[i]) for n, i in bodies.items()},
+            )
+            for r in body
+        ]
     except (IndexError, ValueError) as error:
         raise InputError("restart", f"{source} is not a history table ({error})") from None
 
@@ -111,15 +140,24 @@ class HistoryWriter(Observer):
     """CSV history, full double precision, flushed every row (rank 0 only). Keeps the rows
     (rank 0) for the checkpoints (``text``). An observer of the solver (``on_history``)."""
 
-    def __init__(self, out_dir: Path, comm: MPI.Comm, rows: list[HistoryRow] = ()):
+    def __init__(
+        self,
+        out_dir: Path,
+        comm: MPI.Comm,
+        rows: list[HistoryRow] = (),
+        bodies: Sequence[str] = (),
+    ):
+        """``rows``: the rows a restart keeps; ``bodies``: the rigid bodies' columns
+        (``HistoryRow.bodies`` keys), in order."""
         self.partial = out_dir / "history.partial.csv"
         self.final = out_dir / "history.csv"
         self.file: TextIO | None = None
         self.rows: list[HistoryRow] = []
+        self.bodies = list(bodies)
         if comm.rank == 0:
             self.file = open(self.partial, "w", newline="")
             self.writer = csv.writer(self.file)
-            self.writer.writerow(HEADER)
+            self.writer.writerow(history_header(self.bodies))
         for row in rows:  # a restart keeps the rows up to its checkpoint
             self(row)
 
@@ -127,7 +165,7 @@ class HistoryWriter(Observer):
         if self.file is None:
             return
         self.rows.append(row)
-        self.writer.writerow(_cells(row))
+        self.writer.writerow(_cells(row, self.bodies))
         self.file.flush()
 
     def on_history(self, row: HistoryRow) -> None:

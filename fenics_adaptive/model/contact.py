@@ -1,26 +1,32 @@
-"""A rigid impactor (sphere or cylinder) hitting the top face: penalty contact.
+"""Rigid bodies in frictionless penalty contact with the top or bottom face: an impactor, the
+rollers and noses of a bending or fracture test (``settings.loads.RigidBody``).
 
-The impactor is a rigid body of mass M moving in translation: a sphere of radius R about its
-centre c, or a cylinder of radius R whose axis runs along y through c (a line impact across a
-beam). Each top-face base node at x = X + u gets the penalty force
+A body is a sphere of radius R about its centre c, or a cylinder of radius R whose axis runs
+along x or y through c. Each node of its face (base nodes: refinement never moves the top and
+bottom faces) at x = X + u gets the penalty force
 
-    g = dist(x, impactor) - R,   f = k <-g> n,   n = unit vector from the centre (axis) to x,
+    g = dist(x, body) - R,   f = k <-g> n,   n = unit vector from the centre (axis) to x,
 
-and the impactor gets -sum f. Both are integrated by the same central-difference scheme as the
-structure (impactor velocity at half steps). The contact is frictionless and conservative: the
-penalty springs store 1/2 k g^2, which the history reports with the impactor's kinetic energy
-as ``impactor_energy``. So the energy balance of a bouncing ball closes up to the scheme's
-O(dt^2) error.
+and the body gets -sum f. The contact is frictionless and conservative: the penalty springs
+store 1/2 k g^2.
 
-As a force contributor (``model.forces``, name "impactor", kind CONTACT) it adds its forces on
-the top-face DOFs, integrates itself (``advance``), reports the contact force, its displacement
-and the energy it gave up (``impact_work``) in the history and keeps its state (centre,
-velocity, initial energy and height) for checkpoints (keys ``impactor_*``).
+How the body moves: FIXED stays at its centre; PRESCRIBED follows its path c(t); FREE is a mass
+M in translation integrated by the same central-difference scheme as the structure (velocity
+at half steps). The energy a body gives the structure (``impact_work``) is, for a free body,
+its kinetic plus penalty energy at t = 0 minus now; for a driven one, the work its drive did,
+sum of 1/2 (F_n + F_n+1) . (c_n+1 - c_n) with F = -(force of the structure on it), minus the
+change of the penalty energy. Either way it is the work of the contact forces on the
+structure, so the energy balance of a run closes to the scheme's O(dt^2) error.
+
+As a force contributor (``model.forces``, kind CONTACT) a body adds its forces on its face's
+DOFs, moves itself (``advance``), reports into the history (the [impactor]: ``contact_force``,
+``impactor_displacement``; a [[rigid]] body: ``<name>_force`` and ``<name>_displacement``, z
+components; every body adds to ``impact_work``) and keeps its state for checkpoints.
 
 Penalty k (N/mm per node): by default the through-thickness stiffness of the laminate over one
-node's area, max C33 * A_node / h. It is capped so that a node on its spring stays well inside
-the stable step: k <= 0.05 m_node (2 / dt)^2. Contact is checked on the owned top-face base
-nodes only (refinement never moves the top face), so every node counts once on one rank.
+node's area, max C33 * A_node / h, capped so that a node on its spring stays well inside the
+stable step: k <= 0.05 m_node (2 / dt)^2. Contact is checked on the owned face nodes only, so
+every node counts once on one rank.
 
 Units: N, mm, s, tonne.
 """
@@ -35,19 +41,20 @@ from fenics_adaptive.element.geometry import quad_areas
 from fenics_adaptive.errors import InputError
 from fenics_adaptive.model.forces import Contributor, ForceKind
 from fenics_adaptive.model.loading import face_nodes
-from fenics_adaptive.settings.kinds import ImpactorShape
-from fenics_adaptive.settings.loads import Impactor
+from fenics_adaptive.settings.kinds import ImpactorShape, RigidMotion
+from fenics_adaptive.settings.loads import Impactor, RigidBody
 
 
 @njit(cache=True)
-def penalty_forces(x, centre, radius, cylinder, penalty, f_out, total):
-    """Contact forces (n, 3) on nodes at x (n, 3) into f_out and their reaction on the impactor
-    into total (3,), both overwritten; returns the penalty energy."""
+def penalty_forces(x, centre, radius, axis, penalty, f_out, total):
+    """Contact forces (n, 3) on nodes at x (n, 3) into f_out and their reaction on the body
+    into total (3,), both overwritten; returns the penalty energy. ``axis``: -1 for a sphere,
+    0 or 1 for a cylinder along x or y."""
     total[:] = 0.0
     energy = 0.0
     for i in range(x.shape[0]):
-        dx = x[i, 0] - centre[0]
-        dy = 0.0 if cylinder else x[i, 1] - centre[1]
+        dx = 0.0 if axis == 0 else x[i, 0] - centre[0]
+        dy = 0.0 if axis == 1 else x[i, 1] - centre[1]
         dz = x[i, 2] - centre[2]
         distance = np.sqrt(dx * dx + dy * dy + dz * dz)
         gap = distance - radius
@@ -65,23 +72,23 @@ def penalty_forces(x, centre, radius, cylinder, penalty, f_out, total):
 
 
 class Contact(Contributor):
-    """The impactor's state and its contact with the top-face nodes of a structure.
+    """A rigid body's state and its contact with the nodes of one face of a structure.
 
-    ``nodes``: owned top-face base nodes; ``mass_of_node``: their lumped masses (for the
-    penalty cap); ``X``: their reference positions; ``area``: the in-plane area of a node
-    (mm^2); ``C33``, ``h``: the stiffest through-thickness modulus (MPa) and the thickness (mm)
-    (for the default penalty); ``displacement``: the base displacement vector (a DOLFINx
-    vector, owned + ghost entries) the contact reads. ``Contact.on(impactor, structure)``
-    fills these in."""
+    ``body``: the body (an ``Impactor`` is taken as its free body on the top face);
+    ``nodes``: owned face base nodes; ``mass_of_node``: their lumped masses (for the penalty
+    cap); ``X``: their reference positions; ``area``: the in-plane area of a node (mm^2);
+    ``C33``, ``h``: the stiffest through-thickness modulus (MPa) and the thickness (mm) (for
+    the default penalty); ``displacement``: the base displacement vector (a DOLFINx vector,
+    owned + ghost entries) the contact reads. ``Contact.on(body, structure)`` fills these in."""
 
-    name = "impactor"
     kind = ForceKind.CONTACT
 
     @classmethod
-    def on(cls, impactor: Impactor, structure) -> Contact:
+    def on(cls, body: RigidBody | Impactor, structure) -> Contact:
+        body = body.body() if isinstance(body, Impactor) else body
         base = structure.base
-        top = face_nodes(base, "top")  # collective
-        owned = top[top < base.V.dofmap.index_map.size_local]
+        nodes = face_nodes(base, body.face)  # collective
+        owned = nodes[nodes < base.V.dofmap.index_map.size_local]
         X = structure.X_base[owned]
         corners = structure.X_base[structure.bottom_local]
         # the mean cell area over all ranks: one penalty for the whole face, as in serial
@@ -91,11 +98,11 @@ class Contact(Contributor):
         C33 = max(p.material.stiffness()[2, 2] for p in structure.laminate.plies)
         mass = structure.mass_base.array[3 * owned]
         h = structure.laminate.thickness
-        return cls(impactor, structure.comm, owned, X, mass, area, C33, h, structure.base.u.x)
+        return cls(body, structure.comm, owned, X, mass, area, C33, h, structure.base.u.x)
 
     def __init__(
         self,
-        impactor: Impactor,
+        body: RigidBody | Impactor,
         comm: MPI.Comm,
         nodes,
         X,
@@ -105,7 +112,12 @@ class Contact(Contributor):
         h,
         displacement=None,
     ):
-        self.impactor = impactor
+        body = body.body() if isinstance(body, Impactor) else body
+        self.body = body
+        self.impactor = body  # the name earlier versions read
+        self.name = body.name if body.name == "impactor" else f"rigid_{body.name}"
+        self.key = "impactor" if body.name == "impactor" else f"rigid.{body.name}"
+        self.free = body.motion == RigidMotion.FREE
         self.displacement = displacement
         self.comm = comm
         self.nodes = np.asarray(nodes, dtype=np.int64)
@@ -115,81 +127,89 @@ class Contact(Contributor):
             float(mass_of_node.min()) if len(mass_of_node) else np.inf, op=MPI.MIN
         )
         self.natural_penalty = C33 * area / h
-        self.penalty = impactor.penalty if impactor.penalty is not None else self.natural_penalty
-        self.centre = np.array(impactor.position, dtype=float)
-        self.velocity = np.array(impactor.velocity, dtype=float)  # v_{n-1/2}
+        self.penalty = body.penalty if body.penalty is not None else self.natural_penalty
+        self.centre = np.array(body.position, dtype=float)
+        # v_{n-1/2} of a free body; a driven body's is its path's
+        self.velocity = np.array(body.velocity if self.free else (0.0, 0.0, 0.0), dtype=float)
         self.acceleration = np.zeros(3)
+        self.t = 0.0  # s: the time of ``centre``
         self.last_dt = 0.0  # s: dt_{n-1/2}, of the last advance (0 before the first)
-        self.initial = 0.0  # mJ: kinetic + penalty energy at t = 0
+        self.initial = 0.0  # mJ: a free body's kinetic + penalty energy at t = 0
+        self.initial_penalty = 0.0  # mJ: a driven body's penalty energy at t = 0
+        self.drive_work = 0.0  # mJ: work of a driven body's drive so far
+        self.previous_centre = self.centre.copy()  # at the last add_force
+        self.previous_force = np.zeros(3)
         self.z0 = float(self.centre[2])  # mm: the centre's height at t = 0
-        self.force = np.zeros(3)  # on the impactor, global
+        self.force = np.zeros(3)  # on the body, global
         self.energy_penalty = 0.0  # global
         # work arrays: the step allocates nothing
         self.u = np.empty(len(self.dofs))
         self.x = np.empty((len(self.nodes), 3))
         self.f = np.empty((len(self.nodes), 3))
         self.f_dofs = np.empty(len(self.dofs))
-        self.totals = np.empty(4)  # force on the impactor, penalty energy
-        self.cylinder = impactor.shape == ImpactorShape.CYLINDER
+        self.totals = np.empty(4)  # force on the body, penalty energy
+        self.axis = -1 if body.shape == ImpactorShape.SPHERE else "xy".index(body.axis)
 
     def initial_gap(self) -> float:
-        """Collective: the smallest gap (mm) between the impactor and the undeformed top face."""
+        """Collective: the smallest gap (mm) between the body and its undeformed face."""
         dx = self.X - self.centre
-        if self.cylinder:
-            dx[:, 1] = 0.0
+        if self.axis >= 0:
+            dx[:, self.axis] = 0.0
         local = float(np.min(np.linalg.norm(dx, axis=1))) if len(self.X) else np.inf
-        return self.comm.allreduce(local, op=MPI.MIN) - self.impactor.radius
+        return self.comm.allreduce(local, op=MPI.MIN) - self.body.radius
 
     def largest_stable_penalty(self, dt: float, element_step: float) -> float:
-        """The largest penalty (N/mm) stable with the time step dt (s), for the lightest
-        top-face node of mass m and the impactor of mass M: the spring adds k (1/m + 1/M) to
-        the square of the node's highest frequency, which its elements already bring up to
-        (2 / element_step)^2 (element_step: the element limit without the safety factor), and
-        central differences need omega dt <= 2:
+        """The largest penalty (N/mm) stable with the time step dt (s), for the lightest face
+        node of mass m and the body of mass M (infinite unless free): the spring adds
+        k (1/m + 1/M) to the square of the node's highest frequency, which its elements already
+        bring up to (2 / element_step)^2 (element_step: the element limit without the safety
+        factor), and central differences need omega dt <= 2:
         k <= (2/dt)^2 (1 - (dt/element_step)^2) / (1/m + 1/M)."""
         share = max(1.0 - (dt / element_step) ** 2, 0.0)
-        return share * (2.0 / dt) ** 2 / (1.0 / self.node_mass_min + 1.0 / self.impactor.mass)
+        return share * (2.0 / dt) ** 2 / (1.0 / self.node_mass_min + 1.0 / self.body.mass)
 
     def check_penalty(self, dt: float, element_step: float) -> None:
-        """Refuse an explicit penalty above ``largest_stable_penalty`` (InputError naming
-        impactor.penalty)."""
-        if self.impactor.penalty is None:
+        """Refuse an explicit penalty above ``largest_stable_penalty`` (InputError naming the
+        body's penalty key)."""
+        if self.body.penalty is None:
             return
         largest = self.largest_stable_penalty(dt, element_step)
         if self.penalty > largest:
             raise InputError(
-                "impactor.penalty",
+                f"{self.key}.penalty",
                 f"{self.penalty:.4g} N/mm is too stiff for the time step {dt:.4g} s (lightest "
-                f"top-face node {self.node_mass_min:.4g} t, impactor {self.impactor.mass:.4g} t): "
-                f"the largest stable penalty is {largest:.4g} N/mm (omit it for the default)",
+                f"{self.body.face}-face node {self.node_mass_min:.4g} t, body "
+                f"{self.body.mass:.4g} t): the largest stable penalty is {largest:.4g} N/mm "
+                "(omit it for the default)",
             )
 
     def limit_penalty(self, dt: float) -> None:
         """Cap the default penalty for the time step dt (an explicit penalty is kept and
         checked by the caller)."""
         cap = 0.05 * self.node_mass_min * (2.0 / dt) ** 2
-        if self.impactor.penalty is None:
+        if self.body.penalty is None:
             self.penalty = min(self.natural_penalty, cap)
 
     def prepare(self, dt: float, element_step: float) -> None:
         """At the start of a run with the time step dt (s): the default penalty capped, an
         explicit one checked (``element_step``: the structure's stable step without the safety
-        factor, s); the impactor's height taken as its reference."""
+        factor, s); the body's height taken as its reference."""
         self.limit_penalty(dt)
         self.check_penalty(dt, element_step)
-        self.z0 = float(self.centre[2])
+        self.z0 = float(self.body.position[2])
 
     def add_force(self, t: float, f_base: np.ndarray, f_extra: np.ndarray) -> None:
         """Collective: add the contact forces (N) at the current displacement into ``f_base``
-        (owned base DOFs, flat) at the top-face DOFs; also the impactor's force and
-        acceleration. ``f_extra`` is not touched (the top face has no extra nodes)."""
+        (owned base DOFs, flat) at the face's DOFs; also the body's force, the acceleration of
+        a free body and the work of a driven one's drive. ``f_extra`` is not touched (the top
+        and bottom faces have no extra nodes)."""
         np.take(self.displacement.array, self.dofs, out=self.u)
         np.add(self.X, self.u.reshape(-1, 3), out=self.x)
         self.totals[3] = penalty_forces(
             self.x,
             self.centre,
-            self.impactor.radius,
-            self.cylinder,
+            self.body.radius,
+            self.axis,
             self.penalty,
             self.f,
             self.totals[:3],
@@ -200,36 +220,65 @@ class Contact(Contributor):
         self.comm.Allreduce(MPI.IN_PLACE, self.totals, op=MPI.SUM)
         self.force[:] = self.totals[:3]
         self.energy_penalty = float(self.totals[3])
-        np.divide(self.force, self.impactor.mass, out=self.acceleration)
+        if self.free:
+            np.divide(self.force, self.body.mass, out=self.acceleration)
+        else:  # the drive holds the body against the structure's force: it applies -force
+            moved = self.centre - self.previous_centre
+            self.drive_work -= 0.5 * float((self.previous_force + self.force) @ moved)
+            self.previous_centre[:] = self.centre
+            self.previous_force[:] = self.force
 
     def advance(self, mean_dt: float, dt: float) -> None:
-        """v_{n-1/2} -> v_{n+1/2}, c_n -> c_{n+1}."""
-        self.velocity += mean_dt * self.acceleration
-        self.centre += dt * self.velocity
+        """v_{n-1/2} -> v_{n+1/2}, c_n -> c_{n+1} (a fixed body stays, a prescribed one
+        follows its path)."""
+        self.t += dt
         self.last_dt = dt
+        if self.free:
+            self.velocity += mean_dt * self.acceleration
+            self.centre += dt * self.velocity
+        elif self.body.motion == RigidMotion.PRESCRIBED:
+            self.centre[:] = self.body.prescribed_centre(self.t)
 
     def total_energy(self) -> float:
-        """Kinetic energy at the full step plus the penalty energy (mJ), of the whole run."""
+        """Kinetic energy at the full step (a free body's) plus the penalty energy (mJ), of the
+        whole run."""
+        if not self.free:
+            return self.energy_penalty
         v = self.velocity + 0.5 * self.last_dt * self.acceleration
-        return 0.5 * self.impactor.mass * float(v @ v) + self.energy_penalty
+        return 0.5 * self.body.mass * float(v @ v) + self.energy_penalty
 
     def energy(self) -> float:
-        """This rank's share of ``total_energy`` (mJ): all of it on rank 0 (the impactor is
-        one body, known to every rank)."""
+        """This rank's share of ``total_energy`` (mJ): all of it on rank 0 (the body is one
+        body, known to every rank)."""
         return self.total_energy() if self.comm.rank == 0 else 0.0
 
+    def given_energy(self) -> float:
+        """Energy (mJ) the body has given the structure since t = 0: the work of the contact
+        forces on it."""
+        if self.free:
+            return self.initial - self.total_energy()
+        return self.drive_work - (self.energy_penalty - self.initial_penalty)
+
     def report(self, row, first: bool) -> None:
-        """The contact force (N, z), the impactor's z displacement (mm) and the energy it gave
-        up since t = 0 (mJ) into a history row; ``first``: the row at t = 0."""
-        energy = self.total_energy()
+        """The body's force on the structure's opposite (N, z: the force the structure applies
+        to it), its z displacement (mm) and the energy it gave since t = 0 (mJ, added to
+        ``impact_work``) into a history row; ``first``: the row at t = 0."""
         if first:
-            self.initial = energy
-        row.contact_force = float(self.force[2])
-        row.impactor_displacement = float(self.centre[2] - self.z0)
-        row.impact_work = self.initial - energy
+            self.initial = self.total_energy()
+            self.initial_penalty = self.energy_penalty
+        displacement = float(self.centre[2] - self.z0)
+        if self.body.name == "impactor":
+            row.contact_force = float(self.force[2])
+            row.impactor_displacement = displacement
+        else:
+            row.bodies[f"{self.body.name}_force"] = float(self.force[2])
+            row.bodies[f"{self.body.name}_displacement"] = displacement
+        row.impact_work += self.given_energy()
 
     def suspect(self) -> str:
-        return f"the contact penalty (impactor.penalty = {self.penalty:.4g} N/mm) too stiff for it?"
+        return (
+            f"the contact penalty ({self.key}.penalty = {self.penalty:.4g} N/mm) too stiff for it?"
+        )
 
     def state(self) -> dict[str, np.ndarray]:
         return {
@@ -238,6 +287,11 @@ class Contact(Contributor):
             "initial": np.array(self.initial),
             "z0": np.array(self.z0),
             "last_dt": np.array(self.last_dt),
+            "t": np.array(self.t),
+            "initial_penalty": np.array(self.initial_penalty),
+            "drive_work": np.array(self.drive_work),
+            "previous_centre": self.previous_centre.copy(),
+            "previous_force": self.previous_force.copy(),
         }
 
     def restore(self, state: dict) -> None:
@@ -246,3 +300,9 @@ class Contact(Contributor):
         self.initial = float(state["initial"])
         self.z0 = float(state["z0"])
         self.last_dt = float(state["last_dt"])
+        if "t" in state:  # checkpoints before rigid bodies had a free impactor only
+            self.t = float(state["t"])
+            self.initial_penalty = float(state["initial_penalty"])
+            self.drive_work = float(state["drive_work"])
+            self.previous_centre[:] = state["previous_centre"]
+            self.previous_force[:] = state["previous_force"]

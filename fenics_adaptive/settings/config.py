@@ -71,8 +71,16 @@ from fenics_adaptive.settings.kinds import (
     MotionKind,
     Profile,
     Refinement,
+    RigidMotion,
 )
-from fenics_adaptive.settings.loads import Amplitude, FaceLoad, Impactor, PrescribedMotion, clamp
+from fenics_adaptive.settings.loads import (
+    Amplitude,
+    FaceLoad,
+    Impactor,
+    PrescribedMotion,
+    RigidBody,
+    clamp,
+)
 from fenics_adaptive.settings.materials import CohesiveLaw, PlyFailure
 from fenics_adaptive.settings.schema import (
     MAX_ASPECT,
@@ -133,6 +141,7 @@ class RunConfig:
     # transverse shear correction of the elements (materials.laminate.shear_correction_factors)
     shear_correction: bool = False
     impactor: Impactor | None = None
+    rigid_bodies: tuple[RigidBody, ...] = ()
     matrix_strength: tuple[MatrixStrength, ...] = ()
     cohesive: CohesiveLaw | None = None
     delaminations: tuple[Delamination, ...] = ()
@@ -527,6 +536,7 @@ def parse_config(data: dict, source: str = "<memory>", seen: set[str] | None = N
     split = _split_boundaries(model.kind, mesh, interfaces)
     stabilisation = _stabilisation(root, model.kind)
     impactor = _impactor(root)
+    rigid_bodies = _rigid_bodies(root)
     indicators = _indicators(root, model.kind, interfaces)
     _check_failure_data(laminate, failures, model.ply_damage, indicators)
     flaws = _matrix_strength(root, model.ply_damage, laminate, mesh)
@@ -551,6 +561,7 @@ def parse_config(data: dict, source: str = "<memory>", seen: set[str] | None = N
         ply_damage=model.ply_damage,
         kinematics=model.kinematics,
         impactor=impactor,
+        rigid_bodies=rigid_bodies,
         matrix_strength=flaws,
         cohesive=cohesive,
         delaminations=delaminations,
@@ -1247,6 +1258,56 @@ def _impactor(root: _Root) -> Impactor | None:
         velocity=table.numbers("velocity"),
         penalty=table.number("penalty"),
     )
+
+
+def _rigid_bodies(root: _Root) -> tuple[RigidBody, ...]:
+    """[[rigid]]: rigid loading bodies, each fixed, prescribed (with a time curve) or free
+    (with a mass), named uniquely."""
+    bodies: list[RigidBody] = []
+    for table in root.tables("rigid"):
+        name = table.string("name")
+        if not name.isidentifier() or name == "impactor":
+            raise InputError(
+                table.key("name"),
+                f"{name!r}: letters, digits and _ (not starting with a digit), not 'impactor'",
+            )
+        if any(body.name == name for body in bodies):
+            raise InputError(table.key("name"), f"{name!r} names another [[rigid]] body too")
+        motion = RigidMotion(table.choice("motion"))
+        allowed = {
+            RigidMotion.FIXED: set(),
+            RigidMotion.PRESCRIBED: {"velocity", "displacement", "rise_time", "profile", "curve"},
+            RigidMotion.FREE: {"mass", "velocity"},
+        }[motion]
+        for key in ("mass", "velocity", "displacement", "rise_time", "profile", "curve"):
+            if table.has(key) and key not in allowed:
+                raise InputError(table.key(key), f"does not apply to a {motion} body")
+        amplitude = Amplitude.constant(1.0)
+        if motion == RigidMotion.PRESCRIBED:
+            if table.has("velocity") == table.has("displacement"):
+                raise InputError(
+                    table.key("velocity"), "a prescribed body takes a velocity or a displacement"
+                )
+            amplitude = _amplitude(table)
+        if motion == RigidMotion.FREE and not table.has("mass"):
+            raise InputError(table.key("mass"), "missing (a free body needs its mass)")
+        bodies.append(
+            RigidBody(
+                name=name,
+                shape=table.choice("shape"),
+                radius=table.number("radius"),
+                position=table.numbers("position"),
+                face=table.choice("face"),
+                motion=motion,
+                axis=table.choice("axis"),
+                mass=table.number("mass") if table.has("mass") else math.inf,
+                velocity=table.numbers("velocity") or (0.0, 0.0, 0.0),
+                displacement=table.numbers("displacement"),
+                amplitude=amplitude,
+                penalty=table.number("penalty"),
+            )
+        )
+    return tuple(bodies)
 
 
 def _stabilisation(root: _Root, kind: ModelKind) -> Stabilisation:

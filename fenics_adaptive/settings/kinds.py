@@ -80,10 +80,20 @@ class Profile(StrEnum):
 
 
 class ImpactorShape(StrEnum):
-    """``[impactor] shape``: a sphere, or a cylinder with its axis along y."""
+    """``[impactor]`` and ``[[rigid]] shape``: a sphere, or a cylinder (its axis along y for
+    the impactor, along ``axis`` for a rigid body)."""
 
     SPHERE = "sphere"
     CYLINDER = "cylinder"
+
+
+class RigidMotion(StrEnum):
+    """``[[rigid]] motion``: held where it is, moved along a prescribed path, or free (a mass
+    with an initial velocity, moved by the contact forces)."""
+
+    FIXED = "fixed"
+    PRESCRIBED = "prescribed"
+    FREE = "free"
 
 
 class IndicatorKind(StrEnum):

@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from fenics_adaptive.settings.kinds import ImpactorShape, MotionKind
+from fenics_adaptive.settings.kinds import ImpactorShape, MotionKind, RigidMotion
 
 # a displacement component as the config names it -> its index among a node's three DOFs
 COMPONENTS = {"x": 0, "y": 1, "z": 2}
@@ -166,6 +166,50 @@ def clamp(face: str) -> list[PrescribedMotion]:
 
 
 @dataclass(frozen=True)
+class RigidBody:
+    """A rigid loading body ([[rigid]], or the [impactor]): a sphere of ``radius`` (mm) about
+    its centre, or a cylinder of ``radius`` whose axis runs along ``axis`` ("x" or "y")
+    through the centre, in frictionless penalty contact with the nodes of ``face`` ("top" or
+    "bottom"). ``position`` (mm): the centre at t = 0. ``motion``:
+
+    - FIXED: held there (a support);
+    - PRESCRIBED: moved by ``displacement`` (mm, vector) x amplitude(t), or by ``velocity``
+      (mm/s, vector) x the integral of amplitude (a loading nose);
+    - FREE: a body of ``mass`` (tonne) starting at ``velocity`` (mm/s), moved by the contact
+      forces (an impactor).
+
+    ``penalty``: N/mm per node (None: from the laminate, ``model.contact``). ``name``: the
+    body's history columns (``<name>_force``, ``<name>_displacement``) and checkpoint keys."""
+
+    name: str
+    shape: ImpactorShape
+    radius: float
+    position: tuple[float, float, float]
+    face: str = "top"
+    motion: RigidMotion = RigidMotion.FREE
+    axis: str = "y"
+    mass: float = math.inf
+    velocity: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    displacement: tuple[float, float, float] | None = None
+    amplitude: Amplitude = field(default_factory=lambda: Amplitude.constant(1.0))
+    penalty: float | None = None
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "shape", ImpactorShape(self.shape))  # frozen: set once, here
+        object.__setattr__(self, "motion", RigidMotion(self.motion))
+        if self.face not in ("top", "bottom") or self.axis not in ("x", "y"):
+            raise ValueError("a rigid body touches the top or bottom face; its axis is x or y")
+
+    def prescribed_centre(self, t: float) -> np.ndarray:
+        """The centre (3,) mm at time t (s) of a PRESCRIBED body."""
+        if self.displacement is not None:
+            move = np.asarray(self.displacement) * self.amplitude(t)
+        else:
+            move = np.asarray(self.velocity) * self.amplitude.integral(t)
+        return np.asarray(self.position, dtype=float) + move
+
+
+@dataclass(frozen=True)
 class Impactor:
     """The impactor as the config gives it."""
 
@@ -178,3 +222,18 @@ class Impactor:
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "shape", ImpactorShape(self.shape))  # frozen: set once, here
+
+    def body(self) -> RigidBody:
+        """The impactor as a free rigid body on the top face (a cylinder along y)."""
+        return RigidBody(
+            "impactor",
+            self.shape,
+            self.radius,
+            self.position,
+            "top",
+            RigidMotion.FREE,
+            "y",
+            self.mass,
+            self.velocity,
+            penalty=self.penalty,
+        )

@@ -36,6 +36,7 @@ from fenics_adaptive.settings.kinds import (
     ModelKind,
     Profile,
     Refinement,
+    RigidMotion,
 )
 
 # --------------------------------------------------------------------------- limits (documented)
@@ -928,6 +929,73 @@ SECTIONS: tuple[Section, ...] = (
                 open_min=True,
             ),
         ),
+    ),
+    Section(
+        "rigid",
+        "a rigid loading body (roller, nose, support, impactor) in frictionless penalty contact"
+        " with the top or bottom face",
+        (
+            Key("name", "string", "its history columns <name>_force, <name>_displacement"),
+            Key(
+                "shape",
+                "choice",
+                "sphere, or cylinder with its axis along axis",
+                choices=tuple(ImpactorShape),
+            ),
+            Key("axis", "choice", "a cylinder's axis", default="y", choices=("x", "y")),
+            _length("radius", "radius"),
+            Key(
+                "position",
+                "floats",
+                "[x, y, z] of the centre (a point of the axis) at t = 0",
+                "mm",
+                REQUIRED,
+                -MAX_LENGTH,
+                MAX_LENGTH,
+                length=3,
+            ),
+            Key("face", "choice", "the face it may touch", choices=("top", "bottom")),
+            Key(
+                "motion",
+                "choice",
+                "fixed (a support), prescribed (moved by displacement or velocity times the time"
+                " curve) or free (a mass with an initial velocity)",
+                choices=tuple(RigidMotion),
+            ),
+            Key("mass", "float", "free: its mass", "tonne", OPTIONAL, 0.0, 1e6, open_min=True),
+            Key(
+                "velocity",
+                "floats",
+                "free: [vx, vy, vz] at t = 0; prescribed: times the time curve",
+                "mm/s",
+                OPTIONAL,
+                -MAX_SPEED,
+                MAX_SPEED,
+                length=3,
+            ),
+            Key(
+                "displacement",
+                "floats",
+                "prescribed: [dx, dy, dz] times the time curve",
+                "mm",
+                OPTIONAL,
+                -MAX_DISPLACEMENT,
+                MAX_DISPLACEMENT,
+                length=3,
+            ),
+            *_TIME_CURVE,
+            Key(
+                "penalty",
+                "float",
+                "contact stiffness per node (default: through-thickness stiffness of a node's"
+                " column, capped for stability)",
+                "N/mm",
+                OPTIONAL,
+                0.0,
+                open_min=True,
+            ),
+        ),
+        array=True,
     ),
     Section(
         "stabilisation",

@@ -11,7 +11,7 @@ runaway). The module-level docstring of ``explicit`` states the balances.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
@@ -54,6 +54,9 @@ class HistoryRow:
     # - impact - refinement energy - the strain and cohesive energy at t = 0 (from the states)
     state_energy_balance: float = 0.0
     crack_growth_area: float = 0.0  # mm^2, failed cohesive elements outside the insert films
+    # per [[rigid]] body: "<name>_force" (N, z, the force the structure applies to it) and
+    # "<name>_displacement" (mm, z, of its centre since t = 0)
+    bodies: dict[str, float] = field(default_factory=dict)
 
     @property
     def energy_balance(self) -> float:
@@ -69,7 +72,8 @@ class HistoryRow:
         )
 
 
-COLUMNS = [*HistoryRow.__dataclass_fields__, "energy_balance"]
+# the columns every history has (the rigid bodies' come after them, ``bodies``)
+COLUMNS = [*(n for n in HistoryRow.__dataclass_fields__ if n != "bodies"), "energy_balance"]
 
 
 class HistoryGuards(Protocol):
@@ -141,7 +145,6 @@ class HistoryRecorder:
             # round-off would otherwise be judged against the little energy transferred at
             # the first contact
             s.largest_energy = abs(s.initial_energy)
-        self.guards.runaway(abs(total[3]), abs(total[5]) + s.initial_energy)
         row = HistoryRow(
             time=s.t,
             displacement=total[0] / max(self.n_probe, 1),
@@ -159,6 +162,8 @@ class HistoryRecorder:
         )
         for report in hooks(self.contributors, "report"):
             report(row, s.step == 0)
+        # put in: by loads and motions, brought along at t = 0, given by rigid bodies
+        self.guards.runaway(abs(total[3]), abs(total[5]) + s.initial_energy + abs(row.impact_work))
         row.cohesive_dissipation = cohesive_dissipation
         row.ply_dissipation = ply_dissipation
         row.state_energy_balance = (
