@@ -149,3 +149,22 @@ def test_a_body_that_starts_inside_its_face_is_refused(body, z, side):
     with pytest.raises(InputError, match=f"inside the .* face; place it {side}") as error:
         Simulation(parse_config(data))
     assert error.value.key == f"rigid.{data['rigid'][body]['name']}.position"
+
+
+def test_a_run_with_rigid_bodies_restarts_to_the_uninterrupted_history(tmp_path):
+    """The driven nose's path time, drive work and last force go into the checkpoint."""
+    whole = three_point_bending()
+    whole["solver"]["end_time"] = 2.0e-3
+    first = copy.deepcopy(whole)
+    first["solver"]["end_time"] = 1.0e-3
+    first["output"]["checkpoint_interval"] = 2000
+    run(whole, tmp_path / "whole")
+    run(first, tmp_path / "split")
+    run_config(parse_config(whole), tmp_path / "split", show_progress=False, log=None,
+               restart=tmp_path / "split")  # fmt: skip
+    a = read_history(tmp_path / "whole" / "history.csv")
+    b = read_history(tmp_path / "split" / "history.csv")
+    assert list(a) == list(b) and len(a["time"]) == len(b["time"])
+    for name, values in a.items():
+        np.testing.assert_allclose(b[name], values, rtol=1e-12, atol=1e-12, err_msg=name)
+    assert a["nose_force"][-1] > 10.0
