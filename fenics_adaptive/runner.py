@@ -335,6 +335,14 @@ def _finish(
             / max(stats.steps - (int(resume["step"]) if resume else 0), 1),
             "peak_reaction_force_N": peak.reaction_force,
             "peak_contact_force_N": max(r.contact_force for r in rows),
+            "rigid_bodies": {
+                body.name: {
+                    "peak_force_N": max((r.bodies[f"{body.name}_force"] for r in rows), key=abs),
+                    "final_force_N": rows[-1].bodies[f"{body.name}_force"],
+                    "final_displacement_mm": rows[-1].bodies[f"{body.name}_displacement"],
+                }
+                for body in config.rigid_bodies
+            },
             "displacement_at_peak_mm": peak.displacement,
             "final": {
                 "time_s": rows[-1].time,

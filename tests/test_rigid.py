@@ -65,6 +65,10 @@ def test_the_work_of_the_nose_s_drive_is_what_the_beam_holds(bending):
     assert work[-1] > 10.0  # mJ
     assert np.abs(work - held).max() < 1e-5 * work[-1]
     assert summary["max_energy_balance_error_relative"] < 1e-5
+    nose = summary["rigid_bodies"]["nose"]
+    assert nose["final_force_N"] == h["nose_force"][-1] == max(h["nose_force"])
+    assert nose["peak_force_N"] == nose["final_force_N"]  # still loading at the end
+    assert summary["rigid_bodies"]["left"]["peak_force_N"] == min(h["left_force"])
 
 
 def test_the_beam_is_as_stiff_as_beam_theory(bending):
