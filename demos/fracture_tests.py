@@ -17,8 +17,8 @@ modified beam theory): the arms are cantilevers of length a + chi h, chi from th
 
 with Delta the opening of the load line and E I = E1 b h^3 / 12 of one arm.
 
-    .venv/bin/python demos/fracture_tests.py --out results/fracture_tests          # ~5 minutes
-    .venv/bin/python demos/fracture_tests.py --out results/fracture_tests --quick  # ~1 minute
+    .venv/bin/python demos/fracture_tests.py --out results/fracture_tests          # ~4 minutes
+    .venv/bin/python demos/fracture_tests.py --out results/fracture_tests --quick  # ~30 s
 
 Writes ``results/fracture_tests/<run>/`` (history.csv, summary.json, plots),
 ``dcb_force_opening.png`` and ``summary.json`` with the comparisons; it ends by checking them

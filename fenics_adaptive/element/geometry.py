@@ -77,21 +77,3 @@ def quad_traction_integrals(
             t = traction(np.einsum("k,...kj->...j", N, X), normal)
             out += 0.25 * (area[:, None] * t)[:, None, :] * N[None, :, None]
     return out
-
-
-def quad_shape_integrals(X: np.ndarray) -> np.ndarray:
-    """Integrals (mm^2, shape X.shape[:-1]) of the bilinear shape functions over quadrilaterals
-    with vertices X (..., 4, 3) in tensor order, by 2 x 2 Gauss points: the work-equivalent
-    share of each vertex in a uniform traction (exact for planar faces, whose area element is
-    bilinear). They sum to the face's area."""
-    out = np.zeros(X.shape[:-1])
-    for s in _GAUSS_2:
-        for r in _GAUSS_2:
-            N = np.array([(1 - s) * (1 - r), s * (1 - r), (1 - s) * r, s * r])
-            dN_ds = np.array([-(1 - r), 1 - r, -r, r])
-            dN_dr = np.array([-(1 - s), -s, 1 - s, s])
-            ts = np.einsum("k,...kj->...j", dN_ds, X)
-            tr = np.einsum("k,...kj->...j", dN_dr, X)
-            area = np.linalg.norm(np.cross(ts, tr), axis=-1)  # per unit (s, r) area
-            out += 0.25 * area[..., None] * N
-    return out

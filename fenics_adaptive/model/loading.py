@@ -9,11 +9,11 @@ by its distribution. It is given to the nodes as the integral of the traction ti
 node's shape function over the facets (work-equivalent, ``quad_traction_integrals``): on the
 unrefined mesh, and moved by ``ResolvedLoads.refine`` onto the faces of the subelements of
 refined cells, whose extra nodes on the face then carry their share (the same integrals, so
-the two never disagree). Only side
-faces change: a refined cell's bottom and top subelements keep its base nodes on the bottom and
-top faces. An extra node on the border of a refined region (bound to masters, ``model.border``)
-hands its share to its masters with the constraint's weights, as it does its internal force, so
-the nodal loads stay work-equivalent on the constrained field too."""
+the two never disagree). Only side faces change: a refined cell's bottom and top subelements
+keep its base nodes on the bottom and top faces. An extra node on the border of a refined
+region (bound to masters, ``model.border``) hands its share to its masters with the
+constraint's weights, as it does its internal force, so the nodal loads stay work-equivalent on
+the constrained field too."""
 
 from __future__ import annotations
 
