@@ -136,6 +136,7 @@ def run(data: dict, out: Path) -> dict:
         (lambda r: r.update(name="2nd"), "rigid[2].name", "letters, digits"),
         (lambda r: r.update(axis="z"), "rigid[2].axis", "one of x, y"),
         (lambda r: r.update(face="y0"), "rigid[2].face", "one of top, bottom"),
+        (lambda r: r.update(shape="sphere", axis="x"), "rigid[2].axis", "a sphere has no axis"),
     ],
 )
 def test_the_config_refuses_a_body_it_cannot_build(change, key, words):

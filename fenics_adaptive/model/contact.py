@@ -71,6 +71,11 @@ def penalty_forces(x, centre, radius, axis, penalty, f_out, total):
     return energy
 
 
+def _as_body(body: RigidBody | Impactor) -> RigidBody:
+    """The rigid body of an [impactor] (a free body on the top face), or ``body`` itself."""
+    return body.body() if isinstance(body, Impactor) else body
+
+
 class Contact(Contributor):
     """A rigid body's state and its contact with the nodes of one face of a structure.
 
@@ -85,7 +90,7 @@ class Contact(Contributor):
 
     @classmethod
     def on(cls, body: RigidBody | Impactor, structure) -> Contact:
-        body = body.body() if isinstance(body, Impactor) else body
+        body = _as_body(body)
         base = structure.base
         nodes = face_nodes(base, body.face)  # collective
         owned = nodes[nodes < base.V.dofmap.index_map.size_local]
@@ -112,9 +117,8 @@ class Contact(Contributor):
         h,
         displacement=None,
     ):
-        body = body.body() if isinstance(body, Impactor) else body
+        body = _as_body(body)
         self.body = body
-        self.impactor = body  # the name earlier versions read
         self.name = body.name if body.name == "impactor" else f"rigid_{body.name}"
         self.key = "impactor" if body.name == "impactor" else f"rigid.{body.name}"
         self.free = body.motion == RigidMotion.FREE

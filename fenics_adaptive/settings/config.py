@@ -65,6 +65,7 @@ from fenics_adaptive.settings.adaptivity import (
     Stabilisation,
 )
 from fenics_adaptive.settings.kinds import (
+    ImpactorShape,
     IndicatorKind,
     Kinematics,
     ModelKind,
@@ -1282,6 +1283,9 @@ def _rigid_bodies(root: _Root) -> tuple[RigidBody, ...]:
         for key in ("mass", "velocity", "displacement", "rise_time", "profile", "curve"):
             if table.has(key) and key not in allowed:
                 raise InputError(table.key(key), f"does not apply to a {motion} body")
+        shape = ImpactorShape(table.choice("shape"))
+        if shape == ImpactorShape.SPHERE and table.has("axis"):
+            raise InputError(table.key("axis"), "a sphere has no axis (only a cylinder has)")
         amplitude = Amplitude.constant(1.0)
         if motion == RigidMotion.PRESCRIBED:
             if table.has("velocity") == table.has("displacement"):
@@ -1294,7 +1298,7 @@ def _rigid_bodies(root: _Root) -> tuple[RigidBody, ...]:
         bodies.append(
             RigidBody(
                 name=name,
-                shape=table.choice("shape"),
+                shape=shape,
                 radius=table.number("radius"),
                 position=table.numbers("position"),
                 face=table.choice("face"),
