@@ -144,7 +144,7 @@ def initial_refinement(structure: Structure, config: RunConfig) -> list[Request]
         requests += [(c, i, delaminate) for c in cells for i in interfaces.delaminate]
     centroids = structure.cell_vertices().mean(axis=1)
     for film in config.delaminations:
-        under = np.flatnonzero(film.holds(centroids[:, 0], centroids[:, 1]))
+        under = np.flatnonzero(film.region.holds(centroids[:, 0], centroids[:, 1]))
         requests += [(int(c), film.interface, InterfaceState.STRONG) for c in under]
     return requests
 
@@ -159,7 +159,8 @@ def insert_films(structure: Structure, films: Iterable[Delamination]) -> None:
         return
     centroids = structure.gather(cohesive.nodes[:, :4], "X").mean(axis=1)
     for film in films:
-        at = (cohesive.interface == film.interface) & film.holds(centroids[:, 0], centroids[:, 1])
+        on_film = film.region.holds(centroids[:, 0], centroids[:, 1])
+        at = (cohesive.interface == film.interface) & on_film
         cohesive.delaminate(np.flatnonzero(at))
 
 

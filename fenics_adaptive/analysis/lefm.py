@@ -173,7 +173,7 @@ def dcb_comparison(config: RunConfig, history: dict, bin_width: float = 5.0) -> 
                          f"{config.laminate.thickness - arm:g} mm thick, not equal")  # fmt: skip
     material = config.laminate.plies[0].material
     width, GIc = config.mesh.width, config.cohesive.GIc
-    a0 = config.mesh.length - film.x_min
+    a0 = config.mesh.length - film.region.x_min
     chi = root_rotation_correction(material)
     effective = a0 + chi * arm
     opening = 2.0 * np.asarray(history["displacement"])

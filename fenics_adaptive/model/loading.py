@@ -316,20 +316,14 @@ def resolve(
         cells, local = np.nonzero(np.isin(cell_facets, model.beam.facets(load.face)))
         X = X_nodes[cell_nodes[cells[:, None], HEX_FACETS[local]]]  # (k, 4, 3)
         centre = X.mean(axis=1)
-        x_min, x_max, y_min, y_max = load.region
-        inside = (
-            (centre[:, 0] >= x_min)
-            & (centre[:, 0] <= x_max)
-            & (centre[:, 1] >= y_min)
-            & (centre[:, 1] <= y_max)
-        )
+        inside = load.region.holds(centre[:, 0], centre[:, 1])
         cells, local, X, centre = cells[inside], local[inside], X[inside], centre[inside]
         area = model.comm.allreduce(float(quad_areas(X).sum()), op=MPI.SUM)
         if area == 0.0:
             raise InputError(
                 load.key or "load",
                 f"no facet of face {load.face!r} has its centroid in the load's region "
-                f"x in [{x_min:g}, {x_max:g}], y in [{y_min:g}, {y_max:g}] mm",
+                f"{load.region}",
             )
         traction = FaceTraction.of(load, area)
         outward = centre - X_nodes[cell_nodes[cells]].mean(axis=1)

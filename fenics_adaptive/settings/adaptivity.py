@@ -1,6 +1,6 @@
 """Adaptivity settings as the config gives them: which ply interfaces may refine, the
 stabilisation of a refinement, the refinement indicators, the manual refinements and the
-initial delaminations (standard library and numpy only; ``model.structure`` and
+initial delaminations (standard library only; ``model.structure`` and
 ``adaptivity.indicators`` act on them).
 
 Units: N, mm, s, tonne. Ply interfaces are 1-based: interface i lies between ply i and ply i + 1.
@@ -11,9 +11,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-import numpy as np
-
 from fenics_adaptive.settings.kinds import InterfaceState, Refinement
+from fenics_adaptive.settings.loads import Region
 
 
 @dataclass(frozen=True)
@@ -36,20 +35,13 @@ class Interfaces:
 @dataclass(frozen=True)
 class Delamination:
     """An insert film: interface ``interface`` (1-based) delaminated at t = 0 over the cells
-    whose centroid lies in [x_min, x_max] x [y_min, y_max] (mm). A layerwise model starts with
+    whose centroid lies in ``region``. A layerwise model starts with
     these cohesive elements failed; an adaptive one with these cells refined strongly at the
     interface and their cohesive elements failed. The crack faces still meet: the cohesive law's
     compression branch is never damaged (frictionless contact through the normal penalty)."""
 
     interface: int
-    x_min: float
-    x_max: float
-    y_min: float = -math.inf
-    y_max: float = math.inf
-
-    def holds(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-        """Which of the centroids (x, y) (mm) lie in the region (its edges included)."""
-        return (x >= self.x_min) & (x <= self.x_max) & (y >= self.y_min) & (y <= self.y_max)
+    region: Region
 
 
 @dataclass(frozen=True)

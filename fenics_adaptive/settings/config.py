@@ -79,6 +79,7 @@ from fenics_adaptive.settings.loads import (
     FaceLoad,
     Impactor,
     PrescribedMotion,
+    Region,
     RigidBody,
     clamp,
 )
@@ -685,7 +686,7 @@ def _delaminations(
         y_min, y_max = table.range("y_min", "y_max", strict=True)
         _check_holds_centroids(table, mesh, x_min, x_max)
         _check_holds_centroids(table, mesh, y_min, y_max, axis="y")
-        inserts.append(Delamination(interface, x_min, x_max, y_min, y_max))
+        inserts.append(Delamination(interface, Region(x_min, x_max, y_min, y_max)))
     return tuple(inserts)
 
 
@@ -765,7 +766,7 @@ def _loads(root: _Root, faces: list[str]) -> list[FaceLoad]:
                 key=table.key("face"),
                 pressure=pressure,
                 distribution=distribution,
-                region=(x_min, x_max, y_min, y_max),
+                region=Region(x_min, x_max, y_min, y_max),
             )
         )
     return loads

@@ -126,11 +126,29 @@ class PrescribedMotion:
 
 
 @dataclass(frozen=True)
+class Region:
+    """An x, y range (mm) that picks cells or facets by their centroid, edges included; the
+    default is everything."""
+
+    x_min: float = -math.inf
+    x_max: float = math.inf
+    y_min: float = -math.inf
+    y_max: float = math.inf
+
+    def holds(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """Which of the centroids (x, y) (mm) lie in the region."""
+        return (x >= self.x_min) & (x <= self.x_max) & (y >= self.y_min) & (y <= self.y_max)
+
+    def __str__(self) -> str:
+        return f"x in [{self.x_min:g}, {self.x_max:g}], y in [{self.y_min:g}, {self.y_max:g}] mm"
+
+
+@dataclass(frozen=True)
 class FaceLoad:
     """A load on a face, times amplitude(t): a total force ``force`` (N, vector) spread as a
     uniform traction, or a ``pressure`` (MPa, normal to the face; positive pushes into the
-    body, against the outward normal) shaped along x by ``distribution``. ``region``
-    (x_min, x_max, y_min, y_max, mm) limits it to the face's facets whose centroid lies in it.
+    body, against the outward normal) shaped along x by ``distribution``. ``region`` limits
+    it to the face's facets whose centroid lies in it.
 
     ``distribution``: (x (mm), factor) points, x increasing; the pressure at x is ``pressure``
     times the factor interpolated linearly, held at the end values outside the points (None:
@@ -142,7 +160,7 @@ class FaceLoad:
     key: str = field(default="", compare=False)  # the config key that made it (for errors)
     pressure: float | None = None
     distribution: tuple[tuple[float, ...], tuple[float, ...]] | None = None
-    region: tuple[float, float, float, float] = (-math.inf, math.inf, -math.inf, math.inf)
+    region: Region = field(default_factory=Region)
 
     def __post_init__(self) -> None:
         if (self.force is None) == (self.pressure is None):
