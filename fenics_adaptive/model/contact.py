@@ -133,6 +133,8 @@ class Contact(Contributor):
         self.natural_penalty = C33 * area / h
         self.penalty = body.penalty if body.penalty is not None else self.natural_penalty
         self.centre = np.array(body.position, dtype=float)
+        self.origin = self.centre.copy()  # mm: the centre at t = 0
+        self.path = np.array(body.path, dtype=float)  # a prescribed body's (mm or mm/s)
         # v_{n-1/2} of a free body; a driven body's is its path's
         self.velocity = np.array(body.velocity if self.free else (0.0, 0.0, 0.0), dtype=float)
         self.acceleration = np.zeros(3)
@@ -143,6 +145,7 @@ class Contact(Contributor):
         self.drive_work = 0.0  # mJ: work of a driven body's drive so far
         self.previous_centre = self.centre.copy()  # at the last add_force
         self.previous_force = np.zeros(3)
+        self.moved = np.zeros(3)  # mm: c_n+1 - c_n at the last add_force
         self.z0 = float(self.centre[2])  # mm: the centre's height at t = 0
         self.force = np.zeros(3)  # on the body, global
         self.energy_penalty = 0.0  # global
@@ -227,8 +230,10 @@ class Contact(Contributor):
         if self.free:
             np.divide(self.force, self.body.mass, out=self.acceleration)
         else:  # the drive holds the body against the structure's force: it applies -force
-            moved = self.centre - self.previous_centre
-            self.drive_work -= 0.5 * float((self.previous_force + self.force) @ moved)
+            np.subtract(self.centre, self.previous_centre, out=self.moved)
+            self.drive_work -= 0.5 * float(
+                self.previous_force @ self.moved + self.force @ self.moved
+            )
             self.previous_centre[:] = self.centre
             self.previous_force[:] = self.force
 
@@ -240,8 +245,9 @@ class Contact(Contributor):
         if self.free:
             self.velocity += mean_dt * self.acceleration
             self.centre += dt * self.velocity
-        elif self.body.motion == RigidMotion.PRESCRIBED:
-            self.centre[:] = self.body.prescribed_centre(self.t)
+        elif self.body.motion == RigidMotion.PRESCRIBED:  # in place: no allocation per step
+            np.multiply(self.path, self.body.path_scale(self.t), out=self.centre)
+            self.centre += self.origin
 
     def total_energy(self) -> float:
         """Kinetic energy at the full step (a free body's) plus the penalty energy (mJ), of the

@@ -218,13 +218,22 @@ class RigidBody:
         if self.face not in ("top", "bottom") or self.axis not in ("x", "y"):
             raise ValueError("a rigid body touches the top or bottom face; its axis is x or y")
 
+    @property
+    def path(self) -> tuple[float, float, float]:
+        """The vector a PRESCRIBED body's path scales: its displacement (mm) or velocity
+        (mm/s)."""
+        return self.displacement if self.displacement is not None else self.velocity
+
+    def path_scale(self, t: float) -> float:
+        """The factor of ``path`` at time t (s): the time curve (a displacement) or its
+        integral (a velocity)."""
+        if self.displacement is not None:
+            return self.amplitude(t)
+        return self.amplitude.integral(t)
+
     def prescribed_centre(self, t: float) -> np.ndarray:
         """The centre (3,) mm at time t (s) of a PRESCRIBED body."""
-        if self.displacement is not None:
-            move = np.asarray(self.displacement) * self.amplitude(t)
-        else:
-            move = np.asarray(self.velocity) * self.amplitude.integral(t)
-        return np.asarray(self.position, dtype=float) + move
+        return np.asarray(self.position, dtype=float) + np.asarray(self.path) * self.path_scale(t)
 
 
 @dataclass(frozen=True)
