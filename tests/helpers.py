@@ -12,6 +12,7 @@ from mpi4py import MPI  # first: the DOLFINx wheel finds libmpi through it
 # isort: split
 import json
 import math
+from pathlib import Path
 
 import basix.ufl
 import dolfinx
@@ -244,3 +245,26 @@ FIGURES = {
     "05_stabilisation": ["05_force_jump_and_remedies"],
     "06_border": ["06_border_constraint"],
 }
+
+
+def run_quietly(data: dict, out: Path, restart: Path | None = None) -> dict:
+    """Run a config table into the folder ``out`` (from the checkpoint ``restart`` if given),
+    without progress or log lines; returns the summary."""
+    from fenics_adaptive.runner import run_config
+    from fenics_adaptive.settings.config import parse_config
+
+    return run_config(parse_config(data), out, show_progress=False, log=None, restart=restart)
+
+
+def assert_restarted_history(out: Path, whole: Path, atol: float = 1e-14) -> None:
+    """The history in folder ``out`` is the one in ``whole`` row for row, to round-off (rtol
+    1e-12, ``atol``): no row lost, none twice, the same columns."""
+    from fenics_adaptive.io.output import read_history
+
+    resumed = read_history(out / "history.csv")
+    expected = read_history(whole / "history.csv")
+    assert list(resumed) == list(expected)
+    assert len(resumed["time"]) == len(expected["time"])
+    assert np.all(np.diff(resumed["time"]) > 0)
+    for name, values in expected.items():
+        np.testing.assert_allclose(resumed[name], values, rtol=1e-12, atol=atol, err_msg=name)

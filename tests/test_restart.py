@@ -16,15 +16,14 @@ import time
 import tomllib
 from pathlib import Path
 
-import numpy as np
 import pytest
+from helpers import assert_restarted_history, run_quietly
 from mpi4py import MPI
 
 from fenics_adaptive import runner
 from fenics_adaptive.errors import InputError
 from fenics_adaptive.io import checkpoint
 from fenics_adaptive.io.output import read_history
-from fenics_adaptive.runner import run_config
 from fenics_adaptive.settings.config import parse_config
 from fenics_adaptive.solver.explicit import Interrupted
 
@@ -72,21 +71,14 @@ def late_refinement(end_time: float, checkpoint_interval: int | None = None) -> 
     return tomllib.loads(late_refinement_toml(end_time, checkpoint_interval))
 
 
-def run(data: dict, out: Path, restart: Path | None = None) -> dict:
-    return run_config(parse_config(data), out, show_progress=False, log=None, restart=restart)
-
-
 @pytest.mark.slow
 def test_resumed_history_equals_the_uninterrupted_one(tmp_path):
-    run(late_refinement(1.0e-4), tmp_path / "whole")
-    first = run(late_refinement(6.0e-5, checkpoint_interval=400), tmp_path / "split")
+    run_quietly(late_refinement(1.0e-4), tmp_path / "whole")
+    first = run_quietly(late_refinement(6.0e-5, checkpoint_interval=400), tmp_path / "split")
     assert (tmp_path / "split" / "checkpoint" / "checkpoint.json").exists()
-    summary = run(late_refinement(1.0e-4), tmp_path / "split", restart=tmp_path / "split")
+    summary = run_quietly(late_refinement(1.0e-4), tmp_path / "split", restart=tmp_path / "split")
+    assert_restarted_history(tmp_path / "split", tmp_path / "whole")
     whole = read_history(tmp_path / "whole" / "history.csv")
-    split = read_history(tmp_path / "split" / "history.csv")
-    assert len(split["time"]) == len(whole["time"])
-    for name, values in whole.items():
-        np.testing.assert_allclose(split[name], values, rtol=1e-12, atol=1e-14, err_msg=name)
     # the refinement log goes on from the checkpoint's as if never interrupted
     log = "refinement_log.csv"
     assert (tmp_path / "split" / log).read_text() == (tmp_path / "whole" / log).read_text()
@@ -98,13 +90,13 @@ def test_resumed_history_equals_the_uninterrupted_one(tmp_path):
 
 @pytest.mark.slow
 def test_restart_refuses_another_model_or_rank_count(tmp_path):
-    run(late_refinement(2.0e-5, checkpoint_interval=1000), tmp_path / "a")
+    run_quietly(late_refinement(2.0e-5, checkpoint_interval=1000), tmp_path / "a")
     other = late_refinement(4.0e-5)
     other["cohesive"]["GIc"] = 0.5
     with pytest.raises(InputError, match="config differs"):
-        run(other, tmp_path / "a", restart=tmp_path / "a")
+        run_quietly(other, tmp_path / "a", restart=tmp_path / "a")
     with pytest.raises(InputError, match="no complete checkpoint"):
-        run(late_refinement(4.0e-5), tmp_path / "b", restart=tmp_path / "nothing")
+        run_quietly(late_refinement(4.0e-5), tmp_path / "b", restart=tmp_path / "nothing")
 
 
 @pytest.mark.slow
@@ -116,7 +108,7 @@ def test_sigterm_on_an_extension_and_the_printed_restart_command(tmp_path):
     config = tmp_path / "my case" / "run.toml"
     config.parent.mkdir()
     out = tmp_path / "out dir"
-    run(late_refinement(4.0e-5, checkpoint_interval=1000), out)
+    run_quietly(late_refinement(4.0e-5, checkpoint_interval=1000), out)
     finished = read_history(out / "history.csv")
     config.write_text(late_refinement_toml(1.2e-3))
     env = dict(os.environ, PYTHONPATH=str(Path(__file__).parent.parent))
@@ -147,21 +139,11 @@ def test_sigterm_on_an_extension_and_the_printed_restart_command(tmp_path):
     config.write_text(late_refinement_toml(short_end))
     done = subprocess.run([*CLI, *hint[1:], "--quiet"], env=env, capture_output=True, text=True)
     assert done.returncode == 0, done.stderr
-    run(late_refinement(short_end), tmp_path / "whole")
-    assert_same_history(out, tmp_path / "whole")
+    run_quietly(late_refinement(short_end), tmp_path / "whole")
+    assert_restarted_history(out, tmp_path / "whole")
 
 
 CLI = [sys.executable, "-m", "fenics_adaptive"]
-
-
-def assert_same_history(out: Path, whole: Path) -> None:
-    """Row for row, to round-off: no row lost, none twice."""
-    resumed = read_history(out / "history.csv")
-    expected = read_history(whole / "history.csv")
-    assert len(resumed["time"]) == len(expected["time"])
-    assert np.all(np.diff(resumed["time"]) > 0)
-    for name, values in expected.items():
-        np.testing.assert_allclose(resumed[name], values, rtol=1e-12, atol=1e-14, err_msg=name)
 
 
 # ------------------------------------------------------------------ chains, deterministically
@@ -196,7 +178,7 @@ def stop_at_poll(monkeypatch, poll: int | None) -> None:
 @pytest.fixture(scope="module")
 def whole_tcb(tmp_path_factory):
     out = tmp_path_factory.mktemp("whole") / "out"
-    run(tcb(1.0e-4), out)
+    run_quietly(tcb(1.0e-4), out)
     return out
 
 
@@ -205,15 +187,15 @@ def test_extension_interrupted_extension_and_restart_again(tmp_path, monkeypatch
     """The reported bug: the second restart read the finished run's history.csv before the
     extension's history.partial.csv, and lost the rows between them."""
     out = tmp_path / "out"
-    assert run(tcb(4.0e-5, checkpoint_interval=500), out)["status"] == "completed"
+    assert run_quietly(tcb(4.0e-5, checkpoint_interval=500), out)["status"] == "completed"
     stop_at_poll(monkeypatch, 5)
     with pytest.raises(Interrupted):
-        run(tcb(1.0e-4), out, restart=out)
+        run_quietly(tcb(1.0e-4), out, restart=out)
     assert (out / "history.csv").exists() and (out / "history.partial.csv").exists()
     assert read_history(out / "history.csv")["time"][-1] < 4.1e-5
     stop_at_poll(monkeypatch, None)
-    assert run(tcb(1.0e-4), out, restart=out)["status"] == "completed"
-    assert_same_history(out, whole_tcb)
+    assert run_quietly(tcb(1.0e-4), out, restart=out)["status"] == "completed"
+    assert_restarted_history(out, whole_tcb)
     assert not (out / "history.partial.csv").exists()
 
 
@@ -224,13 +206,13 @@ def test_repeated_interruptions_and_restarts(tmp_path, monkeypatch, whole_tcb):
     for poll in (4, 6, 3, None):
         stop_at_poll(monkeypatch, poll)
         if poll is None:
-            run(tcb(1.0e-4), out, restart=out if times else None)
+            run_quietly(tcb(1.0e-4), out, restart=out if times else None)
             break
         with pytest.raises(Interrupted) as caught:
-            run(tcb(1.0e-4), out, restart=out if times else None)
+            run_quietly(tcb(1.0e-4), out, restart=out if times else None)
         times.append(caught.value.t)
     assert len(times) == 3 and times == sorted(times)
-    assert_same_history(out, whole_tcb)
+    assert_restarted_history(out, whole_tcb)
     # one generation is left in the checkpoint folder
     names = sorted(p.name for p in (out / "checkpoint").iterdir())
     assert len(names) == 3 and names[0] == "checkpoint.json", names
@@ -243,10 +225,10 @@ def test_a_restart_into_another_folder_keeps_the_checkpoint_s_history(
     out = tmp_path / "out"
     stop_at_poll(monkeypatch, 7)
     with pytest.raises(Interrupted):
-        run(tcb(1.0e-4), out)
+        run_quietly(tcb(1.0e-4), out)
     stop_at_poll(monkeypatch, None)
-    run(tcb(1.0e-4), tmp_path / "elsewhere", restart=out)
-    assert_same_history(tmp_path / "elsewhere", whole_tcb)
+    run_quietly(tcb(1.0e-4), tmp_path / "elsewhere", restart=out)
+    assert_restarted_history(tmp_path / "elsewhere", whole_tcb)
 
 
 # ------------------------------------------------------------------ the write protocol
@@ -265,7 +247,7 @@ def small(end_time: float = 2.0e-4, checkpoint_interval: int | None = 500) -> di
 @pytest.fixture(scope="module")
 def whole_small(tmp_path_factory):
     out = tmp_path_factory.mktemp("whole_small") / "out"
-    run(small(checkpoint_interval=None), out)
+    run_quietly(small(checkpoint_interval=None), out)
     return out
 
 
@@ -318,13 +300,13 @@ def test_a_kill_at_any_point_of_the_write_leaves_one_complete_checkpoint(
     monkeypatch.setattr(checkpoint, "remove_superseded", remove)
     out = tmp_path / "out"
     with pytest.raises(Killed):
-        run(small(), out)
+        run_quietly(small(), out)
     monkeypatch.undo()
     assert len(writes) >= 4
     manifest, _, _ = checkpoint.read(out, MPI.COMM_WORLD, parse_config(small()))
     assert manifest["step"] == step
-    run(small(checkpoint_interval=None), out, restart=out)
-    assert_same_history(out, whole_small)
+    run_quietly(small(checkpoint_interval=None), out, restart=out)
+    assert_restarted_history(out, whole_small)
 
 
 @pytest.mark.slow
@@ -334,7 +316,7 @@ def test_checkpoints_of_the_earlier_format_are_found(tmp_path, monkeypatch, whol
     out = tmp_path / "out"
     stop_at_poll(monkeypatch, 12)
     with pytest.raises(Interrupted):
-        run(small(checkpoint_interval=None), out)
+        run_quietly(small(checkpoint_interval=None), out)
     stop_at_poll(monkeypatch, None)
     folder = out / "checkpoint"
     manifest = json.loads((folder / "checkpoint.json").read_text())
@@ -347,15 +329,15 @@ def test_checkpoints_of_the_earlier_format_are_found(tmp_path, monkeypatch, whol
         if ranks == 1:
             shutil.copy(out / name / "rank0.npz", folder / manifest["ranks"][0]["name"])
     shutil.rmtree(folder)
-    run(small(checkpoint_interval=None), out, restart=out)
-    assert_same_history(out, whole_small)
+    run_quietly(small(checkpoint_interval=None), out, restart=out)
+    assert_restarted_history(out, whole_small)
 
 
 # ------------------------------------------------------------------ damaged checkpoints
 @pytest.fixture(scope="module")
 def finished_small(tmp_path_factory):
     out = tmp_path_factory.mktemp("finished") / "out"
-    run(small(checkpoint_interval=1000), out)
+    run_quietly(small(checkpoint_interval=1000), out)
     return out
 
 
@@ -416,7 +398,7 @@ def test_a_damaged_checkpoint_is_refused_naming_the_file(tmp_path, finished_smal
     name = damage(out, how)
     before = {p: p.read_bytes() for p in out.rglob("*") if p.is_file()}
     with pytest.raises(InputError) as caught:
-        run(small(end_time=3.0e-4), out, restart=out)
+        run_quietly(small(end_time=3.0e-4), out, restart=out)
     assert caught.value.key == "restart"
     assert name in str(caught.value), str(caught.value)
     assert {p: p.read_bytes() for p in out.rglob("*") if p.is_file()} == before

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import assert_restarted_history, run_quietly
 
 from fenics_adaptive.errors import InputError
 from fenics_adaptive.io.output import read_history
@@ -111,18 +112,14 @@ def test_a_free_rigid_body_is_the_impactor(tmp_path):
     ]
     for data in (base, as_rigid):
         data["output"].pop("fields_interval", None)
-    run(base, tmp_path / "a")
-    run(as_rigid, tmp_path / "b")
+    run_quietly(base, tmp_path / "a")
+    run_quietly(as_rigid, tmp_path / "b")
     a, b = (read_history(tmp_path / name / "history.csv") for name in ("a", "b"))
     assert max(a["contact_force"]) > 0.0
     np.testing.assert_array_equal(a["contact_force"], b["ball_force"])
     np.testing.assert_array_equal(a["impactor_displacement"], b["ball_displacement"])
     for name in ("impact_work", "kinetic_energy", "internal_energy", "energy_balance"):
         np.testing.assert_array_equal(a[name], b[name], err_msg=name)
-
-
-def run(data: dict, out: Path) -> dict:
-    return run_config(parse_config(data), out, show_progress=False, log=None)
 
 
 @pytest.mark.parametrize(
@@ -163,13 +160,9 @@ def test_a_run_with_rigid_bodies_restarts_to_the_uninterrupted_history(tmp_path)
     first = copy.deepcopy(whole)
     first["solver"]["end_time"] = 1.0e-3
     first["output"]["checkpoint_interval"] = 2000
-    run(whole, tmp_path / "whole")
-    run(first, tmp_path / "split")
-    run_config(parse_config(whole), tmp_path / "split", show_progress=False, log=None,
-               restart=tmp_path / "split")  # fmt: skip
+    run_quietly(whole, tmp_path / "whole")
+    run_quietly(first, tmp_path / "split")
+    run_quietly(whole, tmp_path / "split", restart=tmp_path / "split")
+    assert_restarted_history(tmp_path / "split", tmp_path / "whole", atol=1e-12)
     a = read_history(tmp_path / "whole" / "history.csv")
-    b = read_history(tmp_path / "split" / "history.csv")
-    assert list(a) == list(b) and len(a["time"]) == len(b["time"])
-    for name, values in a.items():
-        np.testing.assert_allclose(b[name], values, rtol=1e-12, atol=1e-12, err_msg=name)
     assert a["nose_force"][-1] > 10.0
