@@ -7,7 +7,8 @@ import math
 
 import numpy as np
 import pytest
-from test_restart import late_refinement, run
+from helpers import run_quietly
+from test_restart import late_refinement
 
 from fenics_adaptive.adaptivity.events import Reason, _reasons_of, note
 from fenics_adaptive.settings.kinds import InterfaceState
@@ -35,7 +36,7 @@ def read_log(path):
 def test_log_lists_each_refinement_once_with_its_time_and_reason(tmp_path):
     data = late_refinement(5.0e-5)
     data["output"]["fields_interval"] = 5.0e-5
-    summary = run(data, tmp_path)
+    summary = run_quietly(data, tmp_path)
     rows = read_log(tmp_path / "refinement_log.csv")
     key = [(r["cell"], r["interface"], r["state"]) for r in rows]
     assert len(key) == len(set(key))  # once per (cell, interface, state)
@@ -64,7 +65,7 @@ def test_the_initial_refinement_is_logged_at_time_zero(tmp_path):
     data = late_refinement(2.0e-7)
     data["interfaces"]["initial"] = "strong"
     del data["refinement"]
-    run(data, tmp_path)
+    run_quietly(data, tmp_path)
     rows = read_log(tmp_path / "refinement_log.csv")
     n_cells = data["mesh"]["nx"] * data["mesh"]["ny"]
     # refine = [4] weak, delaminate = [2, 6] weak then strong, all at t = 0
