@@ -1,5 +1,6 @@
 """Command line: ``fenics-adaptive run CONFIG.toml --out DIR [--restart CHECKPOINT]
-[--overwrite]``, ``fenics-adaptive check CONFIG.toml``, ``fenics-adaptive demo [NAME ...]``
+[--overwrite]``, ``fenics-adaptive static CONFIG.toml --out DIR`` (the static check at the end
+time, ``static_runner``), ``fenics-adaptive check CONFIG.toml``, ``fenics-adaptive demo [NAME ...]``
 (the demos the package holds) and ``fenics-adaptive init CASE.toml`` (a starting config).
 
 Exit status: 0 done, 2 bad input (one line on stderr naming the key), 1 the run failed, 3 the
@@ -91,6 +92,17 @@ def _command(argv: list[str] | None, interrupt: _StartupInterrupt) -> int:
         metavar="CHECKPOINT",
         help="continue from this checkpoint folder (or the output folder holding one)",
     )
+    static = commands.add_parser(
+        "static",
+        help="solve the config statically at its end time (linear elastic check) and write "
+        "the same result files",
+    )
+    static.add_argument("config", help="TOML run configuration")
+    static.add_argument("--out", required=True, help="output folder, as for run")
+    static.add_argument(
+        "--overwrite", action="store_true", help="as for run: only this program's files go"
+    )
+    static.add_argument("--quiet", action="store_true", help="no log lines")
     check = commands.add_parser("check", help="check a config and report the time step, no run")
     check.add_argument("config", help="TOML run configuration")
     demo = commands.add_parser(
@@ -129,11 +141,16 @@ def _command(argv: list[str] | None, interrupt: _StartupInterrupt) -> int:
     from fenics_adaptive.settings.config import load_config
     from fenics_adaptive.simulation import Simulation
     from fenics_adaptive.solver.explicit import Interrupted
+    from fenics_adaptive.static_runner import static_config
 
     try:
         config = load_config(args.config)
         if args.command == "check":
             return _check(args.config, config, Simulation(config, comm=comm), comm)
+        if args.command == "static":
+            log = None if args.quiet else print
+            static_config(config, args.out, comm, log=log, overwrite=args.overwrite)
+            return 0
         run_config(
             config,
             args.out,
@@ -157,7 +174,7 @@ def _command(argv: list[str] | None, interrupt: _StartupInterrupt) -> int:
     except Exception as error:  # the run itself failed: say why in one line
         if interrupt.fired:  # Ctrl-C killed a compiler or Gmsh under us: not a failure
             return _interrupted(error)
-        return fail_ranks(errors, 1, _failure_line("run", error))
+        return fail_ranks(errors, 1, _failure_line(args.command, error))
     return 0
 
 

@@ -156,29 +156,33 @@ def _restarted(
     return simulation, resume, checkpoint.hook_state(arrays), kept_rows
 
 
+def model_summary(config: RunConfig, structure: Structure, comm: MPI.Comm) -> dict:
+    """Collective: the model's size (over all ranks) as ``summary.json`` gives it."""
+    model = structure.base
+    n_nodes = model.V.dofmap.index_map.size_global
+    return {
+        "kind": config.kind,
+        "cells": comm.allreduce(model.mesh.topology.index_map(3).size_local, op=MPI.SUM),
+        "nodes": n_nodes,
+        "dofs": 3 * n_nodes,
+        "plies": config.laminate.n_plies,
+        "cell_layers": len(model.beam.layer_z) - 1,
+        "thickness_mm": config.laminate.thickness,
+        "total_mass_tonne": structure.total_mass(),
+        "extra_nodes_at_start": comm.allreduce(structure.extra.n_owned, op=MPI.SUM),
+        "cohesive_elements_at_start": comm.allreduce(len(structure.cohesive), op=MPI.SUM),
+        "insert_film_area_mm2": insert_film_area(structure),
+    }
+
+
 def _summary_at_start(config: RunConfig, simulation: Simulation, comm: MPI.Comm) -> dict:
     """Collective: ``summary.json`` as it stands before the first step: the model's size (over
     all ranks), the time step, the versions."""
-    structure = simulation.structure
-    model = structure.base
-    n_nodes = model.V.dofmap.index_map.size_global
     return {
         "status": "running",
         "config": config.source,
         "units": "N, mm, s, tonne (MPa, mJ)",
-        "model": {
-            "kind": config.kind,
-            "cells": comm.allreduce(model.mesh.topology.index_map(3).size_local, op=MPI.SUM),
-            "nodes": n_nodes,
-            "dofs": 3 * n_nodes,
-            "plies": config.laminate.n_plies,
-            "cell_layers": len(model.beam.layer_z) - 1,
-            "thickness_mm": config.laminate.thickness,
-            "total_mass_tonne": structure.total_mass(),
-            "extra_nodes_at_start": comm.allreduce(structure.extra.n_owned, op=MPI.SUM),
-            "cohesive_elements_at_start": comm.allreduce(len(structure.cohesive), op=MPI.SUM),
-            "insert_film_area_mm2": insert_film_area(structure),
-        },
+        "model": model_summary(config, simulation.structure, comm),
         "time_step": {
             "used_s": simulation.time_step,
             "stable_s": simulation.stable_time_step,
@@ -186,12 +190,17 @@ def _summary_at_start(config: RunConfig, simulation: Simulation, comm: MPI.Comm)
             "limited_by": simulation.critical,
         },
         "mpi_ranks": comm.size,
-        "versions": {
-            "fenics_adaptive": fenics_adaptive.__version__,
-            "dolfinx": dolfinx.__version__,
-            "numba": numba.__version__,
-            "python": platform.python_version(),
-        },
+        "versions": versions(),
+    }
+
+
+def versions() -> dict[str, str]:
+    """The versions behind a result, as ``summary.json`` records them."""
+    return {
+        "fenics_adaptive": fenics_adaptive.__version__,
+        "dolfinx": dolfinx.__version__,
+        "numba": numba.__version__,
+        "python": platform.python_version(),
     }
 
 

@@ -99,6 +99,17 @@ def runner_summary_keys() -> set[str]:
             keys.add(prefix + name)
             if isinstance(value, ast.Dict):
                 add(value, prefix + name + ".")
+            elif (
+                isinstance(value, ast.Call)
+                and isinstance(value.func, ast.Name)
+                and any(f.name == value.func.id for f in functions)
+            ):
+                # "model": model_summary(...): the dict literal that helper returns
+                add(returned(value.func.id), prefix + name + ".")
+
+    def returned(helper_name: str) -> ast.AST:
+        helper = next(f for f in functions if f.name == helper_name)
+        return next(r.value for r in ast.walk(helper) if isinstance(r, ast.Return))
 
     nodes = [*ast.walk(execute), *(ast.walk(finish) if finish is not None else ())]
     for node in nodes:
@@ -108,8 +119,7 @@ def runner_summary_keys() -> set[str]:
                     value = node.value
                     if isinstance(value, ast.Call) and isinstance(value.func, ast.Name):
                         # summary = _helper(...): the dict literal that helper returns
-                        helper = next(f for f in functions if f.name == value.func.id)
-                        value = next(r.value for r in ast.walk(helper) if isinstance(r, ast.Return))
+                        value = returned(value.func.id)
                     add(value)
                 elif isinstance(target, ast.Subscript) and _is_summary(target.value):
                     name = _string(target.slice)

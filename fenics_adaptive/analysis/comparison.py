@@ -46,7 +46,6 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
-from petsc4py import PETSc
 
 from fenics_adaptive.adaptivity.indicators import ply_stresses
 from fenics_adaptive.element.geometry import quad_areas
@@ -54,87 +53,19 @@ from fenics_adaptive.materials.laminate import Laminate, reduced_plane_stress_st
 from fenics_adaptive.model.assembly import SubelementSet, add_subelement_forces
 from fenics_adaptive.model.loading import face_nodes
 from fenics_adaptive.model.structure import Structure
+from fenics_adaptive.solver import equilibrium
+from fenics_adaptive.solver.equilibrium import SparseMatrix
 
 OUT_OF_PLANE = ("sigma_zz", "tau_xz", "tau_yz")
 VOIGT_OUT_OF_PLANE = [2, 4, 3]  # Voigt (xx, yy, zz, yz, xz, xy) indices of OUT_OF_PLANE
 
 
 # ----------------------------------------------------------------------------- static solution
-def node_colouring(elements: np.ndarray, n_nodes: int) -> np.ndarray:
-    """Greedy distance-2 colouring: nodes that share an element, or share a neighbour, get
-    different colours (the condition for probing a stiffness matrix one colour at a time)."""
-    neighbours: list[set[int]] = [set() for _ in range(n_nodes)]
-    for row in elements:
-        for a in row:
-            neighbours[a].update(int(b) for b in row)
-    colour = np.full(n_nodes, -1, dtype=np.int64)
-    for node in range(n_nodes):
-        taken = set()
-        for b in neighbours[node]:
-            taken.update(int(colour[c]) for c in neighbours[b])
-        c = 0
-        while c in taken:
-            c += 1
-        colour[node] = c
-    return colour
-
-
-@dataclass
-class SparseMatrix:
-    """A square matrix in coordinate form (enough for probing, checking and handing to PETSc)."""
-
-    n: int
-    rows: np.ndarray
-    cols: np.ndarray
-    values: np.ndarray
-
-    def matvec(self, x: np.ndarray) -> np.ndarray:
-        return np.bincount(self.rows, weights=self.values * x[self.cols], minlength=self.n)
-
-    def asymmetry(self) -> float:
-        """max |K - K^T| / max |K| (entries missing from the pattern count as zero)."""
-        keys = self.rows * self.n + self.cols
-        order = np.argsort(keys)
-        keys, values = keys[order], self.values[order]
-        transposed = self.cols[order] * self.n + self.rows[order]
-        at = np.minimum(np.searchsorted(keys, transposed), len(keys) - 1)
-        partner = np.where(keys[at] == transposed, values[at], 0.0)
-        return float(np.abs(values - partner).max() / np.abs(values).max())
-
-    def submatrix_petsc(self, keep: np.ndarray) -> PETSc.Mat:
-        """PETSc AIJ matrix of the rows and columns ``keep`` (sorted indices), serial."""
-        new = np.full(self.n, -1, dtype=np.int64)
-        new[keep] = np.arange(len(keep))
-        r, c = new[self.rows], new[self.cols]
-        inside = (r >= 0) & (c >= 0)
-        r, c, v = r[inside], c[inside], self.values[inside]
-        order = np.lexsort((c, r))
-        r, c, v = r[order], c[order], v[order]
-        indptr = np.concatenate([[0], np.cumsum(np.bincount(r, minlength=len(keep)))])
-        return PETSc.Mat().createAIJ(
-            size=(len(keep), len(keep)),
-            csr=(indptr.astype(PETSc.IntType), c.astype(PETSc.IntType), v),
-            comm=PETSc.COMM_SELF,
-        )
-
-
 def _combined_arrays(structure: Structure) -> tuple[np.ndarray, np.ndarray]:
     """(displacement, internal force) of base + extra DOFs as the solver keeps them."""
     u = np.concatenate([structure.base.u.x.array, structure.extra.vectors["u"].array])
     f = np.concatenate([structure.f_base.array, structure.f_extra.array])
     return u, f
-
-
-def _set_displacement(structure: Structure, u: np.ndarray) -> None:
-    n = len(structure.base.u.x.array)
-    structure.base.u.x.array[:] = u[:n]
-    structure.extra.vectors["u"].array[:] = u[n:]
-
-
-def _internal_force(structure: Structure, u: np.ndarray) -> np.ndarray:
-    _set_displacement(structure, u)
-    structure.internal_force()
-    return _combined_arrays(structure)[1]
 
 
 def _check_bonded_serial(structure: Structure) -> None:
@@ -168,33 +99,9 @@ def probe_stiffness(structure: Structure) -> tuple[SparseMatrix, int]:
     on more than one rank."""
     _check_bonded_serial(structure)
     _check_small_strain(structure)
-    nodes, _, _ = structure.elements()
-    n_nodes = structure.n_base + structure.extra.n_local
-    colour = node_colouring(nodes, n_nodes)
-    pairs = np.unique(
-        np.stack([np.repeat(nodes, 8, axis=1).ravel(), np.tile(nodes, (1, 8)).ravel()], axis=1),
-        axis=0,
-    )  # (i, j): nodes sharing an element
-    i_node, j_node = pairs[:, 0], pairs[:, 1]
-    rows, cols, values = [], [], []
-    probes = 0
-    for c in range(int(colour.max()) + 1):
-        in_colour = colour[j_node] == c
-        i_c, j_c = i_node[in_colour], j_node[in_colour]
-        for d in range(3):
-            e = np.zeros(3 * n_nodes)
-            e[3 * np.flatnonzero(colour == c) + d] = 1.0
-            f = _internal_force(structure, e)
-            probes += 1
-            for a in range(3):
-                rows.append(3 * i_c + a)
-                cols.append(3 * j_c + d)
-                values.append(f[3 * i_c + a])
-    _set_displacement(structure, np.zeros(3 * n_nodes))
-    K = SparseMatrix(
-        3 * n_nodes, np.concatenate(rows), np.concatenate(cols), np.concatenate(values)
-    )
-    return K, probes
+    system = equilibrium.StaticSystem(structure, 0.0)
+    zero = np.zeros(system.n)
+    return system.tangent(zero, system.resisting_force(zero), 1.0)
 
 
 @dataclass
@@ -225,27 +132,12 @@ class StaticResult:
         }
 
 
-def _loads_and_constraints(structure: Structure, t: float) -> tuple[np.ndarray, ...]:
-    """(f_ext, prescribed DOFs, their values, free DOFs) at time t over base + extra DOFs."""
-    n_base_dofs = len(structure.base.u.x.array)
-    n = n_base_dofs + len(structure.extra.vectors["u"].array)
-    f_ext = np.zeros(n)
-    structure.loads.external_force(t, f_ext[:n_base_dofs], f_ext[n_base_dofs:])
-    fixed = np.concatenate(
-        [structure.base_block.fixed, structure.extra_block.fixed + n_base_dofs]
-    ).astype(np.int64)
-    motions = np.concatenate(
-        [structure.base_block.fixed_motion, structure.extra_block.fixed_motion]
-    )
-    values = np.array([structure.motions[m].displacement(t) for m in motions])
-    return f_ext, fixed, values, np.setdiff1d(np.arange(n), fixed)
-
-
 def equilibrium_residual(structure: Structure, t: float = 0.0) -> float:
     """|f_ext - f_int(u)| / |f_ext| over the free DOFs at the structure's current displacement
     (``Structure.internal_force``, the force the explicit solver uses)."""
     _check_bonded_serial(structure)
-    f_ext, _, _, free = _loads_and_constraints(structure, t)
+    system = equilibrium.StaticSystem(structure, t)
+    f_ext, free = system.f_ext, system.free
     structure.internal_force()
     f_int = _combined_arrays(structure)[1]
     return float(np.linalg.norm((f_ext - f_int)[free]) / np.linalg.norm(f_ext[free]))
@@ -256,39 +148,22 @@ def solve_linear_static(structure: Structure, t: float = 0.0) -> StaticResult:
     at time t; the displacement is left in the structure (base and extra vectors). Refuses
     what ``probe_stiffness`` refuses (finite kinematics among them: ValueError)."""
     start = time.perf_counter()
-    K, probes = probe_stiffness(structure)
-    f_ext, fixed, values, free = _loads_and_constraints(structure, t)
-    u = np.zeros(K.n)
-    u[fixed] = values
-
-    A = K.submatrix_petsc(free)
-    b = PETSc.Vec().createWithArray((f_ext - K.matvec(u))[free], comm=PETSc.COMM_SELF)
-    x = b.duplicate()
-    ksp = PETSc.KSP().create(PETSc.COMM_SELF)
-    ksp.setOperators(A)
-    ksp.setType("preonly")
-    ksp.getPC().setType("lu")
-    ksp.solve(b, x)
-    u[free] = x.getArray()
-    for obj in (ksp, A, b, x):
-        obj.destroy()
-
-    f_int = _internal_force(structure, u)  # the package's force, not the probed matrix
-    # relative to the forces that load the body: the loads, or (a case driven by prescribed
-    # displacements alone) the reactions
-    scale = max(np.linalg.norm(f_ext[free]), np.linalg.norm((f_int - f_ext)[fixed]))
-    residual = np.linalg.norm((f_ext - f_int)[free]) / max(scale, 1e-300)
-    reaction = np.zeros(K.n)
-    reaction[fixed] = (f_int - f_ext)[fixed]
+    _check_bonded_serial(structure)
+    _check_small_strain(structure)
+    system = equilibrium.StaticSystem(structure, t)
+    solution = equilibrium.solve(system)
+    u, f_int = solution.u, solution.resisting_force
+    reaction = np.zeros(system.n)
+    reaction[system.fixed] = (f_int - system.f_ext)[system.fixed]
     solid, _ = structure.internal_forces.energies()
     return StaticResult(
-        dofs=K.n,
-        force_evaluations=probes,
-        residual=float(residual),
-        asymmetry=K.asymmetry(),
-        applied_force=f_ext.reshape(-1, 3).sum(axis=0),
+        dofs=system.n,
+        force_evaluations=solution.force_evaluations,
+        residual=solution.residual,
+        asymmetry=solution.tangent.asymmetry(),
+        applied_force=system.f_ext.reshape(-1, 3).sum(axis=0),
         reaction_force=reaction.reshape(-1, 3).sum(axis=0),
-        external_work=0.5 * float(np.dot(f_ext, u)),
+        external_work=0.5 * float(np.dot(system.f_ext, u)),
         strain_energy=float(solid),
         wall_time=time.perf_counter() - start,
     )

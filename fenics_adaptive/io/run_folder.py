@@ -46,7 +46,7 @@ _FIELDS = (
     r"|displacement\.bp/(data\.\d+|md\.\d+|md\.idx|mmd\.\d+|profiling\.json)"
 )
 _OWN_FILE = re.compile(
-    r"(history(\.partial)?\.csv|summary\.json(\.partial)?|force_displacement\.png|energies\.png"
+    r"(history(\.partial)?\.csv|interlaminar_stresses\.csv|summary\.json(\.partial)?|force_displacement\.png|energies\.png"
     r"|checkpoint(\.partial|\.old)?/(checkpoint\.json(\.partial)?|rank\d+(-\d+)?\.npz"
     r"|history-\d+\.csv)"
     rf"|{_FIELDS}|restart_step\d+/({_FIELDS}))"

@@ -20,6 +20,7 @@ the internal force f_int of m a = f_ext - f_int.
 
 from __future__ import annotations
 
+import contextlib
 from dataclasses import dataclass
 
 import numpy as np
@@ -33,6 +34,10 @@ from fenics_adaptive.element.subelement import (
     scatter_add_nodes,
 )
 from fenics_adaptive.materials.cohesive import H_DISSIPATED, HISTORY, cohesive_element_force_tracked
+from fenics_adaptive.settings.materials import P_N, P_S
+
+# MPa: a strength no traction reaches (finite: the onset opening N/K stays a number)
+UNREACHABLE_STRENGTH = 1e100
 
 
 @dataclass
@@ -116,6 +121,20 @@ class CohesiveSet:
         insert = np.zeros(n_rows, dtype=bool)
         insert[: len(self.insert)] = self.insert
         self.insert = insert
+
+    @contextlib.contextmanager
+    def linear_elastic(self):
+        """Inside the block the law has no damage onset (its strengths out of reach): an
+        intact element is a linear spring layer of the penalty stiffnesses, a failed one keeps
+        only its compression branch. For static solutions; the damage, history and parameters
+        are put back as they were when the block ends."""
+        params, state = self.params.copy(), {k: v.copy() for k, v in self.state().items()}
+        self.params[P_N] = self.params[P_S] = UNREACHABLE_STRENGTH
+        try:
+            yield
+        finally:
+            self.params[:] = params
+            self.restore(state)
 
     def state(self) -> dict[str, np.ndarray]:
         """The history-dependent arrays: {"damage": (rows, 4), "history": (rows, 4, HISTORY),
