@@ -226,3 +226,122 @@ def dcb_comparison(config: RunConfig, history: dict, bin_width: float = 5.0) -> 
         if loaded.any()
         else None,
     }
+
+
+# ------------------------------------------------------------------ end-notched flexure (ENF)
+# Mode II crack-tip correction of corrected beam theory (Wang and Williams 1992): the crack
+# behaves as if 0.42 chi h longer, chi the mode I root-rotation factor
+ENF_TIP_CORRECTION = 0.42
+
+
+def enf_compliance(crack, half_span: float, modulus: float, shear_modulus: float, width: float,
+                   arm: float):  # fmt: skip
+    """Load-point compliance (mm/N) of an end-notched flexure beam (three-point bending, span
+    2 L, nose at mid-span, crack of length ``crack`` a (mm, effective: pass a + 0.42 chi h) from
+    a support): the bending of ASTM D7905's beam theory, (2 L^3 + 3 a^3) / (8 E b h^3), plus
+    Timoshenko's shear of the whole beam, 3 L / (10 G b h) (``arm``: h, half the thickness)."""
+    crack = np.asarray(crack, dtype=float)
+    bending = (2.0 * half_span**3 + 3.0 * crack**3) / (8.0 * modulus * width * arm**3)
+    return bending + 3.0 * half_span / (10.0 * shear_modulus * width * arm)
+
+
+def enf_propagation_force(crack, modulus: float, width: float, arm: float, GIIc: float):
+    """The force (N) at which an ENF beam with the (effective) crack ``crack`` (mm) reaches
+    GIIc: G_II = 9 P^2 a^2 / (16 E b^2 h^3) (the shear term does not depend on a)."""
+    return 4.0 * width * np.sqrt(modulus * arm**3 * GIIc) / (3.0 * np.asarray(crack, float))
+
+
+def enf_comparison(config: RunConfig, history: dict, bin_width: float = 5.0) -> dict:
+    """An ENF run against corrected beam theory. The specimen: two equal arms above and below
+    the interface of its first insert film, which reaches the end x = length past the right
+    support; two rigid supports ([[rigid]] "left" and "right", on the bottom face) and a rigid
+    nose ("nose", top face, half-way). The history's ``nose_force`` and ``nose_displacement``
+    are the load and the load-point displacement.
+
+    Parameters:
+        config: the run's config.
+        history: its history columns (``io.output.read_history``).
+        bin_width: the crack-length bins (mm) of the propagation branch.
+
+    Returns:
+        As ``dcb_comparison``: ``a0_mm`` (from the right support), ``chi``,
+        ``initiation_force_N`` (effective crack a0 + 0.42 chi h) against ``peak_force_N``,
+        ``initial_stiffness_N_per_mm`` against ``theory_stiffness_N_per_mm``; on the
+        propagation branch (crack beyond a0 + 5 h, short of the nose by h) the force over the
+        theory's at the run's displacement (mean, min, max, per bin);
+        ``dissipation_rate_over_GIIc``; ``kinetic_energy_share``.
+    """
+    film = config.delaminations[0]
+    bodies = {body.name: body for body in config.rigid_bodies}
+    support, nose = bodies["right"].position[0], bodies["nose"].position[0]
+    half_span = support - nose
+    arm = arm_thickness(config.laminate, film.interface)
+    material = config.laminate.plies[0].material
+    width, GIIc = config.mesh.width, config.cohesive.GIIc
+    chi = root_rotation_correction(material)
+    shift = ENF_TIP_CORRECTION * chi * arm
+    a0 = support - film.region.x_min
+
+    def compliance(crack):
+        return enf_compliance(crack + shift, half_span, material.E1, material.G12, width, arm)
+
+    def propagation(crack):
+        return enf_propagation_force(crack + shift, material.E1, width, arm, GIIc)
+
+    displacement = -np.asarray(history["nose_displacement"])
+    force = np.asarray(history["nose_force"])
+    grown = np.asarray(history["crack_growth_area"])
+    crack = a0 + grown / width
+    # the theory's force at each displacement: the elastic line of a0, then the propagation
+    # branch, parametrised by the crack length (stable where the displacement grows with it)
+    cracks = np.linspace(a0, half_span, 400)
+    branch_force = propagation(cracks)
+    branch_displacement = compliance(cracks) * branch_force
+    theory = np.minimum(displacement / compliance(a0),
+                        np.interp(displacement, branch_displacement, branch_force))  # fmt: skip
+    initiation = float(propagation(a0))
+    elastic = (grown == 0.0) & (force > 0.05 * initiation) & (force < 0.5 * initiation)
+    stiffness = (
+        float(np.polyfit(displacement[elastic], force[elastic], 1)[0])
+        if elastic.sum() > 1
+        else None
+    )
+    on_branch = (crack > a0 + 5.0 * arm) & (crack < half_span - arm)
+    ratio = force[on_branch] / theory[on_branch]
+    bins = {}
+    for low in np.arange(a0 + 5.0 * arm, half_span - arm, bin_width):
+        chosen = on_branch & (crack >= low) & (crack < low + bin_width)
+        if chosen.any():
+            bins[f"{low:.1f}-{low + bin_width:.1f}"] = float(np.mean(ratio[chosen[on_branch]]))
+    growing = grown > 0.0
+    dissipation = np.asarray(history["cohesive_dissipation"])
+    rate = (
+        float(np.polyfit(grown[growing], dissipation[growing], 1)[0] / GIIc)
+        if len(np.unique(grown[growing])) > 1
+        else None
+    )
+    work = np.asarray(history["impact_work"])
+    loaded = work > 0.01 * work.max() if work.max() > 0 else np.zeros(len(work), bool)
+    kinetic = np.asarray(history["kinetic_energy"])
+    return {
+        "a0_mm": a0,
+        "half_span_mm": half_span,
+        "chi": chi,
+        "arm_thickness_mm": arm,
+        "stable_growth": bool(np.all(np.diff(branch_displacement) > 0.0)),
+        "initiation_force_N": initiation,
+        "peak_force_N": float(force.max()),
+        "peak_over_initiation": float(force.max() / initiation),
+        "initial_stiffness_N_per_mm": stiffness,
+        "theory_stiffness_N_per_mm": float(1.0 / compliance(a0)),
+        "crack_length_range_mm": [float(a0), float(crack.max())],
+        "branch_points": int(on_branch.sum()),
+        "force_over_theory_mean": float(ratio.mean()) if on_branch.any() else None,
+        "force_over_theory_min": float(ratio.min()) if on_branch.any() else None,
+        "force_over_theory_max": float(ratio.max()) if on_branch.any() else None,
+        "force_over_theory_bins": bins,
+        "dissipation_rate_over_GIIc": rate,
+        "kinetic_energy_share": float((kinetic[loaded] / work[loaded]).max())
+        if loaded.any()
+        else None,
+    }

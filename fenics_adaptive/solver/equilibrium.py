@@ -48,13 +48,19 @@ from petsc4py import PETSc
 
 # probe size about a non-zero state, relative to the largest displacement (the tangent of a
 # piecewise-linear force is exact for probes that stay on one side of every kink)
-PROBE = 1e-7
+PROBE = 1e-10
 # the first tangent of a structure with insert films: probed with the films open by this share
 # of the thickness, with probes of FIRST_PROBE of it (open films are the better first guess: a
 # first guess of bonded films leaves a zone closed ahead of the crack that the iteration opens
 # one element per step)
 FILM_OPENING = 1e-3
 FIRST_PROBE = 1e-6
+# the largest Newton step with rigid bodies, as a share of the thinnest of the laminate and the
+# bodies' radii: a structure held only by bodies (the first step moves it freely) does not jump
+# through them
+STEP_LIMIT = 0.25
+# how often ``solve`` may halve its load increment before it gives up
+MAX_BISECTIONS = 8
 # spring added to the tangent's diagonal of the free DOFs when rigid bodies act, relative to
 # the mean diagonal entry
 REGULARISATION = 1e-6
@@ -182,6 +188,29 @@ class StaticSystem:
         self.slaves = np.asarray(structure.border.dofs, dtype=np.int64)
         self.free = np.setdiff1d(np.arange(self.n), np.concatenate([self.fixed, self.slaves]))
         self._contact_force = [np.zeros(self.n_base_dofs), np.zeros(0)]
+        # the values at t, which ``scale`` takes a share of (the bodies' travel from their start)
+        self._full = (self.f_ext.copy(), self.fixed_values.copy(),
+                      [(c.origin.copy(), c.centre - c.origin) for c in self.contacts])  # fmt: skip
+        self.factor = 1.0
+        self.contact_norm = 0.0  # N: of the bodies' forces at the last resisting_force
+        # mm: the largest Newton step when rigid bodies act (a share of the thinnest of the
+        # laminate and the bodies)
+        sizes = [structure.laminate.thickness, *(c.body.radius for c in self.contacts)]
+        self.step_limit = STEP_LIMIT * min(sizes)
+
+    def largest_travel(self) -> float:
+        """mm: how far the farthest-moving body goes from its start to its position at t."""
+        return max((float(np.linalg.norm(travel)) for _, travel in self._full[2]), default=0.0)
+
+    def scale(self, factor: float) -> None:
+        """Loads, prescribed displacements and the bodies' travel at ``factor`` (0 .. 1) of
+        their values at t: a step of the continuation ``solve`` falls back on."""
+        f_ext, fixed_values, travels = self._full
+        np.multiply(f_ext, factor, out=self.f_ext)
+        np.multiply(fixed_values, factor, out=self.fixed_values)
+        for contact, (origin, travel) in zip(self.contacts, travels, strict=True):
+            contact.centre[:] = origin + factor * travel
+        self.factor = factor
 
     # ---------------------------------------------------------------- forces
     def set_displacement(self, u: np.ndarray) -> None:
@@ -213,7 +242,9 @@ class StaticSystem:
         structure.internal_force(self.t)
         f = np.concatenate([structure.f_base.array, structure.f_extra.array])
         if self.contacts:
-            f -= self.contact_force()
+            contact = self.contact_force()
+            f -= contact
+            self.contact_norm = float(np.linalg.norm(contact))
         return f
 
     # ---------------------------------------------------------------- tangent
@@ -319,15 +350,53 @@ def _films_opened(system: StaticSystem) -> np.ndarray:
 
 
 def solve(system: StaticSystem, tolerance: float = 1e-9, max_iterations: int = 40) -> Equilibrium:
-    """Newton's method on R(u) = f_ext + f_contact - f_int with probed tangents (see the module
-    docstring). Raises RuntimeError if |R| does not fall below ``tolerance`` times the load
-    scale in ``max_iterations`` steps, numpy.linalg.LinAlgError if the structure is not held."""
+    """The equilibrium at the system's full loads (see the module docstring): Newton's method
+    at once; if that does not converge (a body pressed far into a face, contact states that
+    keep switching), by continuation: the loads, motions and bodies' travel in increments
+    (halved until Newton converges on each, up to ``MAX_BISECTIONS`` times), each increment
+    starting from the last solution. Raises RuntimeError if even the smallest increment does
+    not converge, numpy.linalg.LinAlgError if the structure is not held."""
+    # bodies move at most a Newton step per increment: a node pressed deeper into a body than
+    # the step limit could be pushed out on the wrong side
+    travel = system.largest_travel()
+    done, step, bisections = 0.0, min(1.0, system.step_limit / max(travel, 1e-300)), 0
+    u, total, solution = None, 0, None
+    while done < 1.0:
+        target = min(1.0, done + step)
+        system.scale(target)
+        try:
+            solution = _newton(system, u, tolerance, max_iterations)
+        except RuntimeError as error:
+            bisections += 1
+            if bisections > MAX_BISECTIONS:
+                raise RuntimeError(
+                    f"{error} (also in increments of {step:.3g} of the load)"
+                ) from None
+            step *= 0.5
+            system.scale(done)
+            if u is not None:
+                system.set_displacement(u)
+            continue
+        total += solution.force_evaluations
+        u, done = solution.u, target
+    solution.force_evaluations = total
+    return solution
+
+
+def _newton(system: StaticSystem, start: np.ndarray | None, tolerance: float,
+            max_iterations: int) -> Equilibrium:  # fmt: skip
+    """Newton's method on R(u) = f_ext + f_contact - f_int with probed tangents from ``start``
+    (None: from rest, the first tangent with the insert films open). Raises RuntimeError if
+    |R| does not fall below ``tolerance`` times the load scale in ``max_iterations`` steps."""
     structure = system.structure
     cohesive = structure.cohesive
     films = bool(len(cohesive)) and bool(cohesive.insert.any())
     # the cohesive elements' frame follows the deformed mid-surface: iterate with them too
     iterate = films or bool(system.contacts) or bool(len(cohesive))
-    u = np.zeros(system.n)
+    if start is None:
+        u = np.zeros(system.n)
+    else:
+        u = start.copy()
     u[system.fixed] = system.fixed_values
     evaluations = 0
     residual = np.inf
@@ -336,32 +405,40 @@ def solve(system: StaticSystem, tolerance: float = 1e-9, max_iterations: int = 4
         u = system.displacement()  # the border DOFs where the masters put them
         for iteration in range(max_iterations + 1):
             r = system.f_ext - f_u
+            # the forces that load the body: loads, reactions, the bodies' pressure
             scale = max(
-                np.linalg.norm(system.f_ext[system.free]), np.linalg.norm(r[system.fixed]), 1e-300
+                np.linalg.norm(system.f_ext[system.free]),
+                np.linalg.norm(r[system.fixed]),
+                system.contact_norm,
+                1e-300,
             )
             residual = float(np.linalg.norm(r[system.free]) / scale)
             if iteration > 0 and (residual <= tolerance or not iterate):
                 break
-            if iteration == max_iterations:
+            if iteration == max_iterations or not np.isfinite(residual):
                 raise RuntimeError(
                     f"static equilibrium: no convergence in {max_iterations} Newton steps "
                     f"(relative residual {residual:.3g}): the contacts or insert films keep "
                     "changing state"
                 )
-            if iteration == 0 and films:
+            if iteration == 0 and films and start is None:
                 about = u + _films_opened(system)
                 probe = FIRST_PROBE * structure.laminate.thickness
                 K, n = system.tangent(about, system.resisting_force(about), probe)
                 n += 1
             else:
-                size = float(np.abs(u).max()) if iteration else 0.0
+                # from rest: unit probes (exact for the linear parts); later about u, small
+                size = float(np.abs(u).max()) if iteration or start is not None else 0.0
                 probe = PROBE * size if size > 0.0 else 1.0
                 K, n = system.tangent(u, f_u, probe)
             evaluations += n + 1
             shift = 0.0
             if system.contacts:
                 shift = REGULARISATION * float(np.abs(K.diagonal()[system.free]).mean())
-            u[system.free] += solve_sparse(K, system.free, r[system.free], shift)
+            step = solve_sparse(K, system.free, r[system.free], shift)
+            if system.contacts:  # never through a body: a node deep in it is pushed out behind
+                step *= min(1.0, system.step_limit / max(float(np.abs(step).max()), 1e-300))
+            u[system.free] += step
             f_u = system.resisting_force(u)
             u = system.displacement()
     return Equilibrium(u, K, iteration, evaluations, residual, f_u)
