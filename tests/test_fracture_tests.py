@@ -20,6 +20,9 @@ from fenics_adaptive.analysis.lefm import (
     dcb_comparison,
     dcb_force,
     dcb_initiation_force,
+    enf_comparison,
+    enf_compliance,
+    enf_propagation_force,
 )
 from fenics_adaptive.analysis.studies import dcb_quick, dcb_variant
 from fenics_adaptive.io.output import read_history
@@ -49,6 +52,58 @@ def test_the_two_branches_of_corrected_beam_theory_meet_at_the_initiation_load()
     P = dcb_force(3 * opening, E1, b, h, GIc, a)
     crack = (3 * EI * 3 * opening / (2 * P)) ** (1 / 3)
     assert P**2 * crack**2 / (b * EI) == pytest.approx(GIc, rel=1e-12)
+
+
+def test_enf_propagation_force_is_where_the_compliance_gives_GIIc():
+    """G_II = P^2 / (2 b) dC/da of ``enf_compliance`` (a numerical derivative, shear term
+    included: it does not depend on a) is GIIc at ``enf_propagation_force``; and growth is
+    stable (the load point's displacement grows with the crack) only for a > L / 3^(1/3) in
+    bending alone (shear, a constant compliance, moves the limit to longer cracks)."""
+    E1, G12, b, h, GIIc, L = 120e3, 5e3, 25.0, 1.5, 1.2, 50.0
+    for a in (20.0, 35.0, 45.0):
+        P = enf_propagation_force(a, E1, b, h, GIIc)
+        step = 1e-4 * a
+        slope = (enf_compliance(a + step, L, E1, G12, b, h)
+                 - enf_compliance(a - step, L, E1, G12, b, h)) / (2 * step)  # fmt: skip
+        assert P**2 / (2 * b) * slope == pytest.approx(GIIc, rel=1e-7)
+    cracks = np.linspace(0.5 * L, L, 2001)
+    force = enf_propagation_force(cracks, E1, b, h, GIIc)
+    bending = enf_compliance(cracks, L, E1, 1e300, b, h) * force
+    turning = cracks[np.argmin(bending)]
+    assert turning == pytest.approx(L / 3 ** (1 / 3), abs=2 * (cracks[1] - cracks[0]))
+    with_shear = enf_compliance(cracks, L, E1, G12, b, h) * force
+    assert cracks[np.argmin(with_shear)] > turning
+
+
+def test_enf_comparison_of_a_history_that_follows_the_theory_finds_it_exact():
+    """A history made from the theory itself (the elastic line, then the branch with the crack
+    it implies, dissipation GIIc per grown area) is judged exact by ``enf_comparison``."""
+    data = tomllib.loads((DEMOS / "fracture_tests_enf.toml").read_text())
+    config = parse_config(data)
+    material = config.laminate.plies[0].material
+    b, h, GIIc = config.mesh.width, 1.56, config.cohesive.GIIc
+    L, a0 = 60.0, 45.0
+    elastic = np.linspace(0.0, 1.0, 50)[1:]
+    cracks = np.linspace(a0, L - 0.5, 200)
+    force = enf_propagation_force(cracks, material.E1, b, h, GIIc)
+    compliance = enf_compliance(cracks, L, material.E1, material.G12, b, h)
+    initiation = force[0] * elastic
+    history = {
+        "nose_displacement": -np.concatenate([compliance[0] * initiation, compliance * force]),
+        "nose_force": np.concatenate([initiation, force]),
+        "crack_growth_area": np.concatenate([0.0 * elastic, (cracks - a0) * b]),
+        "kinetic_energy": np.zeros(len(elastic) + len(cracks)),
+    }
+    history["cohesive_dissipation"] = GIIc * history["crack_growth_area"]
+    history["impact_work"] = np.cumsum(np.abs(history["nose_force"]))  # positive, rising
+    c = enf_comparison(config, history)
+    assert c["stable_growth"] and c["a0_mm"] == a0 and c["half_span_mm"] == L
+    assert c["peak_over_initiation"] == pytest.approx(1.0, rel=1e-12)
+    assert c["initial_stiffness_N_per_mm"] == pytest.approx(c["theory_stiffness_N_per_mm"], 1e-9)
+    assert c["force_over_theory_min"] == pytest.approx(1.0, rel=1e-4)
+    assert c["force_over_theory_max"] == pytest.approx(1.0, rel=1e-4)
+    assert c["dissipation_rate_over_Gc"] == pytest.approx(1.0, rel=1e-9)
+    assert c["kinetic_energy_share"] == 0.0
 
 
 @pytest.fixture(scope="module")
