@@ -1,28 +1,42 @@
-"""# Fracture tests: a mode I DCB with an insert film against corrected beam theory
+"""# Fracture tests: DCB (mode I) and ENF (mode II) with insert films against beam theory
 
-The double cantilever beam (DCB) is how mode I delamination toughness is measured (ASTM D5528).
-This demo runs the AS4/PEEK DCB of Camanho, Davila and de Moura (2003) twice:
+The double cantilever beam (DCB, ASTM D5528) and the end-notched flexure (ENF, ASTM D7905) are
+how mode I and mode II delamination toughness are measured. This demo runs both in the AS4/PEEK
+of Camanho, Davila and de Moura (2003), each twice:
 
 - ``layerwise``: one cell layer per arm, cohesive elements at the mid-plane interface;
 - ``adaptive``: the adaptive element, one cell through the thickness, refined strongly from the
   start at that interface (the automatic indicators are another study's).
 
-Both start from an insert film (``[[delamination]]``): the first 32.9 mm of the interface from
-the load line are failed at t = 0, so the crack grows from a sharp front, not from a bonded
-end. Each run is compared with corrected beam theory (CBT, Hashemi et al. 1990; ASTM D5528's
-modified beam theory): the arms are cantilevers of length a + chi h, chi from the ply's moduli,
+Both specimens start from an insert film (``[[delamination]]``), so the crack grows from a
+sharp front, not from a bonded end.
+
+**DCB** (``fracture_tests.toml``): 32.9 mm film, the arms' ends pulled apart. Corrected beam
+theory (Hashemi et al. 1990; ASTM D5528's modified beam theory): the arms are cantilevers of
+length a + chi h, chi from the ply's moduli,
 
     P = 3 E I Delta / (2 (a0 + chi h)^3)              until G = P^2 (a + chi h)^2 / (b E I) = GIc,
     P = (b E I GIc)^(3/4) sqrt(2 / (3 E I Delta))      on the propagation branch,
 
 with Delta the opening of the load line and E I = E1 b h^3 / 12 of one arm.
 
-    .venv/bin/python demos/fracture_tests.py --out results/fracture_tests          # ~4 minutes
-    .venv/bin/python demos/fracture_tests.py --out results/fracture_tests --quick  # ~30 s
+**ENF** (``fracture_tests_enf.toml``): three-point bending on rigid rollers 2 L = 160 mm apart,
+a rigid nose at mid-span, a 60 mm film from a roller (a0 / L = 0.75: stable growth). Beam
+theory with the beam's shear (``lefm.enf_compliance``):
 
-Writes ``results/fracture_tests/<run>/`` (history.csv, summary.json, plots),
-``dcb_force_opening.png`` and ``summary.json`` with the comparisons; it ends by checking them
-against the targets below. Units: N, mm, s, tonne.
+    C(a) = (2 L^3 + 3 a^3) / (8 E b h^3) + 3 L / (10 G12 b h),
+    P = 4 b sqrt(E h^3 GIIc) / (3 a)                   on the propagation branch (G_II = GIIc),
+
+the load point's displacement C(a) P tracing the branch as the crack grows to the nose.
+
+    .venv/bin/python demos/fracture_tests.py --out results/fracture_tests          # ~20 minutes
+    .venv/bin/python demos/fracture_tests.py --out results/fracture_tests --quick  # ~30 s, DCB
+    .venv/bin/python demos/fracture_tests.py --out results/fracture_tests --specimens enf
+
+Writes ``results/fracture_tests/<specimen>_<run>/`` (history.csv, summary.json, plots),
+``dcb_force_opening.png``, ``enf_force_displacement.png`` and ``summary.json`` with the
+comparisons; it ends by checking them against the targets below. ``--quick`` runs a short DCB
+only (the ENF needs its long span for a propagation branch). Units: N, mm, s, tonne.
 
 The runs are quasi-static when the kinetic energy stays a small share of the work put in: the
 check asks for less than 5 %.
@@ -39,8 +53,8 @@ import numpy as np
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 
-from fenics_adaptive.analysis.lefm import dcb_comparison, dcb_force
-from fenics_adaptive.analysis.studies import DCB_RUNS, dcb_quick, dcb_variant
+from fenics_adaptive.analysis.lefm import dcb_comparison, dcb_force, enf_comparison, enf_force
+from fenics_adaptive.analysis.studies import FRACTURE_RUNS, dcb_quick, fracture_variant
 from fenics_adaptive.errors import script_main
 from fenics_adaptive.io.output import read_history
 from fenics_adaptive.runner import execute
@@ -49,30 +63,39 @@ from fenics_adaptive.settings.config import parse_config
 HERE = Path(__file__).parent
 PROG = "demos/fracture_tests.py"  # the name its messages and --help give
 
-# What a DCB run must show against corrected beam theory (fractions)
+# The specimens: their config (in demos/) and their comparison with beam theory
+SPECIMENS = {
+    "dcb": ("fracture_tests.toml", dcb_comparison),
+    "enf": ("fracture_tests_enf.toml", enf_comparison),
+}
+
+# What a run must show against beam theory (fractions)
 TARGETS = {
     "peak_over_initiation": 0.05,  # the peak force, within 5 % of the analytic initiation
     "initial_stiffness": 0.05,  # the elastic slope before growth, within 5 %
     "branch_mean": 0.03,  # the force on the propagation branch, mean within 3 %
     "branch_bins": 0.05,  # and every 5 mm bin of crack length within 5 %
-    "dissipation_rate": 0.02,  # the energy dissipated per grown area, within 2 % of GIc
+    "dissipation_rate": 0.02,  # the energy dissipated per grown area, within 2 % of Gc
     "kinetic_energy_share": 0.05,  # quasi-static: kinetic energy under 5 % of the work put in
 }
 
 
-def run_all(base: dict, out: Path, overwrite: bool = False) -> dict:
-    """Run both models; returns {run: (config, summary, history)}."""
+def run_all(specimen: str, base: dict, out: Path, overwrite: bool = False) -> dict:
+    """Run both models of one specimen; returns {run: (config, summary, history)}."""
     results = {}
-    for name in DCB_RUNS:
-        config = parse_config(dcb_variant(base, name), source=f"demos/fracture_tests.toml [{name}]")
-        print(f"--- DCB, {name}")
-        summary, _ = execute(config, out / f"dcb_{name}", overwrite=overwrite)
-        results[name] = (config, summary, read_history(out / f"dcb_{name}" / "history.csv"))
+    source = SPECIMENS[specimen][0]
+    for name in FRACTURE_RUNS:
+        config = parse_config(fracture_variant(base, name), source=f"demos/{source} [{name}]")
+        print(f"--- {specimen.upper()}, {name}")
+        folder = out / f"{specimen}_{name}"
+        summary, _ = execute(config, folder, overwrite=overwrite)
+        results[name] = (config, summary, read_history(folder / "history.csv"))
     return results
 
 
 def failures(comparison: dict) -> list[str]:
-    """The targets (``TARGETS``) one run's ``dcb_comparison`` misses, in words."""
+    """The targets (``TARGETS``) one run's ``dcb_comparison`` or ``enf_comparison`` misses, in
+    words."""
     c, missed = comparison, []
 
     def off(value, expected, tolerance, what):
@@ -94,15 +117,17 @@ def failures(comparison: dict) -> list[str]:
     return missed
 
 
-def plot(results: dict, out: Path) -> None:
-    """Force against opening of both runs with corrected (and simple) beam theory."""
+STYLES = {
+    "layerwise": dict(color="k", lw=2.2),
+    "adaptive": dict(color="tab:orange", lw=1.2, ls="--"),
+}
+
+
+def plot_dcb(results: dict, out: Path) -> None:
+    """Force against opening of both DCB runs with corrected (and simple) beam theory."""
     fig, ax = plt.subplots(figsize=(7, 4.5), layout="constrained")
-    styles = {
-        "layerwise": dict(color="k", lw=2.2),
-        "adaptive": dict(color="tab:orange", lw=1.2, ls="--"),
-    }
     for name, (_, _, h) in results.items():
-        ax.plot(2 * np.array(h["displacement"]), h["reaction_force"], label=name, **styles[name])
+        ax.plot(2 * np.array(h["displacement"]), h["reaction_force"], label=name, **STYLES[name])
     config, _, h = results["layerwise"]
     c = dcb_comparison(config, h)
     material = config.laminate.plies[0].material
@@ -117,46 +142,79 @@ def plot(results: dict, out: Path) -> None:
     ax.set_xlabel("load-line opening Delta (mm)")
     ax.set_ylabel("force P (N)")
     ax.set_title(f"DCB, AS4/PEEK, a0 = {c['a0_mm']:g} mm insert film")
+    finish(fig, ax, out / "dcb_force_opening.png")
+
+
+def plot_enf(results: dict, out: Path) -> None:
+    """Nose force against nose displacement of both ENF runs with beam theory."""
+    fig, ax = plt.subplots(figsize=(7, 4.5), layout="constrained")
+    for name, (_, _, h) in results.items():
+        ax.plot(-np.array(h["nose_displacement"]), h["nose_force"], label=name, **STYLES[name])
+    config, _, h = results["layerwise"]
+    c = enf_comparison(config, h)
+    material = config.laminate.plies[0].material
+    travel = np.linspace(0.0, -min(h["nose_displacement"]), 400)
+    theory = enf_force(travel, c["half_span_mm"], c["a0_mm"], material.E1, material.G12,
+                       config.mesh.width, c["arm_thickness_mm"], config.cohesive.GIIc)  # fmt: skip
+    ax.plot(travel, theory, ":", color="gray", label="beam theory (with shear)")
+    ax.set_xlabel("nose displacement (mm)")
+    ax.set_ylabel("nose force P (N)")
+    ax.set_title(f"ENF, AS4/PEEK, L = {c['half_span_mm']:g} mm, a0 = {c['a0_mm']:g} mm insert film")
+    finish(fig, ax, out / "enf_force_displacement.png")
+
+
+def finish(fig, ax, path: Path) -> None:
     ax.set_ylim(0, None)
     ax.grid(alpha=0.3)
     ax.legend()
-    fig.savefig(out / "dcb_force_opening.png", dpi=150)
+    fig.savefig(path, dpi=150)
     plt.close(fig)
+
+
+PLOTS = {"dcb": plot_dcb, "enf": plot_enf}
 
 
 def main(argv: list[str] | None = None, prog: str = PROG) -> None:
     parser = argparse.ArgumentParser(prog=prog, description=__doc__.splitlines()[0].lstrip("# "))
-    parser.add_argument("--config", default=HERE / "fracture_tests.toml")
+    parser.add_argument(
+        "--specimens", nargs="+", choices=list(SPECIMENS), default=list(SPECIMENS),
+        help="which tests to run (default: all)",
+    )  # fmt: skip
+    parser.add_argument("--configs", default=HERE, help="the folder of the specimens' configs")
     parser.add_argument("--out", default="results/fracture_tests")
-    parser.add_argument("--quick", action="store_true", help="a shorter DCB, for a fast look")
+    parser.add_argument("--quick", action="store_true", help="a shorter DCB only, a fast look")
     parser.add_argument(
         "--overwrite",
         action="store_true",
         help="reuse run folders that hold other files (only this program's own files go)",
     )
     args = parser.parse_args(argv)
-    base = tomllib.loads(Path(args.config).read_text())
-    if args.quick:
-        base = dcb_quick(base)
+    specimens = ["dcb"] if args.quick else args.specimens
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
 
-    results = run_all(base, out, args.overwrite)
-    comparisons = {name: dcb_comparison(config, h) for name, (config, _, h) in results.items()}
-    plot(results, out)
-    F = {name: np.array(h["reaction_force"]) for name, (_, _, h) in results.items()}
-    summary = {
-        "units": "N, mm, s, tonne (mJ)",
-        "dcb": comparisons,
-        "dcb_adaptive_against_layerwise_max_force_difference_N": float(
+    summary = {"units": "N, mm, s, tonne (mJ)", "targets": TARGETS}
+    missed = []
+    for specimen in specimens:
+        file, compare = SPECIMENS[specimen]
+        base = tomllib.loads((Path(args.configs) / file).read_text())
+        if args.quick:
+            base = dcb_quick(base)
+        results = run_all(specimen, base, out, args.overwrite)
+        comparisons = {name: compare(config, h) for name, (config, _, h) in results.items()}
+        PLOTS[specimen](results, out)
+        column = "reaction_force" if specimen == "dcb" else "nose_force"
+        F = {name: np.array(h[column]) for name, (_, _, h) in results.items()}
+        summary[specimen] = comparisons
+        summary[f"{specimen}_adaptive_against_layerwise_max_force_difference_N"] = float(
             np.abs(F["adaptive"] - F["layerwise"]).max()
-        ),
-        "wall_time_s": {name: s["wall_time_s"] for name, (_, s, _) in results.items()},
-        "targets": TARGETS,
-    }
+        )
+        walls = {name: run["wall_time_s"] for name, (_, run, _) in results.items()}
+        summary[f"{specimen}_wall_time_s"] = walls
+        missed += [f"{specimen.upper()} {name}: {line}"
+                   for name, c in comparisons.items() for line in failures(c)]  # fmt: skip
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
     print(json.dumps(summary, indent=2))
-    missed = [f"DCB {name}: {line}" for name, c in comparisons.items() for line in failures(c)]
     if missed:
         raise SystemExit("targets missed:\n  " + "\n  ".join(missed))
     print("every target met")

@@ -24,12 +24,13 @@ from fenics_adaptive.analysis.lefm import (
     enf_compliance,
     enf_propagation_force,
 )
-from fenics_adaptive.analysis.studies import dcb_quick, dcb_variant
+from fenics_adaptive.analysis.studies import dcb_quick, fracture_variant
 from fenics_adaptive.io.output import read_history
 from fenics_adaptive.runner import run_config
 from fenics_adaptive.settings.config import parse_config
 from fenics_adaptive.simulation import build_structure
 from fenics_adaptive.solver import explicit
+from fenics_adaptive.static_runner import static_config
 
 DEMOS = Path(__file__).parent.parent / "demos"
 
@@ -113,7 +114,7 @@ def quick_base() -> dict:
 
 @pytest.mark.slow
 def test_the_layerwise_dcb_meets_corrected_beam_theory(quick_base, tmp_path):
-    config = parse_config(dcb_variant(quick_base, "layerwise"))
+    config = parse_config(fracture_variant(quick_base, "layerwise"))
     run_config(config, tmp_path, show_progress=False, log=None)
     comparison = dcb_comparison(config, read_history(tmp_path / "history.csv"))
     missed = demo_module().failures(comparison)
@@ -131,7 +132,7 @@ def test_the_adaptive_dcb_refined_from_the_start_is_the_layerwise_one(quick_base
     data["solver"]["end_time"] *= 0.45
     forces = {}
     for name in ("layerwise", "adaptive"):
-        config = parse_config(dcb_variant(data, name))
+        config = parse_config(fracture_variant(data, name))
         structure = build_structure(config)
         stats = explicit.run(structure, config.solver, config.probe)
         forces[name] = np.array([row.reaction_force for row in stats.history])
@@ -139,3 +140,27 @@ def test_the_adaptive_dcb_refined_from_the_start_is_the_layerwise_one(quick_base
     assert grown > 0.0
     a, b = forces["adaptive"], forces["layerwise"]
     assert np.abs(a - b).max() <= 1e-6 * np.abs(b).max()
+
+
+@pytest.mark.slow
+def test_a_short_enf_loaded_through_rigid_bodies_settles_on_its_static_solution(tmp_path):
+    """The small ENF of tests/data/enf.toml (LW, rollers and nose as rigid bodies, insert film
+    closed in contact), its nose driven 0.3 mm in about seven bending periods: the explicit
+    run's nose force ends within 1 % of the static solution's (``fenics-adaptive static``, an
+    independent path: Newton with probed tangents, no inertia) and on beam theory with shear."""
+    path = Path(__file__).parent / "data" / "enf.toml"
+    data = tomllib.loads(path.read_text())
+    config = parse_config(data)
+    run_config(config, tmp_path / "run", show_progress=False, log=None)
+    history = read_history(tmp_path / "run" / "history.csv")
+    static = static_config(config, tmp_path / "static", log=None)
+    nose = static["rigid_bodies"]["nose"]
+    # the last row is at the last step, within one time step of the end time
+    assert history["nose_displacement"][-1] == pytest.approx(nose["displacement_mm"], rel=1e-4)
+    assert history["nose_force"][-1] == pytest.approx(nose["force_N"][2], rel=0.01)
+    material = config.laminate.plies[0].material
+    left, right = (body["position"][0] for body in data["rigid"][:2])
+    half_span, crack = 0.5 * (right - left), right - data["delamination"][0]["x_min"]
+    arm = config.laminate.thickness / 2
+    theory = enf_compliance(crack, half_span, material.E1, material.G12, config.mesh.width, arm)
+    assert -static["final"]["displacement_mm"] / nose["force_N"][2] == pytest.approx(theory, 0.02)

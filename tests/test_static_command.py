@@ -89,11 +89,11 @@ def test_static_dcb_open_film_matches_beam_theory_in_every_model(tmp_path):
     chi = lefm.root_rotation_correction(material)
 
     forces = {}
-    partly = studies.dcb_variant(base, "adaptive")
+    partly = studies.fracture_variant(base, "adaptive")
     del partly["interfaces"]["initial"]  # refined under the film only
     runs = {
-        "layerwise": studies.dcb_variant(base, "layerwise"),
-        "adaptive": studies.dcb_variant(base, "adaptive"),
+        "layerwise": studies.fracture_variant(base, "layerwise"),
+        "adaptive": studies.fracture_variant(base, "adaptive"),
         "partly": partly,
     }
     for name, data in runs.items():

@@ -249,6 +249,22 @@ def enf_propagation_force(crack, modulus: float, width: float, arm: float, GIIc:
     return 4.0 * width * np.sqrt(modulus * arm**3 * GIIc) / (3.0 * np.asarray(crack, float))
 
 
+def enf_force(displacement, half_span: float, a0: float, modulus: float, shear_modulus: float,
+              width: float, arm: float, GIIc: float) -> np.ndarray:  # fmt: skip
+    """Force (N) of an ENF beam against its load point's displacement (mm, any shape) by beam
+    theory (``enf_compliance``): the elastic line of the crack a0 until the force reaches
+    ``enf_propagation_force``, then the propagation branch, traced by the crack length from a0
+    to the nose (L); where growth is unstable (a0 < L / 3^(1/3) in bending) the branch is the
+    lower envelope the force drops to."""
+    cracks = np.linspace(a0, half_span, 400)
+    force = enf_propagation_force(cracks, modulus, width, arm, GIIc)
+    travel = enf_compliance(cracks, half_span, modulus, shear_modulus, width, arm) * force
+    displacement = np.asarray(displacement, dtype=float)
+    elastic = displacement / enf_compliance(a0, half_span, modulus, shear_modulus, width, arm)
+    order = np.argsort(travel)
+    return np.minimum(elastic, np.interp(displacement, travel[order], force[order]))
+
+
 def enf_comparison(config: RunConfig, history: dict, bin_width: float = 5.0) -> dict:
     """An ENF run against corrected beam theory. The specimen: two equal arms above and below
     the interface of its first insert film, which reaches the end x = length past the right
@@ -288,13 +304,9 @@ def enf_comparison(config: RunConfig, history: dict, bin_width: float = 5.0) -> 
     force = np.asarray(history["nose_force"])
     grown = np.asarray(history["crack_growth_area"])
     crack = a0 + grown / width
-    # the theory's force at each displacement: the elastic line of a0, then the propagation
-    # branch, parametrised by the crack length (stable where the displacement grows with it)
+    theory = enf_force(displacement, half_span, a0, material.E1, material.G12, width, arm, GIIc)
     cracks = np.linspace(a0, half_span, 400)
-    branch_force = propagation(cracks)
-    branch_displacement = compliance(cracks) * branch_force
-    theory = np.minimum(displacement / compliance(a0),
-                        np.interp(displacement, branch_displacement, branch_force))  # fmt: skip
+    branch_displacement = compliance(cracks) * propagation(cracks)
     initiation = float(propagation(a0))
     elastic = (grown == 0.0) & (force > 0.05 * initiation) & (force < 0.5 * initiation)
     stiffness = (

@@ -11,8 +11,9 @@ Studies (``STUDIES``):
 - ``four_point_bending``: ``demos/four_point_bending.toml`` (the stabilised adaptive run): the
   layerwise reference, adaptive unstabilised, adaptive;
 - ``plate_impact``: ``demos/plate_impact.toml`` (the adaptive run): ESL, adaptive, layerwise;
-- ``fracture_tests``: the DCB of ``demos/fracture_tests.toml`` (the layerwise run): layerwise,
-  adaptive refined from the start at the delaminating interface.
+- ``fracture_tests``: the DCB of ``demos/fracture_tests.toml`` and the ENF of
+  ``demos/fracture_tests_enf.toml`` (the layerwise runs): layerwise, adaptive refined from the
+  start at the delaminating interface.
 
 A variant never changes its ``base``: it works on a deep copy.
 """
@@ -30,7 +31,7 @@ TCB_RUNS = ("reference", "refined_from_start", "adaptive", "late", "late_stabili
 TCB_LATE_OPENING = 0.005  # mm: the paper's late refinement, past the cohesive initiation
 FOUR_POINT_BENDING_RUNS = ("reference", "adaptive_unstabilised", "adaptive")
 PLATE_IMPACT_RUNS = ("esl", "adaptive", "layerwise")
-DCB_RUNS = ("layerwise", "adaptive")
+FRACTURE_RUNS = ("layerwise", "adaptive")
 
 
 def tcb_variant(base: dict, name: str) -> dict:
@@ -137,11 +138,12 @@ def plate_impact_variant(base: dict, name: str) -> dict:
     return data
 
 
-def dcb_variant(base: dict, name: str) -> dict:
-    """One run of the DCB study (``DCB_RUNS``) from ``base``, its layerwise config.
+def fracture_variant(base: dict, name: str) -> dict:
+    """One run of a fracture test (``FRACTURE_RUNS``) from ``base``, its layerwise config.
 
     Parameters:
-        base: the DCB config as a TOML table (``demos/fracture_tests.toml``).
+        base: the specimen's config as a TOML table (``demos/fracture_tests.toml``, the DCB,
+            or ``demos/fracture_tests_enf.toml``, the ENF).
         name: ``layerwise`` (``base`` as it is) or ``adaptive`` (one cell through the
             thickness, refined strongly from the start at the delaminating interfaces).
 
@@ -197,7 +199,7 @@ STUDIES: dict[str, Study] = {
     "tcb": Study(TCB_RUNS, tcb_variant),
     "four_point_bending": Study(FOUR_POINT_BENDING_RUNS, four_point_bending_variant),
     "plate_impact": Study(PLATE_IMPACT_RUNS, plate_impact_variant),
-    "fracture_tests": Study(DCB_RUNS, dcb_variant),
+    "fracture_tests": Study(FRACTURE_RUNS, fracture_variant),
 }
 """Every study by the name of its demo (``demos/<name>.py`` and ``demos/<name>.toml``)."""
 
