@@ -83,7 +83,8 @@ def test_enf_comparison_of_a_history_that_follows_the_theory_finds_it_exact():
     config = parse_config(data)
     material = config.laminate.plies[0].material
     b, h, GIIc = config.mesh.width, 1.56, config.cohesive.GIIc
-    L, a0 = 60.0, 45.0
+    left, right = (body["position"][0] for body in data["rigid"][:2])
+    L, a0 = 0.5 * (right - left), right - data["delamination"][0]["x_min"]
     elastic = np.linspace(0.0, 1.0, 50)[1:]
     cracks = np.linspace(a0, L - 0.5, 200)
     force = enf_propagation_force(cracks, material.E1, b, h, GIIc)
