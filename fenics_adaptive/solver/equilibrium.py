@@ -29,7 +29,11 @@ on a piecewise-linear residual (a semismooth Newton / active-set iteration):
   that of its side of the kink;
 - with rigid bodies, a structure may be held only by them (a beam on rollers): the tangent
   then gets a small spring on every free DOF (``REGULARISATION`` of the mean diagonal),
-  which changes the path, not the solution (the residual is the true one).
+  which changes the path, not the solution (the residual is the true one); a Newton step
+  moves no node farther than ``STEP_LIMIT`` of the thinnest of laminate and bodies, and the
+  bodies travel to their end position in increments of at most that (a node pressed deeper
+  into a body than that could be pushed out on its far side);
+- if Newton does not settle on an increment, the increment is halved (``MAX_BISECTIONS``).
 
 Border DOFs (extra nodes on the border of a refined region) follow their masters
 (``Structure.follow_border``) and are no unknowns: their forces reach the masters through the
