@@ -108,7 +108,8 @@ def static_config(
     linear, changes = linearised(config)
     structure = build_structure(linear, comm)
     t = config.solver.end_time
-    contacts = [_contact_at(body, structure, t) for body in config.rigid_bodies]
+    system = static_system(config, structure)
+    contacts = system.contacts
     summary = {
         "status": "running",
         "analysis": "static",
@@ -129,7 +130,6 @@ def static_config(
     folder.open(True)
     try:
         start = time.perf_counter()
-        system = equilibrium.StaticSystem(structure, t, contacts)
         solution = equilibrium.solve(system)
         wall = time.perf_counter() - start
         row, reaction = _history_row(linear, system, solution, contacts)
@@ -151,6 +151,41 @@ def static_config(
         f"; results in {out_dir}"
     )
     return summary
+
+
+def static_system(config: RunConfig, structure) -> equilibrium.StaticSystem:
+    """The static problem of a structure built from ``linearised(config)``: its loads and
+    motions at the end time, the config's rigid bodies there."""
+    t = config.solver.end_time
+    contacts = [_contact_at(body, structure, t) for body in config.rigid_bodies]
+    return equilibrium.StaticSystem(structure, t, contacts)
+
+
+def solve_config(config: RunConfig, comm: MPI.Comm = MPI.COMM_WORLD):
+    """The static solution of a config without writing anything: (structure, system, solution
+    (``equilibrium.Equilibrium``)); the displacement is left in the structure. Raises as
+    ``static_config`` does."""
+    linear, _ = linearised(config)
+    structure = build_structure(linear, comm)
+    system = static_system(config, structure)
+    return structure, system, equilibrium.solve(system)
+
+
+def interlaminar_estimate(structure, system, solution) -> np.ndarray:
+    """(n_cells, n_plies + 1, 3): the interlaminar stress estimate of the refinement indicators
+    (``indicators.interlaminar_stresses``, MPa) of a static solution, with the forces of the
+    motions on the top and bottom faces and of the rigid bodies taken in."""
+    n_base_dofs = system.n_base_dofs
+    face_force = np.zeros(n_base_dofs)
+    on_faces = np.array([on_top_or_bottom(m.face) for m in structure.motions], dtype=bool)
+    if len(on_faces):
+        held = system.fixed[on_faces[system.fixed_motion]]
+        held = held[held < n_base_dofs]
+        face_force[held] = (solution.resisting_force - system.f_ext)[held]
+    if system.contacts:
+        system.set_displacement(solution.u)
+        face_force += system.contact_force()[:n_base_dofs]
+    return interlaminar_stresses(structure, system.t, face_force=face_force)
 
 
 def _contact_at(body, structure, t: float) -> Contact:
@@ -271,16 +306,7 @@ def _write_interlaminar(path: Path, structure, system, solution) -> None:
     """Per cell and ply interface (0: bottom face .. n_plies: top face): the cell centre (mm)
     and the estimated (sigma_zz, tau_xz, tau_yz) (MPa), with the supports' and rigid bodies'
     forces on the faces taken in, as the indicators take them."""
-    n_base_dofs = system.n_base_dofs
-    face_force = np.zeros(n_base_dofs)
-    on_faces = np.array([on_top_or_bottom(m.face) for m in structure.motions], dtype=bool)
-    if len(on_faces):
-        held = system.fixed[on_faces[system.fixed_motion]]
-        held = held[held < n_base_dofs]
-        face_force[held] = (solution.resisting_force - system.f_ext)[held]
-    if system.contacts:
-        face_force += system.contact_force()[:n_base_dofs]
-    estimate = interlaminar_stresses(structure, system.t, face_force=face_force)
+    estimate = interlaminar_estimate(structure, system, solution)
     centres = structure.cell_vertices().mean(axis=1)
     n_cells, n_boundaries, _ = estimate.shape
     with open(path, "w", newline="") as file:
