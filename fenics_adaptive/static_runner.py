@@ -106,10 +106,8 @@ def static_config(
     folder = RunFolder(out_dir, comm, overwrite)
     folder.check(True)  # before the model is built
     linear, changes = linearised(config)
-    structure = build_structure(linear, comm)
-    t = config.solver.end_time
-    system = static_system(config, structure)
-    contacts = system.contacts
+    structure, system = build_static(config, comm)
+    t, contacts = system.t, system.contacts
     summary = {
         "status": "running",
         "analysis": "static",
@@ -153,21 +151,22 @@ def static_config(
     return summary
 
 
-def static_system(config: RunConfig, structure) -> equilibrium.StaticSystem:
-    """The static problem of a structure built from ``linearised(config)``: its loads and
-    motions at the end time, the config's rigid bodies there."""
+def build_static(config: RunConfig, comm: MPI.Comm = MPI.COMM_WORLD):
+    """(structure, static problem) of a config: the structure of ``linearised(config)``, its
+    loads and motions at the end time, the config's rigid bodies there. Raises InputError as
+    ``linearised`` does."""
+    linear, _ = linearised(config)
+    structure = build_structure(linear, comm)
     t = config.solver.end_time
     contacts = [_contact_at(body, structure, t) for body in config.rigid_bodies]
-    return equilibrium.StaticSystem(structure, t, contacts)
+    return structure, equilibrium.StaticSystem(structure, t, contacts)
 
 
 def solve_config(config: RunConfig, comm: MPI.Comm = MPI.COMM_WORLD):
     """The static solution of a config without writing anything: (structure, system, solution
     (``equilibrium.Equilibrium``)); the displacement is left in the structure. Raises as
     ``static_config`` does."""
-    linear, _ = linearised(config)
-    structure = build_structure(linear, comm)
-    system = static_system(config, structure)
+    structure, system = build_static(config, comm)
     return structure, system, equilibrium.solve(system)
 
 
