@@ -37,6 +37,7 @@ import numpy as np
 from mpi4py import MPI
 
 from fenics_adaptive.adaptivity.indicators import interlaminar_stresses
+from fenics_adaptive.element.geometry import quad_areas
 from fenics_adaptive.errors import InputError
 from fenics_adaptive.io import output
 from fenics_adaptive.io.run_folder import RunFolder
@@ -46,6 +47,7 @@ from fenics_adaptive.model.loading import COMPONENTS, face_dofs, on_top_or_botto
 from fenics_adaptive.runner import model_summary, versions
 from fenics_adaptive.settings.config import RunConfig
 from fenics_adaptive.settings.kinds import Kinematics, ModelKind, RigidMotion
+from fenics_adaptive.settings.materials import P_KN, P_KS
 from fenics_adaptive.simulation import build_structure
 from fenics_adaptive.solver import equilibrium
 from fenics_adaptive.solver.history import HistoryRow
@@ -187,6 +189,25 @@ def interlaminar_estimate(structure, system, solution) -> np.ndarray:
     return interlaminar_stresses(structure, system.t, face_force=face_force)
 
 
+def cohesive_tractions(structure, u: np.ndarray):
+    """The tractions the cohesive elements carry in a static solution: (centres (n, 3) mm,
+    reference areas (n,) mm^2, tractions (n, 3) (sigma_zz, tau_xz, tau_yz) MPa): the penalties
+    times the mean opening of each element's four node pairs, in the reference frame (the
+    solution's displacements are small); a failed element (an insert film) carries only
+    compression. ``u``: the displacement, combined DOFs (mm)."""
+    cohesive = structure.cohesive
+    displacement = u.reshape(-1, 3)
+    nodes = cohesive.nodes
+    opening = (displacement[nodes[:, 4:]] - displacement[nodes[:, :4]]).mean(axis=1)
+    X = structure.gather(nodes[:, :4], "X")
+    K_n, K_s = cohesive.params[P_KN], cohesive.params[P_KS]
+    failed = cohesive.failed()
+    normal = np.where(failed, np.minimum(opening[:, 2], 0.0), opening[:, 2])
+    shear = np.where(failed[:, None], 0.0, opening[:, :2])
+    tractions = np.column_stack([K_n * normal, K_s * shear])
+    return X.mean(axis=1), quad_areas(X), tractions
+
+
 def _contact_at(body, structure, t: float) -> Contact:
     """The contact of a fixed or driven rigid body at its position at time t (s), with its
     own penalty or the natural one (no time step caps it here)."""
@@ -296,26 +317,34 @@ def _write(config, out_dir, structure, system, solution, row, contacts, folder) 
     fields = output.FieldOutputs(out_dir, structure, folder.record, config.fields)
     fields(system.t)
     fields.close()
-    if config.kind != ModelKind.LAYERWISE:
+    if config.kind != ModelKind.LAYERWISE or len(structure.cohesive):
         folder.record(out_dir / INTERLAMINAR_FILE)
-        _write_interlaminar(out_dir / INTERLAMINAR_FILE, structure, system, solution)
+        layerwise = config.kind == ModelKind.LAYERWISE
+        _write_interlaminar(out_dir / INTERLAMINAR_FILE, structure, system, solution, layerwise)
 
 
-def _write_interlaminar(path: Path, structure, system, solution) -> None:
-    """Per cell and ply interface (0: bottom face .. n_plies: top face): the cell centre (mm)
-    and the estimated (sigma_zz, tau_xz, tau_yz) (MPa), with the supports' and rigid bodies'
-    forces on the faces taken in, as the indicators take them."""
-    estimate = interlaminar_estimate(structure, system, solution)
-    centres = structure.cell_vertices().mean(axis=1)
-    n_cells, n_boundaries, _ = estimate.shape
+def _write_interlaminar(path: Path, structure, system, solution, layerwise: bool) -> None:
+    """The interlaminar stresses (MPa) of a static solution, a row each: of an ESL or
+    adaptive model per cell and ply boundary (``interface`` 0: the bottom face .. n_plies: the
+    top face), the estimate the indicators use, at the cell's centre; of a layerwise model per
+    cohesive element (``element``), the traction it carries (``cohesive_tractions``)."""
+    header = ["x_mm", "y_mm", "interface", "sigma_zz_MPa", "tau_xz_MPa", "tau_yz_MPa"]
+    rows = []
+    if layerwise:
+        centres, _, tractions = cohesive_tractions(structure, solution.u)
+        header.insert(0, "element")
+        for element, interface in enumerate(structure.cohesive.interface):
+            rows.append([element, *centres[element, :2], int(interface), *tractions[element]])
+    else:
+        header.insert(0, "cell")
+        estimate = interlaminar_estimate(structure, system, solution)
+        centres = structure.cell_vertices().mean(axis=1)
+        for cell in range(estimate.shape[0]):
+            for boundary in range(estimate.shape[1]):
+                rows.append([cell, *centres[cell, :2], boundary, *estimate[cell, boundary]])
     with open(path, "w", newline="") as file:
         writer = csv.writer(file)
-        writer.writerow(
-            ["cell", "x_mm", "y_mm", "interface", "sigma_zz_MPa", "tau_xz_MPa", "tau_yz_MPa"]
-        )
-        for cell in range(n_cells):
-            for boundary in range(n_boundaries):
-                writer.writerow(
-                    [cell, *(f"{v:.9g}" for v in centres[cell, :2]), boundary,
-                     *(f"{v:.9g}" for v in estimate[cell, boundary])]
-                )  # fmt: skip
+        writer.writerow(header)
+        for row in rows:
+            writer.writerow([row[0], *(f"{v:.9g}" for v in row[1:3]), row[3],
+                             *(f"{v:.9g}" for v in row[4:])])  # fmt: skip

@@ -13,8 +13,9 @@ cases that load an interface through different paths:
 - a clamped square plate under a top pressure ([0/90]2s): shear and the pressure's peel.
 
 LW references: ``comparison.interface_tractions`` (the force the plies above an interface put
-on its nodes per unit area), and for the ENF the tractions of the cohesive elements (penalty
-times opening). All static (``static_runner.solve_config``), serial.
+on its nodes per unit area), and for the ENF the tractions of the cohesive elements
+(``static_runner.cohesive_tractions``: penalty times opening). All static
+(``static_runner.solve_config``), serial.
 
     .venv/bin/python scripts/interlaminar_estimate_figure.py docs/images/interlaminar_estimate.png
 
@@ -38,7 +39,7 @@ import matplotlib.pyplot as plt
 
 from fenics_adaptive.analysis import comparison as cmp
 from fenics_adaptive.settings.config import parse_config
-from fenics_adaptive.static_runner import interlaminar_estimate, solve_config
+from fenics_adaptive.static_runner import cohesive_tractions, interlaminar_estimate, solve_config
 
 ROOT = Path(__file__).parents[1]
 IM7 = {"E1": 161000.0, "E2": 11400.0, "G12": 5170.0, "nu12": 0.32, "nu23": 0.43, "rho": 1.58e-9}
@@ -118,20 +119,12 @@ def lw_tractions(structure, interface: int) -> tuple[np.ndarray, np.ndarray]:
     return lines[order], traction[order]
 
 
-def cohesive_tractions(structure, u: np.ndarray, interface: int):
-    """(x, (sigma_zz, tau_xz, tau_yz)) of the intact cohesive elements at ``interface``: the
-    penalty times the mean opening (small strain: the frame is the reference one)."""
-    cohesive = structure.cohesive
-    params = cohesive.params
-    at = (cohesive.interface == interface) & ~cohesive.inserted()
-    nodes = cohesive.nodes[at]
-    displacement = u.reshape(-1, 3)
-    opening = (displacement[nodes[:, 4:]] - displacement[nodes[:, :4]]).mean(axis=1)
-    X = structure.gather(nodes[:, :4], "X").mean(axis=1)
-    K_n, K_s = params[0], params[1]
-    traction = np.stack([K_n * opening[:, 2], K_s * opening[:, 0], K_s * opening[:, 1]], 1)
-    order = np.argsort(X[:, 0])
-    return X[order, 0], traction[order]
+def lw_cohesive_tractions(structure, u: np.ndarray, interface: int):
+    """(x, (sigma_zz, tau_xz, tau_yz)) of the intact cohesive elements at ``interface``."""
+    centres, _, tractions = cohesive_tractions(structure, u)
+    at = (structure.cohesive.interface == interface) & ~structure.cohesive.inserted()
+    order = np.argsort(centres[at, 0])
+    return centres[at, 0][order], tractions[at][order]
 
 
 CASES = [
@@ -154,7 +147,7 @@ def main(path: str) -> None:
         keep = structure.refinement.unrefined_cells()
         lw, _, lw_solution = solve_config(parse_config(lw_data))
         if len(lw.cohesive):
-            x_lw, traction = cohesive_tractions(lw, lw_solution.u, interface)
+            x_lw, traction = lw_cohesive_tractions(lw, lw_solution.u, interface)
         else:
             x_lw, traction = lw_tractions(lw, interface)
         # the LW tractions are width means per node line: so are the estimate's points

@@ -8,6 +8,7 @@ import json
 import tomllib
 from pathlib import Path
 
+import numpy as np
 import pytest
 from dolfinx import fem
 
@@ -19,7 +20,12 @@ from fenics_adaptive.model.loading import face_dofs
 from fenics_adaptive.settings.config import load_config, parse_config
 from fenics_adaptive.simulation import build_structure
 from fenics_adaptive.solver.static import solve_static
-from fenics_adaptive.static_runner import INTERLAMINAR_FILE, static_config
+from fenics_adaptive.static_runner import (
+    INTERLAMINAR_FILE,
+    cohesive_tractions,
+    solve_config,
+    static_config,
+)
 
 DATA = Path(__file__).parent / "data"
 ROOT = Path(__file__).parents[1]
@@ -113,6 +119,18 @@ def test_static_dcb_open_film_matches_beam_theory_in_every_model(tmp_path):
     assert forces["layerwise"] == pytest.approx(corrected, rel=0.06)
     # the unrefined cells ahead of the film cannot rotate the arms' roots: stiffer
     assert forces["partly"] > forces["layerwise"]
+    # the upper arm is held by its load line, the interface and (a little, 3e-5 of the load,
+    # far from the crack) its clamped end: the cohesive tractions the LW file gives, times
+    # their areas, balance the load line's force
+    with open(tmp_path / "layerwise" / INTERLAMINAR_FILE) as file:
+        rows = list(csv.DictReader(file))
+    structure, _, solution = solve_config(parse_config(runs["layerwise"]))
+    _, areas, tractions = cohesive_tractions(structure, solution.u)
+    assert [float(r["sigma_zz_MPa"]) for r in rows] == pytest.approx(tractions[:, 0], rel=1e-8)
+    reaction = read_history(tmp_path / "layerwise" / "history.csv")["reaction_force"][0]
+    assert float(areas @ tractions[:, 0]) == pytest.approx(reaction, rel=1e-4)
+    film = structure.cohesive.inserted()
+    assert np.all(tractions[film, 0] <= 0.0) and np.all(tractions[film, 1:] == 0.0)
 
 
 def test_static_enf_closes_the_film_and_matches_beam_theory(tmp_path):
