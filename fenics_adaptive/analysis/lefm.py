@@ -141,6 +141,77 @@ def dcb_initiation_force(modulus: float, width: float, arm: float, GIc: float, c
     return float(np.sqrt(width * EI * GIc) / crack)
 
 
+def against_theory(history: dict, displacement, force, theory, initiation: float, crack,
+                   branch_start: float, branch_end: float, Gc: float, work,
+                   bin_width: float) -> dict:  # fmt: skip
+    """What a fracture test's run shows against its theory, the part DCB and ENF share.
+
+    Parameters:
+        history: the run's history columns (``crack_growth_area``, ``cohesive_dissipation``,
+            ``kinetic_energy``).
+        displacement, force: the load point's displacement (mm) and force (N) per row.
+        theory: the theory's force (N) at each row's displacement.
+        initiation: the theory's initiation force (N).
+        crack: the crack length (mm) per row.
+        branch_start, branch_end: the crack lengths (mm) that bound the propagation branch.
+        Gc: the fracture energy (N/mm) the dissipation is measured against.
+        work: the work put in (mJ) per row.
+        bin_width: the crack-length bins (mm) of the branch.
+
+    Returns:
+        ``initiation_force_N``, ``peak_force_N``, ``peak_over_initiation``,
+        ``initial_stiffness_N_per_mm`` (the slope while nothing grew, between 5 % and 50 % of
+        the initiation force), ``crack_length_range_mm``, ``branch_points``, the force over the
+        theory's on the branch (``force_over_theory_mean``, ``_min``, ``_max``, ``_bins``),
+        ``dissipation_rate_over_Gc`` (the slope of the cohesive dissipation against the grown
+        area, over Gc) and ``kinetic_energy_share`` (the largest kinetic energy over the work
+        put in, once that is 1 % of its final value).
+    """
+    displacement, force, theory = (np.asarray(v, dtype=float) for v in (displacement, force,
+                                                                          theory))  # fmt: skip
+    grown = np.asarray(history["crack_growth_area"])
+    crack = np.asarray(crack, dtype=float)
+    elastic = (grown == 0.0) & (force > 0.05 * initiation) & (force < 0.5 * initiation)
+    stiffness = (
+        float(np.polyfit(displacement[elastic], force[elastic], 1)[0])
+        if elastic.sum() > 1
+        else None
+    )
+    on_branch = (crack > branch_start) & (crack < branch_end)
+    ratio = force[on_branch] / theory[on_branch]
+    bins = {}
+    for low in np.arange(branch_start, min(crack.max(), branch_end), bin_width):
+        chosen = on_branch & (crack >= low) & (crack < low + bin_width)
+        if chosen.any():
+            bins[f"{low:.1f}-{low + bin_width:.1f}"] = float(np.mean(ratio[chosen[on_branch]]))
+    growing = grown > 0.0
+    dissipation = np.asarray(history["cohesive_dissipation"])
+    rate = (
+        float(np.polyfit(grown[growing], dissipation[growing], 1)[0] / Gc)
+        if len(np.unique(grown[growing])) > 1
+        else None
+    )
+    work = np.asarray(work)
+    loaded = work > 0.01 * work.max() if work.max() > 0 else np.zeros(len(work), bool)
+    kinetic = np.asarray(history["kinetic_energy"])
+    return {
+        "initiation_force_N": initiation,
+        "peak_force_N": float(force.max()),
+        "peak_over_initiation": float(force.max() / initiation),
+        "initial_stiffness_N_per_mm": stiffness,
+        "crack_length_range_mm": [float(crack.min()), float(crack.max())],
+        "branch_points": int(on_branch.sum()),
+        "force_over_theory_mean": float(ratio.mean()) if on_branch.any() else None,
+        "force_over_theory_min": float(ratio.min()) if on_branch.any() else None,
+        "force_over_theory_max": float(ratio.max()) if on_branch.any() else None,
+        "force_over_theory_bins": bins,
+        "dissipation_rate_over_Gc": rate,
+        "kinetic_energy_share": float((kinetic[loaded] / work[loaded]).max())
+        if loaded.any()
+        else None,
+    }
+
+
 def dcb_comparison(config: RunConfig, history: dict, bin_width: float = 5.0) -> dict:
     """A DCB run against corrected beam theory (``dcb_force``). The specimen: two equal arms
     above and below the interface of its first insert film ([[delamination]]), which reaches
@@ -179,53 +250,19 @@ def dcb_comparison(config: RunConfig, history: dict, bin_width: float = 5.0) -> 
     opening = 2.0 * np.asarray(history["displacement"])
     force = np.asarray(history["reaction_force"])
     grown = np.asarray(history["crack_growth_area"])
-    crack = a0 + grown / width
     theory = dcb_force(opening, material.E1, width, arm, GIc, effective)
     initiation = dcb_initiation_force(material.E1, width, arm, GIc, effective)
     EI = material.E1 * width * arm**3 / 12.0
-    elastic = (grown == 0.0) & (force > 0.05 * initiation) & (force < 0.5 * initiation)
-    stiffness = (
-        float(np.polyfit(opening[elastic], force[elastic], 1)[0]) if elastic.sum() > 1 else None
-    )
-    on_branch = crack > a0 + 5.0 * arm
-    ratio = force[on_branch] / theory[on_branch]
-    bins = {}
-    for low in np.arange(a0 + 5.0 * arm, crack.max(), bin_width):
-        chosen = on_branch & (crack >= low) & (crack < low + bin_width)
-        if chosen.any():
-            bins[f"{low:.1f}-{low + bin_width:.1f}"] = float(
-                np.mean(force[chosen] / theory[chosen])
-            )
-    growing = grown > 0.0
-    dissipation = np.asarray(history["cohesive_dissipation"])
-    rate = (
-        float(np.polyfit(grown[growing], dissipation[growing], 1)[0] / GIc)
-        if len(np.unique(grown[growing])) > 1
-        else None
-    )
-    work = np.asarray(history["external_work"])
-    loaded = work > 0.01 * work.max() if work.max() > 0 else np.zeros(len(work), bool)
-    kinetic = np.asarray(history["kinetic_energy"])
     return {
         "a0_mm": a0,
         "chi": chi,
         "arm_thickness_mm": arm,
-        "initiation_force_N": initiation,
-        "peak_force_N": float(force.max()),
-        "peak_over_initiation": float(force.max() / initiation),
-        "initial_stiffness_N_per_mm": stiffness,
+        **against_theory(
+            history, opening, force, theory, initiation, a0 + grown / width, a0 + 5.0 * arm,
+            np.inf, GIc, history["external_work"], bin_width,
+        ),
         "theory_stiffness_N_per_mm": 3.0 * EI / (2.0 * effective**3),
-        "crack_length_range_mm": [float(a0), float(crack.max())],
-        "branch_points": int(on_branch.sum()),
-        "force_over_theory_mean": float(ratio.mean()) if on_branch.any() else None,
-        "force_over_theory_min": float(ratio.min()) if on_branch.any() else None,
-        "force_over_theory_max": float(ratio.max()) if on_branch.any() else None,
-        "force_over_theory_bins": bins,
-        "dissipation_rate_over_Gc": rate,
-        "kinetic_energy_share": float((kinetic[loaded] / work[loaded]).max())
-        if loaded.any()
-        else None,
-    }
+    }  # fmt: skip
 
 
 # ------------------------------------------------------------------ end-notched flexure (ENF)
@@ -302,53 +339,18 @@ def enf_comparison(config: RunConfig, history: dict, bin_width: float = 5.0) -> 
 
     displacement = -np.asarray(history["nose_displacement"])
     force = np.asarray(history["nose_force"])
-    grown = np.asarray(history["crack_growth_area"])
-    crack = a0 + grown / width
+    crack = a0 + np.asarray(history["crack_growth_area"]) / width
     theory = enf_force(displacement, half_span, a0, material.E1, material.G12, width, arm, GIIc)
     cracks = np.linspace(a0, half_span, 400)
     branch_displacement = compliance(cracks) * propagation(cracks)
-    initiation = float(propagation(a0))
-    elastic = (grown == 0.0) & (force > 0.05 * initiation) & (force < 0.5 * initiation)
-    stiffness = (
-        float(np.polyfit(displacement[elastic], force[elastic], 1)[0])
-        if elastic.sum() > 1
-        else None
-    )
-    on_branch = (crack > a0 + 5.0 * arm) & (crack < half_span - arm)
-    ratio = force[on_branch] / theory[on_branch]
-    bins = {}
-    for low in np.arange(a0 + 5.0 * arm, half_span - arm, bin_width):
-        chosen = on_branch & (crack >= low) & (crack < low + bin_width)
-        if chosen.any():
-            bins[f"{low:.1f}-{low + bin_width:.1f}"] = float(np.mean(ratio[chosen[on_branch]]))
-    growing = grown > 0.0
-    dissipation = np.asarray(history["cohesive_dissipation"])
-    rate = (
-        float(np.polyfit(grown[growing], dissipation[growing], 1)[0] / GIIc)
-        if len(np.unique(grown[growing])) > 1
-        else None
-    )
-    work = np.asarray(history["impact_work"])
-    loaded = work > 0.01 * work.max() if work.max() > 0 else np.zeros(len(work), bool)
-    kinetic = np.asarray(history["kinetic_energy"])
     return {
         "a0_mm": a0,
         "half_span_mm": half_span,
         "arm_thickness_mm": arm,
         "stable_growth": bool(np.all(np.diff(branch_displacement) > 0.0)),
-        "initiation_force_N": initiation,
-        "peak_force_N": float(force.max()),
-        "peak_over_initiation": float(force.max() / initiation),
-        "initial_stiffness_N_per_mm": stiffness,
+        **against_theory(
+            history, displacement, force, theory, float(propagation(a0)), crack,
+            a0 + 5.0 * arm, half_span - arm, GIIc, history["impact_work"], bin_width,
+        ),
         "theory_stiffness_N_per_mm": float(1.0 / compliance(a0)),
-        "crack_length_range_mm": [float(a0), float(crack.max())],
-        "branch_points": int(on_branch.sum()),
-        "force_over_theory_mean": float(ratio.mean()) if on_branch.any() else None,
-        "force_over_theory_min": float(ratio.min()) if on_branch.any() else None,
-        "force_over_theory_max": float(ratio.max()) if on_branch.any() else None,
-        "force_over_theory_bins": bins,
-        "dissipation_rate_over_Gc": rate,
-        "kinetic_energy_share": float((kinetic[loaded] / work[loaded]).max())
-        if loaded.any()
-        else None,
-    }
+    }  # fmt: skip
