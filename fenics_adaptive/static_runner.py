@@ -107,8 +107,7 @@ def static_config(
     out_dir = Path(out_dir)
     folder = RunFolder(out_dir, comm, overwrite)
     folder.check(True)  # before the model is built
-    linear, changes = linearised(config)
-    structure, system = build_static(config, comm)
+    structure, system, changes = build_static(config, comm)
     t, contacts = system.t, system.contacts
     summary = {
         "status": "running",
@@ -132,9 +131,9 @@ def static_config(
         start = time.perf_counter()
         solution = equilibrium.solve(system)
         wall = time.perf_counter() - start
-        row, reaction = _history_row(linear, system, solution, contacts)
+        row, reaction = _history_row(config, system, solution, contacts)
         summary.update(_static_summary(system, solution, row, reaction, contacts, changes, wall))
-        _write(linear, out_dir, structure, system, solution, row, contacts, folder)
+        _write(config, out_dir, structure, system, solution, row, contacts, folder)
         summary["status"] = "completed"
         output.write_summary(out_dir, summary, comm, folder.record)
     except BaseException as error:
@@ -154,21 +153,21 @@ def static_config(
 
 
 def build_static(config: RunConfig, comm: MPI.Comm = MPI.COMM_WORLD):
-    """(structure, static problem) of a config: the structure of ``linearised(config)``, its
-    loads and motions at the end time, the config's rigid bodies there. Raises InputError as
-    ``linearised`` does."""
-    linear, _ = linearised(config)
+    """(structure, static problem, what was linearised) of a config: the structure of
+    ``linearised(config)``, its loads and motions at the end time, the config's rigid bodies
+    there. Raises InputError as ``linearised`` does."""
+    linear, changes = linearised(config)
     structure = build_structure(linear, comm)
     t = config.solver.end_time
     contacts = [_contact_at(body, structure, t) for body in config.rigid_bodies]
-    return structure, equilibrium.StaticSystem(structure, t, contacts)
+    return structure, equilibrium.StaticSystem(structure, t, contacts), changes
 
 
 def solve_config(config: RunConfig, comm: MPI.Comm = MPI.COMM_WORLD):
     """The static solution of a config without writing anything: (structure, system, solution
     (``equilibrium.Equilibrium``)); the displacement is left in the structure. Raises as
     ``static_config`` does."""
-    structure, system = build_static(config, comm)
+    structure, system, _ = build_static(config, comm)
     return structure, system, equilibrium.solve(system)
 
 

@@ -197,6 +197,7 @@ class StaticSystem:
                       [(c.origin.copy(), c.centre - c.origin) for c in self.contacts])  # fmt: skip
         self.factor = 1.0
         self.contact_norm = 0.0  # N: of the bodies' forces at the last resisting_force
+        self._probing = None  # ``_pattern``, made at the first tangent
         # mm: the largest Newton step when rigid bodies act (a share of the thinnest of the
         # laminate and the bodies)
         sizes = [structure.laminate.thickness, *(c.body.radius for c in self.contacts)]
@@ -271,17 +272,25 @@ class StaticSystem:
             ]
         return rows
 
+    def _pattern(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(node colours, the node pairs (i, j) that share an element, which DOFs are
+        unknowns): what the probing needs of the structure's connectivity, which a static
+        solve does not change; made at the first tangent, kept for the others."""
+        if self._probing is None:
+            elements = self.elements()
+            pairs = _node_pairs(elements)
+            unknown = np.ones(self.n, dtype=bool)
+            unknown[self.slaves] = False
+            colour = node_colouring(elements, self.n // 3)
+            self._probing = (colour, pairs[:, 0], pairs[:, 1], unknown)
+        return self._probing
+
     def tangent(self, u: np.ndarray, f_u: np.ndarray, probe: float) -> tuple[SparseMatrix, int]:
         """d(f_int - f_contact)/du at u (f_u: its value there) by probes of size ``probe``
         (mm); returns (K over all combined DOFs, force evaluations). Rows and columns of
         border DOFs are left empty."""
-        elements = self.elements()
         n_nodes = self.n // 3
-        colour = node_colouring(elements, n_nodes)
-        pairs = _node_pairs(elements)
-        i_node, j_node = pairs[:, 0], pairs[:, 1]
-        unknown = np.ones(self.n, dtype=bool)
-        unknown[self.slaves] = False
+        colour, i_node, j_node, unknown = self._pattern()
         rows, cols, values = [], [], []
         evaluations = 0
         for c in range(int(colour.max()) + 1 if n_nodes else 0):
