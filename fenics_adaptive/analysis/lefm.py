@@ -272,9 +272,10 @@ def enf_compliance(crack, half_span: float, modulus: float, shear_modulus: float
     2 L, nose at mid-span, crack of length ``crack`` a (mm) from a support): the bending of
     ASTM D7905's beam theory, (2 L^3 + 3 a^3) / (8 E b h^3), plus Timoshenko's shear of the
     whole beam, 3 L / (10 G b h) (``arm``: h, half the thickness). No crack-tip correction
-    (Wang and Williams' a + 0.42 chi h): the static FE compliance of demos/fracture_tests_enf.toml
-    at a0 (``fenics-adaptive static``, 0.9 mm at the nose) is this one's to 0.02 %, and 2.8 %
-    below the corrected one."""
+    (Wang and Williams' a + 0.42 chi h): the static FE compliance of an earlier version of
+    demos/fracture_tests_enf.toml (L = 60 mm, a0 = 45 mm, 5 mm rollers; ``fenics-adaptive
+    static``, 0.9 mm at the nose) is this one's to 0.02 %, and 2.8 % below the corrected one;
+    the explicit runs of the L = 80 mm beam start at 0.994 of this one's stiffness."""
     crack = np.asarray(crack, dtype=float)
     bending = (2.0 * half_span**3 + 3.0 * crack**3) / (8.0 * modulus * width * arm**3)
     return bending + 3.0 * half_span / (10.0 * shear_modulus * width * arm)
