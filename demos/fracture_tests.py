@@ -1,14 +1,14 @@
-"""# Fracture tests: DCB (mode I) and ENF (mode II) with insert films against beam theory
+"""# Fracture tests: DCB (mode I), ENF (mode II) and MMB (mixed mode) against beam theory
 
-The double cantilever beam (DCB, ASTM D5528) and the end-notched flexure (ENF, ASTM D7905) are
-how mode I and mode II delamination toughness are measured. This demo runs both in the AS4/PEEK
-of Camanho, Davila and de Moura (2003), each twice:
+The double cantilever beam (DCB, ASTM D5528), the end-notched flexure (ENF, ASTM D7905) and the
+mixed-mode bending test (MMB, ASTM D6671) are how delamination toughness is measured. This demo
+runs them in the AS4/PEEK of Camanho, Davila and de Moura (2003), each twice:
 
 - ``layerwise``: one cell layer per arm, cohesive elements at the mid-plane interface;
 - ``adaptive``: the adaptive element, one cell through the thickness, refined strongly from the
   start at that interface (the automatic indicators are another study's).
 
-Both specimens start from an insert film (``[[delamination]]``), so the crack grows from a
+Every specimen starts from an insert film (``[[delamination]]``), so the crack grows from a
 sharp front, not from a bonded end.
 
 **DCB** (``fracture_tests.toml``): 32.9 mm film, the arms' ends pulled apart. Corrected beam
@@ -29,14 +29,28 @@ theory with the beam's shear (``lefm.enf_compliance``):
 
 the load point's displacement C(a) P tracing the branch as the crack grows to the nose.
 
-    .venv/bin/python demos/fracture_tests.py --out results/fracture_tests          # ~20 minutes
+**MMB** (``fracture_tests_mmb.toml``): ASTM D6671's mixed-mode bending, half-span L = 51 mm,
+a 34 mm film from the hinges; a rigid massless lever ([lever]) hinged to the upper arm's end,
+resting on a rigid saddle at mid-span and pushed down c beyond it. The lever load P is a mode I
+pair P_I = P (3c - L) / (4L) at the arms' ends plus an ENF load P_II = P (c + L) / L at
+mid-span (Reeder and Crews 1990), so with the DCB's and the ENF's beam theories
+
+    G_I = P_I^2 (a + chi h)^2 / (b E I),    G_II = 9 P_II^2 a^2 / (16 E b^2 h^3),
+    C(a) = (P_I/P)^2 2 (a + chi h)^3 / (3 E I) + (P_II/P)^2 C_ENF(a),
+
+and the crack grows where G_I + G_II = G_c(G_II / G) of the interface's Benzeggagh-Kenane law.
+Two mixities, G_II / G = 0.2 and 0.5 (``mmb20``, ``mmb50``: c from simple beam theory,
+``lefm.mmb_load_arm``).
+
+    .venv/bin/python demos/fracture_tests.py --out results/fracture_tests          # ~40 minutes
     .venv/bin/python demos/fracture_tests.py --out results/fracture_tests --quick  # ~30 s, DCB
     .venv/bin/python demos/fracture_tests.py --out results/fracture_tests --specimens enf
 
 Writes ``results/fracture_tests/<specimen>_<run>/`` (history.csv, summary.json, plots),
-``dcb_force_opening.png``, ``enf_force_displacement.png`` and ``summary.json`` with the
-comparisons; it ends by checking them against the targets below. ``--quick`` runs a short DCB
-only (the ENF needs its long span for a propagation branch). Units: N, mm, s, tonne.
+``dcb_force_opening.png``, ``enf_force_displacement.png``, ``mmb_force_displacement.png`` and
+``summary.json`` with the comparisons; it ends by checking them against the targets below.
+``--quick`` runs a short DCB only (the ENF and MMB need their long spans for a propagation
+branch). Units: N, mm, s, tonne.
 
 The runs are quasi-static when the kinetic energy stays a small share of the work put in: the
 check asks for less than 5 %.
@@ -45,6 +59,9 @@ check asks for less than 5 %.
 import argparse
 import json
 import tomllib
+from collections.abc import Callable
+from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 
 import matplotlib
@@ -53,21 +70,43 @@ import numpy as np
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 
-from fenics_adaptive.analysis.lefm import dcb_comparison, dcb_force, enf_comparison, enf_force
-from fenics_adaptive.analysis.studies import FRACTURE_RUNS, dcb_quick, fracture_variant
+from fenics_adaptive.analysis.lefm import (
+    dcb_comparison,
+    dcb_force,
+    enf_comparison,
+    enf_force,
+    mmb_comparison,
+    mmb_force,
+)
+from fenics_adaptive.analysis.studies import FRACTURE_RUNS, dcb_quick, fracture_variant, mmb_mixity
 from fenics_adaptive.errors import script_main
 from fenics_adaptive.io.output import read_history
 from fenics_adaptive.runner import execute
-from fenics_adaptive.settings.config import parse_config
+from fenics_adaptive.settings.config import RunConfig, parse_config
 
 HERE = Path(__file__).parent
 PROG = "demos/fracture_tests.py"  # the name its messages and --help give
 
-# The specimens: their config (in demos/) and their comparison with beam theory
+
+@dataclass(frozen=True)
+class Specimen:
+    """One test of the demo: its config file (in demos/), how its layerwise config is made
+    from the file, its comparison with beam theory and the history column of its load."""
+
+    file: str
+    compare: Callable[[RunConfig, dict], dict]
+    force: str
+    variant: Callable[[dict], dict] = lambda base: base
+
+
 SPECIMENS = {
-    "dcb": ("fracture_tests.toml", dcb_comparison),
-    "enf": ("fracture_tests_enf.toml", enf_comparison),
-}
+    "dcb": Specimen("fracture_tests.toml", dcb_comparison, "reaction_force"),
+    "enf": Specimen("fracture_tests_enf.toml", enf_comparison, "nose_force"),
+    "mmb20": Specimen("fracture_tests_mmb.toml", mmb_comparison, "lever_force",
+                      partial(mmb_mixity, mixity=0.2)),
+    "mmb50": Specimen("fracture_tests_mmb.toml", mmb_comparison, "lever_force",
+                      partial(mmb_mixity, mixity=0.5)),
+}  # fmt: skip
 
 # What a run must show against beam theory (fractions)
 TARGETS = {
@@ -83,7 +122,7 @@ TARGETS = {
 def run_all(specimen: str, base: dict, out: Path, overwrite: bool = False) -> dict:
     """Run both models of one specimen; returns {run: (config, summary, history)}."""
     results = {}
-    source = SPECIMENS[specimen][0]
+    source = SPECIMENS[specimen].file
     for name in FRACTURE_RUNS:
         config = parse_config(fracture_variant(base, name), source=f"demos/{source} [{name}]")
         print(f"--- {specimen.upper()}, {name}")
@@ -94,8 +133,8 @@ def run_all(specimen: str, base: dict, out: Path, overwrite: bool = False) -> di
 
 
 def failures(comparison: dict) -> list[str]:
-    """The targets (``TARGETS``) one run's ``dcb_comparison`` or ``enf_comparison`` misses, in
-    words."""
+    """The targets (``TARGETS``) one run's comparison with beam theory (``dcb_comparison``,
+    ``enf_comparison``, ``mmb_comparison``) misses, in words."""
     c, missed = comparison, []
 
     def off(value, expected, tolerance, what):
@@ -163,22 +202,46 @@ def plot_enf(results: dict, out: Path) -> None:
     finish(fig, ax, out / "enf_force_displacement.png")
 
 
-def finish(fig, ax, path: Path) -> None:
-    ax.set_ylim(0, None)
-    ax.grid(alpha=0.3)
-    ax.legend()
-    fig.savefig(path, dpi=150)
+def plot_mmb(results: dict, out: Path) -> None:
+    """Lever load against load-point displacement of the MMB runs at each mixity with beam
+    theory, one panel per mixity (``results``: {specimen: its runs})."""
+    fig, axes = plt.subplots(1, len(results), figsize=(6 * len(results), 4.5),
+                             layout="constrained", squeeze=False)  # fmt: skip
+    for ax, runs in zip(axes[0], results.values(), strict=True):
+        for name, (_, _, h) in runs.items():
+            ax.plot(-np.array(h["lever_displacement"]), h["lever_force"], label=name,
+                    **STYLES[name])  # fmt: skip
+        config, _, h = runs["layerwise"]
+        c = mmb_comparison(config, h)
+        material = config.laminate.plies[0].material
+        travel = np.linspace(0.0, -min(h["lever_displacement"]), 400)
+        theory = mmb_force(travel, c["load_arm_mm"], c["half_span_mm"], c["a0_mm"], material.E1,
+                           material.G12, config.mesh.width, c["arm_thickness_mm"], c["chi"],
+                           config.cohesive)  # fmt: skip
+        ax.plot(travel, theory, ":", color="gray", label="corrected beam theory")
+        ax.set_xlabel("load point displacement (mm)")
+        ax.set_ylabel("lever load P (N)")
+        ax.set_title(f"MMB, G_II/G = {c['mixity']:.2f}, c = {c['load_arm_mm']:g} mm, "
+                     f"a0 = {c['a0_mm']:g} mm")  # fmt: skip
+        finish(fig, ax, None)
+    fig.savefig(out / "mmb_force_displacement.png", dpi=150)
     plt.close(fig)
 
 
-PLOTS = {"dcb": plot_dcb, "enf": plot_enf}
+def finish(fig, ax, path: Path | None) -> None:
+    ax.set_ylim(0, None)
+    ax.grid(alpha=0.3)
+    ax.legend()
+    if path is not None:
+        fig.savefig(path, dpi=150)
+        plt.close(fig)
 
 
 def main(argv: list[str] | None = None, prog: str = PROG) -> None:
     parser = argparse.ArgumentParser(prog=prog, description=__doc__.splitlines()[0].lstrip("# "))
     parser.add_argument(
         "--specimens", nargs="+", choices=list(SPECIMENS), default=list(SPECIMENS),
-        help="which tests to run (default: all)",
+        help="which tests to run (default: all; mmb20, mmb50: the MMB at G_II / G = 0.2, 0.5)",
     )  # fmt: skip
     parser.add_argument("--configs", default=HERE, help="the folder of the specimens' configs")
     parser.add_argument("--out", default="results/fracture_tests")
@@ -194,17 +257,15 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> None:
     out.mkdir(parents=True, exist_ok=True)
 
     summary = {"units": "N, mm, s, tonne (mJ)", "targets": TARGETS}
-    missed = []
+    missed, everything = [], {}
     for specimen in specimens:
-        file, compare = SPECIMENS[specimen]
-        base = tomllib.loads((Path(args.configs) / file).read_text())
+        test = SPECIMENS[specimen]
+        base = test.variant(tomllib.loads((Path(args.configs) / test.file).read_text()))
         if args.quick:
             base = dcb_quick(base)
-        results = run_all(specimen, base, out, args.overwrite)
-        comparisons = {name: compare(config, h) for name, (config, _, h) in results.items()}
-        PLOTS[specimen](results, out)
-        column = "reaction_force" if specimen == "dcb" else "nose_force"
-        F = {name: np.array(h[column]) for name, (_, _, h) in results.items()}
+        results = everything[specimen] = run_all(specimen, base, out, args.overwrite)
+        comparisons = {name: test.compare(config, h) for name, (config, _, h) in results.items()}
+        F = {name: np.array(h[test.force]) for name, (_, _, h) in results.items()}
         summary[specimen] = comparisons
         summary[f"{specimen}_adaptive_against_layerwise_max_force_difference_N"] = float(
             np.abs(F["adaptive"] - F["layerwise"]).max()
@@ -213,6 +274,13 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> None:
         summary[f"{specimen}_wall_time_s"] = walls
         missed += [f"{specimen.upper()} {name}: {line}"
                    for name, c in comparisons.items() for line in failures(c)]  # fmt: skip
+    if "dcb" in everything:
+        plot_dcb(everything["dcb"], out)
+    if "enf" in everything:
+        plot_enf(everything["enf"], out)
+    mixed = {name: runs for name, runs in everything.items() if name.startswith("mmb")}
+    if mixed:
+        plot_mmb(mixed, out)
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
     print(json.dumps(summary, indent=2))
     if missed:

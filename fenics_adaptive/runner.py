@@ -267,7 +267,7 @@ def _open_outputs(
     record(out_dir / "history.partial.csv", out_dir / "history.csv")
     with shared_errors(comm):  # rank 0 opens the file
         bodies = [
-            f"{b.name}_{what}" for b in config.rigid_bodies for what in ("force", "displacement")
+            f"{name}_{what}" for name in config.loading_bodies for what in ("force", "displacement")
         ]
         history = output.HistoryWriter(out_dir, comm, kept_rows, bodies)
     fields = None
@@ -345,12 +345,12 @@ def _finish(
             "peak_reaction_force_N": peak.reaction_force,
             "peak_contact_force_N": max(r.contact_force for r in rows),
             "rigid_bodies": {
-                body.name: {
-                    "peak_force_N": max((r.bodies[f"{body.name}_force"] for r in rows), key=abs),
-                    "final_force_N": rows[-1].bodies[f"{body.name}_force"],
-                    "final_displacement_mm": rows[-1].bodies[f"{body.name}_displacement"],
+                name: {
+                    "peak_force_N": max((r.bodies[f"{name}_force"] for r in rows), key=abs),
+                    "final_force_N": rows[-1].bodies[f"{name}_force"],
+                    "final_displacement_mm": rows[-1].bodies[f"{name}_displacement"],
                 }
-                for body in config.rigid_bodies
+                for name in config.loading_bodies
             },
             "displacement_at_peak_mm": peak.displacement,
             "final": {

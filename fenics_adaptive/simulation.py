@@ -31,11 +31,18 @@ from fenics_adaptive.model.contact import Contact
 from fenics_adaptive.model.forces import ForceContributor
 from fenics_adaptive.model.forms import build_model
 from fenics_adaptive.model.layerwise import cohesive_pairs
+from fenics_adaptive.model.lever import Lever
 from fenics_adaptive.model.loading import face_dofs, resolve
 from fenics_adaptive.model.structure import Structure, cells_in_x_range
 from fenics_adaptive.settings.adaptivity import Delamination
 from fenics_adaptive.settings.config import RunConfig
-from fenics_adaptive.settings.kinds import InterfaceState, ModelKind, MotionKind, Refinement
+from fenics_adaptive.settings.kinds import (
+    InterfaceState,
+    ModelKind,
+    MotionKind,
+    Refinement,
+    RigidMotion,
+)
 from fenics_adaptive.settings.loads import Amplitude, PrescribedMotion, RigidBody
 from fenics_adaptive.solver.explicit import ExplicitSolver, HistoryRow, RunStats, choose_time_step
 from fenics_adaptive.solver.observers import Observer
@@ -312,7 +319,10 @@ class Simulation:
         run_contributors: list[ForceContributor] = []
         bodies = [config.impactor.body()] if config.impactor is not None else []
         for body in [*bodies, *config.rigid_bodies]:
-            run_contributors.append(self._contact(body))
+            contact = self._contact(body)
+            if body.motion == RigidMotion.LEVER:  # the lever moves it and reports it
+                contact = Lever.on(config.lever, contact, self.structure)
+            run_contributors.append(contact)
         run_contributors += contributors
         self.solver = ExplicitSolver(
             self.structure,

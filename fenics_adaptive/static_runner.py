@@ -71,6 +71,12 @@ def linearised(config: RunConfig) -> tuple[RunConfig, list[str]]:
                 'a free body has no static equilibrium; use "fixed" or "prescribed" for a '
                 "static check",
             )
+    if config.lever is not None:  # its saddle's height depends on the hinge's displacement
+        raise InputError(
+            "lever",
+            "the static solve has no lever (its saddle moves with the hinge); run the MMB "
+            "explicitly (fenics-adaptive run), slowly enough to be quasi-static",
+        )
     changes = []
     if config.kinematics != Kinematics.SMALL:
         changes.append("finite kinematics solved with small strains")

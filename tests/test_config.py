@@ -1,6 +1,7 @@
 """Config parsing: a good config parses into the objects it describes; every malformed one is
 refused with one line that names the key."""
 
+import copy
 import math
 import tomllib
 from dataclasses import replace
@@ -448,6 +449,13 @@ def every_config() -> list[tuple[str, dict]]:
         }
     )
     configs.append(("rigid bodies", bodies))
+    for name in ("fracture_tests_enf", "fracture_tests_mmb"):
+        configs.append((name, tomllib.loads((root / "demos" / f"{name}.toml").read_text())))
+    lever = copy.deepcopy(configs[-1][1])
+    for key in ("velocity", "rise_time", "profile"):
+        del lever["lever"][key]
+    lever["lever"].update(displacement=-5.0, curve=[[0.0, 0.0], [1e-2, 1.0]])
+    configs.append(("lever by displacement", lever))
     return configs
 
 

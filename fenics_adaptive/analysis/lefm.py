@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from fenics_adaptive.materials.cohesive import critical_energy
 from fenics_adaptive.materials.laminate import Laminate, PlyMaterial
 from fenics_adaptive.settings.config import RunConfig
 
@@ -354,4 +355,159 @@ def enf_comparison(config: RunConfig, history: dict, bin_width: float = 5.0) -> 
             a0 + 5.0 * arm, half_span - arm, GIIc, history["impact_work"], bin_width,
         ),
         "theory_stiffness_N_per_mm": float(1.0 / compliance(a0)),
+    }  # fmt: skip
+
+
+# -------------------------------------------------------------------- mixed-mode bending (MMB)
+def mmb_load_split(load_arm: float, half_span: float) -> tuple[float, float]:
+    """The lever load P of an MMB test split into its modes (Reeder and Crews 1990): the mode I
+    pair P_I = P (3c - L) / (4L) opening the arms' ends and the mode II load P_II = P (c + L) / L
+    at mid-span of an ENF beam. Returns (P_I / P, P_II / P) for the lever's load arm c and the
+    half-span L (mm)."""
+    return (3.0 * load_arm - half_span) / (4.0 * half_span), (load_arm + half_span) / half_span
+
+
+def mmb_load_arm(mixity: float, half_span: float) -> float:
+    """The load arm c (mm) that gives the mode mixity G_II / G = ``mixity`` (0 < mixity < 1) by
+    simple beam theory, where G_I / G_II = 4 (3c - L)^2 / (3 (c + L)^2) does not depend on the
+    crack: c = L (1 + k) / (3 - k), k = sqrt(3 (1 - mixity) / (4 mixity)) (the branch with
+    3c > L, the arms pulled open). The corrected theory's mixity (``mmb_energy_release``)
+    differs from it by the root-rotation correction of mode I."""
+    if not 0.0 < mixity < 1.0:
+        raise ValueError(f"mmb_load_arm: the mixity G_II / G must lie in (0, 1) (got {mixity})")
+    k = np.sqrt(3.0 * (1.0 - mixity) / (4.0 * mixity))
+    if k >= 3.0:
+        raise ValueError(f"mmb_load_arm: G_II / G = {mixity} is below what a lever gives (1/13)")
+    return float(half_span * (1.0 + k) / (3.0 - k))
+
+
+def mmb_energy_release(crack, load_arm: float, half_span: float, modulus: float, width: float,
+                       arm: float, chi: float):  # fmt: skip
+    """The energy release rates per squared lever load, G_I / P^2 and G_II / P^2 (N/mm per
+    N^2), of an MMB beam with the crack ``crack`` a (mm): the DCB's P_I^2 (a + chi h)^2 /
+    (b E I) (corrected for root rotation) and the ENF's 9 P_II^2 a^2 / (16 E b^2 h^3)
+    (``enf_propagation_force``'s, uncorrected), E I = E1 b h^3 / 12 of one arm (thickness h)."""
+    crack = np.asarray(crack, dtype=float)
+    mode_I, mode_II = mmb_load_split(load_arm, half_span)
+    EI = modulus * width * arm**3 / 12.0
+    g_I = mode_I**2 * (crack + chi * arm) ** 2 / (width * EI)
+    g_II = mode_II**2 * 9.0 * crack**2 / (16.0 * modulus * width**2 * arm**3)
+    return g_I, g_II
+
+
+def mmb_compliance(crack, load_arm: float, half_span: float, modulus: float,
+                   shear_modulus: float, width: float, arm: float, chi: float):  # fmt: skip
+    """Load-point compliance (mm/N) of an MMB beam by superposition: the lever's load point
+    moves (P_I/P) times the DCB's opening plus (P_II/P) times the ENF's mid-span deflection,
+    C = (P_I/P)^2 2 (a + chi h)^3 / (3 E I) + (P_II/P)^2 C_ENF(a) (``enf_compliance``)."""
+    crack = np.asarray(crack, dtype=float)
+    mode_I, mode_II = mmb_load_split(load_arm, half_span)
+    EI = modulus * width * arm**3 / 12.0
+    dcb = 2.0 * (crack + chi * arm) ** 3 / (3.0 * EI)
+    enf = enf_compliance(crack, half_span, modulus, shear_modulus, width, arm)
+    return mode_I**2 * dcb + mode_II**2 * enf
+
+
+def mmb_propagation_force(crack, load_arm: float, half_span: float, modulus: float,
+                          width: float, arm: float, chi: float, law) -> np.ndarray:  # fmt: skip
+    """The lever load (N) at which an MMB beam with the crack ``crack`` (mm) reaches its
+    fracture energy G_c(G_II / G) of the mixed-mode ``law`` (a ``CohesiveLaw``:
+    ``materials.cohesive.critical_energy``) at the mixity of ``mmb_energy_release``."""
+    g_I, g_II = mmb_energy_release(crack, load_arm, half_span, modulus, width, arm, chi)
+    mixity = g_II / (g_I + g_II)
+    Gc = np.vectorize(lambda b: critical_energy(law, float(b)))(mixity)
+    return np.sqrt(Gc / (g_I + g_II))
+
+
+def mmb_force(displacement, load_arm: float, half_span: float, a0: float, modulus: float,
+              shear_modulus: float, width: float, arm: float, chi: float,
+              law) -> np.ndarray:  # fmt: skip
+    """Lever load (N) of an MMB beam against its load point's displacement (mm, any shape):
+    the elastic line of the crack a0 (``mmb_compliance``) until the load reaches
+    ``mmb_propagation_force``, then the propagation branch traced by the crack from a0 to the
+    saddle (L), its lower envelope where growth is unstable."""
+    cracks = np.linspace(a0, half_span, 400)
+    force = mmb_propagation_force(cracks, load_arm, half_span, modulus, width, arm, chi, law)
+    travel = mmb_compliance(cracks, load_arm, half_span, modulus, shear_modulus, width, arm,
+                            chi) * force  # fmt: skip
+    displacement = np.asarray(displacement, dtype=float)
+    elastic = displacement / mmb_compliance(a0, load_arm, half_span, modulus, shear_modulus,
+                                            width, arm, chi)  # fmt: skip
+    order = np.argsort(travel)
+    return np.minimum(elastic, np.interp(displacement, travel[order], force[order]))
+
+
+def hinge_position(config: RunConfig) -> float:
+    """x (mm) of an MMB lever's hinge: the end (x0 or x1) its node line names.
+
+    Raises:
+        ValueError: no lever, or a hinge at neither end."""
+    if config.lever is None:
+        raise ValueError("the config has no [lever]")
+    faces = config.lever.hinge.split("&")
+    if "x1" in faces:
+        return config.mesh.length
+    if "x0" in faces:
+        return 0.0
+    raise ValueError(f"the lever's hinge {config.lever.hinge!r} is at neither end (x0, x1)")
+
+
+def mmb_comparison(config: RunConfig, history: dict, bin_width: float = 5.0) -> dict:
+    """An MMB run against corrected beam theory (``mmb_force``). The specimen: two equal arms
+    above and below the interface of its first insert film, which reaches the end of the
+    lever's hinge; the lever ([lever]) on its saddle at mid-span. The history's
+    ``lever_force`` and ``lever_displacement`` are the load and the load point's displacement
+    (down is negative).
+
+    Parameters:
+        config: the run's config.
+        history: its history columns (``io.output.read_history``).
+        bin_width: the crack-length bins (mm) of the propagation branch.
+
+    Returns:
+        As ``enf_comparison``, with ``load_arm_mm`` c, ``mixity`` (G_II / G of the theory at
+        a0) and ``Gc_N_per_mm`` (the fracture energy at that mixity, which the dissipation is
+        measured against).
+    """
+    film = config.delaminations[0]
+    hinge = hinge_position(config)
+    saddle = next(body for body in config.rigid_bodies if body.name == config.lever.saddle)
+    half_span = abs(saddle.position[0] - hinge)
+    a0 = hinge - film.region.x_min if hinge > 0.0 else film.region.x_max
+    arm = arm_thickness(config.laminate, film.interface)
+    material = config.laminate.plies[0].material
+    width, law, c = config.mesh.width, config.cohesive, config.lever.load_arm
+    chi = root_rotation_correction(material)
+    beam = (material.E1, material.G12, width, arm, chi)
+
+    def propagation(crack):
+        return mmb_propagation_force(crack, c, half_span, material.E1, width, arm, chi, law)
+
+    g_I, g_II = mmb_energy_release(a0, c, half_span, material.E1, width, arm, chi)
+    mixity = float(g_II / (g_I + g_II))
+    Gc = critical_energy(law, mixity)
+    displacement = -np.asarray(history["lever_displacement"])
+    force = np.asarray(history["lever_force"])
+    crack = a0 + np.asarray(history["crack_growth_area"]) / width
+    theory = mmb_force(displacement, c, half_span, a0, material.E1, *beam[1:], law)
+    cracks = np.linspace(a0, half_span, 400)
+    branch_displacement = mmb_compliance(cracks, c, half_span, material.E1, *beam[1:]) * (
+        propagation(cracks)
+    )
+    return {
+        "a0_mm": a0,
+        "half_span_mm": half_span,
+        "load_arm_mm": c,
+        "arm_thickness_mm": arm,
+        "chi": chi,
+        "mixity": mixity,
+        "Gc_N_per_mm": Gc,
+        "stable_growth": bool(np.all(np.diff(branch_displacement) > 0.0)),
+        **against_theory(
+            history, displacement, force, theory, float(propagation(a0)), crack,
+            a0 + 5.0 * arm, half_span - arm, Gc, history["impact_work"], bin_width,
+        ),
+        "theory_stiffness_N_per_mm": float(
+            1.0 / mmb_compliance(a0, c, half_span, material.E1, *beam[1:])
+        ),
     }  # fmt: skip

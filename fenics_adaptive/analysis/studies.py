@@ -11,9 +11,10 @@ Studies (``STUDIES``):
 - ``four_point_bending``: ``demos/four_point_bending.toml`` (the stabilised adaptive run): the
   layerwise reference, adaptive unstabilised, adaptive;
 - ``plate_impact``: ``demos/plate_impact.toml`` (the adaptive run): ESL, adaptive, layerwise;
-- ``fracture_tests``: the DCB of ``demos/fracture_tests.toml`` and the ENF of
-  ``demos/fracture_tests_enf.toml`` (the layerwise runs): layerwise, adaptive refined from the
-  start at the delaminating interface.
+- ``fracture_tests``: the DCB of ``demos/fracture_tests.toml``, the ENF of
+  ``demos/fracture_tests_enf.toml`` and the MMB of ``demos/fracture_tests_mmb.toml`` (the
+  layerwise runs; ``mmb_mixity`` makes the MMB's other mixities): layerwise, adaptive refined
+  from the start at the delaminating interface.
 
 A variant never changes its ``base``: it works on a deep copy.
 """
@@ -26,6 +27,9 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
+
+from fenics_adaptive.analysis import lefm
+from fenics_adaptive.settings.config import parse_config
 
 TCB_RUNS = ("reference", "refined_from_start", "adaptive", "late", "late_stabilised")
 TCB_LATE_OPENING = 0.005  # mm: the paper's late refinement, past the cohesive initiation
@@ -155,6 +159,47 @@ def fracture_variant(base: dict, name: str) -> dict:
         data["model"]["kind"] = "adaptive"
         del data["mesh"]["layers"]
         data["interfaces"]["initial"] = "strong"
+    return data
+
+
+def mmb_mixity(base: dict, mixity: float) -> dict:
+    """The MMB of ``base`` (``demos/fracture_tests_mmb.toml`` or one of its variants) at another
+    mode mixity G_II / G: the lever's load arm c from simple beam theory
+    (``lefm.mmb_load_arm``), and the load point's speed scaled by the load point's travel to
+    the end of the propagation branch (crack at the saddle less an arm thickness,
+    ``lefm.mmb_force``'s theory), so that the crack runs through the specimen in the same time
+    at either mixity and the run stays as quasi-static.
+
+    Parameters:
+        base: an MMB config table.
+        mixity: G_II / G, in (0, 1).
+
+    Returns:
+        A new config table.
+    """
+    data = copy.deepcopy(base)
+    config = parse_config(base)
+    film = config.delaminations[0]
+    saddle = next(b for b in config.rigid_bodies if b.name == config.lever.saddle)
+    half_span = abs(saddle.position[0] - lefm.hinge_position(config))
+    arm = lefm.arm_thickness(config.laminate, film.interface)
+    material, width = config.laminate.plies[0].material, config.mesh.width
+    chi = lefm.root_rotation_correction(material)
+    beam = (material.E1, material.G12, width, arm, chi)
+
+    def travel(load_arm: float) -> float:
+        crack = half_span - arm
+        force = lefm.mmb_propagation_force(crack, load_arm, half_span, material.E1, width, arm,
+                                           chi, config.cohesive)  # fmt: skip
+        return float(lefm.mmb_compliance(crack, load_arm, half_span, *beam) * force)
+
+    load_arm = lefm.mmb_load_arm(mixity, half_span)
+    lever = data["lever"]
+    scale = travel(load_arm) / travel(config.lever.load_arm)
+    for key in ("velocity", "displacement"):
+        if key in lever:
+            lever[key] *= scale
+    lever["load_arm"] = round(load_arm, 3)
     return data
 
 

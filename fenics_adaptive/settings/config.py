@@ -78,6 +78,7 @@ from fenics_adaptive.settings.loads import (
     Amplitude,
     FaceLoad,
     Impactor,
+    Lever,
     PrescribedMotion,
     Region,
     RigidBody,
@@ -144,11 +145,19 @@ class RunConfig:
     shear_correction: bool = False
     impactor: Impactor | None = None
     rigid_bodies: tuple[RigidBody, ...] = ()
+    lever: Lever | None = None
     matrix_strength: tuple[MatrixStrength, ...] = ()
     cohesive: CohesiveLaw | None = None
     delaminations: tuple[Delamination, ...] = ()
     fields: FieldSelection = field(default_factory=FieldSelection)
     source: str = "<memory>"
+
+    @property
+    def loading_bodies(self) -> list[str]:
+        """The names of the history's ``<name>_force`` and ``<name>_displacement`` columns: the
+        [[rigid]] bodies, then the lever's load point and hinge."""
+        names = [body.name for body in self.rigid_bodies]
+        return [*names, "lever", "hinge"] if self.lever is not None else names
 
     @property
     def layer_boundaries(self) -> list[int]:
@@ -539,6 +548,7 @@ def parse_config(data: dict, source: str = "<memory>", seen: set[str] | None = N
     stabilisation = _stabilisation(root, model.kind)
     impactor = _impactor(root)
     rigid_bodies = _rigid_bodies(root)
+    lever = _lever(root, rigid_bodies, faces)
     indicators = _indicators(root, model.kind, interfaces)
     _check_failure_data(laminate, failures, model.ply_damage, indicators)
     flaws = _matrix_strength(root, model.ply_damage, laminate, mesh)
@@ -564,6 +574,7 @@ def parse_config(data: dict, source: str = "<memory>", seen: set[str] | None = N
         kinematics=model.kinematics,
         impactor=impactor,
         rigid_bodies=rigid_bodies,
+        lever=lever,
         matrix_strength=flaws,
         cohesive=cohesive,
         delaminations=delaminations,
@@ -1280,6 +1291,7 @@ def _rigid_bodies(root: _Root) -> tuple[RigidBody, ...]:
             RigidMotion.FIXED: set(),
             RigidMotion.PRESCRIBED: {"velocity", "displacement", "rise_time", "profile", "curve"},
             RigidMotion.FREE: {"mass", "velocity"},
+            RigidMotion.LEVER: set(),
         }[motion]
         for key in ("mass", "velocity", "displacement", "rise_time", "profile", "curve"):
             if table.has(key) and key not in allowed:
@@ -1313,6 +1325,49 @@ def _rigid_bodies(root: _Root) -> tuple[RigidBody, ...]:
             )
         )
     return tuple(bodies)
+
+
+def _lever(root: _Root, bodies: tuple[RigidBody, ...], faces: list[str]) -> Lever | None:
+    """[lever]: the loading lever of an MMB test, on the [[rigid]] saddle it names (motion
+    "lever"; no other body may have that motion)."""
+    carried = [body.name for body in bodies if body.motion == RigidMotion.LEVER]
+    table = root.table("lever")
+    if table is None:
+        if carried:
+            raise InputError(
+                f"rigid.{carried[0]}.motion", '"lever" needs a [lever] table that carries it'
+            )
+        return None
+    for name in ("lever", "hinge"):  # the lever's history columns are <name>_force, ...
+        if any(body.name == name for body in bodies):
+            raise InputError(f"rigid.{name}.name", f"{name!r} names the lever's history "
+                             "columns; give the body another name")  # fmt: skip
+    saddle = table.string("saddle")
+    named = [body for body in bodies if body.name == saddle]
+    if not named:
+        known = ", ".join(body.name for body in bodies) or "none"
+        raise InputError(table.key("saddle"), f"{saddle!r} is no [[rigid]] body (known: {known})")
+    if named[0].motion != RigidMotion.LEVER:
+        raise InputError(
+            f"rigid.{saddle}.motion",
+            f'the lever\'s saddle has motion = "{named[0].motion}"; give it motion = "lever"',
+        )
+    others = [name for name in carried if name != saddle]
+    if others:
+        raise InputError(f"rigid.{others[0]}.motion", "one lever carries one saddle: "
+                         f"{saddle!r} (a second lever body is not supported)")  # fmt: skip
+    if table.has("velocity") == table.has("displacement"):
+        raise InputError(
+            table.key("velocity"), "the load point takes a velocity or a displacement (one)"
+        )
+    return Lever(
+        saddle=saddle,
+        hinge=table.face("hinge", faces),
+        load_arm=table.number("load_arm"),
+        displacement=table.number("displacement") if table.has("displacement") else None,
+        velocity=table.number("velocity") if table.has("velocity") else None,
+        amplitude=_amplitude(table),
+    )
 
 
 def _stabilisation(root: _Root, kind: ModelKind) -> Stabilisation:

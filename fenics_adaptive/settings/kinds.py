@@ -88,12 +88,14 @@ class ImpactorShape(StrEnum):
 
 
 class RigidMotion(StrEnum):
-    """``[[rigid]] motion``: held where it is, moved along a prescribed path, or free (a mass
-    with an initial velocity, moved by the contact forces)."""
+    """``[[rigid]] motion``: held where it is, moved along a prescribed path, free (a mass
+    with an initial velocity, moved by the contact forces), or carried by the ``[lever]`` (the
+    saddle of a mixed-mode bending test)."""
 
     FIXED = "fixed"
     PRESCRIBED = "prescribed"
     FREE = "free"
+    LEVER = "lever"
 
 
 class IndicatorKind(StrEnum):

@@ -194,7 +194,8 @@ class RigidBody:
     - PRESCRIBED: moved by ``displacement`` (mm, vector) x amplitude(t), or by ``velocity``
       (mm/s, vector) x the integral of amplitude (a loading nose);
     - FREE: a body of ``mass`` (tonne) starting at ``velocity`` (mm/s), moved by the contact
-      forces (an impactor).
+      forces (an impactor);
+    - LEVER: the saddle of the ``Lever``, which sets its height.
 
     ``penalty``: N/mm per node (None: from the laminate, ``model.contact``). ``name``: the
     body's history columns (``<name>_force``, ``<name>_displacement``) and checkpoint keys."""
@@ -234,6 +235,36 @@ class RigidBody:
     def prescribed_centre(self, t: float) -> np.ndarray:
         """The centre (3,) mm at time t (s) of a PRESCRIBED body."""
         return np.asarray(self.position, dtype=float) + np.asarray(self.path) * self.path_scale(t)
+
+
+@dataclass(frozen=True)
+class Lever:
+    """The loading lever of a mixed-mode bending (MMB) test, ASTM D6671 ([lever]): a rigid,
+    massless bar hinged to the node line ``hinge`` (a face group such as "x1&top", the upper
+    arm's end), resting on the [[rigid]] body ``saddle`` (motion "lever") at mid-span, and
+    pushed at its load point, ``load_arm`` c (mm) beyond the saddle, by a prescribed z
+    ``displacement`` (mm) x the time curve or ``velocity`` (mm/s) x its integral (one of the
+    two, the other None). Hinge, saddle and load point lie on one line in this order; the
+    half-span L (hinge to saddle) comes from the geometry (``model.lever``)."""
+
+    saddle: str
+    hinge: str
+    load_arm: float
+    displacement: float | None = None
+    velocity: float | None = None
+    amplitude: Amplitude = field(default_factory=lambda: Amplitude.constant(1.0))
+
+    def __post_init__(self) -> None:
+        if (self.displacement is None) == (self.velocity is None):
+            raise ValueError("a lever's load point takes a displacement or a velocity")
+        if not self.load_arm > 0.0:
+            raise ValueError(f"a lever's load_arm must be > 0 mm (got {self.load_arm})")
+
+    def load_point(self, t: float) -> float:
+        """The load point's z displacement (mm) at time t (s)."""
+        if self.displacement is not None:
+            return self.displacement * self.amplitude(t)
+        return self.velocity * self.amplitude.integral(t)
 
 
 @dataclass(frozen=True)

@@ -959,7 +959,8 @@ SECTIONS: tuple[Section, ...] = (
                 "motion",
                 "choice",
                 "fixed (a support), prescribed (moved by displacement or velocity times the time"
-                " curve) or free (a mass with an initial velocity)",
+                " curve), free (a mass with an initial velocity) or lever (the saddle the [lever]"
+                " carries)",
                 choices=tuple(RigidMotion),
             ),
             Key("mass", "float", "free: its mass", "tonne", OPTIONAL, 0.0, 1e6, open_min=True),
@@ -996,6 +997,42 @@ SECTIONS: tuple[Section, ...] = (
             ),
         ),
         array=True,
+    ),
+    Section(
+        "lever",
+        "the loading lever of a mixed-mode bending test (ASTM D6671): rigid and massless, hinged"
+        " to a node line, resting on a [[rigid]] saddle, pushed down at its load point; hinge,"
+        " saddle and load point on one line in this order, the half-span L (hinge to saddle)"
+        " from the geometry. History: lever_force, lever_displacement (load point), "
+        "hinge_force, hinge_displacement",
+        (
+            Key("saddle", "string", 'the [[rigid]] body (motion = "lever") it rests on'),
+            Key(
+                "hinge",
+                "face",
+                "the node line it is hinged to (the upper arm's end, e.g. x1&top)",
+            ),
+            _length("load_arm", "c: from the saddle to the load point (sets the mode mixity)"),
+            Key(
+                "displacement",
+                "float",
+                "the load point's z displacement times the time curve (or velocity)",
+                "mm",
+                OPTIONAL,
+                -MAX_DISPLACEMENT,
+                MAX_DISPLACEMENT,
+            ),
+            Key(
+                "velocity",
+                "float",
+                "the load point's z velocity times the time curve (or displacement)",
+                "mm/s",
+                OPTIONAL,
+                -MAX_SPEED,
+                MAX_SPEED,
+            ),
+            *_TIME_CURVE,
+        ),
     ),
     Section(
         "stabilisation",
