@@ -9,7 +9,7 @@ short MMB loaded through the lever.
 - a short MMB (L = 25 mm) loaded through the lever: the massless lever's equilibrium (hinge
   and load shares of the saddle's force) and kinematics (the saddle's height), the work P dw_P
   of its load point against the work given to the structure, the energy balance, and the
-  elastic slope of beam theory.
+  elastic slope of beam theory; stopped half-way and restarted, it goes on as if never stopped.
 """
 
 import copy
@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import assert_restarted_history, run_quietly
 
 from fenics_adaptive.analysis.lefm import (
     enf_compliance,
@@ -173,9 +174,18 @@ def short_mmb(base: dict) -> dict:
 
 @pytest.mark.slow
 def test_a_short_mmb_loaded_through_the_lever(base, tmp_path):
-    config = parse_config(short_mmb(base))
-    run_config(config, tmp_path)
-    h = {k: np.asarray(v) for k, v in read_history(tmp_path / "history.csv").items()}
+    data = short_mmb(base)
+    config = parse_config(data)
+    run_config(config, tmp_path / "whole")
+    h = {k: np.asarray(v) for k, v in read_history(tmp_path / "whole" / "history.csv").items()}
+    # stopped half-way and restarted: the lever's state (its hinge's last force and
+    # displacement, their work, the saddle's) carries the run on as if never stopped
+    first = copy.deepcopy(data)
+    first["solver"]["end_time"] = 0.5 * data["solver"]["end_time"]
+    first["output"]["checkpoint_interval"] = 5000
+    run_quietly(first, tmp_path / "split")
+    run_quietly(data, tmp_path / "split", restart=tmp_path / "split")
+    assert_restarted_history(tmp_path / "split", tmp_path / "whole", atol=1e-12)
     L, c = 25.0, config.lever.load_arm
     # the massless lever's equilibrium, each row
     assert np.allclose(h["lever_force"], h["saddle_force"] * L / (L + c), rtol=1e-12, atol=0)
