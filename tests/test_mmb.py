@@ -9,7 +9,8 @@ short MMB loaded through the lever.
 - a short MMB (L = 25 mm) loaded through the lever: the massless lever's equilibrium (hinge
   and load shares of the saddle's force) and kinematics (the saddle's height), the work P dw_P
   of its load point against the work given to the structure, the energy balance, and the
-  elastic slope of beam theory; stopped half-way and restarted, it goes on as if never stopped.
+  elastic slope of beam theory; stopped half-way and restarted, it goes on as if never stopped;
+  the adaptive model refined from the start gives the layerwise model's history.
 """
 
 import copy
@@ -30,7 +31,7 @@ from fenics_adaptive.analysis.lefm import (
     mmb_propagation_force,
     root_rotation_correction,
 )
-from fenics_adaptive.analysis.studies import mmb_mixity
+from fenics_adaptive.analysis.studies import fracture_variant, mmb_mixity
 from fenics_adaptive.errors import InputError
 from fenics_adaptive.io.output import read_history
 from fenics_adaptive.materials.cohesive import critical_energy
@@ -210,3 +211,22 @@ def test_a_short_mmb_loaded_through_the_lever(base, tmp_path):
         comparison["theory_stiffness_N_per_mm"], rel=0.03
     )
     assert comparison["kinetic_energy_share"] < 0.05
+
+
+@pytest.mark.slow
+def test_the_adaptive_mmb_refined_from_the_start_is_the_layerwise_one(base, tmp_path):
+    """Through the lever too: the adaptive element refined strongly at the film's interface
+    from the start gives the layerwise model's history (the first millisecond, in contact)."""
+    histories = {}
+    for name in ("layerwise", "adaptive"):
+        data = fracture_variant(short_mmb(base), name)
+        data["solver"]["end_time"] = 1.0e-3
+        run_config(parse_config(data), tmp_path / name)
+        histories[name] = read_history(tmp_path / name / "history.csv")
+    layerwise, adaptive = histories["layerwise"], histories["adaptive"]
+    assert max(layerwise["lever_force"]) > 50.0
+    for column in ("lever_force", "hinge_force", "hinge_displacement", "saddle_displacement",
+                   "roller_force", "internal_energy"):  # fmt: skip
+        scale = np.abs(layerwise[column]).max()
+        np.testing.assert_allclose(adaptive[column], layerwise[column], rtol=0, atol=1e-9 * scale,
+                                   err_msg=column)  # fmt: skip
