@@ -1,5 +1,6 @@
-"""Beam-theory LEFM reference of a cantilever-beam delamination test (DCB, TCB): the force on
-the propagation branch, and a run's history compared with it.
+"""Beam-theory LEFM references of the delamination tests: the cantilever beams (DCB, TCB), the
+end-notched flexure (ENF) and mixed-mode bending (MMB, the superposition of the two); the force
+on each test's propagation branch, and a run's history compared with it.
 
 Units: N, mm, s, tonne (force N, opening mm, fracture energy N/mm, modulus MPa).
 
