@@ -42,7 +42,7 @@ and the crack grows where G_I + G_II = G_c(G_II / G) of the interface's Benzegga
 Two mixities, G_II / G = 0.2 and 0.5 (``mmb20``, ``mmb50``: c from simple beam theory,
 ``lefm.mmb_load_arm``).
 
-    .venv/bin/python demos/fracture_tests.py --out results/fracture_tests          # ~40 minutes
+    .venv/bin/python demos/fracture_tests.py --out results/fracture_tests          # ~55 minutes
     .venv/bin/python demos/fracture_tests.py --out results/fracture_tests --quick  # ~30 s, DCB
     .venv/bin/python demos/fracture_tests.py --out results/fracture_tests --specimens enf
 
@@ -221,7 +221,7 @@ def plot_mmb(results: dict, out: Path) -> None:
         ax.plot(travel, theory, ":", color="gray", label="corrected beam theory")
         ax.set_xlabel("load point displacement (mm)")
         ax.set_ylabel("lever load P (N)")
-        ax.set_title(f"MMB, G_II/G = {c['mixity']:.2f}, c = {c['load_arm_mm']:g} mm, "
+        ax.set_title(f"MMB, G_II/G = {c['mixity']:.2f}, c = {c['load_arm_mm']:.1f} mm, "
                      f"a0 = {c['a0_mm']:g} mm")  # fmt: skip
         finish(fig, ax, None)
     fig.savefig(out / "mmb_force_displacement.png", dpi=150)

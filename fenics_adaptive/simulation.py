@@ -31,7 +31,7 @@ from fenics_adaptive.model.contact import Contact
 from fenics_adaptive.model.forces import ForceContributor
 from fenics_adaptive.model.forms import build_model
 from fenics_adaptive.model.layerwise import cohesive_pairs
-from fenics_adaptive.model.lever import Lever
+from fenics_adaptive.model.lever import LoadingLever
 from fenics_adaptive.model.loading import face_dofs, resolve
 from fenics_adaptive.model.structure import Structure, cells_in_x_range
 from fenics_adaptive.settings.adaptivity import Delamination
@@ -321,7 +321,7 @@ class Simulation:
         for body in [*bodies, *config.rigid_bodies]:
             contact = self._contact(body)
             if body.motion == RigidMotion.LEVER:  # the lever moves it and reports it
-                contact = Lever.on(config.lever, contact, self.structure)
+                contact = LoadingLever.on(config.lever, contact, self.structure)
             run_contributors.append(contact)
         run_contributors += contributors
         self.solver = ExplicitSolver(

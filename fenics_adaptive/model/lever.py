@@ -37,19 +37,19 @@ from fenics_adaptive.errors import InputError
 from fenics_adaptive.model.contact import Contact
 from fenics_adaptive.model.forces import Contributor, ForceKind
 from fenics_adaptive.model.loading import face_nodes
-from fenics_adaptive.settings.loads import Lever as LeverSettings
+from fenics_adaptive.settings.loads import Lever
 
 
-class Lever(Contributor):
+class LoadingLever(Contributor):
     """The MMB lever: moves its saddle (a ``Contact`` with motion "lever") and pulls its
-    hinge. ``Lever.on(settings, saddle, structure)`` builds it; ``half_span`` L and
+    hinge. ``LoadingLever.on(settings, saddle, structure)`` builds it; ``half_span`` L and
     ``load_arm`` c in mm."""
 
     name = "lever"
     kind = ForceKind.CONTACT
 
     @classmethod
-    def on(cls, settings: LeverSettings, saddle: Contact, structure) -> Lever:
+    def on(cls, settings: Lever, saddle: Contact, structure) -> LoadingLever:
         """Collective: the lever of ``settings`` on ``structure``, carrying ``saddle``.
         Raises InputError if the hinge has no nodes or lies under the saddle."""
         base = structure.base
@@ -66,7 +66,7 @@ class Lever(Contributor):
         return cls(settings, saddle, structure.comm, owned, int(count), half_span,
                    structure.base.u.x)  # fmt: skip
 
-    def __init__(self, settings: LeverSettings, saddle: Contact, comm: MPI.Comm, hinge_nodes,
+    def __init__(self, settings: Lever, saddle: Contact, comm: MPI.Comm, hinge_nodes,
                  hinge_count: int, half_span: float, displacement):  # fmt: skip
         self.settings = settings
         self.saddle = saddle
