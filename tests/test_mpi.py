@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fenics_adaptive.io.output import COLUMN_UNITS, read_history
+from fenics_adaptive.io.output import COLUMN_UNITS, body_unit, read_history
 from fenics_adaptive.io.refinement_log import read_log as read_refinement_log
 
 ROOT = Path(__file__).parent.parent
@@ -50,7 +50,7 @@ def assert_same_history(serial: dict, parallel: dict) -> None:
     difference of larger terms, whose round-off it carries)."""
     assert serial.keys() == parallel.keys()
     assert len(serial["time"]) == len(parallel["time"]) > 10
-    energies = [name for name in serial if COLUMN_UNITS[name] == "mJ"]
+    energies = [name for name in serial if COLUMN_UNITS.get(name, body_unit(name)) == "mJ"]
     energy_scale = max(np.abs(serial[name]).max() for name in energies)
     assert energy_scale > 0
     for name in serial:
@@ -96,6 +96,20 @@ def test_events_on_one_rank_reproduce_the_serial_history(case, tmp_path):
     assert [[r[k] for k in exact] for r in logs[0]] == [[r[k] for k in exact] for r in logs[1]]
     a, b = ([[r[k] for k in close] for r in log] for log in logs)
     np.testing.assert_allclose(a, b, rtol=1e-10, atol=1e-10)
+
+
+@pytest.mark.mpi
+def test_the_mmb_lever_on_two_ranks_reproduces_the_serial_history(tmp_path):
+    """The lever reduces its hinge's displacement over the ranks and moves a saddle every rank
+    knows; the partition puts the roller (x = 5 mm) on one rank, the saddle (30 mm) and the
+    hinge (55 mm) on the other."""
+    config = DATA / "mmb_short.toml"
+    serial, _ = run_case(config, tmp_path / "serial", 1)
+    parallel, ranks = run_case(config, tmp_path / "parallel", 2)
+    low, high = sorted(ranks, key=lambda r: r["x_min"])
+    assert low["x_min"] < 5.0 < low["x_max"] < 30.0 < high["x_min"] + 2.0 and high["x_max"] > 54
+    assert max(serial["lever_force"]) > 50.0
+    assert_same_history(serial, parallel)
 
 
 @pytest.mark.mpi
