@@ -14,11 +14,14 @@ K = sqrt(2 b E I GIc). The same branch follows from root-rotation-corrected beam
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from fenics_adaptive.materials.cohesive import critical_energy
 from fenics_adaptive.materials.laminate import Laminate, PlyMaterial
 from fenics_adaptive.settings.config import RunConfig
+from fenics_adaptive.settings.materials import CohesiveLaw
 
 SMALLEST_OPENING = 1e-12  # mm: the branch is infinite at delta = 0
 
@@ -296,13 +299,63 @@ def enf_force(displacement, half_span: float, a0: float, modulus: float, shear_m
     ``enf_propagation_force``, then the propagation branch, traced by the crack length from a0
     to the nose (L); where growth is unstable (a0 < L / 3^(1/3) in bending) the branch is the
     lower envelope the force drops to."""
-    cracks = np.linspace(a0, half_span, 400)
-    force = enf_propagation_force(cracks, modulus, width, arm, GIIc)
-    travel = enf_compliance(cracks, half_span, modulus, shear_modulus, width, arm) * force
+    return branch_force(
+        displacement, a0, half_span,
+        lambda crack: enf_compliance(crack, half_span, modulus, shear_modulus, width, arm),
+        lambda crack: enf_propagation_force(crack, modulus, width, arm, GIIc),
+    )  # fmt: skip
+
+
+CRACKS_ON_BRANCH = 400  # crack lengths a branch is traced by
+
+
+def branch_force(displacement, a0: float, half_span: float, compliance, propagation):
+    """Force (N) of a beam test against its load point's displacement (mm, any shape) by a
+    beam theory given as ``compliance(crack)`` (mm/N) and ``propagation(crack)`` (N, the load
+    at which the crack grows): the elastic line of the crack a0 until the force reaches the
+    propagation force, then the branch traced by the crack from a0 to the load point at
+    ``half_span`` (mm); where growth is unstable, the lower envelope the force drops to."""
+    cracks = np.linspace(a0, half_span, CRACKS_ON_BRANCH)
+    force = propagation(cracks)
+    travel = compliance(cracks) * force
     displacement = np.asarray(displacement, dtype=float)
-    elastic = displacement / enf_compliance(a0, half_span, modulus, shear_modulus, width, arm)
+    elastic = displacement / compliance(a0)
     order = np.argsort(travel)
     return np.minimum(elastic, np.interp(displacement, travel[order], force[order]))
+
+
+def against_bending_theory(history: dict, load: str, a0: float, half_span: float, arm: float,
+                           width: float, compliance, propagation, Gc: float,
+                           bin_width: float) -> dict:  # fmt: skip
+    """What a three-point-bending fracture test's run (ENF, MMB) shows against its beam
+    theory (``compliance``, ``propagation`` as ``branch_force`` takes them): the load and the
+    load point's displacement are the history's ``<load>_force`` and ``<load>_displacement``
+    (down is negative); the crack grows from a0 (mm) towards the load point at ``half_span``;
+    the branch is judged from a0 + 5 arm thicknesses to one arm thickness short of the load
+    point; ``Gc`` (N/mm) is what the dissipation is measured against.
+
+    Returns:
+        ``a0_mm``, ``half_span_mm``, ``arm_thickness_mm``, ``stable_growth`` (the theory's
+        load-point displacement grows with the crack), what ``against_theory`` returns, and
+        ``theory_stiffness_N_per_mm``.
+    """
+    displacement = -np.asarray(history[f"{load}_displacement"])
+    force = np.asarray(history[f"{load}_force"])
+    crack = a0 + np.asarray(history["crack_growth_area"]) / width
+    theory = branch_force(displacement, a0, half_span, compliance, propagation)
+    cracks = np.linspace(a0, half_span, CRACKS_ON_BRANCH)
+    branch_displacement = compliance(cracks) * propagation(cracks)
+    return {
+        "a0_mm": a0,
+        "half_span_mm": half_span,
+        "arm_thickness_mm": arm,
+        "stable_growth": bool(np.all(np.diff(branch_displacement) > 0.0)),
+        **against_theory(
+            history, displacement, force, theory, float(propagation(a0)), crack,
+            a0 + 5.0 * arm, half_span - arm, Gc, history["impact_work"], bin_width,
+        ),
+        "theory_stiffness_N_per_mm": float(1.0 / compliance(a0)),
+    }  # fmt: skip
 
 
 def enf_comparison(config: RunConfig, history: dict, bin_width: float = 5.0) -> dict:
@@ -340,23 +393,8 @@ def enf_comparison(config: RunConfig, history: dict, bin_width: float = 5.0) -> 
     def propagation(crack):
         return enf_propagation_force(crack, material.E1, width, arm, GIIc)
 
-    displacement = -np.asarray(history["nose_displacement"])
-    force = np.asarray(history["nose_force"])
-    crack = a0 + np.asarray(history["crack_growth_area"]) / width
-    theory = enf_force(displacement, half_span, a0, material.E1, material.G12, width, arm, GIIc)
-    cracks = np.linspace(a0, half_span, 400)
-    branch_displacement = compliance(cracks) * propagation(cracks)
-    return {
-        "a0_mm": a0,
-        "half_span_mm": half_span,
-        "arm_thickness_mm": arm,
-        "stable_growth": bool(np.all(np.diff(branch_displacement) > 0.0)),
-        **against_theory(
-            history, displacement, force, theory, float(propagation(a0)), crack,
-            a0 + 5.0 * arm, half_span - arm, GIIc, history["impact_work"], bin_width,
-        ),
-        "theory_stiffness_N_per_mm": float(1.0 / compliance(a0)),
-    }  # fmt: skip
+    return against_bending_theory(history, "nose", a0, half_span, arm, width, compliance,
+                                  propagation, GIIc, bin_width)  # fmt: skip
 
 
 # -------------------------------------------------------------------- mixed-mode bending (MMB)
@@ -427,15 +465,13 @@ def mmb_force(displacement, load_arm: float, half_span: float, a0: float, modulu
     the elastic line of the crack a0 (``mmb_compliance``) until the load reaches
     ``mmb_propagation_force``, then the propagation branch traced by the crack from a0 to the
     saddle (L), its lower envelope where growth is unstable."""
-    cracks = np.linspace(a0, half_span, 400)
-    force = mmb_propagation_force(cracks, load_arm, half_span, modulus, width, arm, chi, law)
-    travel = mmb_compliance(cracks, load_arm, half_span, modulus, shear_modulus, width, arm,
-                            chi) * force  # fmt: skip
-    displacement = np.asarray(displacement, dtype=float)
-    elastic = displacement / mmb_compliance(a0, load_arm, half_span, modulus, shear_modulus,
-                                            width, arm, chi)  # fmt: skip
-    order = np.argsort(travel)
-    return np.minimum(elastic, np.interp(displacement, travel[order], force[order]))
+    beam = (modulus, shear_modulus, width, arm, chi)
+    return branch_force(
+        displacement, a0, half_span,
+        lambda crack: mmb_compliance(crack, load_arm, half_span, *beam),
+        lambda crack: mmb_propagation_force(crack, load_arm, half_span, modulus, width, arm,
+                                            chi, law),
+    )  # fmt: skip
 
 
 def hinge_position(config: RunConfig) -> float:
@@ -453,12 +489,61 @@ def hinge_position(config: RunConfig) -> float:
     raise ValueError(f"the lever's hinge {config.lever.hinge!r} is at neither end (x0, x1)")
 
 
+@dataclass(frozen=True)
+class MMBSpecimen:
+    """The beam-theory data of an MMB config: two equal arms above and below the interface of
+    its first insert film, which reaches the end of the lever's hinge; the lever's saddle at
+    mid-span. Lengths in mm, moduli in MPa."""
+
+    a0: float  # the film's length from the hinge
+    half_span: float  # L: hinge to saddle
+    load_arm: float  # c: saddle to load point
+    arm: float  # h: one arm's thickness
+    width: float
+    material: PlyMaterial  # of the first ply
+    chi: float  # root-rotation correction (``root_rotation_correction``)
+    law: CohesiveLaw
+
+    @classmethod
+    def of(cls, config: RunConfig) -> MMBSpecimen:
+        film = config.delaminations[0]
+        hinge = hinge_position(config)
+        saddle = next(b for b in config.rigid_bodies if b.name == config.lever.saddle)
+        material = config.laminate.plies[0].material
+        return cls(
+            a0=hinge - film.region.x_min if hinge > 0.0 else film.region.x_max,
+            half_span=abs(saddle.position[0] - hinge),
+            load_arm=config.lever.load_arm,
+            arm=arm_thickness(config.laminate, film.interface),
+            width=config.mesh.width,
+            material=material,
+            chi=root_rotation_correction(material),
+            law=config.cohesive,
+        )
+
+    def compliance(self, crack, load_arm: float | None = None):
+        """``mmb_compliance`` (mm/N) of this beam, with its lever arm or ``load_arm``."""
+        c, m = self.load_arm if load_arm is None else load_arm, self.material
+        return mmb_compliance(crack, c, self.half_span, m.E1, m.G12, self.width, self.arm,
+                              self.chi)  # fmt: skip
+
+    def propagation(self, crack, load_arm: float | None = None):
+        """``mmb_propagation_force`` (N) of this beam, with its lever arm or ``load_arm``."""
+        return mmb_propagation_force(crack, self.load_arm if load_arm is None else load_arm,
+                                     self.half_span, self.material.E1, self.width, self.arm,
+                                     self.chi, self.law)  # fmt: skip
+
+    def mixity(self, crack) -> float:
+        """G_II / G of the theory at the crack ``crack`` (mm)."""
+        g_I, g_II = mmb_energy_release(crack, self.load_arm, self.half_span, self.material.E1,
+                                       self.width, self.arm, self.chi)  # fmt: skip
+        return float(g_II / (g_I + g_II))
+
+
 def mmb_comparison(config: RunConfig, history: dict, bin_width: float = 5.0) -> dict:
-    """An MMB run against corrected beam theory (``mmb_force``). The specimen: two equal arms
-    above and below the interface of its first insert film, which reaches the end of the
-    lever's hinge; the lever ([lever]) on its saddle at mid-span. The history's
-    ``lever_force`` and ``lever_displacement`` are the load and the load point's displacement
-    (down is negative).
+    """An MMB run against corrected beam theory (``mmb_force``). The specimen:
+    ``MMBSpecimen``. The history's ``lever_force`` and ``lever_displacement`` are the load and
+    the load point's displacement (down is negative).
 
     Parameters:
         config: the run's config.
@@ -466,49 +551,19 @@ def mmb_comparison(config: RunConfig, history: dict, bin_width: float = 5.0) -> 
         bin_width: the crack-length bins (mm) of the propagation branch.
 
     Returns:
-        As ``enf_comparison``, with ``load_arm_mm`` c, ``mixity`` (G_II / G of the theory at
-        a0) and ``Gc_N_per_mm`` (the fracture energy at that mixity, which the dissipation is
-        measured against).
+        As ``enf_comparison``, with ``load_arm_mm`` c, ``chi``, ``mixity`` (G_II / G of the
+        theory at a0) and ``Gc_N_per_mm`` (the fracture energy at that mixity, which the
+        dissipation is measured against).
     """
-    film = config.delaminations[0]
-    hinge = hinge_position(config)
-    saddle = next(body for body in config.rigid_bodies if body.name == config.lever.saddle)
-    half_span = abs(saddle.position[0] - hinge)
-    a0 = hinge - film.region.x_min if hinge > 0.0 else film.region.x_max
-    arm = arm_thickness(config.laminate, film.interface)
-    material = config.laminate.plies[0].material
-    width, law, c = config.mesh.width, config.cohesive, config.lever.load_arm
-    chi = root_rotation_correction(material)
-    beam = (material.E1, material.G12, width, arm, chi)
-
-    def propagation(crack):
-        return mmb_propagation_force(crack, c, half_span, material.E1, width, arm, chi, law)
-
-    g_I, g_II = mmb_energy_release(a0, c, half_span, material.E1, width, arm, chi)
-    mixity = float(g_II / (g_I + g_II))
-    Gc = critical_energy(law, mixity)
-    displacement = -np.asarray(history["lever_displacement"])
-    force = np.asarray(history["lever_force"])
-    crack = a0 + np.asarray(history["crack_growth_area"]) / width
-    theory = mmb_force(displacement, c, half_span, a0, material.E1, *beam[1:], law)
-    cracks = np.linspace(a0, half_span, 400)
-    branch_displacement = mmb_compliance(cracks, c, half_span, material.E1, *beam[1:]) * (
-        propagation(cracks)
-    )
+    beam = MMBSpecimen.of(config)
+    mixity = beam.mixity(beam.a0)
+    Gc = critical_energy(beam.law, mixity)
     return {
-        "a0_mm": a0,
-        "half_span_mm": half_span,
-        "load_arm_mm": c,
-        "arm_thickness_mm": arm,
-        "chi": chi,
+        **against_bending_theory(history, "lever", beam.a0, beam.half_span, beam.arm,
+                                 beam.width, beam.compliance, beam.propagation, Gc,
+                                 bin_width),
+        "load_arm_mm": beam.load_arm,
+        "chi": beam.chi,
         "mixity": mixity,
         "Gc_N_per_mm": Gc,
-        "stable_growth": bool(np.all(np.diff(branch_displacement) > 0.0)),
-        **against_theory(
-            history, displacement, force, theory, float(propagation(a0)), crack,
-            a0 + 5.0 * arm, half_span - arm, Gc, history["impact_work"], bin_width,
-        ),
-        "theory_stiffness_N_per_mm": float(
-            1.0 / mmb_compliance(a0, c, half_span, material.E1, *beam[1:])
-        ),
     }  # fmt: skip

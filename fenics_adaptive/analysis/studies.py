@@ -178,24 +178,15 @@ def mmb_mixity(base: dict, mixity: float) -> dict:
         A new config table.
     """
     data = copy.deepcopy(base)
-    config = parse_config(base)
-    film = config.delaminations[0]
-    saddle = next(b for b in config.rigid_bodies if b.name == config.lever.saddle)
-    half_span = abs(saddle.position[0] - lefm.hinge_position(config))
-    arm = lefm.arm_thickness(config.laminate, film.interface)
-    material, width = config.laminate.plies[0].material, config.mesh.width
-    chi = lefm.root_rotation_correction(material)
-    beam = (material.E1, material.G12, width, arm, chi)
+    beam = lefm.MMBSpecimen.of(parse_config(base))
+    end = beam.half_span - beam.arm  # the branch's last crack
 
     def travel(load_arm: float) -> float:
-        crack = half_span - arm
-        force = lefm.mmb_propagation_force(crack, load_arm, half_span, material.E1, width, arm,
-                                           chi, config.cohesive)  # fmt: skip
-        return float(lefm.mmb_compliance(crack, load_arm, half_span, *beam) * force)
+        return float(beam.compliance(end, load_arm) * beam.propagation(end, load_arm))
 
-    load_arm = lefm.mmb_load_arm(mixity, half_span)
+    load_arm = lefm.mmb_load_arm(mixity, beam.half_span)
     lever = data["lever"]
-    scale = travel(load_arm) / travel(config.lever.load_arm)
+    scale = travel(load_arm) / travel(beam.load_arm)
     for key in ("velocity", "displacement"):
         if key in lever:
             lever[key] *= scale
