@@ -225,6 +225,33 @@ _TIME_CURVE = (
         1e6,
     ),
 )
+
+
+def _scalar_motion(subject: str) -> tuple[Key, Key]:
+    """A prescribed motion of one component: ``displacement`` (mm) or ``velocity`` (mm/s)
+    times the time curve, ``subject`` naming what moves ("" for the entry's own DOFs)."""
+    return (
+        Key(
+            "displacement",
+            "float",
+            f"{subject}displacement times the time curve (or velocity)",
+            "mm",
+            OPTIONAL,
+            -MAX_DISPLACEMENT,
+            MAX_DISPLACEMENT,
+        ),
+        Key(
+            "velocity",
+            "float",
+            f"{subject}velocity times the time curve (or displacement)",
+            "mm/s",
+            OPTIONAL,
+            -MAX_SPEED,
+            MAX_SPEED,
+        ),
+    )
+
+
 _FACE = Key(
     "face",
     "face",
@@ -460,24 +487,7 @@ SECTIONS: tuple[Section, ...] = (
         (
             _FACE,
             Key("component", "choice", "displacement component", choices=("x", "y", "z")),
-            Key(
-                "displacement",
-                "float",
-                "displacement times the time curve (or velocity)",
-                "mm",
-                OPTIONAL,
-                -MAX_DISPLACEMENT,
-                MAX_DISPLACEMENT,
-            ),
-            Key(
-                "velocity",
-                "float",
-                "velocity times the time curve (or displacement)",
-                "mm/s",
-                OPTIONAL,
-                -MAX_SPEED,
-                MAX_SPEED,
-            ),
+            *_scalar_motion(""),
             *_FACE_RANGE,
             *_TIME_CURVE,
         ),
@@ -1013,24 +1023,7 @@ SECTIONS: tuple[Section, ...] = (
                 "the node line it is hinged to (the upper arm's end, e.g. x1&top)",
             ),
             _length("load_arm", "c: from the saddle to the load point (sets the mode mixity)"),
-            Key(
-                "displacement",
-                "float",
-                "the load point's z displacement times the time curve (or velocity)",
-                "mm",
-                OPTIONAL,
-                -MAX_DISPLACEMENT,
-                MAX_DISPLACEMENT,
-            ),
-            Key(
-                "velocity",
-                "float",
-                "the load point's z velocity times the time curve (or displacement)",
-                "mm/s",
-                OPTIONAL,
-                -MAX_SPEED,
-                MAX_SPEED,
-            ),
+            *_scalar_motion("the load point's z "),
             *_TIME_CURVE,
         ),
     ),
