@@ -268,3 +268,24 @@ def assert_restarted_history(out: Path, whole: Path, atol: float = 1e-14) -> Non
     assert np.all(np.diff(resumed["time"]) > 0)
     for name, values in expected.items():
         np.testing.assert_allclose(resumed[name], values, rtol=1e-12, atol=atol, err_msg=name)
+
+
+def theory_history(load: str, a0: float, cracks, force, compliance, width: float,
+                   Gc: float) -> dict:  # fmt: skip
+    """The history columns of a bending fracture test (ENF, MMB) made from its own theory: the
+    elastic line of the crack a0 (mm) up to the first propagation force, then the branch, the
+    crack ``cracks`` (mm) carrying the loads ``force`` (N) with the compliances
+    ``compliance`` (mm/N); ``<load>_force`` and ``<load>_displacement`` (down: negative),
+    dissipation ``Gc`` (N/mm) per grown area (``width`` mm), no kinetic energy, the work put in
+    positive and rising."""
+    elastic = np.linspace(0.0, 1.0, 50)[1:]
+    initiation = force[0] * elastic
+    history = {
+        f"{load}_displacement": -np.concatenate([compliance[0] * initiation, compliance * force]),
+        f"{load}_force": np.concatenate([initiation, force]),
+        "crack_growth_area": np.concatenate([0.0 * elastic, (cracks - a0) * width]),
+        "kinetic_energy": np.zeros(len(elastic) + len(cracks)),
+    }
+    history["cohesive_dissipation"] = Gc * history["crack_growth_area"]
+    history["impact_work"] = np.cumsum(np.abs(history[f"{load}_force"]))
+    return history

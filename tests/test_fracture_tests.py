@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import theory_history
 
 from fenics_adaptive.analysis.lefm import (
     dcb_comparison,
@@ -85,19 +86,10 @@ def test_enf_comparison_of_a_history_that_follows_the_theory_finds_it_exact():
     b, h, GIIc = config.mesh.width, 1.56, config.cohesive.GIIc
     left, right = (body["position"][0] for body in data["rigid"][:2])
     L, a0 = 0.5 * (right - left), right - data["delamination"][0]["x_min"]
-    elastic = np.linspace(0.0, 1.0, 50)[1:]
     cracks = np.linspace(a0, L - 0.5, 200)
     force = enf_propagation_force(cracks, material.E1, b, h, GIIc)
     compliance = enf_compliance(cracks, L, material.E1, material.G12, b, h)
-    initiation = force[0] * elastic
-    history = {
-        "nose_displacement": -np.concatenate([compliance[0] * initiation, compliance * force]),
-        "nose_force": np.concatenate([initiation, force]),
-        "crack_growth_area": np.concatenate([0.0 * elastic, (cracks - a0) * b]),
-        "kinetic_energy": np.zeros(len(elastic) + len(cracks)),
-    }
-    history["cohesive_dissipation"] = GIIc * history["crack_growth_area"]
-    history["impact_work"] = np.cumsum(np.abs(history["nose_force"]))  # positive, rising
+    history = theory_history("nose", a0, cracks, force, compliance, b, GIIc)
     c = enf_comparison(config, history)
     assert c["stable_growth"] and c["a0_mm"] == a0 and c["half_span_mm"] == L
     assert c["peak_over_initiation"] == pytest.approx(1.0, rel=1e-12)
