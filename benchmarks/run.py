@@ -66,10 +66,14 @@ POINTS_PER_CELL = 8 * 2 * 2  # plies x in-plane points of the layered rule
 FAILURE = {"XT": 1500.0, "XC": 1200.0, "YT": 50.0, "YC": 200.0, "S12": 80.0, "G2c": 0.3, "G6c": 0.8}
 
 
-def beam_config(n_cells: int, kind: str = "adaptive", ply_damage: bool = False) -> dict:
+def beam_config(
+    n_cells: int, kind: str = "adaptive", ply_damage: bool = False, enhanced_strain: bool = True
+) -> dict:
     """The TCB beam with about ``n_cells`` cells (ny = 10 across, nx along), unloaded except
-    for a slow opening of the arms so that the forces are not trivially zero."""
+    for a slow opening of the arms so that the forces are not trivially zero;
+    ``enhanced_strain`` false: the element's compatible thickness strain alone."""
     data = tomllib.loads((ROOT / "demos" / "tcb.toml").read_text())
+    data["model"]["enhanced_strain"] = enhanced_strain
     data.pop("refinement", None)
     ny = 10 if n_cells >= 1000 else 1
     nx = max(n_cells // ny, 2)
@@ -111,14 +115,27 @@ def timed(call, repeat: int) -> tuple[float, float]:
 def bench_kernels(n_cells: int, repeat: int) -> list[dict]:
     """Internal force of unrefined cells, three ways: the UFL/FFCx form, the numba kernel
     (each cell one subelement holding all 8 plies), the numba kernel with the ply damage
-    update. Integration-point updates per second per core."""
-    rows = []
-    structure = build_structure(parse_config(beam_config(n_cells)))
+    update; the first two also without the enhanced thickness strain, for its cost.
+    Integration-point updates per second per core."""
+    rows = [row for enhanced in (True, False) for row in _elastic_rows(n_cells, repeat, enhanced)]
+    damaged = build_structure(parse_config(beam_config(n_cells, ply_damage=True)))
+    deform(damaged)
+    median, first = timed(damaged.internal_force, repeat)
+    n = damaged.base.n_owned_cells
+    rows.append(_kernel_row("numba kernel, with ply damage update", n, median, first))
+    return rows
+
+
+def _elastic_rows(n_cells: int, repeat: int, enhanced: bool) -> list[dict]:
+    """The UFL/FFCx and the numba elastic rows of ``bench_kernels``, with the enhanced
+    thickness strain or without it."""
+    structure = build_structure(parse_config(beam_config(n_cells, enhanced_strain=enhanced)))
     deform(structure)
     n = structure.base.n_owned_cells
     f = np.zeros_like(structure.base.u.x.array)
+    label = "" if enhanced else ", compatible thickness strain"
     median, first = timed(lambda: structure.base.add_internal_force(f), repeat)
-    rows.append(_kernel_row("UFL/FFCx form, elastic", n, median, first))
+    rows = [_kernel_row(f"UFL/FFCx form, elastic{label}", n, median, first)]
 
     rule = structure.rule_table.index(0, structure.laminate.n_plies)
     cells = SubelementSet(
@@ -133,12 +150,7 @@ def bench_kernels(n_cells: int, repeat: int) -> list[dict]:
         lambda: add_subelement_forces(cells, structure.X_base, X_extra, u, X_extra, fb, X_extra),
         repeat,
     )
-    rows.append(_kernel_row("numba kernel, elastic", n, median, first))
-
-    damaged = build_structure(parse_config(beam_config(n_cells, ply_damage=True)))
-    deform(damaged)
-    median, first = timed(damaged.internal_force, repeat)
-    rows.append(_kernel_row("numba kernel, with ply damage update", n, median, first))
+    rows.append(_kernel_row(f"numba kernel, elastic{label}", n, median, first))
     return rows
 
 

@@ -94,6 +94,7 @@ def build_structure(
         config.points_per_ply,
         kinematics=config.kinematics,
         shear_correction=config.shear_correction,
+        enhanced_strain=config.enhanced_strain,
     )
     motions = list(config.motions)
     cohesive = None

@@ -115,8 +115,9 @@ def test_refined_element_equals_lw_and_beats_esl(results, layup):
     for name in ("tip_deflection", "sigma_xx_plies", "tau_xz_interfaces", "sigma_zz_interfaces"):
         assert abs(refined[name]) < 1e-7, name  # the paper: matches the reference exactly
         assert abs(refined[name]) < abs(esl[name]), name
-    # ESL is stiffer (constant shear strain through the thickness) by a little, not by much
-    assert -0.03 < esl["tip_deflection"] < -0.01
+    # ESL is stiffer (constant shear strain through the thickness, no shear correction here)
+    # by a little, not by much
+    assert -0.03 < esl["tip_deflection"] < -0.005
 
 
 @pytest.mark.parametrize("layup", list(LAYUPS))

@@ -20,12 +20,17 @@ def test_packed_displacement_is_dolfinx_packing(kinematics):
     model.u.x.array[:] = rng.normal(scale=1e-2, size=model.u.x.array.shape)
 
     packed = model.packed
-    packed.update()
+    model.update_coefficients()  # u and the condensed enhanced thickness strain
     for i, form in enumerate((model.force_form, model.energy_form)):
         reference = fem.pack_coefficients(form)
         assert set(packed.coeffs[i]) == set(reference)
         for key, values in reference.items():
-            np.testing.assert_array_equal(packed.coeffs[i][key], values)
+            # DOLFINx packs zeros for a coefficient an integral does not read (the enhanced
+            # field in the shear terms); the shared array holds it for every integral
+            reads_field = np.any(values[:, 24:])
+            columns = slice(None) if reads_field else slice(0, 24)
+            np.testing.assert_array_equal(packed.coeffs[i][key][:, columns], values[:, columns])
+        assert packed.coeffs[i][key].shape == values.shape
         np.testing.assert_array_equal(packed.constants[i], fem.pack_constants(form))
     # the energy through the pre-packed data equals DOLFINx's
     energy = fem.assemble_scalar(model.energy_form)

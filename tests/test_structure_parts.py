@@ -88,7 +88,7 @@ def test_rule_table_gives_each_span_its_rule(points_per_ply):
         # one ply: two points through it whatever points_per_ply, else points_per_ply per ply
         points = points_per_ply if stop - first > 1 else 2
         zeta = sublaminate_ply_zeta(LAMINATE.ply_fractions, first, stop)
-        expected = pack_rule(zeta, stiffness[first:stop], points)
+        expected = pack_rule(zeta, stiffness[first:stop], points, enhanced=True)
         for got, want in zip(rule, expected, strict=True):
             np.testing.assert_array_equal(got, want)
     # a one-ply subelement bends with energy: its normal-term points integrate (zeta - 1/2)^2

@@ -156,9 +156,15 @@ def test_refinement_mid_run_conserves_mass_and_momentum():
     assert m1 == pytest.approx(m0, rel=1e-14)
     assert np.abs(p1 - p0).max() < 1e-12 * np.abs(p0).max()
     assert np.abs(structure.momentum() - p0).max() < 1e-10 * np.abs(p0).max()
-    # the kinetic energy the lumped masses' redistribution changed, booked as such
-    assert history[-1].refinement_energy == pytest.approx(k1 - k0, rel=1e-12)
+    # the kinetic energy the lumped masses' redistribution changed, booked as such, with the
+    # strain energy the subelements' own enhanced thickness strains changed (whose force
+    # change shifts the solver's full-step measure of the kinetic energy a little: the
+    # solver books that too, and the balance stays closed, ``energy_drift`` below)
+    potential = structure.last_refinement_potential
+    assert history[-1].refinement_energy == pytest.approx(k1 - k0 + potential, rel=1e-2)
+    assert energy_drift(history) < 1e-12
     assert abs(k1 - k0) < 1e-3 * history[0].kinetic_energy
+    assert abs(potential) < 1e-3 * history[0].kinetic_energy
 
 
 @pytest.mark.slow

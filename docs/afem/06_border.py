@@ -294,8 +294,12 @@ assert abs(slope - predicted) < 1e-6 * abs(predicted)
 #
 # Now the third cell refines too. Every cell around the x = 2 mm columns is refined, so their
 # extra nodes become free, and the border moves to x = 3 mm. The freed node already sits where
-# the newly refined cell puts it, so the strain energy does not change. Only the lumped masses
-# move. With the structure at rest no kinetic energy is booked either.
+# the newly refined cell puts it, so the compatible strain field does not change. What does
+# change, a little, is the enhanced thickness strain of the newly refined cell: the cell
+# condensed one set of parameters, its two subelements condense one set each, so at the same
+# nodal displacements the strain energy moves by about one part in ten thousand. The structure
+# books that change as refinement energy (the energy balance stays closed). The lumped masses
+# move too; with the structure at rest no kinetic energy is booked.
 
 # %%
 structure.internal_force()
@@ -309,8 +313,8 @@ print(f"\nborder columns now at x = {np.unique(X_extra[now_constrained, 0])} mm"
 print(f"strain energy before {before:.10e} mJ, after {after:.10e} mJ")
 print(f"booked refinement energy {structure.refinement_energy:.1e} mJ")
 assert np.allclose(X_extra[now_constrained, 0], 3.0)
-assert abs(after - before) < 1e-12 * before
-assert abs(structure.refinement_energy) < 1e-12 * before
+assert abs(after - before) < 2e-3 * before
+assert abs(structure.refinement_energy - (after - before)) < 1e-9 * before
 
 # %% [markdown]
 # ## At the front of a strong region the crack stays closed

@@ -36,7 +36,7 @@ from numba import njit
 
 from fenics_adaptive.adaptivity.events import Reasons, note
 from fenics_adaptive.element.geometry import quad_areas
-from fenics_adaptive.element.subelement import gather_nodes
+from fenics_adaptive.element.subelement import enhanced_parameters, gather_nodes
 from fenics_adaptive.materials.laminate import rotation_about_z
 from fenics_adaptive.materials.ply_damage import S_D, S_FT, S_MC, hashin_indices
 from fenics_adaptive.settings.adaptivity import IndicatorSettings
@@ -62,9 +62,13 @@ def _inverse_3x3(A, out):
 
 
 @njit(cache=True)
-def _ply_center_strains(X_base, X_extra, u_base, u_extra, nodes, cells, plies, fractions, out):
+def _ply_center_strains(
+    X_base, X_extra, u_base, u_extra, nodes, cells, plies, fractions, alpha_center, out
+):
     """Small strain (Voigt, engineering shears) at the in-plane centre of every ply of every
-    element, at the ply's mid-thickness, into out[cell, ply]."""
+    element, at the ply's mid-thickness, into out[cell, ply]; with the element's enhanced
+    thickness strain alpha_center[e] g(zeta) / |det J| (``alpha_center``: its parameter at the
+    in-plane centre)."""
     n_base = X_base.shape[0]
     X = np.empty((8, 3))
     u = np.empty((8, 3))
@@ -100,12 +104,17 @@ def _ply_center_strains(X_base, X_extra, u_base, u_extra, nodes, cells, plies, f
                         J[i, r] += X[a, i] * dN[a, r]
                         G[i, r] += u[a, i] * dN[a, r]
             _inverse_3x3(J, Jinv)
+            det = (
+                J[0, 0] * (J[1, 1] * J[2, 2] - J[1, 2] * J[2, 1])
+                - J[0, 1] * (J[1, 0] * J[2, 2] - J[1, 2] * J[2, 0])
+                + J[0, 2] * (J[1, 0] * J[2, 1] - J[1, 1] * J[2, 0])
+            )
             for i in range(3):
                 for r in range(3):
                     grad[i, r] = G[i, 0] * Jinv[0, r] + G[i, 1] * Jinv[1, r] + G[i, 2] * Jinv[2, r]
             out[cells[e], k, 0] = grad[0, 0]
             out[cells[e], k, 1] = grad[1, 1]
-            out[cells[e], k, 2] = grad[2, 2]
+            out[cells[e], k, 2] = grad[2, 2] + alpha_center[e] * (zeta - 0.5) / abs(det)
             out[cells[e], k, 3] = grad[1, 2] + grad[2, 1]
             out[cells[e], k, 4] = grad[0, 2] + grad[2, 0]
             out[cells[e], k, 5] = grad[0, 1] + grad[1, 0]
@@ -116,6 +125,15 @@ def ply_strains(structure) -> np.ndarray:
     shell frame, from whichever element (cell or subelement) holds the ply."""
     nodes, cells, plies = structure.elements()
     out = np.zeros((structure.base.n_owned_cells, structure.laminate.n_plies, 6))
+    table = structure.rule_table
+    alpha = np.zeros((len(nodes), 4))
+    enhanced_parameters(
+        structure.gather(nodes, "X"),
+        structure.gather(nodes, "u"),
+        table.rule_of(plies),
+        *table.packed,
+        alpha,
+    )
     _ply_center_strains(
         structure.X_base,
         structure.extra.vectors["X"].array.reshape(-1, 3),
@@ -125,6 +143,7 @@ def ply_strains(structure) -> np.ndarray:
         cells,
         plies,
         structure.laminate.ply_fractions,
+        alpha.mean(axis=1),  # alpha at the centre: the mean of its four Gauss-line values
         out,
     )
     return out

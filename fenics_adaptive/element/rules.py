@@ -47,10 +47,17 @@ class RuleTable:
     (0, 1), (0, 2), ..., (0, n), (1, 2), ... (``spans``); ``points_per_ply``: Gauss points
     through each ply of spans of more than one ply; ``shear_correction``: each span's transverse
     shear correction from the whole laminate's shear distribution
-    (``materials.laminate.shear_correction_factors``; (1, 1) without), as the UFL forms of the
+    (``materials.laminate.shear_correction_factors``; (1, 1) without), and
+    ``enhanced_strain``: the enhanced assumed thickness strain, both as the UFL forms of the
     same spans have it (``model.forms.LayeredModel.shear_factors``)."""
 
-    def __init__(self, laminate: Laminate, points_per_ply: int, shear_correction: bool = False):
+    def __init__(
+        self,
+        laminate: Laminate,
+        points_per_ply: int,
+        shear_correction: bool = False,
+        enhanced_strain: bool = True,
+    ):
         n = laminate.n_plies
         fractions = laminate.ply_fractions
         stiffness = np.array(laminate.ply_stiffnesses())
@@ -60,6 +67,7 @@ class RuleTable:
         self.n_plies = n
         self.points_per_ply = points_per_ply
         self.shear_correction = shear_correction
+        self.enhanced_strain = enhanced_strain
         self.spans: list[tuple[int, int]] = []
         self.rules: list[PackedRule] = []
         self.mass_rules: list[PackedMassRule] = []
@@ -78,7 +86,9 @@ class RuleTable:
                     if shear_correction
                     else (1.0, 1.0)
                 )
-                self.rules.append(pack_rule(zeta, stiffness[first:stop], points, factors))
+                self.rules.append(
+                    pack_rule(zeta, stiffness[first:stop], points, factors, enhanced_strain)
+                )
                 self.mass_rules.append(pack_mass_rule(zeta, density[first:stop]))
         self.packed: PackedRules = concatenate_rules(self.rules)
 

@@ -31,6 +31,32 @@ rotation gives E = 0 exactly. The selective rule applies term by term to the com
 (2 E_xz on the 1 x 2 points, 2 E_yz on the 2 x 1 points, ...): the same point sets, hence no
 shear locking in bending with large rotations either. The energy is 1/2 S : E, and the internal
 force its derivative, f . v = integral of F S : Grad v over the reference volume.
+
+Enhanced assumed thickness strain (Poisson thickness locking). With one element through the
+thickness, the compatible thickness strain E_zz is constant in zeta, while bending makes the
+in-plane strains linear in zeta: the Poisson coupling then leaves a spurious thickness stress
+linear in zeta (about nu sigma_xx in the outer plies) and the element is too stiff. Following
+the enhanced assumed strain (EAS) method of Simo and Rifai (1990) as solid-shell elements use it
+for the thickness strain (Klinkel, Gruttmann and Wagner 1999, Comput. Struct. 71; Vu-Quoc and
+Tan 2003, CMAME 192; Hauptmann and Schweizerhof 1998, IJNME 42), E_zz gets an enhanced part
+linear in zeta:
+
+    E_zz += alpha(xi, eta) g(zeta) / |det J|,    g = zeta - 1/2 (``enhanced_mode``),
+
+alpha bilinear in (xi, eta), i.e. one parameter per line of the 2 x 2 in-plane points of the
+"normal" term (four per element), the only points where E_zz enters the energy. Dividing by
+|det J| (Simo-Rifai's j0/j) makes the enhanced strain orthogonal to every constant stress, so
+the patch test holds on any hexahedron; the four modes g, g xi, g eta, g xi eta are not in the
+compatible E_zz (constant in zeta where the top and bottom faces are parallel), so the element
+gains no zero-energy mode. Each alpha is condensed on its own line: stationarity, sum over the
+line's points of w g S_zz = 0, is linear in alpha for a St. Venant-Kirchhoff ply (small or
+finite kinematics alike), hence alpha = -r / h with r = sum w g S_zz(compatible E) and
+h = sum w g^2 C_zz,zz / |det J|. The element only loses stiffness (a condensed constraint), so
+its highest frequency cannot rise and the stable time step estimates stay valid. Cost: the
+numba kernels fold the condensation into their one pass over a line (a few multiply-adds per
+point); the UFL forms assemble the residual r of every line once per force evaluation
+(``model.forms``). With matrix cracks the thickness stress is piecewise linear in alpha, and the
+damaged kernel takes Newton steps until the open points stop changing.
 """
 
 from __future__ import annotations
@@ -66,6 +92,33 @@ def gauss_legendre_01(n: int) -> tuple[np.ndarray, np.ndarray]:
     """n-point Gauss-Legendre rule on [0, 1]."""
     x, w = np.polynomial.legendre.leggauss(n)
     return 0.5 * (x + 1.0), 0.5 * w
+
+
+def enhanced_mode(zeta: np.ndarray) -> np.ndarray:
+    """g(zeta) = zeta - 1/2: the through-thickness shape of the enhanced thickness strain (module
+    docstring); its integral over the element's reference thickness [0, 1] is zero."""
+    return np.asarray(zeta, dtype=np.float64) - 0.5
+
+
+# the enhanced thickness strain's in-plane parameters: one per line of the "normal" term's
+# 2 x 2 points, its value there (Lagrange through GAUSS_2 in xi and in eta)
+ENHANCED_LINES = np.array([[a, b] for a in GAUSS_2 for b in GAUSS_2])
+
+
+def enhanced_nodal_map(points: np.ndarray) -> np.ndarray:
+    """(n, 4) map T from the four line parameters alpha (``ENHANCED_LINES``) to the values of
+    alpha(xi, eta) g(zeta) at reference ``points`` (n, 3): a trilinear field, so its values at
+    the 8 vertices of a Q1 element give it exactly (``model.forms``)."""
+    g1, g2 = GAUSS_2
+
+    def lagrange(x, node):
+        return (x - (g2 if node == g1 else g1)) / (node - (g2 if node == g1 else g1))
+
+    points = np.asarray(points, dtype=np.float64)
+    T = np.empty((len(points), len(ENHANCED_LINES)))
+    for k, (a, b) in enumerate(ENHANCED_LINES):
+        T[:, k] = lagrange(points[:, 0], a) * lagrange(points[:, 1], b)
+    return T * enhanced_mode(points[:, 2])[:, None]
 
 
 def ply_rules(
@@ -233,19 +286,26 @@ def strain_energy_form(
     cells: np.ndarray | None = None,
     selective: bool = True,
     kinematics: str = "small",
+    enhanced: ufl.Coefficient | None = None,
 ) -> ufl.Form:
     """Strain energy (N mm) of the layered solid-shell with the selective (ANS) rule over
     ``cells`` (default: all owned cells), as a UFL form in the displacement ``u``. The internal
     force is its derivative. ``selective=False`` integrates the transverse shear with the full
     2x2 rule instead: the plain hexahedron, which locks in bending (kept to show what the
     selective rule buys). ``kinematics``: "small" (1/2 sigma : eps) or "finite" (1/2 S : E with
-    the Green-Lagrange strain E; see the module docstring)."""
+    the Green-Lagrange strain E; see the module docstring). ``enhanced``: a scalar Q1 field
+    alpha(xi, eta) g(zeta) per cell (``enhanced_nodal_map``), whose value / |det J| is added
+    to the thickness strain (the enhanced assumed strain; its parameters are condensed by the
+    caller); None: the compatible strain alone."""
     mesh = u.function_space.mesh
     kernels = kernels if kernels is not None else SeparateKernels(mesh)
     cells = cells if cells is not None else owned_cells(mesh)
     energy = 0
     eps = voigt_strain(u, kinematics)
-    e_normal = ufl.as_vector([eps[i] for i in NORMAL])
+    e_zz = eps[2]
+    if enhanced is not None:
+        e_zz = e_zz + enhanced / abs(ufl.JacobianDeterminant(mesh))
+    e_normal = ufl.as_vector([eps[0], eps[1], e_zz, eps[5]])  # NORMAL's components
     for group in groups:
         C = group.stiffness
         check_monoclinic(C)

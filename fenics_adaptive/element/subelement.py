@@ -139,6 +139,9 @@ class PackedRule(NamedTuple):
     position_of_point: np.ndarray  # (n,) int64 index into ``positions``
     positions: np.ndarray  # (n_pos, 2) in-plane (xi, eta) of the points' vertical lines
     stiffness: np.ndarray  # (n_plies, 6, 6) shell-frame stiffness of each ply, MPa
+    # (n,) shape of the enhanced thickness strain at each point: zeta - 1/2 on the "normal"
+    # points of a rule with it (``solid_shell.enhanced_mode``), 0 elsewhere and without it
+    enhanced_mode: np.ndarray
 
     def coordinates(self) -> np.ndarray:
         """(n, 3) reference coordinates (xi, eta, zeta) of the points on [0, 1]^3."""
@@ -150,6 +153,7 @@ def pack_rule(
     ply_stiffness: np.ndarray,
     points_per_ply: int,
     shear_factors: tuple[float, float] = (1.0, 1.0),
+    enhanced: bool = False,
 ) -> PackedRule:
     """Pack the selective solid-shell rule of a (sub)element.
 
@@ -162,7 +166,8 @@ def pack_rule(
     points through the thickness of each ply. The points are those of ``solid_shell.ply_rules``,
     ply by ply, and ply k uses ``stiffness[k]``. ``shear_factors``: the (sub)element's transverse
     shear correction (k_xz, k_yz), on the weights of its shear terms
-    (``solid_shell.shear_weights``)."""
+    (``solid_shell.shear_weights``). ``enhanced``: the enhanced assumed thickness strain
+    (``solid_shell`` module docstring), condensed by the kernels line by line."""
     bounds = _ply_bounds(ply_zeta)
     C = np.ascontiguousarray(ply_stiffness, dtype=np.float64)
     if C.shape != (len(bounds), 6, 6):
@@ -188,14 +193,18 @@ def pack_rule(
     )
     # line by line; the stable sort keeps each line bottom to top
     order = np.argsort(position_of_point, kind="stable")
+    terms = np.concatenate(terms)[order]
+    zeta = np.ascontiguousarray(points[order, 2], dtype=np.float64)
+    mode = solid_shell.enhanced_mode(zeta) if enhanced else np.zeros_like(zeta)
     return PackedRule(
-        zeta=np.ascontiguousarray(points[order, 2], dtype=np.float64),
+        zeta=zeta,
         weights=np.concatenate(weights).astype(np.float64)[order],
-        terms=np.concatenate(terms)[order],
+        terms=terms,
         ply_of_point=np.concatenate(plies)[order],
         position_of_point=position_of_point[order],
         positions=IN_PLANE_POSITIONS.copy(),
         stiffness=C,
+        enhanced_mode=np.where(terms == TERM_NORMAL, mode, 0.0),
     )
 
 
@@ -213,6 +222,7 @@ class PackedRules(NamedTuple):
     position_of_point: np.ndarray
     positions: np.ndarray
     stiffness: np.ndarray
+    enhanced_mode: np.ndarray
 
 
 def concatenate_rules(rules: Sequence[PackedRule]) -> PackedRules:
@@ -236,6 +246,7 @@ def concatenate_rules(rules: Sequence[PackedRule]) -> PackedRules:
         position_of_point=np.concatenate([r.position_of_point for r in rules]),
         positions=rules[0].positions.copy(),
         stiffness=np.ascontiguousarray(np.concatenate([r.stiffness for r in rules])),
+        enhanced_mode=np.concatenate([r.enhanced_mode for r in rules]),
     )
 
 
@@ -538,6 +549,29 @@ def _add_point_moments(m, n, P, z):
 
 
 @njit(inline="always")
+def _add_scaled_moments(m, n, a, mc, nc):
+    """(m + a mc, n + a nc) of line moments (``_add_point_moments``)."""
+    return (
+        m[0] + a * mc[0],
+        m[1] + a * mc[1],
+        m[2] + a * mc[2],
+        m[3] + a * mc[3],
+        m[4] + a * mc[4],
+        m[5] + a * mc[5],
+        m[6] + a * mc[6],
+        m[7] + a * mc[7],
+        m[8] + a * mc[8],
+    ), (
+        n[0] + a * nc[0],
+        n[1] + a * nc[1],
+        n[2] + a * nc[2],
+        n[3] + a * nc[3],
+        n[4] + a * nc[4],
+        n[5] + a * nc[5],
+    )
+
+
+@njit(inline="always")
 def _add_line_moments(f_out, xi, eta, m, n):
     """Add one line's moments m = sum P (9-tuple) and n = sum zeta P (the 6 entries of columns
     0 and 1) to the derivatives F_m (8, 3) with respect to the monomial coefficients of u:
@@ -570,6 +604,7 @@ def _element_force_kinematics(
     position_of_point,
     positions,
     stiffness,
+    enhanced_mode,
     work,
     line,
     f_out,
@@ -614,6 +649,14 @@ def _element_force_kinematics(
         m = (0.0,) * 9
         n = (0.0,) * 6
         if term == TERM_NORMAL:
+            # the enhanced thickness strain of this line, alpha g / |det J| at each point,
+            # condensed in the same pass: its stationarity sum w g szz(alpha) = 0 is linear in
+            # alpha, so alpha = -r / h from the compatible stress, and the stress it adds,
+            # C[:, 2] alpha g / |det J|, adds alpha (mc, nc) to the line's moments
+            r = 0.0
+            h = 0.0
+            mc = (0.0,) * 9
+            nc = (0.0,) * 6
             for pp in range(p, end):
                 z = zeta[pp]
                 wd, K, H, strain = _point_kinematics(line, z, weights[pp], maps, pp - start, finite)
@@ -643,6 +686,26 @@ def _element_force_kinematics(
                     _normal_stress_map(wd * sxx, wd * syy, wd * szz, wd * sxy, K), H, finite
                 )
                 m, n = _add_point_moments(m, n, P, z)
+                if maps is None:  # the damaged kernel condenses its strains in ``maps``
+                    wg = weights[pp] * enhanced_mode[pp]
+                    r += wg * szz
+                    h += wg * wg * stiffness[k, 2, 2] / wd
+                    Pc = _first_piola(
+                        _normal_stress_map(
+                            wg * stiffness[k, 0, 2],
+                            wg * stiffness[k, 1, 2],
+                            wg * stiffness[k, 2, 2],
+                            wg * stiffness[k, 5, 2],
+                            K,
+                        ),
+                        H,
+                        finite,
+                    )
+                    mc, nc = _add_point_moments(mc, nc, Pc, z)
+            if h > 0.0:
+                alpha = -r / h
+                energy -= 0.5 * r * r / h  # alpha r + 1/2 alpha^2 h
+                m, n = _add_scaled_moments(m, n, alpha, mc, nc)
         else:
             for pp in range(p, end):
                 z = zeta[pp]
@@ -683,6 +746,7 @@ def element_force_kernel(
     position_of_point,
     positions,
     stiffness,
+    enhanced_mode,
     work,
     line,
     f_out,
@@ -708,6 +772,7 @@ def element_force_kernel(
             position_of_point,
             positions,
             stiffness,
+            enhanced_mode,
             work,
             line,
             f_out,
@@ -728,6 +793,7 @@ def element_force_kernel(
         position_of_point,
         positions,
         stiffness,
+        enhanced_mode,
         work,
         line,
         f_out,
@@ -749,6 +815,7 @@ def solid_shell_force(
     position_of_point,
     positions,
     stiffness,
+    enhanced_mode,
     f_out,
     finite=False,
 ):
@@ -774,6 +841,7 @@ def solid_shell_force(
         position_of_point,
         positions,
         stiffness,
+        enhanced_mode,
         work,
         line,
         f_out,
@@ -797,6 +865,7 @@ def solid_shell_forces(
     position_of_point,
     positions,
     stiffness,
+    enhanced_mode,
     f_all,
     finite=False,
 ):
@@ -827,6 +896,7 @@ def solid_shell_forces(
             position_of_point,
             positions,
             stiffness,
+            enhanced_mode,
             work,
             line,
             f_all[e],
@@ -836,6 +906,62 @@ def solid_shell_forces(
             finite,
         )
     return energy
+
+
+@njit(cache=True, **KERNEL_OPTIONS)
+def enhanced_parameters(
+    X_all,
+    u_all,
+    rule_of_element,
+    rule_offsets,
+    zeta,
+    weights,
+    terms,
+    ply_of_point,
+    position_of_point,
+    positions,
+    stiffness,
+    enhanced_mode,
+    out,
+):
+    """The condensed enhanced thickness strain parameters alpha (one per line of the "normal"
+    term's points, in the rule's line order) of undamaged (sub)elements into ``out`` (ne, 4),
+    as ``solid_shell_forces`` condenses them (zero for a rule without the enhanced strain).
+    The enhanced thickness strain at (xi, eta, zeta) is alpha(xi, eta) g(zeta) / |det J|,
+    alpha bilinear through the four lines (``solid_shell`` module docstring). Arguments as
+    ``solid_shell_forces(X_all, u_all, rule_of_element, *rules, out)``."""
+    work = np.empty((2, 8, 3))
+    line = np.empty((4, 3, 3))
+    for e in range(X_all.shape[0]):
+        start = rule_offsets[rule_of_element[e]]
+        stop = rule_offsets[rule_of_element[e] + 1]
+        _monomials(X_all[e], work[0])
+        _monomials(u_all[e], work[1])
+        for j in range(out.shape[1]):
+            out[e, j] = 0.0
+        n_lines = 0
+        p = start
+        while p < stop:
+            end = _line_end(position_of_point, p, stop)
+            if terms[p] == TERM_NORMAL:
+                q = position_of_point[p]
+                _fill_line(work[0], work[1], positions[q, 0], positions[q, 1], line)
+                r = 0.0
+                h = 0.0
+                for pp in range(p, end):
+                    wd, _, _, strain = _point_kinematics(
+                        line, zeta[pp], weights[pp], None, 0, False
+                    )
+                    exx, eyy, ezz, _, _, gxy = strain
+                    k = ply_of_point[pp]
+                    szz = stiffness[k, 2, 0] * exx + stiffness[k, 2, 1] * eyy
+                    szz += stiffness[k, 2, 2] * ezz + stiffness[k, 2, 5] * gxy
+                    wg = weights[pp] * enhanced_mode[pp]
+                    r += wg * szz
+                    h += wg * wg * stiffness[k, 2, 2] / wd
+                out[e, n_lines] = -r / h if h > 0.0 else 0.0
+                n_lines += 1
+            p = end
 
 
 @njit(cache=True)
@@ -925,29 +1051,9 @@ N_MAPS = 16
 
 
 @njit(inline="always", **KERNEL_OPTIONS)
-def _ply_mean_strains(
-    X,
-    u,
-    start,
-    stop,
-    zeta,
-    weights,
-    terms,
-    ply_of_point,
-    position_of_point,
-    positions,
-    work,
-    line,
-    maps,
-    strains,
-    volumes,
-):
-    """Mean shell-frame strain (xx, yy, zz, yz, xz, xy; engineering shears) of each ply of one
-    element (points start:stop) into ``strains[j]``, j = ply_of_point[p] - ply_of_point[start]:
-    xx, yy, zz, xy averaged over the ply's "normal" points, xz over its shear_xz points, yz over
-    its shear_yz points, each weighted by w |det J|. Leaves w |det J|, J^-1 and the strain of
-    every point in ``maps`` (column p - start; layout at ``N_MAPS``) for the force pass. Scratch:
-    ``volumes`` (>= n_plies, 3)."""
+def _point_maps(X, u, start, stop, zeta, weights, position_of_point, positions, work, line, maps):
+    """w |det J|, J^-1 and the compatible small strain of every point of one element (points
+    start:stop) into ``maps`` (column p - start; layout at ``N_MAPS``)."""
     bx = work[0]
     bu = work[1]
     _monomials(X, bx)
@@ -957,30 +1063,90 @@ def _ply_mean_strains(
         end = _line_end(position_of_point, p, stop)
         q = position_of_point[p]
         _fill_line(bx, bu, positions[q, 0], positions[q, 1], line)
-        # a vectorised loop into contiguous rows; the per-ply sums follow, scalar
+        # a vectorised loop into contiguous rows
         for pp in range(p, end):
             z = zeta[pp]
             det, K = _inverse_jacobian(line, z)
             strain = _strain(_matmul3(_displacement_gradient(line, z), K), False)
-            wd = weights[pp] * abs(det)
             row = pp - start
-            maps[0, row] = wd
-            maps[1, row] = K[0]
-            maps[2, row] = K[1]
-            maps[3, row] = K[2]
-            maps[4, row] = K[3]
-            maps[5, row] = K[4]
-            maps[6, row] = K[5]
-            maps[7, row] = K[6]
-            maps[8, row] = K[7]
-            maps[9, row] = K[8]
-            maps[10, row] = strain[0]
-            maps[11, row] = strain[1]
-            maps[12, row] = strain[2]
-            maps[13, row] = strain[3]
-            maps[14, row] = strain[4]
-            maps[15, row] = strain[5]
+            maps[0, row] = weights[pp] * abs(det)
+            for a in range(9):
+                maps[1 + a, row] = K[a]
+            for a in range(6):
+                maps[10 + a, row] = strain[a]
         p = end
+
+
+# Newton steps of the enhanced strain's condensation in a line with open matrix cracks (the
+# thickness stress is piecewise linear in alpha: a step is exact once the open points stay)
+CONDENSATION_STEPS = 8
+
+
+@njit(inline="always", **KERNEL_OPTIONS)
+def _condense_enhanced_strain(
+    start,
+    stop,
+    weights,
+    terms,
+    ply_of_point,
+    position_of_point,
+    stiffness,
+    enhanced_mode,
+    opening,
+    opening_scale,
+    maps,
+):
+    """Add the condensed enhanced thickness strain alpha g / |det J| of each "normal" line to
+    the strains in ``maps`` (``_point_maps``): alpha makes sum w g szz vanish on the line, with
+    ``stiffness`` and, where ``opening_scale`` > 0 and the crack is open, its opening (as in
+    ``element_force_kernel``). Lines without the enhanced strain (g = 0) are left as they
+    are. Whatever enhanced strain ``maps`` already holds is corrected, not added to."""
+    p = start
+    while p < stop:
+        end = _line_end(position_of_point, p, stop)
+        if terms[p] == TERM_NORMAL:
+            previous = -1
+            for _ in range(CONDENSATION_STEPS):
+                r = 0.0
+                h = 0.0
+                open_points = 0
+                for pp in range(p, end):
+                    row = pp - start
+                    k = ply_of_point[pp]
+                    exx = maps[10, row]
+                    eyy = maps[11, row]
+                    ezz = maps[12, row]
+                    gxy = maps[15, row]
+                    szz = stiffness[k, 2, 0] * exx + stiffness[k, 2, 1] * eyy
+                    szz += stiffness[k, 2, 2] * ezz + stiffness[k, 2, 5] * gxy
+                    dszz = stiffness[k, 2, 2]
+                    if opening_scale is not None:
+                        s22 = opening[k, 0] * exx + opening[k, 1] * eyy
+                        s22 += opening[k, 2] * ezz + opening[k, 5] * gxy
+                        if opening_scale[k] > 0.0 and s22 > 0.0:
+                            szz -= opening_scale[k] * s22 * opening[k, 2]
+                            dszz -= opening_scale[k] * opening[k, 2] * opening[k, 2]
+                            open_points += (pp - p + 1) * (pp - p + 1)
+                    wg = weights[pp] * enhanced_mode[pp]
+                    r += wg * szz
+                    h += wg * wg * dszz / maps[0, row]
+                if h <= 0.0 or open_points == previous:
+                    break
+                previous = open_points
+                alpha = -r / h
+                for pp in range(p, end):
+                    row = pp - start
+                    maps[12, row] += alpha * weights[pp] * enhanced_mode[pp] / maps[0, row]
+        p = end
+
+
+@njit(inline="always", **KERNEL_OPTIONS)
+def _ply_means(start, stop, terms, ply_of_point, maps, strains, volumes):
+    """Mean shell-frame strain (xx, yy, zz, yz, xz, xy; engineering shears) of each ply of one
+    element (points start:stop) into ``strains[j]``, j = ply_of_point[p] - ply_of_point[start],
+    from the strains in ``maps``: xx, yy, zz, xy averaged over the ply's "normal" points, xz
+    over its shear_xz points, yz over its shear_yz points, each weighted by w |det J|.
+    Scratch: ``volumes`` (>= n_plies, 3)."""
     k0 = ply_of_point[start]
     n_local = ply_of_point[stop - 1] - k0 + 1
     for j in range(n_local):
@@ -1016,6 +1182,31 @@ def _ply_mean_strains(
 
 
 @njit(inline="always", **KERNEL_OPTIONS)
+def _secant_stiffness(
+    k0, n_local, state, stiffness, degradation, ply_params, degraded, dirty, opening_scale
+):
+    """Each ply's closed-crack secant stiffness into ``degraded`` and its crack opening
+    factor into ``opening_scale``, from its damage ``state`` (rule-local rows)."""
+    for j in range(n_local):
+        k = k0 + j
+        d = (1.0 - RESIDUAL) * state[j, S_D]
+        if d == 0.0:
+            opening_scale[k] = 0.0
+            if dirty[k]:
+                for a in range(6):
+                    for b in range(6):
+                        degraded[k, a, b] = stiffness[k, a, b]
+                dirty[k] = False
+            continue
+        dirty[k] = True
+        # the closed-crack stiffness; the kernel opens the crack point by point
+        for a in range(6):
+            for b in range(6):
+                degraded[k, a, b] = stiffness[k, a, b] - d * degradation[k, 1, a, b]
+        opening_scale[k] = d / ply_params[k, P_C22]
+
+
+@njit(inline="always", **KERNEL_OPTIONS)
 def _element_force_damaged(
     X,
     u,
@@ -1028,6 +1219,7 @@ def _element_force_damaged(
     position_of_point,
     positions,
     stiffness,
+    enhanced_mode,
     strain_to_stress,
     degradation,
     ply_params,
@@ -1051,25 +1243,29 @@ def _element_force_damaged(
     says which of its rows differ from ``stiffness`` (elements sharing a rule share rows).
     Other scratch: ``maps`` (N_MAPS, >= stop - start), ``strains`` (>= n_local, 6),
     ``volumes`` (>= n_local, 3), ``sigma`` (6,)."""
-    _ply_mean_strains(
-        X,
-        u,
+    _point_maps(X, u, start, stop, zeta, weights, position_of_point, positions, work, line, maps)
+    k0 = ply_of_point[start]
+    n_local = ply_of_point[stop - 1] - k0 + 1
+    opening = strain_to_stress[:, 1, :]
+    # the damage is driven by the strain condensed with the plies' damage so far, and the
+    # force uses the strain condensed again with the updated damage
+    _secant_stiffness(
+        k0, n_local, state, stiffness, degradation, ply_params, degraded, dirty, opening_scale
+    )
+    _condense_enhanced_strain(
         start,
         stop,
-        zeta,
         weights,
         terms,
         ply_of_point,
         position_of_point,
-        positions,
-        work,
-        line,
+        degraded,
+        enhanced_mode,
+        opening,
+        opening_scale,
         maps,
-        strains,
-        volumes,
     )
-    k0 = ply_of_point[start]
-    n_local = ply_of_point[stop - 1] - k0 + 1
+    _ply_means(start, stop, terms, ply_of_point, maps, strains, volumes)
     for j in range(n_local):
         k = k0 + j
         for a in range(6):
@@ -1078,21 +1274,22 @@ def _element_force_damaged(
                 s += strain_to_stress[k, a, b] * strains[j, b]
             sigma[a] = s
         ply_damage_update(sigma, ply_params[k], band_width[j], state[j])
-        d = (1.0 - RESIDUAL) * state[j, S_D]
-        if d == 0.0:
-            opening_scale[k] = 0.0
-            if dirty[k]:
-                for a in range(6):
-                    for b in range(6):
-                        degraded[k, a, b] = stiffness[k, a, b]
-                dirty[k] = False
-            continue
-        dirty[k] = True
-        # the closed-crack stiffness; the kernel opens the crack point by point
-        for a in range(6):
-            for b in range(6):
-                degraded[k, a, b] = stiffness[k, a, b] - d * degradation[k, 1, a, b]
-        opening_scale[k] = d / ply_params[k, P_C22]
+    _secant_stiffness(
+        k0, n_local, state, stiffness, degradation, ply_params, degraded, dirty, opening_scale
+    )
+    _condense_enhanced_strain(
+        start,
+        stop,
+        weights,
+        terms,
+        ply_of_point,
+        position_of_point,
+        degraded,
+        enhanced_mode,
+        opening,
+        opening_scale,
+        maps,
+    )
     return element_force_kernel(
         X,
         u,
@@ -1105,10 +1302,11 @@ def _element_force_damaged(
         position_of_point,
         positions,
         degraded,
+        enhanced_mode,
         work,
         line,
         f_out,
-        strain_to_stress[:, 1, :],
+        opening,
         opening_scale,
         maps,
         False,
@@ -1126,6 +1324,7 @@ def solid_shell_force_damaged(
     position_of_point,
     positions,
     stiffness,
+    enhanced_mode,
     strain_to_stress,
     degradation,
     ply_params,
@@ -1156,6 +1355,7 @@ def solid_shell_force_damaged(
         position_of_point,
         positions,
         stiffness,
+        enhanced_mode,
         strain_to_stress,
         degradation,
         ply_params,
@@ -1188,6 +1388,7 @@ def add_damaged_subelement_forces(
     position_of_point,
     positions,
     stiffness,
+    enhanced_mode,
     strain_to_stress,
     degradation,
     ply_params,
@@ -1254,6 +1455,7 @@ def add_damaged_subelement_forces(
             position_of_point,
             positions,
             stiffness,
+            enhanced_mode,
             strain_to_stress,
             degradation,
             ply_params,
@@ -1275,19 +1477,15 @@ def add_damaged_subelement_forces(
 
 
 def ply_mean_strains(X: np.ndarray, u: np.ndarray, rule: PackedRule) -> np.ndarray:
-    """(n_plies, 6) mean shell-frame strain of each ply of one (sub)element, as the damaged
-    kernels sample it (plain wrapper for tests and post-processing)."""
+    """(n_plies, 6) mean shell-frame strain of each ply of one undamaged (sub)element, as the
+    damaged kernels sample it (its enhanced thickness strain condensed with the plies'
+    stiffness; plain wrapper for tests and post-processing)."""
     n_plies = rule.stiffness.shape[0]
     strains = np.empty((n_plies, 6))
     _ply_mean_strains_one(
         np.ascontiguousarray(X, dtype=np.float64),
         np.ascontiguousarray(u, dtype=np.float64),
-        rule.zeta,
-        rule.weights,
-        rule.terms,
-        rule.ply_of_point,
-        rule.position_of_point,
-        rule.positions,
+        *rule,
         strains,
         np.empty((n_plies, 3)),
     )
@@ -1296,22 +1494,35 @@ def ply_mean_strains(X: np.ndarray, u: np.ndarray, rule: PackedRule) -> np.ndarr
 
 @njit(cache=True, **KERNEL_OPTIONS)
 def _ply_mean_strains_one(
-    X, u, zeta, weights, terms, ply_of_point, position_of_point, positions, strains, volumes
+    X,
+    u,
+    zeta,
+    weights,
+    terms,
+    ply_of_point,
+    position_of_point,
+    positions,
+    stiffness,
+    enhanced_mode,
+    strains,
+    volumes,
 ):
-    _ply_mean_strains(
-        X,
-        u,
+    stop = weights.shape[0]
+    maps = np.empty((N_MAPS, stop))
+    work = np.empty((2, 8, 3))
+    line = np.empty((4, 3, 3))
+    _point_maps(X, u, 0, stop, zeta, weights, position_of_point, positions, work, line, maps)
+    _condense_enhanced_strain(
         0,
-        weights.shape[0],
-        zeta,
+        stop,
         weights,
         terms,
         ply_of_point,
         position_of_point,
-        positions,
-        np.empty((2, 8, 3)),
-        np.empty((4, 3, 3)),
-        np.empty((N_MAPS, weights.shape[0])),
-        strains,
-        volumes,
+        stiffness,
+        enhanced_mode,
+        None,
+        None,
+        maps,
     )
+    _ply_means(0, stop, terms, ply_of_point, maps, strains, volumes)

@@ -8,7 +8,8 @@ layer per sublaminate, each carrying its own plies. Both are the same object her
 
 ``kinematics`` ("small" or "finite", see ``solid_shell``) selects the strain measure of the UFL
 forms; the adaptive model's numba subelements read the same attribute, so the two paths always
-use the same kinematics.
+use the same kinematics. Likewise ``enhanced_strain``, the enhanced assumed thickness strain
+(``solid_shell`` module docstring), condensed before each assembly (``CondensedThicknessStrain``).
 """
 
 from __future__ import annotations
@@ -63,6 +64,9 @@ class LayeredModel:
     kinematics: str = "small"  # "small" | "finite" (solid_shell.KINEMATICS)
     # transverse shear correction of each layer's elements (laminate.shear_correction_factors)
     shear_correction: bool = False
+    # the enhanced assumed thickness strain (no Poisson thickness locking), condensed per cell
+    enhanced_strain: bool = True
+    enhanced: CondensedThicknessStrain | None = None
 
     @property
     def finite(self) -> bool:
@@ -95,17 +99,25 @@ class LayeredModel:
         self.ufl_cells = [np.asarray(c, dtype=np.int32) for c in cells_per_layer]
         v = ufl.TestFunction(self.V)
         kernels = solid_shell.SeparateKernels(self.mesh)
+        field = None
+        if self.enhanced_strain:
+            field = fem.Function(fem.functionspace(self.mesh, ("DG", 1)), name="enhanced_zz")
         energy = 0
         factors = self.shear_factors()
         for laminate, cells, k in zip(self.layer_laminates, self.ufl_cells, factors, strict=True):
             groups = solid_shell.ply_groups(laminate, self.points_per_ply, k)
             energy += solid_shell.strain_energy_form(
-                self.u, groups, kernels, cells, self.selective, self.kinematics
+                self.u, groups, kernels, cells, self.selective, self.kinematics, field
             )
+        self.energy_ufl = energy
         self.force_ufl = ufl.derivative(energy, self.u, v)
         self.force_form = fem.form(self.force_ufl, jit_options=JIT_OPTIONS)
         self.energy_form = fem.form(energy, jit_options=JIT_OPTIONS)
-        self.packed = PackedDisplacement([self.force_form, self.energy_form], self.u, self.V)
+        self.packed = PackedDisplacement([self.force_form, self.energy_form], self.u, self.V, field)
+        self.enhanced = None
+        if field is not None:
+            cells = np.concatenate(self.ufl_cells) if self.ufl_cells else np.zeros(0, np.int32)
+            self.enhanced = CondensedThicknessStrain(energy, field, self.u, self.V, cells)
 
     @property
     def laminate(self) -> Laminate:
@@ -139,10 +151,12 @@ class LayeredModel:
 
     def update_coefficients(self) -> None:
         """The per-step pre-pass of the forms: pack what their kernels read that depends on
-        the displacement (``PackedDisplacement``). A per-cell element parameter computed from
-        u before the assembly (an enhanced-strain multiplier, say) is computed and packed here,
-        so that the force and the energy both see it."""
+        the displacement (``PackedDisplacement``), and condense the enhanced thickness strain
+        of every UFL cell from it, so that the force and the energy both see it."""
         self.packed.update()
+        if self.enhanced is not None:
+            self.enhanced.condense()
+            self.packed.set_field(self.enhanced.nodal_values)
 
     def assemble_internal_force(self, out: np.ndarray) -> None:
         """Add this rank's share of f_int(u) (N) over the UFL cells into ``out`` (owned + ghost
@@ -206,12 +220,15 @@ def build_model(
     selective: bool = True,
     kinematics: str = "small",
     shear_correction: bool = False,
+    enhanced_strain: bool = True,
 ) -> LayeredModel:
     """``selective=False`` gives the plain fully integrated hexahedron (locks; for comparison).
     ``kinematics``: "small" (linear strain) or "finite" (total Lagrangian, Green-Lagrange).
     ``shear_correction``: the laminate's transverse shear correction on each layer's elements
     (``materials.laminate.shear_correction_factors``); off, the constant shear strain of the
-    element carries the plies' full shear moduli."""
+    element carries the plies' full shear moduli. ``enhanced_strain``: the enhanced assumed
+    thickness strain (``solid_shell`` module docstring); off, the element has Poisson thickness
+    locking in bending (kept for comparison)."""
     if kinematics not in solid_shell.KINEMATICS:
         raise ValueError(
             f"kinematics must be one of {', '.join(solid_shell.KINEMATICS)} (got {kinematics!r})"
@@ -242,6 +259,7 @@ def build_model(
         mass=np.zeros(0),
         kinematics=kinematics,
         shear_correction=shear_correction,
+        enhanced_strain=enhanced_strain,
     )
     cells = [model.layer_cells(k) for k in range(len(layer_laminates))]
     model.set_ufl_cells(cells)
@@ -274,47 +292,74 @@ def _gather_cell_values(u, cell_dofs, out):
                 out[r, 3 * a + c] = u[3 * cell_dofs[r, a] + c]
 
 
+@njit(cache=True)
+def _gather_rows(values, rows, out, offset):
+    """out[r, offset + j] = values[rows[r], j]: a per-cell field as FFCx kernels read it."""
+    for r in range(rows.shape[0]):
+        for j in range(values.shape[1]):
+            out[r, offset + j] = values[rows[r], j]
+
+
 class PackedDisplacement:
-    """The constants and the packed displacement of the model's forms (force, energy), kept
-    between steps.
+    """The constants and the packed coefficients of the model's forms (force, energy), kept
+    between steps: the displacement u and, with the enhanced thickness strain, its per-cell
+    ``field`` (a scalar DG Q1 function).
 
     DOLFINx packs every coefficient of every integral on each assembly call. The forms have
     several integrals over the same cells (one kernel per custom quadrature rule, see
     ``solid_shell.SeparateKernels``), each with its own copy of u, and their constants (the ply
     stiffnesses) never change. Here the constants are packed once, and u once per call of
-    ``update`` into one array per set of cells, shared by every integral of every form over
-    those cells. ``constants[i]`` and ``coeffs[i]`` are what ``forms[i]``'s assembly takes.
+    ``update`` (the field once per ``set_field``) into one array per set of cells, shared by
+    every integral of every form over those cells. ``constants[i]`` and ``coeffs[i]`` are what
+    ``forms[i]``'s assembly takes.
 
-    The layout is DOLFINx's for a blocked P1 space: per cell, the 8 nodes in dofmap order, 3
-    components each. ``tests/test_model.py`` checks it against ``fem.pack_coefficients``; this
-    class does not call that at set-up, because it packs every integral at once (100 MiB for a
-    40 000-cell ESL plate, 400 MiB for its layerwise model) and the freed memory stays with
-    the process."""
+    The layout is DOLFINx's: per cell, the coefficients in the form's order, each in its cell
+    dofmap order (u: the 8 nodes, 3 components each; the field: its 8 cell values).
+    ``tests/test_model.py`` checks it against ``fem.pack_coefficients``; this class does not
+    call that at set-up, because it packs every integral at once (100 MiB for a 40 000-cell
+    ESL plate, 400 MiB for its layerwise model) and the freed memory stays with the process."""
 
-    def __init__(self, forms: list[fem.Form], u: fem.Function, V: fem.FunctionSpace):
+    def __init__(
+        self,
+        forms: list[fem.Form],
+        u: fem.Function,
+        V: fem.FunctionSpace,
+        field: fem.Function | None = None,
+    ):
         if V.dofmap.index_map_bs != 3 or V.dofmap.list.shape[1] != 8:
             raise ValueError("PackedDisplacement: expected a 3-component P1 space on hexahedra")
         self.u = u.x.array
         dofmap = V.dofmap.list
+        known = [u] if field is None else [u, field]
         cell = fem.IntegralType.cell
-        groups: dict[bytes, tuple[np.ndarray, np.ndarray]] = {}
+        groups: dict[tuple, tuple[np.ndarray, np.ndarray, np.ndarray, int | None]] = {}
         self.constants: list[np.ndarray] = []
         self.coeffs: list[dict] = []
         for form in forms:
             cpp = form._cpp_object
-            if len(cpp.coefficients) != 1 or not np.shares_memory(
-                cpp.coefficients[0].x.array, u.x.array
-            ):
-                raise ValueError("PackedDisplacement: a form must have u as its only coefficient")
+            order = []
+            for c in cpp.coefficients:
+                match = [i for i, f in enumerate(known) if np.shares_memory(c.x.array, f.x.array)]
+                if not match:
+                    raise ValueError("PackedDisplacement: a form reads an unknown coefficient")
+                order.append(match[0])
+            if order[0] != 0 or len(order) != len(set(order)):
+                raise ValueError("PackedDisplacement: u must be a form's first coefficient")
+            width = 24 + 8 * (len(order) - 1)
             if set(cpp.integral_types) != {cell}:
                 raise ValueError("PackedDisplacement: expected cell integrals only")
             coeffs = {}
             for i in range(cpp.num_integrals(cell, 0)):  # the keys DOLFINx's packing uses
                 cells = np.asarray(cpp.domains(cell, i))
-                signature = cells.tobytes()
+                signature = (cells.tobytes(), width)
                 if signature not in groups:
                     cell_dofs = np.ascontiguousarray(dofmap[cells], dtype=np.int64)
-                    groups[signature] = (cell_dofs, np.empty((len(cells), 24)))
+                    groups[signature] = (
+                        cell_dofs,
+                        np.zeros((len(cells), width)),
+                        cells.astype(np.int64),
+                        24 if width > 24 else None,
+                    )
                 coeffs[(cell, i)] = groups[signature][1]
             self.constants.append(fem.pack_constants(form))
             self.coeffs.append(coeffs)
@@ -322,5 +367,96 @@ class PackedDisplacement:
         self.update()
 
     def update(self) -> None:
-        for cell_dofs, packed in self.groups:
+        """Pack the current displacement."""
+        for cell_dofs, packed, _, _ in self.groups:
             _gather_cell_values(self.u, cell_dofs, packed)
+
+    def set_field(self, values: np.ndarray) -> None:
+        """Pack the field's cell values ``values`` (n_cells, 8), rows by local cell index."""
+        for _, packed, cells, offset in self.groups:
+            if offset is not None:
+                _gather_rows(values, cells, packed, offset)
+
+
+@njit(cache=True)
+def _condense_lines(residual, cells, cell_dofs, T, h, alpha, nodal_values, field):
+    """alpha[r] = -(T^T residual[cell_dofs[r]]) / h[r], and T alpha[r] into row cells[r] of
+    ``nodal_values`` and into the field's entries ``cell_dofs[r]``
+    (``CondensedThicknessStrain``)."""
+    for r in range(cell_dofs.shape[0]):
+        for k in range(T.shape[1]):
+            s = 0.0
+            for j in range(T.shape[0]):
+                s += T[j, k] * residual[cell_dofs[r, j]]
+            alpha[r, k] = -s / h[r, k]
+        for j in range(T.shape[0]):
+            s = 0.0
+            for k in range(T.shape[1]):
+                s += T[j, k] * alpha[r, k]
+            nodal_values[cells[r], j] = s
+            field[cell_dofs[r, j]] = s
+
+
+class CondensedThicknessStrain:
+    """The enhanced thickness strain of the UFL cells, condensed cell by cell (``solid_shell``
+    module docstring: four parameters alpha per cell, one per line of the normal term's points).
+
+    The forms read it as ``field``, a scalar DG Q1 function equal to alpha(xi, eta) g(zeta) in
+    each cell (``solid_shell.enhanced_nodal_map`` T: its 8 cell values are T alpha). The
+    residual of the four parameters is T^T of the energy's derivative with respect to the
+    field, and their stiffness h (diagonal: each parameter lives on its own line of points) is
+    T^T of the derivative's derivative in the direction T (1, 1, 1, 1). ``condense`` assembles
+    the derivative at field = 0 from the packed displacement (one vector assembly over the
+    normal terms' points) and sets alpha = -r / h: exact in one step, the residual being linear
+    in alpha (St. Venant-Kirchhoff plies, small or finite strain)."""
+
+    def __init__(
+        self,
+        energy: ufl.Form,
+        field: fem.Function,
+        u: fem.Function,
+        V: fem.FunctionSpace,
+        cells: np.ndarray,
+    ):
+        A = field.function_space
+        self.field = field
+        self.cells = np.asarray(cells, dtype=np.int64)
+        self.T = solid_shell.enhanced_nodal_map(A.element.interpolation_points)
+        self.cell_dofs = np.ascontiguousarray(A.dofmap.list[self.cells], dtype=np.int64)
+        residual = ufl.derivative(energy, field, ufl.TestFunction(A))
+        self.residual_form = fem.form(
+            ufl.replace(residual, {field: ufl.zero()}), jit_options=JIT_OPTIONS
+        )
+        direction = fem.Function(A)
+        direction.x.array[self.cell_dofs] = self.T.sum(axis=1)
+        hessian = fem.assemble_vector(
+            fem.form(ufl.derivative(residual, field, direction), jit_options=JIT_OPTIONS)
+        )
+        self.h = hessian.array[self.cell_dofs] @ self.T  # (n, 4)
+        n_cells = A.mesh.topology.index_map(3).size_local
+        self.residual = np.zeros(A.dofmap.index_map.size_local + A.dofmap.index_map.num_ghosts)
+        self.alpha = np.zeros((len(self.cells), self.T.shape[1]))
+        self.nodal_values = np.zeros((n_cells, self.T.shape[0]))  # T alpha, by local cell
+        self.packed = PackedDisplacement([self.residual_form], u, V)
+
+    def condense(self) -> None:
+        """alpha of every cell from the current displacement; the cell values of the field
+        into ``nodal_values`` (and ``field``)."""
+        self.packed.update()
+        self.residual.fill(0.0)
+        fem.assemble_vector(
+            self.residual,
+            self.residual_form,
+            constants=self.packed.constants[0],
+            coeffs=self.packed.coeffs[0],
+        )
+        _condense_lines(
+            self.residual,
+            self.cells,
+            self.cell_dofs,
+            self.T,
+            self.h,
+            self.alpha,
+            self.nodal_values,
+            self.field.x.array,
+        )

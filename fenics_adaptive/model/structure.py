@@ -132,7 +132,9 @@ class Structure:
         self.bottom_global = self.columns.bottom_global
         self.original_cell, self.column_top = self.columns.original_cell, self.columns.column_top
         self.extra = enr.ExtraNodes(self.comm, max(n_interfaces, 1), V.dofmap.index_map)
-        self.rule_table = RuleTable(laminate, base.points_per_ply, base.shear_correction)
+        self.rule_table = RuleTable(
+            laminate, base.points_per_ply, base.shear_correction, base.enhanced_strain
+        )
         self.refined_cells = RefinedCells(
             self.rule_table,
             cohesive if cohesive is not None else CohesiveSet.empty(np.zeros(8)),

@@ -17,7 +17,8 @@ check_units``); the step count against ``[solver] max_steps`` once the time step
 Sections (see demos/*.toml for complete examples and ``config_schema`` for every key):
   [model]        kind = "esl" | "adaptive" | "layerwise"; points_per_ply (1 or 2); kinematics =
                  "small" (default) | "finite" (total Lagrangian: large rotations; no ply_damage);
-                 ply_damage; shear_correction (default false); check_units (default true);
+                 ply_damage; shear_correction (default false); enhanced_strain (default
+                 true); check_units (default true);
                  max_memory (GB, default 16)
   [mesh]         length, width (mm), nx, ny (cells in-plane); layers = [plies per mesh layer]
                  for a layerwise model (default: one layer per ply)
@@ -143,6 +144,8 @@ class RunConfig:
     kinematics: Kinematics = Kinematics.SMALL
     # transverse shear correction of the elements (materials.laminate.shear_correction_factors)
     shear_correction: bool = False
+    # the enhanced assumed thickness strain (element.solid_shell)
+    enhanced_strain: bool = True
     impactor: Impactor | None = None
     rigid_bodies: tuple[RigidBody, ...] = ()
     lever: Lever | None = None
@@ -559,6 +562,7 @@ def parse_config(data: dict, source: str = "<memory>", seen: set[str] | None = N
         kind=model.kind,
         points_per_ply=model.points_per_ply,
         shear_correction=model.shear_correction,
+        enhanced_strain=model.enhanced_strain,
         mesh=mesh,
         laminate=laminate,
         motions=tuple(motions),
@@ -593,6 +597,7 @@ class _Model:
     kinematics: Kinematics
     max_memory: float  # GB
     shear_correction: bool
+    enhanced_strain: bool
 
 
 def _model(table: _Table) -> _Model:
@@ -605,6 +610,7 @@ def _model(table: _Table) -> _Model:
         kinematics=table.choice("kinematics"),
         max_memory=table.number("max_memory"),
         shear_correction=table.boolean("shear_correction"),
+        enhanced_strain=table.boolean("enhanced_strain"),
     )
     if model.kinematics == Kinematics.FINITE and model.ply_damage:
         # the ply damage kernel samples small strains; mixing it with finite kinematics would

@@ -285,6 +285,13 @@ SECTIONS: tuple[Section, ...] = (
                 default=False,
             ),
             Key(
+                "enhanced_strain",
+                "bool",
+                "the enhanced assumed thickness strain of every element (no Poisson thickness "
+                "locking in bending; false: the compatible strain alone, for comparison)",
+                default=True,
+            ),
+            Key(
                 "kinematics",
                 "choice",
                 "small strain, or finite (total Lagrangian, large rotations; not with ply_damage)",
