@@ -55,7 +55,13 @@ import numpy as np
 from numba import njit
 
 from fenics_adaptive.element import solid_shell
-from fenics_adaptive.materials.ply_damage import P_C22, RESIDUAL, S_D, ply_damage_update
+from fenics_adaptive.materials.ply_damage import (
+    P_C22,
+    RESIDUAL,
+    S_D,
+    S_DISSIPATED,
+    ply_damage_update,
+)
 
 # Term codes of the packed rule, in the order of solid_shell.TERMS.
 TERM_NORMAL, TERM_SHEAR_XZ, TERM_SHEAR_YZ, TERM_SHEAR_CROSS = range(4)
@@ -1141,6 +1147,30 @@ def _condense_enhanced_strain(
 
 
 @njit(inline="always", **KERNEL_OPTIONS)
+def _normal_energy(start, stop, terms, ply_of_point, stiffness, opening, opening_scale, maps):
+    """Strain energy (mJ) of the "normal" term of one element from the strains in ``maps``,
+    with ``stiffness`` and the crack opening (as ``element_force_kernel`` computes it)."""
+    energy = 0.0
+    for pp in range(start, stop):
+        if terms[pp] != TERM_NORMAL:
+            continue
+        row = pp - start
+        k = ply_of_point[pp]
+        e = (maps[10, row], maps[11, row], maps[12, row], maps[15, row])
+        density = 0.0
+        for a, i in enumerate((0, 1, 2, 5)):
+            s = 0.0
+            for b, j in enumerate((0, 1, 2, 5)):
+                s += stiffness[k, i, j] * e[b]
+            density += 0.5 * s * e[a]
+        s22 = opening[k, 0] * e[0] + opening[k, 1] * e[1] + opening[k, 2] * e[2]
+        s22 += opening[k, 5] * e[3]
+        density -= 0.5 * opening_scale[k] * max(s22, 0.0) ** 2
+        energy += maps[0, row] * density
+    return energy
+
+
+@njit(inline="always", **KERNEL_OPTIONS)
 def _ply_means(start, stop, terms, ply_of_point, maps, strains, volumes):
     """Mean shell-frame strain (xx, yy, zz, yz, xz, xy; engineering shears) of each ply of one
     element (points start:stop) into ``strains[j]``, j = ply_of_point[p] - ply_of_point[start],
@@ -1235,14 +1265,16 @@ def _element_force_damaged(
     volumes,
     sigma,
     f_out,
+    update,
 ):
-    """Damage update and force of one element (points start:stop) into f_out (8, 3); returns
-    the secant strain energy. ``band_width`` (n_local,) and ``state`` (n_local, N_STATE) are
-    the element's plies' rows (rule-local); ``degraded`` is a scratch array shaped like
-    ``stiffness`` (only the element's rows are written) and ``dirty`` (len(stiffness),) bool
-    says which of its rows differ from ``stiffness`` (elements sharing a rule share rows).
-    Other scratch: ``maps`` (N_MAPS, >= stop - start), ``strains`` (>= n_local, 6),
-    ``volumes`` (>= n_local, 3), ``sigma`` (6,)."""
+    """Damage update (unless ``update`` is False: the damage as it is) and force of one
+    element (points start:stop) into f_out (8, 3); returns the secant strain energy.
+    ``band_width`` (n_local,) and ``state`` (n_local, N_STATE) are the element's plies' rows
+    (rule-local); ``degraded`` is a scratch array shaped like ``stiffness`` (only the
+    element's rows are written) and ``dirty`` (len(stiffness),) bool says which of its rows
+    differ from ``stiffness`` (elements sharing a rule share rows). Other scratch: ``maps``
+    (N_MAPS, >= stop - start), ``strains`` (>= n_local, 6), ``volumes`` (>= n_local, 3),
+    ``sigma`` (6,)."""
     _point_maps(X, u, start, stop, zeta, weights, position_of_point, positions, work, line, maps)
     k0 = ply_of_point[start]
     n_local = ply_of_point[stop - 1] - k0 + 1
@@ -1266,6 +1298,7 @@ def _element_force_damaged(
         maps,
     )
     _ply_means(start, stop, terms, ply_of_point, maps, strains, volumes)
+    grown = 0.0
     for j in range(n_local):
         k = k0 + j
         for a in range(6):
@@ -1273,10 +1306,24 @@ def _element_force_damaged(
             for b in range(6):
                 s += strain_to_stress[k, a, b] * strains[j, b]
             sigma[a] = s
-        ply_damage_update(sigma, ply_params[k], band_width[j], state[j])
+        d_old = state[j, S_D]
+        if update:
+            ply_damage_update(sigma, ply_params[k], band_width[j], state[j])
+        strains[j, 0] = state[j, S_D] - d_old  # the ply's strain is used: its growth instead
+        grown += strains[j, 0]
     _secant_stiffness(
         k0, n_local, state, stiffness, degradation, ply_params, degraded, dirty, opening_scale
     )
+    # Where damage grew, the enhanced strain relaxes to the new stiffness: at fixed nodes the
+    # strain energy drops by more than the damage law's increments (the condensed energy is
+    # concave in the damage). That drop is dissipation too; book it on the plies that grew,
+    # in proportion to their growth, so that the energy balances from the states and from the
+    # work agree.
+    before = 0.0
+    if grown > 0.0:
+        before = _normal_energy(
+            start, stop, terms, ply_of_point, degraded, opening, opening_scale, maps
+        )
     _condense_enhanced_strain(
         start,
         stop,
@@ -1290,6 +1337,12 @@ def _element_force_damaged(
         opening_scale,
         maps,
     )
+    if grown > 0.0:
+        relaxed = before - _normal_energy(
+            start, stop, terms, ply_of_point, degraded, opening, opening_scale, maps
+        )
+        for j in range(n_local):
+            state[j, S_DISSIPATED] += relaxed * (strains[j, 0] / grown) / volumes[j, 0]
     return element_force_kernel(
         X,
         u,
@@ -1371,6 +1424,7 @@ def solid_shell_force_damaged(
         np.empty((n_plies, 3)),
         np.empty(6),
         f_out,
+        True,
     )
 
 
@@ -1400,9 +1454,11 @@ def add_damaged_subelement_forces(
     u_extra,
     f_base,
     f_extra,
+    update=True,
 ):
-    """f += sum_e P_e^T f_e over damage-aware (sub)elements, updating their damage; returns the
-    total secant strain energy (mJ). Call as ``add_damaged_subelement_forces(nodes,
+    """f += sum_e P_e^T f_e over damage-aware (sub)elements, updating their damage (not with
+    ``update`` False: the energy of a state at its damage so far); returns the total secant
+    strain energy (mJ). Call as ``add_damaged_subelement_forces(nodes,
     rule_of_element, state_row, first_ply, *rules, *ply_damage, band_width, damage_state,
     X_base, X_extra, u_base, u_extra, f_base, f_extra)``.
 
@@ -1471,6 +1527,7 @@ def add_damaged_subelement_forces(
             volumes,
             sigma,
             f,
+            update,
         )
         scatter_add_nodes(nodes, n_base, f, 1.0, f_base, f_extra)
     return energy

@@ -158,13 +158,17 @@ class DamagedSolid(Contributor):
         self.nodes = nodes
         self.elements = elements
         self._energy = 0.0
+        # False while the structure measures a state's energy (``Structure.frozen_damage``)
+        self.update_damage = True
         self.refined()
 
     def add_force(self, t: float, f_base: np.ndarray, f_extra: np.ndarray) -> None:
         """Add the elements' forces (N) into the local base and extra DOFs, updating the ply
         damage."""
         self._energy = self.damage.add_forces(
-            self.rule_table.packed, *self.nodes.kernel_arguments(f_base, f_extra)
+            self.rule_table.packed,
+            *self.nodes.kernel_arguments(f_base, f_extra),
+            update=self.update_damage,
         )
 
     def energy(self) -> float:

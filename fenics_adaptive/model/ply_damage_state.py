@@ -98,10 +98,13 @@ class PlyDamageState:
             np.asarray(plies[:, 0]).astype(np.int64),
         )
 
-    def add_forces(self, rules, X_base, X_extra, u_base, u_extra, f_base, f_extra) -> float:
+    def add_forces(
+        self, rules, X_base, X_extra, u_base, u_extra, f_base, f_extra, update: bool = True
+    ) -> float:
         """Add the elements' internal forces (N) into ``f_base``, ``f_extra`` (n, 3), updating
-        the damage state; ``rules``: the packed rules (``RuleTable.packed``); X, u in mm.
-        Returns the elements' secant strain energy (mJ, this rank)."""
+        the damage state (``update`` False: at the damage as it is); ``rules``: the packed
+        rules (``RuleTable.packed``); X, u in mm. Returns the elements' secant strain energy
+        (mJ, this rank)."""
         return add_damaged_subelement_forces(
             *self.elements,
             *rules,
@@ -114,6 +117,7 @@ class PlyDamageState:
             u_extra,
             f_base,
             f_extra,
+            update,
         )
 
     def scale_matrix_strength(self, cells: np.ndarray, plies: Iterable[int], factor: float) -> None:

@@ -219,8 +219,21 @@ class Structure:
         return self.X_base[self.base.V.dofmap.list[: self.base.n_owned_cells]]
 
     def _mechanical_energy(self) -> tuple[float, float]:
-        """(kinetic, solid strain + recoverable cohesive) energy (mJ) of the current state."""
-        self.internal_force()
+        """(kinetic, solid strain + recoverable cohesive) energy (mJ) of the current state, at
+        the ply damage as it is. A refinement changes the strains of the cells it refines a
+        little (their subelements condense their own enhanced thickness strain): damage that
+        grows from that belongs to the next step, whose damage law books its dissipation, not
+        to the refinement's energy change."""
+        frozen = [
+            c for c in self.internal_forces.contributors if getattr(c, "update_damage", False)
+        ]
+        for contributor in frozen:
+            contributor.update_damage = False
+        try:
+            self.internal_force()
+        finally:
+            for contributor in frozen:
+                contributor.update_damage = True
         return self.kinetic_energy(), sum(self.internal_forces.energies())
 
     def kinetic_energy(self) -> float:
