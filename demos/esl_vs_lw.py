@@ -23,7 +23,8 @@ force is V = q L / 2 and clamp and tip are four thicknesses or more away.
   layered integration, each ply's stiffness at its own points). Interlaminar stresses as the
   element computes them, C_k * strain in each ply: its transverse shear strain is constant
   through the thickness, so tau_xz is constant within each ply and jumps with the ply's shear
-  modulus; its sigma_zz comes from the thickness strain and Poisson coupling, not from the load.
+  modulus; its sigma_zz comes from the thickness strain (compatible plus enhanced) and Poisson
+  coupling, not from the load.
   Values at an interface: the mean of the two plies (what a post-processor shows).
 - **(b) ESL, recovered**: the same solution, the out-of-plane stresses recovered from
   equilibrium (``indicators.recovered_interface_stresses``, what the strong-refinement
@@ -82,13 +83,13 @@ solutions' checks and the explicit check.
 
 What it shows:
 
-- deflection and in-plane stresses: the ESL element is within about 2 % of LW (a little too
-  stiff: its transverse shear strain is constant through the thickness, with no shear
+- deflection and in-plane stresses: the ESL element is within about 1.5 % of LW (a little
+  too stiff: its transverse shear strain is constant through the thickness, with no shear
   correction);
 - interlaminar stresses, constitutive (a): useless. tau_xz is constant within each ply (a third
   below the peak for ``[0]8``) and sigma_zz, made by the thickness strain and Poisson coupling
-  rather than by the load, is off by more than its own size, with the wrong sign in the upper
-  plies;
+  rather than by the load, is off by 40-50 % of its peak (by more than its own size, with the
+  wrong sign in the upper plies, with the compatible thickness strain alone);
 - recovered from equilibrium (b): within about 2 % of LW at every interface for all three
   layups, for the price of one recovery per indicator check;
 - the refined element (c) equals LW (to round-off: the paper's "matches the reference"), at a

@@ -100,12 +100,14 @@ def test_recovered_interlaminar_stresses_match_lw_constitutive_ones_do_not(resul
     # constant transverse shear strain through the thickness: off by about a third of the peak
     assert constitutive["tau_xz_interfaces"] > 0.25
     assert recovered["tau_xz_interfaces"] < 0.02
-    # sigma_zz from thickness strain and Poisson coupling, not from the load: > 100 % off
-    assert constitutive["sigma_zz_interfaces"] > 1.0
+    # sigma_zz from the thickness strain and Poisson coupling, not from the load: 41-48 % of
+    # its peak off (more than 100 % with the compatible thickness strain alone)
+    assert constitutive["sigma_zz_interfaces"] > 0.3
     assert recovered["sigma_zz_interfaces"] < 0.03
-    # and the constitutive one has the wrong sign in the upper plies (the load compresses)
+    # the top ply's has the load's sign (compression); with the compatible thickness strain
+    # alone the Poisson stress gave it the wrong one
     top_ply = results[layup]["models"]["esl_constitutive"]["ply_mid_points"]["sigma_zz"][-1]
-    assert top_ply > 0.0
+    assert top_ply < 0.0
 
 
 @pytest.mark.parametrize("layup", list(LAYUPS))

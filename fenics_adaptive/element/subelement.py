@@ -1088,7 +1088,7 @@ def _point_maps(X, u, start, stop, zeta, weights, position_of_point, positions, 
 CONDENSATION_STEPS = 8
 
 
-@njit(inline="always", **KERNEL_OPTIONS)
+@njit(cache=True, **KERNEL_OPTIONS)  # called per element: compiled once, not inlined
 def _condense_enhanced_strain(
     start,
     stop,
@@ -1146,7 +1146,7 @@ def _condense_enhanced_strain(
         p = end
 
 
-@njit(inline="always", **KERNEL_OPTIONS)
+@njit(cache=True, **KERNEL_OPTIONS)  # called per element: compiled once, not inlined
 def _normal_energy(start, stop, terms, ply_of_point, stiffness, opening, opening_scale, maps):
     """Strain energy (mJ) of the "normal" term of one element from the strains in ``maps``,
     with ``stiffness`` and the crack opening (as ``element_force_kernel`` computes it)."""
