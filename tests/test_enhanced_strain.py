@@ -186,3 +186,30 @@ def test_indicator_ply_stresses_carry_the_enhanced_strain():
         )
     assert worst[True] < 0.01, worst
     assert worst[False] > max(0.02, 5 * worst[True]), worst
+
+
+@pytest.mark.parametrize("angles", [CROSS_PLY, [0.0, 45.0, 90.0]], ids=["[0/90]2s", "[0/45/90]"])
+def test_small_strain_linear_maps_equal_the_assembled_condensation(angles):
+    """With small strain the model takes each cell's parameters from a precomputed linear map
+    of its nodal displacements (numba, ``subelement.enhanced_parameter_maps``); the UFL
+    assembly of their residual (the finite-strain path) gives the same parameters, to
+    round-off, on distorted cells, and so the same force."""
+    model = esl_model(angles, 6.0, 3.0, 6, 3)
+    rng = np.random.default_rng(2)
+    x = model.mesh.geometry.x
+    x[:, :2] += rng.uniform(-0.1, 0.1, (len(x), 2))  # in-plane distortion, thickness intact
+    model._enhanced_maps = None
+    model.set_ufl_cells(model.ufl_cells)
+    model.u.x.array[:] = rng.normal(scale=1e-2, size=model.u.x.array.shape)
+    fast = model.enhanced
+    assert fast.linear_maps is not None
+    f_fast = np.zeros_like(model.u.x.array)
+    model.add_internal_force(f_fast)
+    cells = fast.cells
+    assembled = CondensedThicknessStrain(model.energy_ufl, fast.field, model.u, model.V, cells)
+    assembled.condense()
+    scale = np.abs(assembled.alpha).max()
+    assert scale > 0.0
+    np.testing.assert_allclose(fast.alpha, assembled.alpha, rtol=0, atol=1e-12 * scale)
+    f_assembled = fem.assemble_vector(model.force_form).array  # the field as assembled now
+    np.testing.assert_allclose(f_fast, f_assembled, rtol=0, atol=1e-11 * np.abs(f_fast).max())

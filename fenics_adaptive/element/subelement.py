@@ -970,6 +970,82 @@ def enhanced_parameters(
             p = end
 
 
+@njit(cache=True, **KERNEL_OPTIONS)
+def enhanced_parameter_maps(
+    X_all,
+    zeta,
+    weights,
+    terms,
+    ply_of_point,
+    position_of_point,
+    positions,
+    stiffness,
+    enhanced_mode,
+    out,
+):
+    """The small-strain enhanced thickness strain parameters as linear maps of the nodal
+    displacements: alpha_k = sum over (a, i) of out[e, k, a, i] u[a, i] for (sub)elements with
+    vertices X_all (ne, 8, 3) that share one packed rule (its fields follow ``X_all``; lines in
+    the rule's order, ``out`` (ne, 4, 8, 3)). alpha_k = -r_k / h_k with r_k = sum w g szz: its
+    gradient is the line's force of the stress C[:, 2] w g per point, the same moments as the
+    force kernel's enhanced term (``_element_force_kinematics``). Geometry only: computed once
+    per mesh, then a matrix-vector product per element and step."""
+    work = np.empty((2, 8, 3))
+    line = np.empty((4, 3, 3))
+    f = np.empty((8, 3))
+    zero = np.zeros((8, 3))
+    stop = weights.shape[0]
+    for e in range(X_all.shape[0]):
+        _monomials(X_all[e], work[0])
+        _monomials(zero, work[1])
+        for k in range(out.shape[1]):
+            for a in range(8):
+                for i in range(3):
+                    out[e, k, a, i] = 0.0
+        n_lines = 0
+        p = 0
+        while p < stop:
+            end = _line_end(position_of_point, p, stop)
+            if terms[p] == TERM_NORMAL:
+                q = position_of_point[p]
+                xi = positions[q, 0]
+                eta = positions[q, 1]
+                _fill_line(work[0], work[1], xi, eta, line)
+                h = 0.0
+                m = (0.0,) * 9
+                n = (0.0,) * 6
+                for pp in range(p, end):
+                    z = zeta[pp]
+                    wd, K, _, _ = _point_kinematics(line, z, weights[pp], None, 0, False)
+                    k = ply_of_point[pp]
+                    wg = weights[pp] * enhanced_mode[pp]
+                    h += wg * wg * stiffness[k, 2, 2] / wd
+                    P = _normal_stress_map(
+                        wg * stiffness[k, 0, 2],
+                        wg * stiffness[k, 1, 2],
+                        wg * stiffness[k, 2, 2],
+                        wg * stiffness[k, 5, 2],
+                        K,
+                    )
+                    m, n = _add_point_moments(m, n, P, z)
+                for a in range(8):
+                    for i in range(3):
+                        f[a, i] = 0.0
+                _add_line_moments(f, xi, eta, m, n)
+                for d in range(3):
+                    bit = 1 << d
+                    for c in range(8):
+                        if c & bit:
+                            for i in range(3):
+                                f[c ^ bit, i] -= f[c, i]
+                if h > 0.0:
+                    for a in range(8):
+                        for i in range(3):
+                            out[e, n_lines, a, i] = -f[a, i] / h
+                n_lines += 1
+            p = end
+
+
 @njit(cache=True)
 def solid_shell_lumped_mass(X, points, weights, ply_of_point, density, m_out):
     """Row-sum lumped nodal masses (tonne) of one (sub)element into ``m_out`` (8,), overwritten:

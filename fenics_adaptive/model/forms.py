@@ -24,6 +24,7 @@ from mpi4py import MPI
 from numba import njit
 
 from fenics_adaptive.element import solid_shell
+from fenics_adaptive.element.subelement import enhanced_parameter_maps, pack_rule
 from fenics_adaptive.element.timestep import characteristic_lengths
 from fenics_adaptive.materials.laminate import Laminate, shear_correction_factors
 from fenics_adaptive.meshes.beam import BeamMesh
@@ -67,6 +68,7 @@ class LayeredModel:
     # the enhanced assumed thickness strain (no Poisson thickness locking), condensed per cell
     enhanced_strain: bool = True
     enhanced: CondensedThicknessStrain | None = None
+    _enhanced_maps: np.ndarray | None = None  # enhanced_parameter_maps, once computed
 
     @property
     def finite(self) -> bool:
@@ -117,7 +119,32 @@ class LayeredModel:
         self.enhanced = None
         if field is not None:
             cells = np.concatenate(self.ufl_cells) if self.ufl_cells else np.zeros(0, np.int32)
-            self.enhanced = CondensedThicknessStrain(energy, field, self.u, self.V, cells)
+            maps = None if self.finite else self.enhanced_parameter_maps()[cells]
+            self.enhanced = CondensedThicknessStrain(energy, field, self.u, self.V, cells, maps)
+
+    def enhanced_parameter_maps(self) -> np.ndarray:
+        """(n_owned_cells, 4, 8, 3) small-strain maps from each cell's nodal displacements (its
+        vertex order) to its four enhanced thickness strain parameters
+        (``subelement.enhanced_parameter_maps``), computed once per model: geometry and
+        stiffness only."""
+        if self._enhanced_maps is None:
+            maps = np.zeros((self.n_owned_cells, 4, 8, 3))
+            X = cell_vertex_coordinates(self.mesh)
+            for k, laminate in enumerate(self.layer_laminates):
+                rule = pack_rule(
+                    laminate.ply_fractions,
+                    np.array(laminate.ply_stiffnesses()),
+                    self.points_per_ply,
+                    enhanced=True,
+                )
+                if not np.array_equal(rule.positions[:4], solid_shell.ENHANCED_LINES):
+                    raise RuntimeError("the rule's first four lines are not the enhanced lines")
+                cells = self.layer_cells(k)
+                layer_maps = np.zeros((len(cells), 4, 8, 3))
+                enhanced_parameter_maps(np.ascontiguousarray(X[cells]), *rule, layer_maps)
+                maps[cells] = layer_maps
+            self._enhanced_maps = maps
+        return self._enhanced_maps
 
     @property
     def laminate(self) -> Laminate:
@@ -397,6 +424,26 @@ def _condense_lines(residual, cells, cell_dofs, T, h, alpha, nodal_values, field
             field[cell_dofs[r, j]] = s
 
 
+@njit(cache=True)
+def _linear_parameters(u, node_of_vertex, maps, T, cells, cell_dofs, alpha, nodal_values, field):
+    """alpha[r, k] = sum maps[r, k, a, i] u[3 node_of_vertex[r, a] + i], and T alpha[r] into
+    row cells[r] of ``nodal_values`` and the field's entries ``cell_dofs[r]``."""
+    for r in range(maps.shape[0]):
+        for k in range(maps.shape[1]):
+            s = 0.0
+            for a in range(8):
+                node = 3 * node_of_vertex[r, a]
+                for i in range(3):
+                    s += maps[r, k, a, i] * u[node + i]
+            alpha[r, k] = s
+        for j in range(T.shape[0]):
+            s = 0.0
+            for k in range(T.shape[1]):
+                s += T[j, k] * alpha[r, k]
+            nodal_values[cells[r], j] = s
+            field[cell_dofs[r, j]] = s
+
+
 class CondensedThicknessStrain:
     """The enhanced thickness strain of the UFL cells, condensed cell by cell (``solid_shell``
     module docstring: four parameters alpha per cell, one per line of the normal term's points).
@@ -408,7 +455,11 @@ class CondensedThicknessStrain:
     T^T of the derivative's derivative in the direction T (1, 1, 1, 1). ``condense`` assembles
     the derivative at field = 0 from the packed displacement (one vector assembly over the
     normal terms' points) and sets alpha = -r / h: exact in one step, the residual being linear
-    in alpha (St. Venant-Kirchhoff plies, small or finite strain)."""
+    in alpha (St. Venant-Kirchhoff plies, small or finite strain). With small strain r is
+    linear in u too: given ``linear_maps`` (n, 4, 8, 3) (``LayeredModel
+    .enhanced_parameter_maps``), alpha is their product with the cells' displacements, 96
+    multiply-adds per cell instead of an assembly (``tests/test_enhanced_strain.py`` holds the
+    two equal)."""
 
     def __init__(
         self,
@@ -417,12 +468,22 @@ class CondensedThicknessStrain:
         u: fem.Function,
         V: fem.FunctionSpace,
         cells: np.ndarray,
+        linear_maps: np.ndarray | None = None,
     ):
         A = field.function_space
         self.field = field
+        self.u = u.x.array
         self.cells = np.asarray(cells, dtype=np.int64)
         self.T = solid_shell.enhanced_nodal_map(A.element.interpolation_points)
         self.cell_dofs = np.ascontiguousarray(A.dofmap.list[self.cells], dtype=np.int64)
+        n_cells = A.mesh.topology.index_map(3).size_local
+        self.alpha = np.zeros((len(self.cells), self.T.shape[1]))
+        self.nodal_values = np.zeros((n_cells, self.T.shape[0]))  # T alpha, by local cell
+        self.linear_maps = None
+        if linear_maps is not None:
+            self.linear_maps = np.ascontiguousarray(linear_maps)
+            self.node_of_vertex = np.ascontiguousarray(V.dofmap.list[self.cells], dtype=np.int64)
+            return
         residual = ufl.derivative(energy, field, ufl.TestFunction(A))
         self.residual_form = fem.form(
             ufl.replace(residual, {field: ufl.zero()}), jit_options=JIT_OPTIONS
@@ -433,15 +494,25 @@ class CondensedThicknessStrain:
             fem.form(ufl.derivative(residual, field, direction), jit_options=JIT_OPTIONS)
         )
         self.h = hessian.array[self.cell_dofs] @ self.T  # (n, 4)
-        n_cells = A.mesh.topology.index_map(3).size_local
         self.residual = np.zeros(A.dofmap.index_map.size_local + A.dofmap.index_map.num_ghosts)
-        self.alpha = np.zeros((len(self.cells), self.T.shape[1]))
-        self.nodal_values = np.zeros((n_cells, self.T.shape[0]))  # T alpha, by local cell
         self.packed = PackedDisplacement([self.residual_form], u, V)
 
     def condense(self) -> None:
         """alpha of every cell from the current displacement; the cell values of the field
         into ``nodal_values`` (and ``field``)."""
+        if self.linear_maps is not None:
+            _linear_parameters(
+                self.u,
+                self.node_of_vertex,
+                self.linear_maps,
+                self.T,
+                self.cells,
+                self.cell_dofs,
+                self.alpha,
+                self.nodal_values,
+                self.field.x.array,
+            )
+            return
         self.packed.update()
         self.residual.fill(0.0)
         fem.assemble_vector(

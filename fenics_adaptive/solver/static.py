@@ -15,7 +15,7 @@ from dolfinx import fem
 from dolfinx.fem import petsc as fem_petsc
 from petsc4py import PETSc
 
-from fenics_adaptive.model.forms import LayeredModel
+from fenics_adaptive.model.forms import CondensedThicknessStrain, LayeredModel
 from fenics_adaptive.model.loading import COMPONENTS, PrescribedMotion, ResolvedLoads, face_dofs
 
 
@@ -36,6 +36,10 @@ def stiffness_matrix(model: LayeredModel) -> PETSc.Mat:
     enhanced = model.enhanced
     if enhanced is None:
         return K
+    if enhanced.linear_maps is not None:  # the assembled condensation knows h
+        enhanced = CondensedThicknessStrain(
+            model.energy_ufl, enhanced.field, model.u, model.V, enhanced.cells
+        )
     A = enhanced.field.function_space
     K_ua = fem_petsc.assemble_matrix(
         fem.form(ufl.derivative(model.force_ufl, enhanced.field, ufl.TrialFunction(A)))
