@@ -36,6 +36,7 @@ def skew_mesh(model, shear=0.35):
     """x += shear * y: every cell becomes the same parallelogram (a skewed patch)."""
     x = model.mesh.geometry.x
     x[:, 0] += shear * x[:, 1]
+    model.reference_geometry_changed()
 
 
 def distort_mesh(model, amount=0.25, seed=1):
@@ -49,6 +50,7 @@ def distort_mesh(model, amount=0.25, seed=1):
         key = (round(x[i, 0], 9), round(x[i, 1], 9))
         columns.setdefault(key, rng.uniform(-amount, amount, 2))
         x[i, :2] += columns[key]
+    model.reference_geometry_changed()
 
 
 def patch_solution(model, gradient):

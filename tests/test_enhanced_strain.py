@@ -198,8 +198,7 @@ def test_small_strain_linear_maps_equal_the_assembled_condensation(angles):
     rng = np.random.default_rng(2)
     x = model.mesh.geometry.x
     x[:, :2] += rng.uniform(-0.1, 0.1, (len(x), 2))  # in-plane distortion, thickness intact
-    model._enhanced_maps = None
-    model.set_ufl_cells(model.ufl_cells)
+    model.reference_geometry_changed()
     model.u.x.array[:] = rng.normal(scale=1e-2, size=model.u.x.array.shape)
     fast = model.enhanced
     assert fast.linear_maps is not None

@@ -122,11 +122,18 @@ class LayeredModel:
             maps = None if self.finite else self.enhanced_parameter_maps()[cells]
             self.enhanced = CondensedThicknessStrain(energy, field, self.u, self.V, cells, maps)
 
+    def reference_geometry_changed(self) -> None:
+        """Call after moving the mesh's reference nodes (``mesh.geometry.x``): the small-strain
+        enhanced parameter maps are computed from it once (``enhanced_parameter_maps``) and
+        are rebuilt here, with the forms. The package itself never moves them."""
+        self._enhanced_maps = None
+        self.set_ufl_cells(self.ufl_cells)
+
     def enhanced_parameter_maps(self) -> np.ndarray:
         """(n_owned_cells, 4, 8, 3) small-strain maps from each cell's nodal displacements (its
         vertex order) to its four enhanced thickness strain parameters
-        (``subelement.enhanced_parameter_maps``), computed once per model: geometry and
-        stiffness only."""
+        (``subelement.enhanced_parameter_maps``), computed once per model from the reference
+        geometry and the stiffness (``reference_geometry_changed`` after moving the mesh)."""
         if self._enhanced_maps is None:
             maps = np.zeros((self.n_owned_cells, 4, 8, 3))
             X = cell_vertex_coordinates(self.mesh)
