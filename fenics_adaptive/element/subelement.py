@@ -810,50 +810,37 @@ def element_force_kernel(
     )
 
 
-@njit(cache=True, **KERNEL_OPTIONS)
 def solid_shell_force(
-    X,
-    u,
-    zeta,
-    weights,
-    terms,
-    ply_of_point,
-    position_of_point,
-    positions,
-    stiffness,
-    enhanced_mode,
-    f_out,
-    finite=False,
-):
+    X: np.ndarray,
+    u: np.ndarray,
+    zeta: np.ndarray,
+    weights: np.ndarray,
+    terms: np.ndarray,
+    ply_of_point: np.ndarray,
+    position_of_point: np.ndarray,
+    positions: np.ndarray,
+    stiffness: np.ndarray,
+    enhanced_mode: np.ndarray,
+    f_out: np.ndarray,
+    finite: bool = False,
+) -> float:
     """Internal force (N) of one layered solid-shell (sub)element into ``f_out`` (8, 3),
     overwritten; returns its strain energy (mJ = N mm).
 
     ``X``, ``u``: (8, 3) vertex coordinates and displacements (mm), DOLFINx vertex order. The
     remaining inputs are the fields of a ``PackedRule`` (``pack_rule``), so the usual call is
     ``solid_shell_force(X, u, *rule, f_out)``. Small strain (or, ``finite=True``, total
-    Lagrangian), selective (ANS-equivalent) rule; see the module docstring."""
-    work = np.empty((2, 8, 3))
-    line = np.empty((4, 3, 3))
-    n = weights.shape[0]
-    return element_force_kernel(
-        X,
-        u,
-        0,
-        n,
-        zeta,
-        weights,
-        terms,
-        ply_of_point,
-        position_of_point,
-        positions,
-        stiffness,
-        enhanced_mode,
-        work,
-        line,
-        f_out,
-        None,
-        None,
-        None,
+    Lagrangian), selective (ANS-equivalent) rule; see the module docstring. The batched kernel
+    with one element (one compiled kernel fewer)."""
+    rule = PackedRule(
+        zeta, weights, terms, ply_of_point, position_of_point, positions, stiffness, enhanced_mode
+    )
+    return solid_shell_forces(
+        np.ascontiguousarray(X, dtype=np.float64)[None],
+        np.ascontiguousarray(u, dtype=np.float64)[None],
+        np.zeros(1, dtype=np.int64),
+        *concatenate_rules([rule]),
+        f_out[None],
         finite,
     )
 
@@ -1442,25 +1429,24 @@ def _element_force_damaged(
     )
 
 
-@njit(cache=True, **KERNEL_OPTIONS)
 def solid_shell_force_damaged(
-    X,
-    u,
-    zeta,
-    weights,
-    terms,
-    ply_of_point,
-    position_of_point,
-    positions,
-    stiffness,
-    enhanced_mode,
-    strain_to_stress,
-    degradation,
-    ply_params,
-    band_width,
-    state,
-    f_out,
-):
+    X: np.ndarray,
+    u: np.ndarray,
+    zeta: np.ndarray,
+    weights: np.ndarray,
+    terms: np.ndarray,
+    ply_of_point: np.ndarray,
+    position_of_point: np.ndarray,
+    positions: np.ndarray,
+    stiffness: np.ndarray,
+    enhanced_mode: np.ndarray,
+    strain_to_stress: np.ndarray,
+    degradation: np.ndarray,
+    ply_params: np.ndarray,
+    band_width: np.ndarray,
+    state: np.ndarray,
+    f_out: np.ndarray,
+) -> float:
     """Internal force (N) of one layered solid-shell (sub)element with matrix damage into
     ``f_out`` (8, 3), overwritten, updating the damage ``state`` (n_plies, N_STATE) in place;
     returns the secant strain energy (mJ), 1/2 sigma.eps with the damaged stiffness.
@@ -1470,38 +1456,34 @@ def solid_shell_force_damaged(
     crack band width l_c (mm) of each ply (n_plies,) and the plies' states:
     ``solid_shell_force_damaged(X, u, *rule, *ply_damage, band_width, state, f_out)``. For a
     subelement spanning laminate plies first:stop of cell row r, pass
-    ``band_width[r, first:stop]`` and ``state[r, first:stop]`` (views: updated in place)."""
-    n_plies = stiffness.shape[0]
-    return _element_force_damaged(
-        X,
-        u,
-        0,
-        weights.shape[0],
-        zeta,
-        weights,
-        terms,
-        ply_of_point,
-        position_of_point,
-        positions,
-        stiffness,
-        enhanced_mode,
+    ``band_width[r, first:stop]`` and ``state[r, first:stop]`` (views: updated in place). The
+    batched kernel with one element (one compiled kernel fewer)."""
+    rule = PackedRule(
+        zeta, weights, terms, ply_of_point, position_of_point, positions, stiffness, enhanced_mode
+    )
+    none = np.zeros((0, 3))
+    f = np.zeros((8, 3))
+    zero = np.zeros(1, dtype=np.int64)
+    energy = add_damaged_subelement_forces(
+        np.arange(8, dtype=np.int64)[None],
+        zero,
+        zero,
+        zero,
+        *concatenate_rules([rule]),
         strain_to_stress,
         degradation,
         ply_params,
-        band_width,
-        state,
-        np.empty_like(stiffness),
-        np.ones(n_plies, dtype=np.bool_),
-        np.zeros(n_plies),
-        np.empty((2, 8, 3)),
-        np.empty((4, 3, 3)),
-        np.empty((N_MAPS, weights.shape[0])),
-        np.empty((n_plies, 6)),
-        np.empty((n_plies, 3)),
-        np.empty(6),
-        f_out,
-        True,
+        np.asarray(band_width, dtype=np.float64)[None],
+        state[None],
+        np.ascontiguousarray(X, dtype=np.float64),
+        none,
+        np.ascontiguousarray(u, dtype=np.float64),
+        none,
+        f,
+        none,
     )
+    f_out[:] = f
+    return energy
 
 
 @njit(cache=True, **KERNEL_OPTIONS)
