@@ -190,7 +190,7 @@ class LayeredModel:
         self.packed.update()
         if self.enhanced is not None:
             self.enhanced.condense()
-            self.packed.set_field(self.enhanced.nodal_values)
+            self.packed.set_field()
 
     def assemble_internal_force(self, out: np.ndarray) -> None:
         """Add this rank's share of f_int(u) (N) over the UFL cells into ``out`` (owned + ghost
@@ -327,11 +327,11 @@ def _gather_cell_values(u, cell_dofs, out):
 
 
 @njit(cache=True)
-def _gather_rows(values, rows, out, offset):
-    """out[r, offset + j] = values[rows[r], j]: a per-cell field as FFCx kernels read it."""
-    for r in range(rows.shape[0]):
-        for j in range(values.shape[1]):
-            out[r, offset + j] = values[rows[r], j]
+def _gather_field(field, field_dofs, out, offset):
+    """out[r, offset + j] = field[field_dofs[r, j]]: a per-cell field as FFCx kernels read it."""
+    for r in range(field_dofs.shape[0]):
+        for j in range(field_dofs.shape[1]):
+            out[r, offset + j] = field[field_dofs[r, j]]
 
 
 class PackedDisplacement:
@@ -363,10 +363,12 @@ class PackedDisplacement:
         if V.dofmap.index_map_bs != 3 or V.dofmap.list.shape[1] != 8:
             raise ValueError("PackedDisplacement: expected a 3-component P1 space on hexahedra")
         self.u = u.x.array
+        self.field = None if field is None else field.x.array
         dofmap = V.dofmap.list
         known = [u] if field is None else [u, field]
         cell = fem.IntegralType.cell
-        groups: dict[tuple, tuple[np.ndarray, np.ndarray, np.ndarray, int | None]] = {}
+        # per set of cells: u's cell dofs, the packed array, the field's cell dofs (or None)
+        groups: dict[tuple, tuple[np.ndarray, np.ndarray, np.ndarray | None]] = {}
         self.constants: list[np.ndarray] = []
         self.coeffs: list[dict] = []
         for form in forms:
@@ -388,12 +390,12 @@ class PackedDisplacement:
                 signature = (cells.tobytes(), width)
                 if signature not in groups:
                     cell_dofs = np.ascontiguousarray(dofmap[cells], dtype=np.int64)
-                    groups[signature] = (
-                        cell_dofs,
-                        np.zeros((len(cells), width)),
-                        cells.astype(np.int64),
-                        24 if width > 24 else None,
-                    )
+                    field_dofs = None
+                    if width > 24:
+                        field_dofs = np.ascontiguousarray(
+                            field.function_space.dofmap.list[cells], dtype=np.int64
+                        )
+                    groups[signature] = (cell_dofs, np.zeros((len(cells), width)), field_dofs)
                 coeffs[(cell, i)] = groups[signature][1]
             self.constants.append(fem.pack_constants(form))
             self.coeffs.append(coeffs)
@@ -402,39 +404,30 @@ class PackedDisplacement:
 
     def update(self) -> None:
         """Pack the current displacement."""
-        for cell_dofs, packed, _, _ in self.groups:
+        for cell_dofs, packed, _ in self.groups:
             _gather_cell_values(self.u, cell_dofs, packed)
 
-    def set_field(self, values: np.ndarray) -> None:
-        """Pack the field's cell values ``values`` (n_cells, 8), rows by local cell index."""
-        for _, packed, cells, offset in self.groups:
-            if offset is not None:
-                _gather_rows(values, cells, packed, offset)
+    def set_field(self) -> None:
+        """Pack the field's current values (after u's, in the forms that read it)."""
+        for _, packed, field_dofs in self.groups:
+            if field_dofs is not None:
+                _gather_field(self.field, field_dofs, packed, 24)
 
 
 @njit(cache=True)
-def _condense_lines(residual, cells, cell_dofs, T, h, alpha, nodal_values, field):
-    """alpha[r] = -(T^T residual[cell_dofs[r]]) / h[r], and T alpha[r] into row cells[r] of
-    ``nodal_values`` and into the field's entries ``cell_dofs[r]``
-    (``CondensedThicknessStrain``)."""
+def _condense_lines(residual, cell_dofs, T, h, alpha):
+    """alpha[r] = -(T^T residual[cell_dofs[r]]) / h[r] (``CondensedThicknessStrain``)."""
     for r in range(cell_dofs.shape[0]):
         for k in range(T.shape[1]):
             s = 0.0
             for j in range(T.shape[0]):
                 s += T[j, k] * residual[cell_dofs[r, j]]
             alpha[r, k] = -s / h[r, k]
-        for j in range(T.shape[0]):
-            s = 0.0
-            for k in range(T.shape[1]):
-                s += T[j, k] * alpha[r, k]
-            nodal_values[cells[r], j] = s
-            field[cell_dofs[r, j]] = s
 
 
 @njit(cache=True)
-def _linear_parameters(u, node_of_vertex, maps, T, cells, cell_dofs, alpha, nodal_values, field):
-    """alpha[r, k] = sum maps[r, k, a, i] u[3 node_of_vertex[r, a] + i], and T alpha[r] into
-    row cells[r] of ``nodal_values`` and the field's entries ``cell_dofs[r]``."""
+def _linear_parameters(u, node_of_vertex, maps, alpha):
+    """alpha[r, k] = sum maps[r, k, a, i] u[3 node_of_vertex[r, a] + i]."""
     for r in range(maps.shape[0]):
         for k in range(maps.shape[1]):
             s = 0.0
@@ -443,11 +436,16 @@ def _linear_parameters(u, node_of_vertex, maps, T, cells, cell_dofs, alpha, noda
                 for i in range(3):
                     s += maps[r, k, a, i] * u[node + i]
             alpha[r, k] = s
+
+
+@njit(cache=True)
+def _field_values(alpha, T, cell_dofs, field):
+    """field[cell_dofs[r]] = T alpha[r]: the field alpha g of each cell at its 8 nodes."""
+    for r in range(cell_dofs.shape[0]):
         for j in range(T.shape[0]):
             s = 0.0
             for k in range(T.shape[1]):
                 s += T[j, k] * alpha[r, k]
-            nodal_values[cells[r], j] = s
             field[cell_dofs[r, j]] = s
 
 
@@ -483,9 +481,7 @@ class CondensedThicknessStrain:
         self.cells = np.asarray(cells, dtype=np.int64)
         self.T = solid_shell.enhanced_nodal_map(A.element.interpolation_points)
         self.cell_dofs = np.ascontiguousarray(A.dofmap.list[self.cells], dtype=np.int64)
-        n_cells = A.mesh.topology.index_map(3).size_local
         self.alpha = np.zeros((len(self.cells), self.T.shape[1]))
-        self.nodal_values = np.zeros((n_cells, self.T.shape[0]))  # T alpha, by local cell
         self.linear_maps = None
         if linear_maps is not None:
             self.linear_maps = np.ascontiguousarray(linear_maps)
@@ -505,36 +501,17 @@ class CondensedThicknessStrain:
         self.packed = PackedDisplacement([self.residual_form], u, V)
 
     def condense(self) -> None:
-        """alpha of every cell from the current displacement; the cell values of the field
-        into ``nodal_values`` (and ``field``)."""
+        """alpha of every cell from the current displacement, and the field's values from it."""
         if self.linear_maps is not None:
-            _linear_parameters(
-                self.u,
-                self.node_of_vertex,
-                self.linear_maps,
-                self.T,
-                self.cells,
-                self.cell_dofs,
-                self.alpha,
-                self.nodal_values,
-                self.field.x.array,
+            _linear_parameters(self.u, self.node_of_vertex, self.linear_maps, self.alpha)
+        else:
+            self.packed.update()
+            self.residual.fill(0.0)
+            fem.assemble_vector(
+                self.residual,
+                self.residual_form,
+                constants=self.packed.constants[0],
+                coeffs=self.packed.coeffs[0],
             )
-            return
-        self.packed.update()
-        self.residual.fill(0.0)
-        fem.assemble_vector(
-            self.residual,
-            self.residual_form,
-            constants=self.packed.constants[0],
-            coeffs=self.packed.coeffs[0],
-        )
-        _condense_lines(
-            self.residual,
-            self.cells,
-            self.cell_dofs,
-            self.T,
-            self.h,
-            self.alpha,
-            self.nodal_values,
-            self.field.x.array,
-        )
+            _condense_lines(self.residual, self.cell_dofs, self.T, self.h, self.alpha)
+        _field_values(self.alpha, self.T, self.cell_dofs, self.field.x.array)
