@@ -162,7 +162,7 @@ def test_indicator_ply_stresses_carry_the_enhanced_strain():
     centre) add the element's condensed enhanced strain: in a bent ESL [0/90]2s cantilever the
     thickness stress around mid-span stays below 1 % of the peak bending stress, where the
     compatible strain alone gives the Poisson share (the same parameters as the force kernel:
-    ``subelement.enhanced_parameters``)."""
+    ``subelement.enhanced_parameter_maps``)."""
     worst = {}
     for enhanced in (True, False):
         data = {

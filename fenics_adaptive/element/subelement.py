@@ -902,9 +902,8 @@ def solid_shell_forces(
 
 
 @njit(cache=True, **KERNEL_OPTIONS)
-def enhanced_parameters(
+def enhanced_parameter_maps(
     X_all,
-    u_all,
     rule_of_element,
     rule_offsets,
     zeta,
@@ -917,72 +916,23 @@ def enhanced_parameters(
     enhanced_mode,
     out,
 ):
-    """The condensed enhanced thickness strain parameters alpha (one per line of the "normal"
-    term's points, in the rule's line order) of undamaged (sub)elements into ``out`` (ne, 4),
-    as ``solid_shell_forces`` condenses them (zero for a rule without the enhanced strain).
-    The enhanced thickness strain at (xi, eta, zeta) is alpha(xi, eta) g(zeta) / |det J|,
-    alpha bilinear through the four lines (``solid_shell`` module docstring). Arguments as
-    ``solid_shell_forces(X_all, u_all, rule_of_element, *rules, out)``."""
-    work = np.empty((2, 8, 3))
-    line = np.empty((4, 3, 3))
-    for e in range(X_all.shape[0]):
-        start = rule_offsets[rule_of_element[e]]
-        stop = rule_offsets[rule_of_element[e] + 1]
-        _monomials(X_all[e], work[0])
-        _monomials(u_all[e], work[1])
-        for j in range(out.shape[1]):
-            out[e, j] = 0.0
-        n_lines = 0
-        p = start
-        while p < stop:
-            end = _line_end(position_of_point, p, stop)
-            if terms[p] == TERM_NORMAL:
-                q = position_of_point[p]
-                _fill_line(work[0], work[1], positions[q, 0], positions[q, 1], line)
-                r = 0.0
-                h = 0.0
-                for pp in range(p, end):
-                    wd, _, _, strain = _point_kinematics(
-                        line, zeta[pp], weights[pp], None, 0, False
-                    )
-                    exx, eyy, ezz, _, _, gxy = strain
-                    k = ply_of_point[pp]
-                    szz = stiffness[k, 2, 0] * exx + stiffness[k, 2, 1] * eyy
-                    szz += stiffness[k, 2, 2] * ezz + stiffness[k, 2, 5] * gxy
-                    wg = weights[pp] * enhanced_mode[pp]
-                    r += wg * szz
-                    h += wg * wg * stiffness[k, 2, 2] / wd
-                out[e, n_lines] = -r / h if h > 0.0 else 0.0
-                n_lines += 1
-            p = end
-
-
-@njit(cache=True, **KERNEL_OPTIONS)
-def enhanced_parameter_maps(
-    X_all,
-    zeta,
-    weights,
-    terms,
-    ply_of_point,
-    position_of_point,
-    positions,
-    stiffness,
-    enhanced_mode,
-    out,
-):
     """The small-strain enhanced thickness strain parameters as linear maps of the nodal
-    displacements: alpha_k = sum over (a, i) of out[e, k, a, i] u[a, i] for (sub)elements with
-    vertices X_all (ne, 8, 3) that share one packed rule (its fields follow ``X_all``; lines in
-    the rule's order, ``out`` (ne, 4, 8, 3)). alpha_k = -r_k / h_k with r_k = sum w g szz: its
-    gradient is the line's force of the stress C[:, 2] w g per point, the same moments as the
-    force kernel's enhanced term (``_element_force_kinematics``). Geometry only: computed once
-    per mesh, then a matrix-vector product per element and step."""
+    displacements: alpha_k = sum over (a, i) of out[e, k, a, i] u[a, i] for undamaged
+    (sub)elements with vertices X_all (ne, 8, 3), lines in the rule's order, ``out``
+    (ne, 4, 8, 3); the parameters ``solid_shell_forces`` condenses (zero for a rule without the
+    enhanced strain). Element e uses rule ``rule_of_element[e]`` of the ``PackedRules`` whose
+    fields follow: ``enhanced_parameter_maps(X_all, rule_of_element, *rules, out)``.
+    alpha_k = -r_k / h_k with r_k = sum w g szz: its gradient is the line's force of the
+    stress C[:, 2] w g per point, the same moments as the force kernel's enhanced term
+    (``_element_force_kinematics``). Geometry only: the UFL cells' maps are computed once per
+    mesh, then a matrix-vector product per element and step."""
     work = np.empty((2, 8, 3))
     line = np.empty((4, 3, 3))
     f = np.empty((8, 3))
     zero = np.zeros((8, 3))
-    stop = weights.shape[0]
     for e in range(X_all.shape[0]):
+        start = rule_offsets[rule_of_element[e]]
+        stop = rule_offsets[rule_of_element[e] + 1]
         _monomials(X_all[e], work[0])
         _monomials(zero, work[1])
         for k in range(out.shape[1]):
@@ -990,7 +940,7 @@ def enhanced_parameter_maps(
                 for i in range(3):
                     out[e, k, a, i] = 0.0
         n_lines = 0
-        p = 0
+        p = start
         while p < stop:
             end = _line_end(position_of_point, p, stop)
             if terms[p] == TERM_NORMAL:
@@ -1300,6 +1250,60 @@ def _secant_stiffness(
 
 
 @njit(inline="always", **KERNEL_OPTIONS)
+def _condense_with_damage(
+    start,
+    stop,
+    weights,
+    terms,
+    ply_of_point,
+    position_of_point,
+    stiffness,
+    enhanced_mode,
+    strain_to_stress,
+    degradation,
+    ply_params,
+    state,
+    degraded,
+    dirty,
+    opening_scale,
+    maps,
+    measure,
+):
+    """The plies' secant stiffness from their damage ``state`` (``_secant_stiffness``), then
+    the strains in ``maps`` condensed with it (``_condense_enhanced_strain``). Returns the
+    normal-term energy the condensation released when ``measure`` (else 0)."""
+    k0 = ply_of_point[start]
+    n_local = ply_of_point[stop - 1] - k0 + 1
+    _secant_stiffness(
+        k0, n_local, state, stiffness, degradation, ply_params, degraded, dirty, opening_scale
+    )
+    opening = strain_to_stress[:, 1, :]
+    before = 0.0
+    if measure:
+        before = _normal_energy(
+            start, stop, terms, ply_of_point, degraded, opening, opening_scale, maps
+        )
+    _condense_enhanced_strain(
+        start,
+        stop,
+        weights,
+        terms,
+        ply_of_point,
+        position_of_point,
+        degraded,
+        enhanced_mode,
+        opening,
+        opening_scale,
+        maps,
+    )
+    if not measure:
+        return 0.0
+    return before - _normal_energy(
+        start, stop, terms, ply_of_point, degraded, opening, opening_scale, maps
+    )
+
+
+@njit(inline="always", **KERNEL_OPTIONS)
 def _element_force_damaged(
     X,
     u,
@@ -1341,24 +1345,26 @@ def _element_force_damaged(
     _point_maps(X, u, start, stop, zeta, weights, position_of_point, positions, work, line, maps)
     k0 = ply_of_point[start]
     n_local = ply_of_point[stop - 1] - k0 + 1
-    opening = strain_to_stress[:, 1, :]
     # the damage is driven by the strain condensed with the plies' damage so far, and the
     # force uses the strain condensed again with the updated damage
-    _secant_stiffness(
-        k0, n_local, state, stiffness, degradation, ply_params, degraded, dirty, opening_scale
-    )
-    _condense_enhanced_strain(
+    _condense_with_damage(
         start,
         stop,
         weights,
         terms,
         ply_of_point,
         position_of_point,
-        degraded,
+        stiffness,
         enhanced_mode,
-        opening,
+        strain_to_stress,
+        degradation,
+        ply_params,
+        state,
+        degraded,
+        dirty,
         opening_scale,
         maps,
+        False,
     )
     _ply_means(start, stop, terms, ply_of_point, maps, strains, volumes)
     grown = 0.0
@@ -1374,36 +1380,31 @@ def _element_force_damaged(
             ply_damage_update(sigma, ply_params[k], band_width[j], state[j])
         strains[j, 0] = state[j, S_D] - d_old  # the ply's strain is used: its growth instead
         grown += strains[j, 0]
-    _secant_stiffness(
-        k0, n_local, state, stiffness, degradation, ply_params, degraded, dirty, opening_scale
-    )
     # Where damage grew, the enhanced strain relaxes to the new stiffness: at fixed nodes the
     # strain energy drops by more than the damage law's increments (the condensed energy is
     # concave in the damage). That drop is dissipation too; book it on the plies that grew,
     # in proportion to their growth, so that the energy balances from the states and from the
     # work agree.
-    before = 0.0
-    if grown > 0.0:
-        before = _normal_energy(
-            start, stop, terms, ply_of_point, degraded, opening, opening_scale, maps
-        )
-    _condense_enhanced_strain(
+    relaxed = _condense_with_damage(
         start,
         stop,
         weights,
         terms,
         ply_of_point,
         position_of_point,
-        degraded,
+        stiffness,
         enhanced_mode,
-        opening,
+        strain_to_stress,
+        degradation,
+        ply_params,
+        state,
+        degraded,
+        dirty,
         opening_scale,
         maps,
+        grown > 0.0,
     )
     if grown > 0.0:
-        relaxed = before - _normal_energy(
-            start, stop, terms, ply_of_point, degraded, opening, opening_scale, maps
-        )
         for j in range(n_local):
             state[j, S_DISSIPATED] += relaxed * (strains[j, 0] / grown) / volumes[j, 0]
     return element_force_kernel(
@@ -1422,7 +1423,7 @@ def _element_force_damaged(
         work,
         line,
         f_out,
-        opening,
+        strain_to_stress[:, 1, :],  # the crack opening direction, as in the condensation
         opening_scale,
         maps,
         False,

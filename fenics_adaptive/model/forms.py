@@ -24,7 +24,11 @@ from mpi4py import MPI
 from numba import njit
 
 from fenics_adaptive.element import solid_shell
-from fenics_adaptive.element.subelement import enhanced_parameter_maps, pack_rule
+from fenics_adaptive.element.subelement import (
+    concatenate_rules,
+    enhanced_parameter_maps,
+    pack_rule,
+)
 from fenics_adaptive.element.timestep import characteristic_lengths
 from fenics_adaptive.materials.laminate import Laminate, shear_correction_factors
 from fenics_adaptive.meshes.beam import BeamMesh
@@ -148,7 +152,12 @@ class LayeredModel:
                     raise RuntimeError("the rule's first four lines are not the enhanced lines")
                 cells = self.layer_cells(k)
                 layer_maps = np.zeros((len(cells), 4, 8, 3))
-                enhanced_parameter_maps(np.ascontiguousarray(X[cells]), *rule, layer_maps)
+                enhanced_parameter_maps(
+                    np.ascontiguousarray(X[cells]),
+                    np.zeros(len(cells), dtype=np.int64),
+                    *concatenate_rules([rule]),
+                    layer_maps,
+                )
                 maps[cells] = layer_maps
             self._enhanced_maps = maps
         return self._enhanced_maps
