@@ -369,7 +369,9 @@ def _check(config_path: str, config, simulation, comm) -> int:
 
         if films:
             print(f"  insert films: {films:.6g} mm^2 delaminated at t = 0")
-        for line in integration_warnings(config.layer_laminates(), config.points_per_ply):
+        for line in integration_warnings(
+            config.layer_laminates(), config.points_per_ply, config.preintegrate
+        ):
             print(f"  {line}")
     return 0
 

@@ -226,7 +226,9 @@ def _announce(
         f"safety factor {step['safety_factor']}, limited by {step['limited_by']}), "
         f"{n_steps} steps to {config.solver.end_time:.4e} s"
     )
-    for line in integration_warnings(config.layer_laminates(), config.points_per_ply):
+    for line in integration_warnings(
+        config.layer_laminates(), config.points_per_ply, config.preintegrate
+    ):
         say(line)
 
 

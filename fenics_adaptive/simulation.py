@@ -95,6 +95,7 @@ def build_structure(
         kinematics=config.kinematics,
         shear_correction=config.shear_correction,
         enhanced_strain=config.enhanced_strain,
+        preintegrate=config.preintegrate,
     )
     motions = list(config.motions)
     cohesive = None

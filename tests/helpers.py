@@ -182,6 +182,41 @@ class SingleCell:
         return self.assemble(solid_shell.lumped_mass_form(self.v, groups))[:, 0]
 
 
+class EnhancedCell:
+    """One hexahedron's UFL energy with the enhanced field, condensed by the model's own
+    ``CondensedThicknessStrain``; ``preintegrate``: the through-thickness rule
+    ``solid_shell.thickness_rule`` takes with it (else ``ppp`` points per ply)."""
+
+    def __init__(
+        self, X: np.ndarray, laminate, ppp: int, kinematics: str, preintegrate: bool = False
+    ):
+        from fenics_adaptive.model.forms import CondensedThicknessStrain
+
+        self.cell = SingleCell(X)
+        A = fem.functionspace(self.cell.mesh, ("DG", 1))
+        self.field = fem.Function(A)
+        groups = solid_shell.energy_groups(laminate, ppp, preintegrate=preintegrate)
+        self.energy = solid_shell.strain_energy_form(
+            self.cell.u, groups, kinematics=kinematics, enhanced=self.field
+        )
+        self.condensed = CondensedThicknessStrain(
+            self.energy, self.field, self.cell.u, self.cell.V, np.array([0])
+        )
+
+    def force(self, U: np.ndarray) -> tuple[np.ndarray, float]:
+        self.cell.set_displacement(U)
+        self.condensed.condense()
+        force = self.cell.assemble(ufl.derivative(self.energy, self.cell.u, self.cell.v))
+        return force, fem.assemble_scalar(fem.form(self.energy))
+
+    def parameter_residual(self) -> np.ndarray:
+        """T^T d(energy)/d(field): the four parameters' residual at the current field."""
+        A = self.field.function_space
+        form = fem.form(ufl.derivative(self.energy, self.field, ufl.TestFunction(A)))
+        residual = fem.assemble_vector(form).array
+        return residual[self.condensed.cell_dofs[0]] @ self.condensed.T
+
+
 # ------------------------------------------------------------------ explicit dynamics
 def highest_frequency(model, fixed: np.ndarray, iterations: int = 400) -> float:
     """omega_max^2 = largest eigenvalue of M^-1 K by power iteration (K u = f_int(u))."""

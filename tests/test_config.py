@@ -113,10 +113,10 @@ def test_layers_in_an_esl_model_are_refused():
 def test_single_integration_point_through_a_layer_is_refused():
     data = base()
     data["model"]["kind"] = "layerwise"  # default: one mesh layer per ply
+    assert parse_config(data).points_per_ply == 2  # the default
+    data["model"]["points_per_ply"] = 1
     with pytest.raises(InputError, match="points_per_ply"):
         parse_config(data)
-    data["model"]["points_per_ply"] = 2
-    assert parse_config(data).points_per_ply == 2
 
 
 def test_not_toml_and_missing_file(tmp_path):

@@ -10,13 +10,12 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-import ufl
 from dolfinx import fem
 from helpers import (
     CARBON,
     CROSS_PLY,
     PROTOTYPE_PLY,
-    SingleCell,
+    EnhancedCell,
     distorted_hex,
     esl_model,
     random_laminate,
@@ -26,7 +25,6 @@ from helpers import (
 
 from fenics_adaptive.adaptivity.indicators import ply_stresses
 from fenics_adaptive.analysis.comparison import solve_linear_static
-from fenics_adaptive.element import solid_shell
 from fenics_adaptive.element import subelement as se
 from fenics_adaptive.element.subelement import sublaminate_ply_zeta
 from fenics_adaptive.materials.laminate import Laminate, Ply
@@ -36,36 +34,6 @@ from fenics_adaptive.settings.config import parse_config
 from fenics_adaptive.settings.loads import Amplitude, FaceLoad, clamp
 from fenics_adaptive.simulation import build_structure
 from fenics_adaptive.solver.static import solve_static
-
-
-class EnhancedCell:
-    """One hexahedron's UFL energy with the enhanced field, condensed by the model's own
-    ``CondensedThicknessStrain``."""
-
-    def __init__(self, X: np.ndarray, laminate, ppp: int, kinematics: str):
-        self.cell = SingleCell(X)
-        A = fem.functionspace(self.cell.mesh, ("DG", 1))
-        self.field = fem.Function(A)
-        groups = solid_shell.ply_groups(laminate, ppp)
-        self.energy = solid_shell.strain_energy_form(
-            self.cell.u, groups, kinematics=kinematics, enhanced=self.field
-        )
-        self.condensed = CondensedThicknessStrain(
-            self.energy, self.field, self.cell.u, self.cell.V, np.array([0])
-        )
-
-    def force(self, U: np.ndarray) -> tuple[np.ndarray, float]:
-        self.cell.set_displacement(U)
-        self.condensed.condense()
-        force = self.cell.assemble(ufl.derivative(self.energy, self.cell.u, self.cell.v))
-        return force, fem.assemble_scalar(fem.form(self.energy))
-
-    def parameter_residual(self) -> np.ndarray:
-        """T^T d(energy)/d(field): the four parameters' residual at the current field."""
-        A = self.field.function_space
-        form = fem.form(ufl.derivative(self.energy, self.field, ufl.TestFunction(A)))
-        residual = fem.assemble_vector(form).array
-        return residual[self.condensed.cell_dofs[0]] @ self.condensed.T
 
 
 def kernel_force(X, U, rule, finite: bool) -> tuple[np.ndarray, float]:

@@ -78,7 +78,10 @@ for number, sub in enumerate(subelements, start=1):
 # 4 and drawn apart: three subelements, each with its own thickness coordinate zeta from 0 to
 # 1. Each ply keeps its colour and its points. The dotted lines join a point in the cell to
 # the same point in its subelement: they are horizontal because the heights are equal, which
-# the loop below also asserts.
+# the loop below also asserts. This is the rule ply by ply (`thickness_integration =
+# "plies"`); the default pre-integrated rule gives every (sub)element three points whose
+# stiffnesses carry its plies' moments (`solid_shell.thickness_rule`), so a refinement moves
+# the points, while the integral of the strain energy of a flat cell stays exact under both.
 
 # %%
 gauss, _ = gauss_legendre_01(2)

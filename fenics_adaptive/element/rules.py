@@ -48,8 +48,10 @@ class RuleTable:
     through each ply of spans of more than one ply; ``shear_correction``: each span's transverse
     shear correction from the whole laminate's shear distribution
     (``materials.laminate.shear_correction_factors``; (1, 1) without), and
-    ``enhanced_strain``: the enhanced assumed thickness strain, both as the UFL forms of the
-    same spans have it (``model.forms.LayeredModel.shear_factors``)."""
+    ``enhanced_strain``: the enhanced assumed thickness strain, ``preintegrate``: the spans'
+    pre-integrated through-thickness rules where ``solid_shell.thickness_rule`` takes them
+    (not for the ply-damage kernel, which needs its points ply by ply), all as the UFL forms of
+    the same spans have them (``model.forms.LayeredModel``)."""
 
     def __init__(
         self,
@@ -57,6 +59,7 @@ class RuleTable:
         points_per_ply: int,
         shear_correction: bool = False,
         enhanced_strain: bool = True,
+        preintegrate: bool = False,
     ):
         n = laminate.n_plies
         fractions = laminate.ply_fractions
@@ -68,6 +71,7 @@ class RuleTable:
         self.points_per_ply = points_per_ply
         self.shear_correction = shear_correction
         self.enhanced_strain = enhanced_strain
+        self.preintegrate = preintegrate
         self.spans: list[tuple[int, int]] = []
         self.rules: list[PackedRule] = []
         self.mass_rules: list[PackedMassRule] = []
@@ -87,7 +91,9 @@ class RuleTable:
                     else (1.0, 1.0)
                 )
                 self.rules.append(
-                    pack_rule(zeta, stiffness[first:stop], points, factors, enhanced_strain)
+                    pack_rule(
+                        zeta, stiffness[first:stop], points, factors, enhanced_strain, preintegrate
+                    )
                 )
                 self.mass_rules.append(pack_mass_rule(zeta, density[first:stop]))
         self.packed: PackedRules = concatenate_rules(self.rules)
@@ -132,14 +138,23 @@ class RuleTable:
         return masses
 
 
-def bending_stiffness_error(laminate: Laminate, points_per_ply: int) -> float:
+def bending_stiffness_error(
+    laminate: Laminate, points_per_ply: int, preintegrate: bool = False
+) -> float:
     """Relative error of the bending stiffnesses D_11 and D_22 (the larger of the two) of an
     element of ``laminate`` as its rule integrates them through the thickness with
     ``points_per_ply`` Gauss points in each ply, against the exact integral (about the neutral
     plane, each ply's reduced plane-stress moduli). Negative: too flexible. One point per ply
-    misses each ply's own h^3 / 12: about -1 / n^2 for n equal plies; two points are exact."""
-    from fenics_adaptive.element.solid_shell import gauss_legendre_01
+    misses each ply's own h^3 / 12: about -1 / n^2 for n equal plies; two points are exact, and
+    so is the pre-integrated rule wherever ``preintegrate`` gets it (its moments are exact:
+    0)."""
+    from fenics_adaptive.element.solid_shell import gauss_legendre_01, thickness_rule
 
+    f = laminate.ply_fractions
+    bounds = np.column_stack([f[:-1], f[1:]])
+    stiffness = np.array(laminate.ply_stiffnesses())
+    if thickness_rule(bounds, stiffness, points_per_ply, preintegrate).preintegrated:
+        return 0.0
     z, moduli, (neutral, exact) = bending_about_neutral_plane(laminate)
     h = np.diff(z)
     s, w = gauss_legendre_01(points_per_ply)
@@ -152,13 +167,17 @@ def bending_stiffness_error(laminate: Laminate, points_per_ply: int) -> float:
     return float(worst)
 
 
-def integration_warnings(layer_laminates: list[Laminate], points_per_ply: int) -> list[str]:
+def integration_warnings(
+    layer_laminates: list[Laminate], points_per_ply: int, preintegrate: bool = False
+) -> list[str]:
     """One line for each mesh layer whose elements' bending stiffness the rule integrates off
     by more than 0.1 % (``bending_stiffness_error``): what a config with ``points_per_ply = 1``
-    costs in accuracy. Refined subelements of one ply always get two points."""
+    costs in accuracy where the pre-integrated rule is not taken (off, ply damage, or a layer
+    where it is not positive definite). Refined subelements of one ply always get two
+    points."""
     lines = []
     for k, laminate in enumerate(layer_laminates):
-        error = bending_stiffness_error(laminate, points_per_ply)
+        error = bending_stiffness_error(laminate, points_per_ply, preintegrate)
         if abs(error) > 1e-3:
             where = (
                 f"mesh layer {k + 1} ({laminate.n_plies} plies)"

@@ -2,9 +2,12 @@
 
 One hexahedron spans the whole laminate (or, once refined, a sublaminate). Reference coordinates
 (xi, eta, zeta) in [0, 1]^3, zeta through the thickness (the meshes guarantee it, see
-``fenics_adaptive.meshes.beam``). Each ply owns ``points_per_ply`` Gauss points through the
-thickness inside its own zeta range, and carries its own stiffness there. Nothing else about a ply
-is stored.
+``fenics_adaptive.meshes.beam``). Through the thickness (``thickness_rule``) the plies are
+either integrated one by one, ``points_per_ply`` Gauss points inside each ply's own zeta range
+with its own stiffness, or pre-integrated: three points whose stiffnesses carry the laminate's
+moments of order 0, 1 and 2 (A, B, D), exact in bending for any number of plies at the cost of
+three points (``preintegrated_stiffness``; the default of the models, where every point's
+stiffness is positive definite). Nothing else about a ply is stored.
 
 Transverse shear locking is removed with the selective in-plane rule that equals the
 Bathe-Dvorkin assumed natural strain (ANS) interpolation on elements with parallelogram faces:
@@ -62,6 +65,7 @@ damaged kernel takes Newton steps until the open points stop changing.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import dolfinx
 import numpy as np
@@ -121,6 +125,103 @@ def enhanced_nodal_map(points: np.ndarray) -> np.ndarray:
     return T * enhanced_mode(points[:, 2])[:, None]
 
 
+class ThicknessRule(NamedTuple):
+    """The points through the thickness of one (sub)element and the stiffness each carries:
+    point p sits at ``zeta[p]`` with weight ``weights[p]`` and stiffness
+    ``stiffness[stiffness_of_point[p]]``. Per ply (``preintegrated`` False), the stiffnesses
+    are the plies' and ``stiffness_of_point`` is the ply; pre-integrated, they are the three
+    stiffnesses of ``preintegrated_stiffness`` and the points carry no ply."""
+
+    zeta: np.ndarray  # (m,) on [0, 1]
+    weights: np.ndarray  # (m,), summing to 1
+    stiffness: np.ndarray  # (s, 6, 6) MPa, shell frame
+    stiffness_of_point: np.ndarray  # (m,) int64
+    preintegrated: bool
+
+
+def preintegrated_stiffness(
+    ply_bounds: np.ndarray, ply_stiffness: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The laminate pre-integrated through the thickness onto three points: (zeta (3,), weights
+    (3,), S (3, 6, 6)) such that sum_p w_p S_p zeta_p^j = sum_k C_k integral over ply k of
+    zeta^j for j = 0, 1, 2 (the laminate's A, B and D moments, reference thickness [0, 1]).
+
+    Why it is exact: on a cell whose top and bottom faces are parallel (J independent of
+    zeta, the meshes' flat cells and their subelements), the small strain, with the enhanced
+    thickness strain, is affine in zeta on every vertical line, so each term of the energy and
+    of the force is a moment of order 0, 1 or 2 of the stiffness through the thickness; the
+    three points reproduce those moments for any number of plies (Abaqus' "general shell
+    section", integrated before the analysis, does the same for the stress resultants). The
+    points are the 3-point Gauss rule, so a one-material (sub)element gets S_p = C at each:
+    exact to degree 5. On cells whose faces are not parallel the rule stays a quadrature of the
+    same order. ``ply_bounds`` (n, 2) on [0, 1], ``ply_stiffness`` (n, 6, 6)."""
+    zeta, weights = gauss_legendre_01(3)
+    lo, hi = ply_bounds[:, 0], ply_bounds[:, 1]
+    moments = np.array(
+        [
+            np.einsum("k,kab->ab", (hi ** (j + 1) - lo ** (j + 1)) / (j + 1), ply_stiffness)
+            for j in range(3)
+        ]
+    )
+    vandermonde = np.array([weights * zeta**j for j in range(3)])  # [j, p]
+    S = np.einsum("pj,jab->pab", np.linalg.inv(vandermonde), moments)
+    return zeta, weights, 0.5 * (S + S.transpose(0, 2, 1))
+
+
+def _positive_definite(S: np.ndarray) -> bool:
+    """Each point's stiffness positive definite on the four normal components and on the two
+    transverse shears (the blocks the selective rule uses)."""
+    for block in (NORMAL, (YZ, XZ)):
+        sub = S[:, block][:, :, block]
+        scale = np.abs(sub).max()
+        if np.linalg.eigvalsh(sub).min() <= 1e-10 * scale:
+            return False
+    return True
+
+
+def thickness_rule(
+    ply_bounds: np.ndarray, ply_stiffness: np.ndarray, points_per_ply: int, preintegrate: bool
+) -> ThicknessRule:
+    """The through-thickness rule of a (sub)element of plies ``ply_bounds`` (n, 2) on its own
+    reference thickness [0, 1] with stiffnesses ``ply_stiffness`` (n, 6, 6).
+
+    ``preintegrate``: the three pre-integrated points (``preintegrated_stiffness``), exact in
+    bending for any number of plies, where they are fewer than two points per ply (two plies
+    or more) and each point's stiffness is positive definite (so that the element energy is
+    positive for any displacement, parallel faces or not; a stiff-skin sandwich core, or some
+    two-ply spans, make the middle point indefinite). Otherwise, and always without
+    ``preintegrate``, ``points_per_ply`` Gauss points in each ply (two integrate the bending
+    stiffness exactly; ``rules.bending_stiffness_error`` says what one costs)."""
+    bounds = np.asarray(ply_bounds, dtype=np.float64)
+    C = np.asarray(ply_stiffness, dtype=np.float64)
+    n = len(bounds)
+    if preintegrate and n >= 2:
+        zeta, weights, S = preintegrated_stiffness(bounds, C)
+        if _positive_definite(S):
+            return ThicknessRule(zeta, weights, S, np.arange(3, dtype=np.int64), True)
+    z, w = gauss_legendre_01(points_per_ply)
+    thickness = bounds[:, 1] - bounds[:, 0]
+    return ThicknessRule(
+        zeta=(bounds[:, :1] + thickness[:, None] * z[None, :]).ravel(),
+        weights=(thickness[:, None] * w[None, :]).ravel(),
+        stiffness=C,
+        stiffness_of_point=np.repeat(np.arange(n, dtype=np.int64), len(z)),
+        preintegrated=False,
+    )
+
+
+def term_rules(zeta: np.ndarray, weights: np.ndarray) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """Reference points (m n_term, 3) and weights of each energy term for the through-thickness
+    points ``zeta`` (m,) of weights ``weights``: each point's in-plane points of the term,
+    point by point."""
+    rules = {}
+    for term, (xy, w_xy) in _IN_PLANE.items():
+        points = np.array([[p[0], p[1], zk] for zk in zeta for p in xy])
+        weights_term = np.array([wk * w for wk in weights for w in w_xy])
+        rules[term] = (points, weights_term)
+    return rules
+
+
 def ply_rules(
     zeta_lo: float, zeta_hi: float, points_per_ply: int
 ) -> dict[str, tuple[np.ndarray, np.ndarray]]:
@@ -128,14 +229,7 @@ def ply_rules(
     [zeta_lo, zeta_hi] of the element's reference thickness. Summed over the plies of an element
     the weights of every term add up to 1 (the reference volume)."""
     z, wz = gauss_legendre_01(points_per_ply)
-    z = zeta_lo + (zeta_hi - zeta_lo) * z
-    wz = (zeta_hi - zeta_lo) * wz
-    rules = {}
-    for term, (xy, w_xy) in _IN_PLANE.items():
-        points = np.array([[p[0], p[1], zk] for zk in z for p in xy])
-        weights = np.array([wk * w for wk in wz for w in w_xy])
-        rules[term] = (points, weights)
-    return rules
+    return term_rules(zeta_lo + (zeta_hi - zeta_lo) * z, (zeta_hi - zeta_lo) * wz)
 
 
 def mass_rule(zeta_lo: float, zeta_hi: float) -> tuple[np.ndarray, np.ndarray]:
@@ -214,6 +308,46 @@ def ply_groups(
     return groups
 
 
+@dataclass(frozen=True)
+class StiffnessGroup:
+    """Points of an element's strain energy that share one stiffness: one custom-quadrature
+    measure per term, one constant stiffness (a ply group, or one pre-integrated point)."""
+
+    stiffness: np.ndarray  # 6x6, shell frame, MPa
+    rules: dict[str, tuple[np.ndarray, np.ndarray]]
+
+
+def energy_groups(
+    laminate: Laminate,
+    points_per_ply: int,
+    shear_factors: tuple[float, float] = (1.0, 1.0),
+    preintegrate: bool = False,
+) -> list[StiffnessGroup]:
+    """The strain energy's stiffness groups of an element of ``laminate`` under the
+    through-thickness rule ``thickness_rule`` chooses (``preintegrate``, ``points_per_ply``):
+    one group per pre-integrated point, or the plies grouped by stiffness (``ply_groups``);
+    ``shear_factors`` (k_xz, k_yz) on the transverse shear terms."""
+    C = np.array(laminate.ply_stiffnesses())
+    f = laminate.ply_fractions
+    rule = thickness_rule(np.column_stack([f[:-1], f[1:]]), C, points_per_ply, preintegrate)
+    if not rule.preintegrated:
+        return [
+            StiffnessGroup(g.stiffness, g.rules)
+            for g in ply_groups(laminate, points_per_ply, shear_factors)
+        ]
+    factor = shear_weights(shear_factors)
+    groups = []
+    for p in range(len(rule.zeta)):
+        rules = term_rules(rule.zeta[p : p + 1], rule.weights[p : p + 1])
+        groups.append(
+            StiffnessGroup(
+                stiffness=rule.stiffness[rule.stiffness_of_point[p]],
+                rules={t: (points, factor[t] * w) for t, (points, w) in rules.items()},
+            )
+        )
+    return groups
+
+
 def check_monoclinic(C: np.ndarray) -> None:
     """The selective rule drops normal/shear coupling; it must be zero for the rule to be exact."""
     coupling = np.abs(C[np.ix_(NORMAL, (YZ, XZ))]).max()
@@ -281,7 +415,7 @@ def owned_cells(mesh: dolfinx.mesh.Mesh) -> np.ndarray:
 
 def strain_energy_form(
     u: fem.Function,
-    groups: list[PlyGroup],
+    groups: list[StiffnessGroup] | list[PlyGroup],
     kernels: SeparateKernels | None = None,
     cells: np.ndarray | None = None,
     selective: bool = True,
@@ -324,7 +458,7 @@ def strain_energy_form(
 def internal_force_form(
     u: fem.Function,
     v: ufl.Argument,
-    groups: list[PlyGroup],
+    groups: list[StiffnessGroup] | list[PlyGroup],
     kernels: SeparateKernels | None = None,
     cells: np.ndarray | None = None,
     selective: bool = True,

@@ -7,7 +7,9 @@ What is computed. One (sub)element is an 8-node hexahedron spanning a contiguous
 of the laminate. An unrefined (ESL) element spans all of them; after refinement at some ply
 interfaces each subelement spans the plies between two active interfaces (paper, Figure 2).
 Integration points never move: a ply keeps the points ``solid_shell.ply_rules`` gives it inside
-its own zeta range, expressed in the reference thickness [0, 1] of the (sub)element that holds it.
+its own zeta range, expressed in the reference thickness [0, 1] of the (sub)element that holds it;
+or, pre-integrated (``solid_shell.thickness_rule``), the (sub)element has three points whose
+stiffnesses carry its plies' moments, and a point belongs to no ply.
 The force here must be, to round-off, the derivative of ``solid_shell.strain_energy_form`` for a
 hexahedron carrying those plies; ``tests/test_subelement.py`` checks that against DOLFINx.
 
@@ -37,12 +39,12 @@ and the reference displacement gradient are then affine in zeta. Every point of 
 one of a few in-plane positions (the 3 x 3 grid of the selective rule), and each position
 carries one energy term. The packed rule lists the points line by line, so per element the
 kernel takes one line at a time: it forms intercept and slope of J and of du/d(xi, eta, zeta)
-on it, then runs one branch-free loop over the line's points (one or two per ply), which the
-compiler vectorises: evaluate both maps with one multiply-add per entry, invert J, accumulate
-P = w |det J| sigma J^-T into two moments (sum P, sum zeta P). The moments become derivatives
-with respect to the monomial coefficients, and the transposed butterfly takes them back to the
-8 vertices at the end. With finite kinematics the per-point P is w |det J| F S J^-T (first
-Piola-Kirchhoff stress times the reference gradient map: the derivative of 1/2 S : E),
+on it, then runs one branch-free loop over the line's points (three, or one or two per ply),
+which the compiler vectorises: evaluate both maps with one multiply-add per entry, invert J,
+accumulate P = w |det J| sigma J^-T into two moments (sum P, sum zeta P). The moments become
+derivatives with respect to the monomial coefficients, and the transposed butterfly takes them
+back to the 8 vertices at the end. With finite kinematics the per-point P is w |det J| F S J^-T
+(first Piola-Kirchhoff stress times the reference gradient map: the derivative of 1/2 S : E),
 F = I + H; the rest is unchanged.
 """
 
@@ -160,6 +162,7 @@ def pack_rule(
     points_per_ply: int,
     shear_factors: tuple[float, float] = (1.0, 1.0),
     enhanced: bool = False,
+    preintegrate: bool = False,
 ) -> PackedRule:
     """Pack the selective solid-shell rule of a (sub)element.
 
@@ -169,8 +172,11 @@ def pack_rule(
     (f_k - f_i) / (f_{j+1} - f_i)). ``ply_stiffness``: (n_plies, 6, 6) shell-frame stiffness
     (MPa, Voigt xx, yy, zz, yz, xz, xy, engineering shears), symmetric and monoclinic (no
     normal/transverse-shear coupling: the selective rule drops it). ``points_per_ply``: Gauss
-    points through the thickness of each ply. The points are those of ``solid_shell.ply_rules``,
-    ply by ply, and ply k uses ``stiffness[k]``. ``shear_factors``: the (sub)element's transverse
+    points through the thickness of each ply, ``preintegrate``: the laminate's three
+    pre-integrated points instead where ``solid_shell.thickness_rule`` takes them (then
+    ``stiffness`` holds their three stiffnesses, and ``ply_of_point`` indexes those, not plies).
+    Per ply, the points are those of ``solid_shell.ply_rules``, ply by ply, and ply k uses
+    ``stiffness[k]``. ``shear_factors``: the (sub)element's transverse
     shear correction (k_xz, k_yz), on the weights of its shear terms
     (``solid_shell.shear_weights``). ``enhanced``: the enhanced assumed thickness strain
     (``solid_shell`` module docstring), condensed by the kernels line by line."""
@@ -185,14 +191,18 @@ def pack_rule(
     if int(points_per_ply) != points_per_ply or points_per_ply < 1:
         raise ValueError(f"points_per_ply must be an integer >= 1 (got {points_per_ply})")
     position_index = {(xi, eta): q for q, (xi, eta) in enumerate(IN_PLANE_POSITIONS)}
+    through = solid_shell.thickness_rule(bounds, C, int(points_per_ply), preintegrate)
     points, weights, terms, plies = [], [], [], []
     factor = solid_shell.shear_weights(shear_factors)
-    for k, (lo, hi) in enumerate(bounds):
-        for term, (p, w) in solid_shell.ply_rules(lo, hi, int(points_per_ply)).items():
+    for zeta_p, w_p, k in zip(
+        through.zeta, through.weights, through.stiffness_of_point, strict=True
+    ):
+        for term, (p, w) in solid_shell.term_rules(np.array([zeta_p]), np.array([w_p])).items():
             points.append(p)
             weights.append(factor[term] * w)
             terms.append(np.full(len(w), TERM_CODES[term], dtype=np.int64))
             plies.append(np.full(len(w), k, dtype=np.int64))
+    C = np.ascontiguousarray(through.stiffness)
     points = np.vstack(points)
     position_of_point = np.array(
         [position_index[(xi, eta)] for xi, eta in points[:, :2]], dtype=np.int64

@@ -72,6 +72,9 @@ class LayeredModel:
     # the enhanced assumed thickness strain (no Poisson thickness locking), condensed per cell
     enhanced_strain: bool = True
     enhanced: CondensedThicknessStrain | None = None
+    # each layer's plies pre-integrated through the thickness where the rule takes them
+    # (solid_shell.thickness_rule), else points_per_ply Gauss points in each ply
+    preintegrate: bool = True
     _enhanced_maps: np.ndarray | None = None  # enhanced_parameter_maps, once computed
 
     @property
@@ -111,7 +114,7 @@ class LayeredModel:
         energy = 0
         factors = self.shear_factors()
         for laminate, cells, k in zip(self.layer_laminates, self.ufl_cells, factors, strict=True):
-            groups = solid_shell.ply_groups(laminate, self.points_per_ply, k)
+            groups = solid_shell.energy_groups(laminate, self.points_per_ply, k, self.preintegrate)
             energy += solid_shell.strain_energy_form(
                 self.u, groups, kernels, cells, self.selective, self.kinematics, field
             )
@@ -147,6 +150,7 @@ class LayeredModel:
                     np.array(laminate.ply_stiffnesses()),
                     self.points_per_ply,
                     enhanced=True,
+                    preintegrate=self.preintegrate,
                 )
                 if not np.array_equal(rule.positions[:4], solid_shell.ENHANCED_LINES):
                     raise RuntimeError("the rule's first four lines are not the enhanced lines")
@@ -259,11 +263,12 @@ class LayeredModel:
 def build_model(
     beam: BeamMesh,
     layer_laminates: list[Laminate],
-    points_per_ply: int = 1,
+    points_per_ply: int = 2,
     selective: bool = True,
     kinematics: str = "small",
     shear_correction: bool = False,
     enhanced_strain: bool = True,
+    preintegrate: bool = True,
 ) -> LayeredModel:
     """``selective=False`` gives the plain fully integrated hexahedron (locks; for comparison).
     ``kinematics``: "small" (linear strain) or "finite" (total Lagrangian, Green-Lagrange).
@@ -271,7 +276,10 @@ def build_model(
     (``materials.laminate.shear_correction_factors``); off, the constant shear strain of the
     element carries the plies' full shear moduli. ``enhanced_strain``: the enhanced assumed
     thickness strain (``solid_shell`` module docstring); off, the element has Poisson thickness
-    locking in bending (kept for comparison)."""
+    locking in bending (kept for comparison). ``preintegrate``: each layer's plies
+    pre-integrated onto three points through the thickness where ``solid_shell.thickness_rule``
+    takes that rule (exact in bending, cheaper than a point per ply); off, or where it is not
+    positive definite, ``points_per_ply`` Gauss points in each ply."""
     if kinematics not in solid_shell.KINEMATICS:
         raise ValueError(
             f"kinematics must be one of {', '.join(solid_shell.KINEMATICS)} (got {kinematics!r})"
@@ -286,7 +294,7 @@ def build_model(
             raise ValueError(
                 f"mesh layer {k} is {t_mesh} mm thick but its plies add up to {laminate.thickness}"
             )
-        if laminate.n_plies * points_per_ply < 2:
+        if laminate.n_plies * points_per_ply < 2:  # one ply: Gauss points whatever the rule
             raise ValueError(
                 f"mesh layer {k} has a single integration point through its thickness: its "
                 "bending mode would have zero energy (use points_per_ply = 2)"
@@ -303,6 +311,7 @@ def build_model(
         kinematics=kinematics,
         shear_correction=shear_correction,
         enhanced_strain=enhanced_strain,
+        preintegrate=preintegrate,
     )
     cells = [model.layer_cells(k) for k in range(len(layer_laminates))]
     model.set_ufl_cells(cells)

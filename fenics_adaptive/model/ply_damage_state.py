@@ -51,6 +51,8 @@ class PlyDamageState:
         cell_plies: np.ndarray,
         comm: MPI.Comm,
     ):
+        if rule_table.preintegrate:
+            raise ValueError("ply damage needs rules ply by ply (RuleTable(preintegrate=False))")
         plies = laminate.plies
         self.laminate = laminate
         self.failures = failures

@@ -132,8 +132,13 @@ class Structure:
         self.bottom_global = self.columns.bottom_global
         self.original_cell, self.column_top = self.columns.original_cell, self.columns.column_top
         self.extra = enr.ExtraNodes(self.comm, max(n_interfaces, 1), V.dofmap.index_map)
+        # the ply-damage kernel integrates ply by ply: no pre-integrated rule for it
         self.rule_table = RuleTable(
-            laminate, base.points_per_ply, base.shear_correction, base.enhanced_strain
+            laminate,
+            base.points_per_ply,
+            base.shear_correction,
+            base.enhanced_strain,
+            base.preintegrate and not ply_damage,
         )
         self.refined_cells = RefinedCells(
             self.rule_table,

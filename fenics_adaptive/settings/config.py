@@ -15,10 +15,11 @@ check_units``); the step count against ``[solver] max_steps`` once the time step
 (``check_step_count``).
 
 Sections (see demos/*.toml for complete examples and ``config_schema`` for every key):
-  [model]        kind = "esl" | "adaptive" | "layerwise"; points_per_ply (1 or 2); kinematics =
-                 "small" (default) | "finite" (total Lagrangian: large rotations; no ply_damage);
-                 ply_damage; shear_correction (default false); enhanced_strain (default
-                 true); check_units (default true);
+  [model]        kind = "esl" | "adaptive" | "layerwise"; thickness_integration =
+                 "preintegrated" (default) | "plies"; points_per_ply (1 or 2, default 2);
+                 kinematics = "small" (default) | "finite" (total Lagrangian: large rotations;
+                 no ply_damage); ply_damage; shear_correction (default false); enhanced_strain
+                 (default true); check_units (default true);
                  max_memory (GB, default 16)
   [mesh]         length, width (mm), nx, ny (cells in-plane); layers = [plies per mesh layer]
                  for a layerwise model (default: one layer per ply)
@@ -74,6 +75,7 @@ from fenics_adaptive.settings.kinds import (
     Profile,
     Refinement,
     RigidMotion,
+    ThicknessIntegration,
 )
 from fenics_adaptive.settings.loads import (
     Amplitude,
@@ -146,6 +148,8 @@ class RunConfig:
     shear_correction: bool = False
     # the enhanced assumed thickness strain (element.solid_shell)
     enhanced_strain: bool = True
+    # through-thickness rule (element.solid_shell.thickness_rule)
+    thickness_integration: ThicknessIntegration = ThicknessIntegration.PREINTEGRATED
     impactor: Impactor | None = None
     rigid_bodies: tuple[RigidBody, ...] = ()
     lever: Lever | None = None
@@ -154,6 +158,14 @@ class RunConfig:
     delaminations: tuple[Delamination, ...] = ()
     fields: FieldSelection = field(default_factory=FieldSelection)
     source: str = "<memory>"
+
+    @property
+    def preintegrate(self) -> bool:
+        """The elements take the pre-integrated through-thickness rule where it applies: asked
+        for, and no ply damage (whose kernel integrates ply by ply)."""
+        return self.thickness_integration == ThicknessIntegration.PREINTEGRATED and not (
+            self.ply_damage
+        )
 
     @property
     def loading_bodies(self) -> list[str]:
@@ -563,6 +575,7 @@ def parse_config(data: dict, source: str = "<memory>", seen: set[str] | None = N
         points_per_ply=model.points_per_ply,
         shear_correction=model.shear_correction,
         enhanced_strain=model.enhanced_strain,
+        thickness_integration=model.thickness_integration,
         mesh=mesh,
         laminate=laminate,
         motions=tuple(motions),
@@ -598,6 +611,7 @@ class _Model:
     max_memory: float  # GB
     shear_correction: bool
     enhanced_strain: bool
+    thickness_integration: ThicknessIntegration
 
 
 def _model(table: _Table) -> _Model:
@@ -611,6 +625,7 @@ def _model(table: _Table) -> _Model:
         max_memory=table.number("max_memory"),
         shear_correction=table.boolean("shear_correction"),
         enhanced_strain=table.boolean("enhanced_strain"),
+        thickness_integration=table.choice("thickness_integration"),
     )
     if model.kinematics == Kinematics.FINITE and model.ply_damage:
         # the ply damage kernel samples small strains; mixing it with finite kinematics would

@@ -57,6 +57,15 @@ class Kinematics(StrEnum):
     FINITE = "finite"
 
 
+class ThicknessIntegration(StrEnum):
+    """``[model] thickness_integration``: the laminate pre-integrated onto three points through
+    the thickness (exact in bending, cost independent of the ply count), or Gauss points ply by
+    ply (``points_per_ply``; what ply damage always uses)."""
+
+    PREINTEGRATED = "preintegrated"
+    PLIES = "plies"
+
+
 class MixedModeLaw(StrEnum):
     """``[cohesive] law``: the mixed-mode criterion of the critical energy release rate,
     Benzeggagh-Kenane or the power law (``materials.cohesive``)."""

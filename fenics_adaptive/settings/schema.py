@@ -37,6 +37,7 @@ from fenics_adaptive.settings.kinds import (
     Profile,
     Refinement,
     RigidMotion,
+    ThicknessIntegration,
 )
 
 # --------------------------------------------------------------------------- limits (documented)
@@ -270,10 +271,21 @@ SECTIONS: tuple[Section, ...] = (
                 choices=tuple(ModelKind),
             ),
             Key(
+                "thickness_integration",
+                "choice",
+                'through-thickness integration of the elements: "preintegrated" (the plies '
+                "pre-integrated onto three points, exact in bending for any ply count; where "
+                "that rule is not positive definite, and with ply_damage, points_per_ply "
+                'points in each ply) or "plies" (points_per_ply Gauss points in each ply)',
+                default=str(ThicknessIntegration.PREINTEGRATED),
+                choices=tuple(ThicknessIntegration),
+            ),
+            Key(
                 "points_per_ply",
                 "int",
-                "integration points through the thickness of each ply",
-                default=1,
+                "Gauss points through the thickness of each ply where the plies are integrated "
+                "one by one (2 integrate the bending stiffness exactly; 1 warns of its error)",
+                default=2,
                 minimum=1,
                 maximum=2,
             ),

@@ -260,11 +260,13 @@ class InversionGuard:
         corners = np.concatenate([s.bottom_local[cell], s.top_local[cell]])
         centroid = s.X_base[corners].mean(axis=0)
         rules = self.rules
-        r = int(self.rule_of_element[e])
         first, stop = int(self.plies[e, 0]), int(self.plies[e, 1])
-        ply = first + int(rules.ply_of_point[p] - rules.ply_of_point[rules.rule_offsets[r]])
         xi, eta = rules.positions[rules.position_of_point[p]]
         z = rules.zeta[p]
+        # the ply that holds the point's height (a pre-integrated point belongs to no ply)
+        f = s.laminate.ply_fractions
+        height = f[first] + z * (f[stop] - f[first])
+        ply = int(np.clip(np.searchsorted(f, height, side="right") - 1, first, stop - 1))
         # det F = det J(x) / det J(X) at the point
         X = s.gather(self.nodes[e], "X")
         b = np.empty((8, 3))
