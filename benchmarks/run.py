@@ -117,11 +117,15 @@ def bench_kernels(n_cells: int, repeat: int) -> list[dict]:
     update; the first two also without the enhanced thickness strain, for its cost.
     Integration-point updates per second per core."""
     rows = [row for model in ELASTIC_VARIANTS for row in _elastic_rows(n_cells, repeat, model)]
-    damaged = build_structure(parse_config(beam_config(n_cells, ply_damage=True)))
-    deform(damaged)
-    median, first = timed(damaged.internal_force, repeat)
-    n = damaged.base.n_owned_cells
-    rows.append(_kernel_row("numba kernel, with ply damage update", n, median, first))
+    # ply damage integrates ply by ply: two points per ply (exact bending, the default) and one
+    for points, label in ((2, ""), (1, ", 1 point per ply")):
+        data = beam_config(n_cells, ply_damage=True)
+        data["model"]["points_per_ply"] = points
+        damaged = build_structure(parse_config(data))
+        deform(damaged)
+        median, first = timed(damaged.internal_force, repeat)
+        n = damaged.base.n_owned_cells
+        rows.append(_kernel_row(f"numba kernel, with ply damage update{label}", n, median, first))
     return rows
 
 
