@@ -232,7 +232,7 @@ def test_batched_kernel_matches_single_element_kernel():
     X_all = np.array([distorted_hex(rng) for _ in range(ne)])
     U_all = np.array([random_displacement(rng) for _ in range(ne)])
     f_all = np.full((ne, 8, 3), np.nan)
-    total = se.solid_shell_forces(X_all, U_all, rule_of_element, *packed, f_all)
+    total = se.solid_shell_forces(X_all, U_all, rule_of_element, *packed, f_all, False)
     energies = []
     for e, r in enumerate(rule_of_element):
         f_single, energy = kernel_force(X_all[e], U_all[e], rules[r])

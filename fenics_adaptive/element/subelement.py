@@ -228,7 +228,7 @@ class PackedRules(NamedTuple):
     """Several packed rules concatenated, CSR style: the points of rule r are
     ``rule_offsets[r]:rule_offsets[r + 1]``; ``ply_of_point`` indexes the concatenated
     ``stiffness``. The fields are the batched kernel's arguments in order:
-    ``solid_shell_forces(X_all, u_all, rule_of_element, *rules, f_all)``."""
+    ``solid_shell_forces(X_all, u_all, rule_of_element, *rules, f_all, finite)``."""
 
     rule_offsets: np.ndarray  # (n_rules + 1,) int64
     zeta: np.ndarray
@@ -851,7 +851,7 @@ def solid_shell_force(
         np.zeros(1, dtype=np.int64),
         *concatenate_rules([rule]),
         f_out[None],
-        finite,
+        bool(finite),
     )
 
 
@@ -870,7 +870,7 @@ def solid_shell_forces(
     stiffness,
     enhanced_mode,
     f_all,
-    finite=False,
+    finite,
 ):
     """Internal forces (N) of many (sub)elements into ``f_all`` (ne, 8, 3), overwritten; returns
     their total strain energy (mJ). ``finite``: total Lagrangian kinematics.
@@ -880,7 +880,7 @@ def solid_shell_forces(
     ``r = rule_of_element[e]`` (elements with the same layup may share a rule; give each element
     its own rule with ``rule_of_element = arange(ne)``). The remaining inputs are the fields of a
     ``PackedRules`` (``concatenate_rules``): ``solid_shell_forces(X, u, rule_of_element,
-    *rules, f_all)``."""
+    *rules, f_all, finite)``, ``finite`` a bool every time (another type compiles it again)."""
     work = np.empty((2, 8, 3))
     line = np.empty((4, 3, 3))
     energy = 0.0
@@ -1476,7 +1476,7 @@ def solid_shell_force_damaged(
     f = np.zeros((8, 3))
     zero = np.zeros(1, dtype=np.int64)
     energy = add_damaged_subelement_forces(
-        np.arange(8, dtype=np.int64)[None],
+        np.arange(8, dtype=np.int32)[None],
         zero,
         zero,
         zero,
@@ -1492,6 +1492,7 @@ def solid_shell_force_damaged(
         none,
         f,
         none,
+        True,
     )
     f_out[:] = f
     return energy
@@ -1523,13 +1524,15 @@ def add_damaged_subelement_forces(
     u_extra,
     f_base,
     f_extra,
-    update=True,
+    update,
 ):
     """f += sum_e P_e^T f_e over damage-aware (sub)elements, updating their damage (not with
     ``update`` False: the energy of a state at its damage so far); returns the total secant
     strain energy (mJ). Call as ``add_damaged_subelement_forces(nodes,
     rule_of_element, state_row, first_ply, *rules, *ply_damage, band_width, damage_state,
-    X_base, X_extra, u_base, u_extra, f_base, f_extra)``.
+    X_base, X_extra, u_base, u_extra, f_base, f_extra, update)``, ``nodes`` int32 and
+    ``update`` a bool every time: each other argument type compiles the kernel again (about a
+    minute).
 
     ``element_nodes`` (ne, 8): combined local node indices (i < n_base = len(X_base): base node
     i, else extra node i - n_base), as in ``assembly``; element e uses rule
