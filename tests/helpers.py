@@ -24,7 +24,7 @@ from fenics_adaptive.meshes import esl_mesh
 from fenics_adaptive.element import solid_shell
 from fenics_adaptive.element import subelement as se
 from fenics_adaptive.materials.laminate import Laminate, Ply, PlyMaterial
-from fenics_adaptive.model.forms import LayeredModel, build_model
+from fenics_adaptive.model.forms import CondensedThicknessStrain, LayeredModel, build_model
 
 # ------------------------------------------------------------------ materials and models
 CROSS_PLY = [0, 90, 0, 90, 90, 0, 90, 0]  # ply angles (degrees), bottom to top
@@ -190,8 +190,6 @@ class EnhancedCell:
     def __init__(
         self, X: np.ndarray, laminate, ppp: int, kinematics: str, preintegrate: bool = False
     ):
-        from fenics_adaptive.model.forms import CondensedThicknessStrain
-
         self.cell = SingleCell(X)
         A = fem.functionspace(self.cell.mesh, ("DG", 1))
         self.field = fem.Function(A)
@@ -215,6 +213,39 @@ class EnhancedCell:
         form = fem.form(ufl.derivative(self.energy, self.field, ufl.TestFunction(A)))
         residual = fem.assemble_vector(form).array
         return residual[self.condensed.cell_dofs[0]] @ self.condensed.T
+
+
+def tip_loaded_cantilever_error(
+    material: PlyMaterial, angles, slenderness: float, model: dict
+) -> tuple[float, object]:
+    """(ESL tip deflection / laminate beam theory with the exact shear compliance - 1, config)
+    of a static cantilever of 0.25 mm plies of ``material`` at ``angles`` (degrees), span
+    ``slenderness`` times its thickness in 0.25 mm cells, 1 mm wide, clamped at x = 0, 1 N
+    down on its top face; ``model``: the [model] keys besides ``kind = "esl"``."""
+    from fenics_adaptive.analysis import comparison as cmp
+    from fenics_adaptive.settings.config import parse_config
+    from fenics_adaptive.simulation import build_structure
+
+    thickness = 0.25 * len(angles)
+    length = slenderness * thickness
+    fields = ("E1", "E2", "G12", "nu12", "nu23", "rho", "G23")
+    ply = {k: getattr(material, k) for k in fields if getattr(material, k) is not None}
+    data = {
+        "model": {"kind": "esl", **model},
+        "mesh": {"length": length, "width": 1.0, "nx": round(length / 0.25), "ny": 2},
+        "materials": {"ply": ply},
+        "laminate": {"material": "ply", "ply_thickness": 0.25, "angles": list(angles)},
+        "clamp": [{"face": "x0"}],
+        "load": [{"face": "top", "force": [0.0, 0.0, -1.0], "curve": [[0.0, 1.0]]}],
+        "solver": {"end_time": 1e-6},
+        "output": {"interval": 1e-6, "displacement_face": "x1", "reaction_face": "x0",
+                   "component": "z"},
+    }  # fmt: skip
+    config = parse_config(data)
+    structure = build_structure(config)
+    cmp.solve_linear_static(structure)
+    theory = cmp.CantileverBeamTheory(config.laminate, length, 1.0, 1.0)
+    return cmp.tip_deflection(structure) / theory.tip_deflection()["total_mm"] - 1.0, config
 
 
 # ------------------------------------------------------------------ explicit dynamics

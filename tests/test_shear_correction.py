@@ -5,13 +5,11 @@ every slenderness."""
 
 import numpy as np
 import pytest
+from helpers import tip_loaded_cantilever_error
 
-from fenics_adaptive.analysis import comparison as cmp
 from fenics_adaptive.element import solid_shell
 from fenics_adaptive.element.rules import RuleTable
 from fenics_adaptive.materials.laminate import Laminate, PlyMaterial, shear_correction_factors
-from fenics_adaptive.settings.config import parse_config
-from fenics_adaptive.simulation import build_structure
 
 PLY = PlyMaterial("ply", E1=1.0e5, E2=1.0e4, G12=5.0e3, nu12=0.25, nu23=0.25, rho=1.6e-9, G23=4e3)
 ISOTROPIC = PlyMaterial("iso", E1=7.0e4, E2=7.0e4, G12=7.0e4 / 2.6, nu12=0.3, nu23=0.3, rho=2.7e-9)
@@ -101,25 +99,8 @@ def test_the_ufl_form_and_the_numba_rule_carry_the_same_factors():
 def cantilever_error(angles: list[float], slenderness: float, correction: bool) -> float:
     """ESL (2 points per ply) tip deflection of a cantilever under a top-face load against
     laminate beam theory with the exact shear compliance (relative)."""
-    thickness = 0.25 * len(angles)
-    length = slenderness * thickness
-    data = {
-        "model": {"kind": "esl", "points_per_ply": 2, "shear_correction": correction},
-        "mesh": {"length": length, "width": 1.0, "nx": round(length / 0.25), "ny": 2},
-        "materials": {"ply": {"E1": PLY.E1, "E2": PLY.E2, "G12": PLY.G12, "G23": PLY.G23,
-                              "nu12": PLY.nu12, "nu23": PLY.nu23, "rho": PLY.rho}},
-        "laminate": {"material": "ply", "ply_thickness": 0.25, "angles": angles},
-        "clamp": [{"face": "x0"}],
-        "load": [{"face": "top", "force": [0.0, 0.0, -1.0], "curve": [[0.0, 1.0]]}],
-        "solver": {"end_time": 1e-6},
-        "output": {"interval": 1e-6, "displacement_face": "x1", "reaction_face": "x0",
-                   "component": "z"},
-    }  # fmt: skip
-    config = parse_config(data)
-    structure = build_structure(config)
-    cmp.solve_linear_static(structure)
-    theory = cmp.CantileverBeamTheory(config.laminate, length, 1.0, 1.0)
-    return cmp.tip_deflection(structure) / theory.tip_deflection()["total_mm"] - 1.0
+    model = {"points_per_ply": 2, "shear_correction": correction}
+    return tip_loaded_cantilever_error(PLY, angles, slenderness, model)[0]
 
 
 @pytest.mark.slow

@@ -37,6 +37,7 @@ from helpers import (
     random_laminate,
     relative_difference,
     subelement_vertices,
+    tip_loaded_cantilever_error,
 )
 from mpi4py import MPI
 
@@ -180,31 +181,11 @@ def test_preintegrated_elements_have_positive_energy_on_distorted_cells():
 
 
 def cantilever(angles: list[float], slenderness: float, model: dict | None = None):
-    """(ESL tip deflection / laminate beam theory with the exact shear compliance - 1, config)
-    of a tip-loaded (top face) cantilever of 0.25 mm carbon plies, [model] defaults with the
-    shear correction, but ``model``."""
-    from fenics_adaptive.analysis import comparison as cmp
-
-    thickness = 0.25 * len(angles)
-    length = slenderness * thickness
-    ply = {"E1": CARBON.E1, "E2": CARBON.E2, "G12": CARBON.G12, "nu12": CARBON.nu12,
-           "nu23": CARBON.nu23, "rho": CARBON.rho}  # fmt: skip
-    data = {
-        "model": {"kind": "esl", "shear_correction": True, **(model or {})},
-        "mesh": {"length": length, "width": 1.0, "nx": round(length / 0.25), "ny": 2},
-        "materials": {"carbon": ply},
-        "laminate": {"material": "carbon", "ply_thickness": 0.25, "angles": angles},
-        "clamp": [{"face": "x0"}],
-        "load": [{"face": "top", "force": [0.0, 0.0, -1.0], "curve": [[0.0, 1.0]]}],
-        "solver": {"end_time": 1e-6},
-        "output": {"interval": 1e-6, "displacement_face": "x1", "reaction_face": "x0",
-                   "component": "z"},
-    }  # fmt: skip
-    config = parse_config(data)
-    structure = build_structure(config)
-    cmp.solve_linear_static(structure)
-    theory = cmp.CantileverBeamTheory(config.laminate, length, 1.0, 1.0)
-    return cmp.tip_deflection(structure) / theory.tip_deflection()["total_mm"] - 1.0, config
+    """(ESL tip deflection / laminate beam theory - 1, config) of a tip-loaded carbon
+    cantilever, [model] defaults with the shear correction, but ``model``."""
+    return tip_loaded_cantilever_error(
+        CARBON, angles, slenderness, {"shear_correction": True, **(model or {})}
+    )
 
 
 @pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="the static comparison is serial")

@@ -194,14 +194,12 @@ def pack_rule(
     through = solid_shell.thickness_rule(bounds, C, int(points_per_ply), preintegrate)
     points, weights, terms, plies = [], [], [], []
     factor = solid_shell.shear_weights(shear_factors)
-    for zeta_p, w_p, k in zip(
-        through.zeta, through.weights, through.stiffness_of_point, strict=True
-    ):
-        for term, (p, w) in solid_shell.term_rules(np.array([zeta_p]), np.array([w_p])).items():
-            points.append(p)
-            weights.append(factor[term] * w)
-            terms.append(np.full(len(w), TERM_CODES[term], dtype=np.int64))
-            plies.append(np.full(len(w), k, dtype=np.int64))
+    for term, (p, w) in solid_shell.term_rules(through.zeta, through.weights).items():
+        points.append(p)
+        weights.append(factor[term] * w)
+        terms.append(np.full(len(w), TERM_CODES[term], dtype=np.int64))
+        # term_rules lists each through-thickness point's in-plane points together
+        plies.append(np.repeat(through.stiffness_of_point, len(w) // len(through.zeta)))
     C = np.ascontiguousarray(through.stiffness)
     points = np.vstack(points)
     position_of_point = np.array(
