@@ -26,13 +26,19 @@ on a piecewise-linear residual (a semismooth Newton / active-set iteration):
 - with films, the first tangent is that of open films (``FILM_OPENING``): where the faces
   would then overlap, the next step closes them all at once; later steps probe about the
   current u with probes small against it (``PROBE``), so that the tangent of each face is
-  that of its side of the kink;
-- with rigid bodies, a structure may be held only by them (a beam on rollers): the tangent
-  then gets a small spring on every free DOF (``REGULARISATION`` of the mean diagonal),
-  which changes the path, not the solution (the residual is the true one); a Newton step
+  that of its side of the kink; a film zone the iteration closed but the solution opens
+  opens one element per step (``NEWTON_STEPS``);
+- with rigid bodies, a structure may be held only by them (a beam on rollers): where its
+  tangent is singular (no body touches yet), it gets a small spring on every free DOF
+  (``REGULARISATION`` of the mean diagonal), which changes the path, not the solution (the
+  residual is the true one; a spring on every step would make Newton converge only
+  linearly); a Newton step
   moves no node farther than ``STEP_LIMIT`` of the thinnest of laminate and bodies, and the
   bodies travel to their end position in increments of at most that (a node pressed deeper
   into a body than that could be pushed out on its far side);
+- an increment starts from the secant extrapolation of the last two solutions (the first
+  from rest): a near-linear response starts close to its answer, with the nodes a body
+  pushes already moved with it;
 - if Newton does not settle on an increment, the increment is halved (``MAX_BISECTIONS``).
 
 Border DOFs (extra nodes on the border of a refined region) follow their masters
@@ -63,6 +69,11 @@ FIRST_PROBE = 1e-6
 # bodies' radii: a structure held only by bodies (the first step moves it freely) does not jump
 # through them
 STEP_LIMIT = 0.25
+# Newton steps per increment, plus one per insert-film element: a zone of film faces that an
+# iterate closes but the solution opens (faces touching without pressure: the ENF's arms have
+# equal curvatures) carries its tension at its edge only, as a crack tip does, so each step
+# opens one element more (about 60 steps on the 65-element film of demos/fracture_tests_enf)
+NEWTON_STEPS = 40
 # how often ``solve`` may halve its load increment before it gives up
 MAX_BISECTIONS = 8
 # spring added to the tangent's diagonal of the free DOFs when rigid bodies act, relative to
@@ -362,23 +373,34 @@ def _films_opened(system: StaticSystem) -> np.ndarray:
     return offset
 
 
-def solve(system: StaticSystem, tolerance: float = 1e-9, max_iterations: int = 40) -> Equilibrium:
+def solve(
+    system: StaticSystem, tolerance: float = 1e-9, max_iterations: int | None = None
+) -> Equilibrium:
     """The equilibrium at the system's full loads (see the module docstring): Newton's method
     at once; if that does not converge (a body pressed far into a face, contact states that
     keep switching), by continuation: the loads, motions and bodies' travel in increments
     (halved until Newton converges on each, up to ``MAX_BISECTIONS`` times), each increment
-    starting from the last solution. Raises RuntimeError if even the smallest increment does
-    not converge, numpy.linalg.LinAlgError if the structure is not held."""
+    starting from the secant extrapolation of the last two solutions. ``max_iterations``
+    (Newton steps per increment): by default ``NEWTON_STEPS`` plus one per insert-film
+    element. Raises RuntimeError if even the smallest increment does not converge,
+    numpy.linalg.LinAlgError if the structure is not held."""
+    if max_iterations is None:
+        max_iterations = NEWTON_STEPS + int(system.structure.cohesive.inserted().sum())
     # bodies move at most a Newton step per increment: a node pressed deeper into a body than
     # the step limit could be pushed out on the wrong side
     travel = system.largest_travel()
     done, step, bisections = 0.0, min(1.0, system.step_limit / max(travel, 1e-300)), 0
     u, total, solution = None, 0, None
+    # the solution before the last (its load factor, u): at rest before the first increment
+    earlier = (0.0, np.zeros(system.n))
     while done < 1.0:
         target = min(1.0, done + step)
         system.scale(target)
+        start = u
+        if u is not None:  # secant predictor: a near-linear response starts near its answer
+            start = u + (target - done) / (done - earlier[0]) * (u - earlier[1])
         try:
-            solution = _newton(system, u, tolerance, max_iterations)
+            solution = _newton(system, start, tolerance, max_iterations)
         except RuntimeError as error:
             bisections += 1
             if bisections > MAX_BISECTIONS:
@@ -391,6 +413,8 @@ def solve(system: StaticSystem, tolerance: float = 1e-9, max_iterations: int = 4
                 system.set_displacement(u)
             continue
         total += solution.force_evaluations
+        if u is not None:
+            earlier = (done, u)
         u, done = solution.u, target
     solution.force_evaluations = total
     return solution
@@ -445,10 +469,14 @@ def _newton(system: StaticSystem, start: np.ndarray | None, tolerance: float,
                 probe = PROBE * size if size > 0.0 else 1.0
                 K, n = system.tangent(u, f_u, probe)
             evaluations += n + 1
-            shift = 0.0
-            if system.contacts:
+            try:
+                step = solve_sparse(K, system.free, r[system.free])
+            except np.linalg.LinAlgError:
+                if not system.contacts:
+                    raise
+                # held only by bodies it does not touch yet
                 shift = REGULARISATION * float(np.abs(K.diagonal()[system.free]).mean())
-            step = solve_sparse(K, system.free, r[system.free], shift)
+                step = solve_sparse(K, system.free, r[system.free], shift)
             if system.contacts:  # never through a body: a node deep in it is pushed out behind
                 step *= min(1.0, system.step_limit / max(float(np.abs(step).max()), 1e-300))
             u[system.free] += step
