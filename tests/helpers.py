@@ -355,3 +355,24 @@ def theory_history(load: str, a0: float, cracks, force, compliance, width: float
     history["cohesive_dissipation"] = Gc * history["crack_growth_area"]
     history["impact_work"] = np.cumsum(np.abs(history[f"{load}_force"]))
     return history
+
+
+def quick_fracture_run(data: dict, out: Path) -> tuple[object, dict, np.ndarray, np.ndarray]:
+    """Run the layerwise model of a fracture config table quietly into ``out``: (config,
+    history columns as arrays, energy (mJ) each grown cohesive element dissipated, its area
+    (mm^2)); grown: failed and not of an insert film."""
+    from fenics_adaptive.analysis.studies import fracture_variant
+    from fenics_adaptive.io.output import read_history
+    from fenics_adaptive.materials.cohesive import H_DISSIPATED
+    from fenics_adaptive.model.diagnostics import quad_areas
+    from fenics_adaptive.runner import execute
+    from fenics_adaptive.settings.config import parse_config
+
+    config = parse_config(fracture_variant(data, "layerwise"))
+    _, structure = execute(config, out, show_progress=False, log=None)
+    history = {k: np.asarray(v) for k, v in read_history(out / "history.csv").items()}
+    cohesive = structure.cohesive
+    grown = cohesive.failed() & ~cohesive.inserted()
+    dissipated = cohesive.history[cohesive.damage_row, :, H_DISSIPATED].sum(axis=1)
+    areas = quad_areas(structure.gather(cohesive.nodes[:, :4], "X"))
+    return config, history, dissipated[grown], areas[grown]

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fenics_adaptive.model.contact import Contact, penalty_forces
+from fenics_adaptive.model.contact import Contact, add_penalty_forces
 from fenics_adaptive.settings.config import parse_config
 from fenics_adaptive.settings.loads import Impactor
 from fenics_adaptive.settings.solver import SolverSettings
@@ -18,16 +18,23 @@ DATA = Path(__file__).parent / "data"
 
 
 def test_penalty_force_points_away_from_the_centre_and_stores_its_energy():
-    x = np.array([[0.0, 0.0, 0.9], [0.6, 0.0, 0.8], [0.0, 0.0, 2.0]])  # two inside R = 1
-    f, on_impactor = np.zeros_like(x), np.zeros(3)
-    energy = penalty_forces(x, np.zeros(3), 1.0, -1, 100.0, f, on_impactor)
-    np.testing.assert_allclose(f[0], [0.0, 0.0, 100.0 * 0.1])
-    assert np.all(f[2] == 0.0)
-    np.testing.assert_allclose(on_impactor, -f.sum(axis=0))
+    X = np.array([[0.0, 0.0, 0.5], [0.6, 0.0, 0.3], [0.0, 0.0, 1.0]])  # reference positions
+    u = np.array([[0.0, 0.0, 0.4], [0.0, 0.0, 0.5], [0.0, 0.0, 1.0]])  # two end inside R = 1
+    nodes = np.array([2, 0, 1])  # each node's place in the flat u and f
+    u_flat = np.zeros(9)
+    u_flat.reshape(3, 3)[nodes] = u
+    f = np.ones(9)  # forces already there are added to
+    on_body = np.zeros(3)
+    energy = add_penalty_forces(u_flat, nodes, X, np.zeros(3), 1.0, -1, 100.0, f, on_body)
+    added = f.reshape(3, 3)[nodes] - 1.0
+    np.testing.assert_allclose(added[0], [0.0, 0.0, 100.0 * 0.1])
+    assert np.all(added[2] == 0.0)
+    np.testing.assert_allclose(on_body, -added.sum(axis=0))
     assert energy == pytest.approx(0.5 * 100.0 * (0.1**2 + 0.0**2))  # the second sits on R
     # a cylinder along y ignores y
-    f_cyl = np.zeros_like(x)
-    penalty_forces(x + np.array([0.0, 5.0, 0.0]), np.zeros(3), 1.0, 1, 100.0, f_cyl, np.zeros(3))
+    f_cyl = np.ones(9)
+    shifted = X + np.array([0.0, 5.0, 0.0])
+    add_penalty_forces(u_flat, nodes, shifted, np.zeros(3), 1.0, 1, 100.0, f_cyl, np.zeros(3))
     np.testing.assert_allclose(f_cyl, f)
 
 

@@ -221,16 +221,59 @@ def dcb_quick(data: dict) -> dict:
     return data
 
 
+# the quick ENF and MMB: half-span and film (mm); the load point reaches 87.5 % of the
+# theory's initiation travel in QUICK_APPROACH (s, about 4.8 bending periods), then slows
+# down and grows the crack to 1 mm short of mid-span in QUICK_GROWTH (s, about 3.7 periods);
+# QUICK_RAMP (s) to speed up and to slow down
+QUICK_HALF_SPAN, QUICK_FILM = 36.0, 27.0
+QUICK_APPROACH, QUICK_GROWTH, QUICK_RAMP = 4.0e-3, 3.1e-3, 5e-4
+
+
+def _half_arms(data: dict) -> int:
+    """Each arm of ``data``'s first insert film keeps the half of its plies next to the film,
+    one cell layer per arm; returns the film's new interface (the tables changed in place)."""
+    laminate, film = data["laminate"], data["delamination"][0]
+    angles, interface = laminate["angles"], film["interface"]
+    lower, upper = angles[:interface], angles[interface:]
+    lower, upper = lower[len(lower) // 2 :], upper[: len(upper) // 2]
+    laminate["angles"] = lower + upper
+    data["interfaces"]["delaminate"] = [len(lower)]
+    data["mesh"]["layers"] = [len(lower), len(upper)]
+    film["interface"] = len(lower)
+    return len(lower)
+
+
+def _quick_drive(table: dict, approach: float, end: float, data: dict) -> None:
+    """Drive ``table`` (a rigid body's or the lever's) to ``approach`` (mm) by QUICK_APPROACH,
+    then slower, to ``end`` (mm) QUICK_GROWTH later; the run ends there, its rows every 1/200
+    of it."""
+    ramp = QUICK_RAMP
+    fast = approach / (QUICK_APPROACH - 0.5 * ramp)  # mm/s
+    # the slower speed: ``end`` reached, the travel while slowing down included
+    slow = (end - approach - 0.5 * ramp * fast) / (QUICK_GROWTH + 0.5 * ramp)
+    if not 0.0 < slow < fast:
+        raise ValueError(f"a quick run's schedule: growth speed {slow:.4g} mm/s (fast {fast:.4g})")
+    end_time = QUICK_APPROACH + ramp + QUICK_GROWTH
+    curve = [[0.0, 0.0], [ramp, 1.0], [QUICK_APPROACH, 1.0], [QUICK_APPROACH + ramp, slow / fast]]
+    for key in ("rise_time", "profile", "displacement"):
+        table.pop(key, None)
+    velocity = table["velocity"]
+    table["velocity"] = [0.0, 0.0, -fast] if isinstance(velocity, list) else -fast
+    table["curve"] = curve
+    data["solver"]["end_time"] = end_time
+    data["output"]["interval"] = end_time / 200
+
+
 def enf_quick(data: dict) -> dict:
     """The ENF made fast: each arm keeps the half of its plies next to the film (0.78 mm arms
     on the demo's), the half-span is 36 mm with a0 = 27 mm (a0 / L = 0.75, stable growth as the
     demo's), in 1 mm cells. Thinner arms shorten what a propagation branch needs (from five arm
     thicknesses beyond the film to one short of the nose: 30.9 - 35.2 mm here). The nose runs
-    at 1200 mm/s to 87.5 % of the theory's initiation travel and at 400 mm/s from there to
-    1.065 x the theory's travel at a crack 1 mm short of the nose: the crack grows over about
-    five bending periods (0.84 ms), so that the branch stays quasi-static while the approach
-    is quick. The same physics in under a minute (the tests and ``demos/fracture_tests.py
-    --quick`` use it).
+    to 87.5 % of the theory's initiation travel in 4 ms (1200 mm/s on the demo's beam) and
+    from there to 1.065 x the theory's travel at a crack 1 mm short of the nose in 3.6 ms (400
+    mm/s): the crack grows over about four bending periods (0.84 ms), so that the branch stays
+    quasi-static while the approach is quick. The same physics in under a minute (the tests
+    use it).
 
     Parameters:
         data: an ENF config table (``demos/fracture_tests_enf.toml`` or one of its variants):
@@ -240,23 +283,15 @@ def enf_quick(data: dict) -> dict:
         A new config table.
     """
     data = copy.deepcopy(data)
-    half_span, crack, fast, slow, ramp = 36.0, 27.0, 1200.0, 400.0, 5e-4  # mm, mm/s, s
+    half_span, crack = QUICK_HALF_SPAN, QUICK_FILM
     bodies = {body["name"]: body for body in data["rigid"]}
     left, right, nose = bodies["left"], bodies["right"], bodies["nose"]
     overhang = left["position"][0]
-    film = data["delamination"][0]
-    laminate = data["laminate"]
-    angles, interface = laminate["angles"], film["interface"]
-    lower, upper = angles[:interface], angles[interface:]
-    lower, upper = lower[len(lower) // 2 :], upper[: len(upper) // 2]
-    laminate["angles"] = lower + upper
-    thickness = laminate["ply_thickness"] * len(angles)
-    new_thickness = laminate["ply_thickness"] * len(laminate["angles"])
-    data["interfaces"]["delaminate"] = [len(lower)]
-    data["mesh"]["layers"] = [len(lower), len(upper)]
+    thickness = data["laminate"]["ply_thickness"] * len(data["laminate"]["angles"])
+    interface = _half_arms(data)
     length = 2.0 * (half_span + overhang)
     data["mesh"].update(length=length, nx=round(length))
-    film.update(interface=len(lower), x_min=length - overhang - crack, x_max=length)
+    data["delamination"][0].update(x_min=length - overhang - crack, x_max=length)
     for entry in data["prescribed"]:
         if "x" in entry:  # the line under the nose that stops a slide along x
             entry["x"] = 0.5 * length
@@ -264,27 +299,60 @@ def enf_quick(data: dict) -> dict:
         data["output"]["displacement_x"] = 0.5 * length
     left["position"][0], right["position"][0] = overhang, length - overhang
     nose["position"][0] = 0.5 * length
-    nose["position"][2] += new_thickness - thickness
+    nose["position"][2] += data["laminate"]["ply_thickness"] * len(data["laminate"]["angles"])
+    nose["position"][2] -= thickness
     # the theory's nose travel (mm) at a crack a on the propagation branch
     config = parse_config(data)
     material, width = config.laminate.plies[0].material, config.mesh.width
-    arm = lefm.arm_thickness(config.laminate, len(lower))
+    arm = lefm.arm_thickness(config.laminate, interface)
 
     def travel(a: float) -> float:
         force = lefm.enf_propagation_force(a, material.E1, width, arm, config.cohesive.GIIc)
         return float(force * lefm.enf_compliance(a, half_span, material.E1, material.G12,
                                                  width, arm))  # fmt: skip
 
-    approach = 0.875 * travel(crack)
-    slowed = approach / fast + 0.5 * ramp  # the nose reaches ``approach`` at full speed
-    braked = 0.5 * ramp * (fast + slow)  # travelled while slowing down
-    end_time = slowed + ramp + (1.065 * travel(half_span - 1.0) - approach - braked) / slow
-    for key in ("rise_time", "profile", "displacement"):
-        nose.pop(key, None)
-    nose["velocity"] = [0.0, 0.0, -fast]
-    nose["curve"] = [[0.0, 0.0], [ramp, 1.0], [slowed, 1.0], [slowed + ramp, slow / fast]]
-    data["solver"]["end_time"] = end_time
-    data["output"]["interval"] = end_time / 200
+    approach, end = 0.875 * travel(crack), 1.065 * travel(half_span - 1.0)
+    _quick_drive(nose, approach, end, data)
+    return data
+
+
+def mmb_quick(data: dict) -> dict:
+    """The MMB made fast as ``enf_quick`` makes the ENF: arms of half the plies, L = 36 mm,
+    a0 = 27 mm, 1 mm cells, the lever's load arm scaled with L (simple beam theory's mixity
+    depends on c / L only). The load point approaches initiation and grows the crack on the
+    quick ENF's schedule (``QUICK_APPROACH``, ``QUICK_GROWTH``), with the lever's travels.
+
+    Parameters:
+        data: an MMB config table (``demos/fracture_tests_mmb.toml`` or one of its
+            variants): the hinges at the end x = length, the far roller at x > 0.
+
+    Returns:
+        A new config table.
+    """
+    data = copy.deepcopy(data)
+    half_span, crack = QUICK_HALF_SPAN, QUICK_FILM
+    base = lefm.MMBSpecimen.of(parse_config(data))
+    bodies = {body["name"]: body for body in data["rigid"]}
+    lever = data["lever"]
+    saddle = bodies[lever["saddle"]]
+    roller = next(b for b in data["rigid"] if b is not saddle)
+    overhang = roller["position"][0]
+    thickness = data["laminate"]["ply_thickness"] * len(data["laminate"]["angles"])
+    _half_arms(data)
+    length = overhang + 2.0 * half_span
+    data["mesh"].update(length=length, nx=round(length))
+    data["delamination"][0].update(x_min=length - crack, x_max=length)
+    saddle["position"][0] = length - half_span
+    saddle["position"][2] += data["laminate"]["ply_thickness"] * len(data["laminate"]["angles"])
+    saddle["position"][2] -= thickness
+    lever["load_arm"] = round(base.load_arm * half_span / base.half_span, 3)
+    beam = lefm.MMBSpecimen.of(parse_config(data))
+
+    def travel(a: float) -> float:
+        return float(beam.compliance(a) * beam.propagation(a))
+
+    approach, end = 0.875 * travel(crack), 1.065 * travel(half_span - 1.0)
+    _quick_drive(lever, approach, end, data)
     return data
 
 

@@ -46,27 +46,29 @@ from fenics_adaptive.settings.loads import Impactor, RigidBody
 
 
 @njit(cache=True)
-def penalty_forces(x, centre, radius, axis, penalty, f_out, total):
-    """Contact forces (n, 3) on nodes at x (n, 3) into f_out and their reaction on the body
-    into total (3,), both overwritten; returns the penalty energy. ``axis``: -1 for a sphere,
-    0 or 1 for a cylinder along x or y."""
+def add_penalty_forces(u, nodes, X, centre, radius, axis, penalty, f, total):
+    """Add the contact forces on the face nodes ``nodes`` (reference positions X (n, 3), mm;
+    displacements in the flat u, x y z interleaved) into the flat f (N) and put their
+    reaction on the body into total (3,); returns the penalty energy (mJ). ``axis``: -1 for a
+    sphere, 0 or 1 for a cylinder along x or y. One pass: gather, penalty, scatter."""
     total[:] = 0.0
     energy = 0.0
-    for i in range(x.shape[0]):
-        dx = 0.0 if axis == 0 else x[i, 0] - centre[0]
-        dy = 0.0 if axis == 1 else x[i, 1] - centre[1]
-        dz = x[i, 2] - centre[2]
+    for i in range(nodes.shape[0]):
+        k = 3 * nodes[i]
+        dx = 0.0 if axis == 0 else X[i, 0] + u[k] - centre[0]
+        dy = 0.0 if axis == 1 else X[i, 1] + u[k + 1] - centre[1]
+        dz = X[i, 2] + u[k + 2] - centre[2]
         distance = np.sqrt(dx * dx + dy * dy + dz * dz)
         gap = distance - radius
         if gap >= 0.0 or distance == 0.0:
-            f_out[i, 0] = f_out[i, 1] = f_out[i, 2] = 0.0
             continue
         magnitude = -penalty * gap / distance
-        f_out[i, 0] = magnitude * dx
-        f_out[i, 1] = magnitude * dy
-        f_out[i, 2] = magnitude * dz
-        for d in range(3):
-            total[d] -= f_out[i, d]
+        f[k] += magnitude * dx
+        f[k + 1] += magnitude * dy
+        f[k + 2] += magnitude * dz
+        total[0] -= magnitude * dx
+        total[1] -= magnitude * dy
+        total[2] -= magnitude * dz
         energy += 0.5 * penalty * gap * gap
     return energy
 
@@ -125,7 +127,6 @@ class Contact(Contributor):
         self.displacement = displacement
         self.comm = comm
         self.nodes = np.asarray(nodes, dtype=np.int64)
-        self.dofs = (3 * self.nodes[:, None] + np.arange(3)).ravel()
         self.X = np.ascontiguousarray(X)
         self.node_mass_min = comm.allreduce(
             float(mass_of_node.min()) if len(mass_of_node) else np.inf, op=MPI.MIN
@@ -149,12 +150,7 @@ class Contact(Contributor):
         self.z0 = float(self.centre[2])  # mm: the centre's height at t = 0
         self.force = np.zeros(3)  # on the body, global
         self.energy_penalty = 0.0  # global
-        # work arrays: the step allocates nothing
-        self.u = np.empty(len(self.dofs))
-        self.x = np.empty((len(self.nodes), 3))
-        self.f = np.empty((len(self.nodes), 3))
-        self.f_dofs = np.empty(len(self.dofs))
-        self.totals = np.empty(4)  # force on the body, penalty energy
+        self.totals = np.empty(4)  # force on the body, penalty energy (the step's work array)
         self.axis = -1 if body.shape == ImpactorShape.SPHERE else "xy".index(body.axis)
 
     def initial_gap(self) -> float:
@@ -210,20 +206,17 @@ class Contact(Contributor):
         (owned base DOFs, flat) at the face's DOFs; also the body's force, the acceleration of
         a free body and the work of a driven one's drive. ``f_extra`` is not touched (the top
         and bottom faces have no extra nodes)."""
-        np.take(self.displacement.array, self.dofs, out=self.u)
-        np.add(self.X, self.u.reshape(-1, 3), out=self.x)
-        self.totals[3] = penalty_forces(
-            self.x,
+        self.totals[3] = add_penalty_forces(
+            self.displacement.array,
+            self.nodes,
+            self.X,
             self.centre,
             self.body.radius,
             self.axis,
             self.penalty,
-            self.f,
+            f_base,
             self.totals[:3],
         )
-        np.take(f_base, self.dofs, out=self.f_dofs)  # the DOFs are distinct: add in place
-        self.f_dofs += self.f.reshape(-1)
-        np.put(f_base, self.dofs, self.f_dofs)
         self.comm.Allreduce(MPI.IN_PLACE, self.totals, op=MPI.SUM)
         self.force[:] = self.totals[:3]
         self.energy_penalty = float(self.totals[3])
