@@ -126,7 +126,23 @@ def bench_kernels(n_cells: int, repeat: int) -> list[dict]:
         median, first = timed(damaged.internal_force, repeat)
         n = damaged.base.n_owned_cells
         rows.append(_kernel_row(f"numba kernel, with ply damage update{label}", n, median, first))
+    rows.append(_cohesive_row(n_cells, repeat))
     return rows
+
+
+def _cohesive_row(n_cells: int, repeat: int) -> dict:
+    """The cohesive elements of the layerwise TCB beam (two delaminating interfaces): their
+    force with the damage and dissipation update, per element (the ``cells`` column counts
+    cohesive elements)."""
+    structure = build_structure(parse_config(beam_config(n_cells, kind="layerwise")))
+    deform(structure)
+    cohesive = next(c for c in structure.internal_forces.contributors if c.name == "cohesive")
+    f_base = np.zeros_like(structure.base.u.x.array)
+    f_extra = np.zeros_like(structure.extra.vectors["u"].array)
+    median, first = timed(lambda: cohesive.add_force(0.0, f_base, f_extra), repeat)
+    row = _kernel_row("numba cohesive elements", len(structure.cohesive), median, first)
+    row["million_points_per_s"] = 4 * len(structure.cohesive) / median / 1e6
+    return row
 
 
 # [model] settings of the elastic kernel rows against the defaults, with their row labels: what

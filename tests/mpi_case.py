@@ -23,9 +23,10 @@ add_force = contact_module.Contact.add_force
 
 
 def recording_add_force(self, t, f_base, f_extra):
+    before = f_base.copy()
     add_force(self, t, f_base, f_extra)
-    if len(self.f):
-        peak_contact[0] = max(peak_contact[0], float(np.abs(self.f).max()))
+    if len(f_base):
+        peak_contact[0] = max(peak_contact[0], float(np.abs(f_base - before).max()))
 
 
 contact_module.Contact.add_force = recording_add_force

@@ -293,12 +293,14 @@ def test_the_lock_is_held_while_the_run_writes(tmp_path, monkeypatch):
     original = explicit.ExplicitSolver.run
 
     def spy(*args, **kwargs):
-        seen.append(json.loads((out / LOCK).read_text()))
+        # a first run in a fresh checkout compiles its kernels with a small run of its own,
+        # before the folder is opened: the run that writes is the last
+        seen.append(json.loads((out / LOCK).read_text()) if (out / LOCK).exists() else None)
         return original(*args, **kwargs)
 
     monkeypatch.setattr(explicit.ExplicitSolver, "run", spy)
     run(small(), out)
-    assert seen[0]["pid"] == os.getpid() and seen[0]["host"] == socket.gethostname()
+    assert seen[-1]["pid"] == os.getpid() and seen[-1]["host"] == socket.gethostname()
     assert not (out / LOCK).exists()
 
 

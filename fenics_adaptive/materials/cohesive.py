@@ -168,76 +168,86 @@ def cohesive_traction(
     return traction, damage, psi
 
 
-@njit(cache=True)
-def _cross(a, b, out):
-    out[0] = a[1] * b[2] - a[2] * b[1]
-    out[1] = a[2] * b[0] - a[0] * b[2]
-    out[2] = a[0] * b[1] - a[1] * b[0]
-
-
 @njit(cache=True, inline="always")
 def _element_force(X, u, params, damage, history, track, f_coh):
     """``cohesive_element_force``; with ``track`` also the dissipation of each point into
-    ``history`` (4, HISTORY) (``cohesive_element_force_tracked``)."""
+    ``history`` (4, HISTORY) (``cohesive_element_force_tracked``). Vectors are scalar
+    triples: the kernel allocates nothing (a dozen small arrays per element were most of its
+    time)."""
     g = 0.5 / math.sqrt(3.0)
-    shape = np.empty(4)
-    dshape_xi = np.empty(4)
-    dshape_eta = np.empty(4)
-    G1, G2, g1, g2 = np.empty(3), np.empty(3), np.empty(3), np.empty(3)
-    jump, normal_ref, t1, t2, n = np.empty(3), np.empty(3), np.empty(3), np.empty(3), np.empty(3)
     f_coh[:, :] = 0.0
     energy = 0.0
     area = 0.0
     for k in range(4):
         xi = 0.5 + g if k & 1 else 0.5 - g
         eta = 0.5 + g if (k >> 1) & 1 else 0.5 - g
+        # mid-surface tangents, reference (G1, G2) and current (g1, g2), and the jump
+        G1x = G1y = G1z = G2x = G2y = G2z = 0.0
+        g1x = g1y = g1z = g2x = g2y = g2z = 0.0
+        jx = jy = jz = 0.0
         for a in range(4):
             nx, dnx = (xi, 1.0) if a & 1 else (1.0 - xi, -1.0)
             ny, dny = (eta, 1.0) if (a >> 1) & 1 else (1.0 - eta, -1.0)
-            shape[a] = nx * ny
-            dshape_xi[a] = dnx * ny
-            dshape_eta[a] = nx * dny
-        for i in range(3):
-            G1[i] = G2[i] = g1[i] = g2[i] = jump[i] = 0.0
-            for a in range(4):
-                X_mid = 0.5 * (X[a, i] + X[a + 4, i])
-                x_mid = X_mid + 0.5 * (u[a, i] + u[a + 4, i])
-                G1[i] += dshape_xi[a] * X_mid
-                G2[i] += dshape_eta[a] * X_mid
-                g1[i] += dshape_xi[a] * x_mid
-                g2[i] += dshape_eta[a] * x_mid
-                jump[i] += shape[a] * (u[a + 4, i] - u[a, i])
-        _cross(G1, G2, normal_ref)
-        dA = math.sqrt(normal_ref[0] ** 2 + normal_ref[1] ** 2 + normal_ref[2] ** 2)
-        _cross(g1, g2, n)
-        n_norm = math.sqrt(n[0] ** 2 + n[1] ** 2 + n[2] ** 2)
-        g1_norm = math.sqrt(g1[0] ** 2 + g1[1] ** 2 + g1[2] ** 2)
-        for i in range(3):
-            n[i] /= n_norm
-            t1[i] = g1[i] / g1_norm
-        _cross(n, t1, t2)
-        d1 = jump[0] * t1[0] + jump[1] * t1[1] + jump[2] * t1[2]
-        d2 = jump[0] * t2[0] + jump[1] * t2[1] + jump[2] * t2[2]
-        d3 = jump[0] * n[0] + jump[1] * n[1] + jump[2] * n[2]
+            shape, dxi, deta = nx * ny, dnx * ny, nx * dny
+            Xm = 0.5 * (X[a, 0] + X[a + 4, 0])
+            Ym = 0.5 * (X[a, 1] + X[a + 4, 1])
+            Zm = 0.5 * (X[a, 2] + X[a + 4, 2])
+            xm = Xm + 0.5 * (u[a, 0] + u[a + 4, 0])
+            ym = Ym + 0.5 * (u[a, 1] + u[a + 4, 1])
+            zm = Zm + 0.5 * (u[a, 2] + u[a + 4, 2])
+            G1x += dxi * Xm
+            G1y += dxi * Ym
+            G1z += dxi * Zm
+            G2x += deta * Xm
+            G2y += deta * Ym
+            G2z += deta * Zm
+            g1x += dxi * xm
+            g1y += dxi * ym
+            g1z += dxi * zm
+            g2x += deta * xm
+            g2y += deta * ym
+            g2z += deta * zm
+            jx += shape * (u[a + 4, 0] - u[a, 0])
+            jy += shape * (u[a + 4, 1] - u[a, 1])
+            jz += shape * (u[a + 4, 2] - u[a, 2])
+        # reference area element; the local frame (t1 along g1, n normal, t2 = n x t1)
+        rx, ry, rz = G1y * G2z - G1z * G2y, G1z * G2x - G1x * G2z, G1x * G2y - G1y * G2x
+        dA = math.sqrt(rx**2 + ry**2 + rz**2)
+        n0, n1, n2 = g1y * g2z - g1z * g2y, g1z * g2x - g1x * g2z, g1x * g2y - g1y * g2x
+        n_norm = math.sqrt(n0**2 + n1**2 + n2**2)
+        g1_norm = math.sqrt(g1x**2 + g1y**2 + g1z**2)
+        n0, n1, n2 = n0 / n_norm, n1 / n_norm, n2 / n_norm
+        a0, a1, a2 = g1x / g1_norm, g1y / g1_norm, g1z / g1_norm
+        b0, b1, b2 = n1 * a2 - n2 * a1, n2 * a0 - n0 * a2, n0 * a1 - n1 * a0
+        d1 = jx * a0 + jy * a1 + jz * a2
+        d2 = jx * b0 + jy * b1 + jz * b2
+        d3 = jx * n0 + jy * n1 + jz * n2
         damage_old = damage[k]
         tau1, tau2, tau3, damage[k], psi = _law(d1, d2, d3, params, damage_old)
         c = 0.25 * dA
         if track:
-            h = history[k]
             if damage[k] > damage_old:
                 # consistent with the trapezoidal work of the secant law (module docstring)
-                released = params[P_KS] * (h[H_D1] * d1 + h[H_D2] * d2)
-                if d3 > 0.0 and h[H_D3] > 0.0:
-                    released += params[P_KN] * h[H_D3] * d3
-                h[H_DISSIPATED] += 0.5 * (damage[k] - damage_old) * released * c
-            h[H_D1] = d1
-            h[H_D2] = d2
-            h[H_D3] = d3
-        for i in range(3):
-            T = tau1 * t1[i] + tau2 * t2[i] + tau3 * n[i]
-            for a in range(4):
-                f_coh[a, i] += shape[a] * T * c
-                f_coh[a + 4, i] -= shape[a] * T * c
+                released = params[P_KS] * (history[k, H_D1] * d1 + history[k, H_D2] * d2)
+                if d3 > 0.0 and history[k, H_D3] > 0.0:
+                    released += params[P_KN] * history[k, H_D3] * d3
+                history[k, H_DISSIPATED] += 0.5 * (damage[k] - damage_old) * released * c
+            history[k, H_D1] = d1
+            history[k, H_D2] = d2
+            history[k, H_D3] = d3
+        Tx = tau1 * a0 + tau2 * b0 + tau3 * n0
+        Ty = tau1 * a1 + tau2 * b1 + tau3 * n1
+        Tz = tau1 * a2 + tau2 * b2 + tau3 * n2
+        for a in range(4):
+            nx = xi if a & 1 else 1.0 - xi
+            ny = eta if (a >> 1) & 1 else 1.0 - eta
+            shape = nx * ny
+            f_coh[a, 0] += shape * Tx * c
+            f_coh[a, 1] += shape * Ty * c
+            f_coh[a, 2] += shape * Tz * c
+            f_coh[a + 4, 0] -= shape * Tx * c
+            f_coh[a + 4, 1] -= shape * Ty * c
+            f_coh[a + 4, 2] -= shape * Tz * c
         energy += psi * c
         area += c
     return energy, area
