@@ -221,17 +221,20 @@ def dcb_quick(data: dict) -> dict:
     return data
 
 
-# the quick ENF and MMB: half-span and film (mm); the load point reaches 87.5 % of the
-# theory's initiation travel in QUICK_APPROACH (s, about 4.8 bending periods), then slows
-# down and grows the crack to 1 mm short of mid-span in QUICK_GROWTH (s, about 3.7 periods);
+# the quick ENF and MMB: half-span and film (mm); the load point reaches QUICK_NEAR of the
+# theory's travel at initiation in QUICK_APPROACH (s, about 4.8 bending periods), then slows
+# down and reaches QUICK_PAST of its travel at a crack 1 mm short of mid-span QUICK_GROWTH (s,
+# about 3.7 periods) later (past: the process zone makes the beam softer than the theory's);
 # QUICK_RAMP (s) to speed up and to slow down
 QUICK_HALF_SPAN, QUICK_FILM = 36.0, 27.0
+QUICK_NEAR, QUICK_PAST = 0.875, 1.065
 QUICK_APPROACH, QUICK_GROWTH, QUICK_RAMP = 4.0e-3, 3.1e-3, 5e-4
 
 
-def _half_arms(data: dict) -> int:
+def _half_arms(data: dict, top_body: dict) -> None:
     """Each arm of ``data``'s first insert film keeps the half of its plies next to the film,
-    one cell layer per arm; returns the film's new interface (the tables changed in place)."""
+    one cell layer per arm; ``top_body`` (a rigid body on the top face) comes down with the
+    top face. The tables are changed in place."""
     laminate, film = data["laminate"], data["delamination"][0]
     angles, interface = laminate["angles"], film["interface"]
     lower, upper = angles[:interface], angles[interface:]
@@ -240,13 +243,17 @@ def _half_arms(data: dict) -> int:
     data["interfaces"]["delaminate"] = [len(lower)]
     data["mesh"]["layers"] = [len(lower), len(upper)]
     film["interface"] = len(lower)
-    return len(lower)
+    top_body["position"][2] += laminate["ply_thickness"] * len(laminate["angles"])  # the new
+    top_body["position"][2] -= laminate["ply_thickness"] * len(angles)  # less the old thickness
 
 
-def _quick_drive(table: dict, approach: float, end: float, data: dict) -> None:
-    """Drive ``table`` (a rigid body's or the lever's) to ``approach`` (mm) by QUICK_APPROACH,
-    then slower, to ``end`` (mm) QUICK_GROWTH later; the run ends there, its rows every 1/200
-    of it."""
+def _quick_drive(table: dict, travel: Callable[[float], float], data: dict) -> None:
+    """Drive ``table`` (a rigid body's or the lever's) by QUICK_APPROACH to QUICK_NEAR of
+    ``travel(QUICK_FILM)``, then slower, to QUICK_PAST of ``travel(QUICK_HALF_SPAN - 1)``
+    QUICK_GROWTH later (``travel(a)``: the load point's travel (mm) in beam theory at a crack
+    a (mm) on the propagation branch); the run ends there, its rows every 1/200 of it."""
+    approach = QUICK_NEAR * travel(QUICK_FILM)
+    end = QUICK_PAST * travel(QUICK_HALF_SPAN - 1.0)
     ramp = QUICK_RAMP
     fast = approach / (QUICK_APPROACH - 0.5 * ramp)  # mm/s
     # the slower speed: ``end`` reached, the travel while slowing down included
@@ -287,8 +294,7 @@ def enf_quick(data: dict) -> dict:
     bodies = {body["name"]: body for body in data["rigid"]}
     left, right, nose = bodies["left"], bodies["right"], bodies["nose"]
     overhang = left["position"][0]
-    thickness = data["laminate"]["ply_thickness"] * len(data["laminate"]["angles"])
-    interface = _half_arms(data)
+    _half_arms(data, nose)
     length = 2.0 * (half_span + overhang)
     data["mesh"].update(length=length, nx=round(length))
     data["delamination"][0].update(x_min=length - overhang - crack, x_max=length)
@@ -299,20 +305,16 @@ def enf_quick(data: dict) -> dict:
         data["output"]["displacement_x"] = 0.5 * length
     left["position"][0], right["position"][0] = overhang, length - overhang
     nose["position"][0] = 0.5 * length
-    nose["position"][2] += data["laminate"]["ply_thickness"] * len(data["laminate"]["angles"])
-    nose["position"][2] -= thickness
-    # the theory's nose travel (mm) at a crack a on the propagation branch
     config = parse_config(data)
     material, width = config.laminate.plies[0].material, config.mesh.width
-    arm = lefm.arm_thickness(config.laminate, interface)
+    arm = lefm.arm_thickness(config.laminate, config.delaminations[0].interface)
 
     def travel(a: float) -> float:
         force = lefm.enf_propagation_force(a, material.E1, width, arm, config.cohesive.GIIc)
         return float(force * lefm.enf_compliance(a, half_span, material.E1, material.G12,
                                                  width, arm))  # fmt: skip
 
-    approach, end = 0.875 * travel(crack), 1.065 * travel(half_span - 1.0)
-    _quick_drive(nose, approach, end, data)
+    _quick_drive(nose, travel, data)
     return data
 
 
@@ -337,22 +339,18 @@ def mmb_quick(data: dict) -> dict:
     saddle = bodies[lever["saddle"]]
     roller = next(b for b in data["rigid"] if b is not saddle)
     overhang = roller["position"][0]
-    thickness = data["laminate"]["ply_thickness"] * len(data["laminate"]["angles"])
-    _half_arms(data)
+    _half_arms(data, saddle)
     length = overhang + 2.0 * half_span
     data["mesh"].update(length=length, nx=round(length))
     data["delamination"][0].update(x_min=length - crack, x_max=length)
     saddle["position"][0] = length - half_span
-    saddle["position"][2] += data["laminate"]["ply_thickness"] * len(data["laminate"]["angles"])
-    saddle["position"][2] -= thickness
     lever["load_arm"] = round(base.load_arm * half_span / base.half_span, 3)
     beam = lefm.MMBSpecimen.of(parse_config(data))
 
     def travel(a: float) -> float:
         return float(beam.compliance(a) * beam.propagation(a))
 
-    approach, end = 0.875 * travel(crack), 1.065 * travel(half_span - 1.0)
-    _quick_drive(lever, approach, end, data)
+    _quick_drive(lever, travel, data)
     return data
 
 
