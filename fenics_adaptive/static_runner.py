@@ -259,10 +259,11 @@ def _history_row(config, system, solution, contacts) -> tuple[HistoryRow, np.nda
     )
     for contact in contacts:
         moved = contact.centre - contact.origin
+        force, penalty, _ = contact.totals_over_ranks()
         # Clapeyron again: a driven body gives half its force times its travel, less what its
         # penalty spring keeps
-        row.impact_work += -0.5 * float(contact.force @ moved) - contact.energy_penalty
-        row.bodies[f"{contact.body.name}_force"] = float(contact.force[2])
+        row.impact_work += -0.5 * float(force @ moved) - penalty
+        row.bodies[f"{contact.body.name}_force"] = float(force[2])
         row.bodies[f"{contact.body.name}_displacement"] = float(
             contact.centre[2] - contact.origin[2]
         )
@@ -303,7 +304,7 @@ def _static_summary(system, solution, row, reaction, contacts, changes, wall) ->
         },
         "rigid_bodies": {
             c.body.name: {
-                "force_N": c.force.tolist(),
+                "force_N": c.totals_over_ranks()[0].tolist(),
                 "displacement_mm": row.bodies[f"{c.body.name}_displacement"],
             }
             for c in contacts

@@ -9,7 +9,7 @@ import pytest
 
 from fenics_adaptive.model.contact import Contact, add_penalty_forces
 from fenics_adaptive.settings.config import parse_config
-from fenics_adaptive.settings.loads import Impactor
+from fenics_adaptive.settings.loads import Impactor, RigidBody
 from fenics_adaptive.settings.solver import SolverSettings
 from fenics_adaptive.simulation import build_structure
 from fenics_adaptive.solver import explicit
@@ -68,3 +68,48 @@ def test_ball_bouncing_on_a_plate_conserves_the_total_energy():
     assert contact.velocity[2] > 0.0  # bounced
     assert rows[-1].contact_force == 0.0  # and left
     assert max(abs(r.energy_balance) for r in rows) < 0.01 * initial
+
+
+class CountingComm:
+    """A communicator that counts the collectives called through it (one rank)."""
+
+    def __init__(self, comm):
+        self.comm, self.calls = comm, 0
+
+    def __getattr__(self, name):
+        attribute = getattr(self.comm, name)
+        if name.lower() in ("allreduce", "bcast", "barrier", "allgather", "gather"):
+            self.calls += 1
+        return attribute
+
+
+def test_a_fixed_body_sums_its_force_over_the_ranks_only_when_it_reports():
+    """A fixed body (a support) calls no collective in the steps between history rows; its
+    report then gives the force, penalty energy and work of the same body summed every step
+    (a free body's motion needs its force every step, so it still sums it there)."""
+    from fenics_adaptive.solver.history import HistoryRow
+
+    config = clamped_plate()
+    structure = build_structure(config)
+    support = RigidBody("pin", "sphere", 2.0, (5.0, 5.0, 2.0 + 2.0 - 0.01), motion="fixed")
+    deferred, summed = Contact.on(support, structure), Contact.on(support, structure)
+    summed.every_step = True
+    counter = CountingComm(deferred.comm)
+    deferred.comm = counter
+    f = np.zeros_like(structure.base.u.x.array)
+    rows = []
+    for contact in (deferred, summed):
+        row = HistoryRow(*([0.0] * 12))
+        contact.add_force(0.0, f, f)
+        contact.report(row, first=True)
+        calls = counter.calls
+        for _ in range(3):
+            contact.add_force(0.0, f, f)
+        if contact is deferred:
+            assert counter.calls == calls == 1  # the first report's only
+        contact.report(row, first=False)
+        rows.append(row)
+    assert counter.calls == 2  # one per report
+    assert rows[0].bodies["pin_force"] == rows[1].bodies["pin_force"] > 0.0
+    assert rows[0].impact_work == rows[1].impact_work
+    assert Contact.on(Impactor("sphere", 2.0, 1e-6, (5, 5, 5), (0, 0, -1)), structure).every_step

@@ -23,6 +23,12 @@ DOFs, moves itself (``advance``), reports into the history (the [impactor]: ``co
 ``impactor_displacement``; a [[rigid]] body: ``<name>_force`` and ``<name>_displacement``, z
 components; every body adds to ``impact_work``) and keeps its state for checkpoints.
 
+Ranks: a body's force and penalty energy are sums over the ranks' face nodes. A free body
+(whose motion needs its force) and the lever's saddle (whose force the lever passes on to the
+hinge) sum them every step; a fixed or prescribed body keeps this rank's share, its drive's
+work too (both are additive over the ranks), and sums them when a history row is written: no
+collective in the steps between.
+
 Penalty k (N/mm per node): by default the through-thickness stiffness of the laminate over one
 node's area, max C33 * A_node / h, capped so that a node on its spring stays well inside the
 stable step: k <= 0.05 m_node (2 / dt)^2. Contact is checked on the owned face nodes only, so
@@ -148,8 +154,11 @@ class Contact(Contributor):
         self.previous_force = np.zeros(3)
         self.moved = np.zeros(3)  # mm: c_n+1 - c_n at the last add_force
         self.z0 = float(self.centre[2])  # mm: the centre's height at t = 0
-        self.force = np.zeros(3)  # on the body, global
-        self.energy_penalty = 0.0  # global
+        # whether add_force sums the force over the ranks every step (else on output steps:
+        # the module docstring); the lever sets it for its saddle
+        self.every_step = self.free
+        self.force = np.zeros(3)  # on the body, N: over all ranks if every_step, else this rank's
+        self.energy_penalty = 0.0  # mJ: likewise
         self.totals = np.empty(4)  # force on the body, penalty energy (the step's work array)
         self.axis = -1 if body.shape == ImpactorShape.SPHERE else "xy".index(body.axis)
 
@@ -202,10 +211,10 @@ class Contact(Contributor):
         self.z0 = float(self.body.position[2])
 
     def add_force(self, t: float, f_base: np.ndarray, f_extra: np.ndarray) -> None:
-        """Collective: add the contact forces (N) at the current displacement into ``f_base``
-        (owned base DOFs, flat) at the face's DOFs; also the body's force, the acceleration of
-        a free body and the work of a driven one's drive. ``f_extra`` is not touched (the top
-        and bottom faces have no extra nodes)."""
+        """Add the contact forces (N) at the current displacement into ``f_base`` (owned base
+        DOFs, flat) at the face's DOFs; also the body's force, the acceleration of a free body
+        and the work of a driven one's drive. Collective if ``every_step``. ``f_extra`` is not
+        touched (the top and bottom faces have no extra nodes)."""
         self.totals[3] = add_penalty_forces(
             self.displacement.array,
             self.nodes,
@@ -217,7 +226,8 @@ class Contact(Contributor):
             f_base,
             self.totals[:3],
         )
-        self.comm.Allreduce(MPI.IN_PLACE, self.totals, op=MPI.SUM)
+        if self.every_step:
+            self.comm.Allreduce(MPI.IN_PLACE, self.totals, op=MPI.SUM)
         self.force[:] = self.totals[:3]
         self.energy_penalty = float(self.totals[3])
         if self.free:
@@ -242,41 +252,50 @@ class Contact(Contributor):
             np.multiply(self.path, self.body.path_scale(self.t), out=self.centre)
             self.centre += self.origin
 
+    def totals_over_ranks(self) -> tuple[np.ndarray, float, float]:
+        """Collective: (force on the body (3,), N; penalty energy, mJ; the drive's work so far,
+        mJ) over all ranks, at the last ``add_force``."""
+        if self.every_step:  # already summed (a free body's drive work stays 0)
+            return self.force, self.energy_penalty, self.drive_work
+        local = np.array([*self.force, self.energy_penalty, self.drive_work])
+        total = self.comm.allreduce(local, op=MPI.SUM)
+        return total[:3], float(total[3]), float(total[4])
+
     def total_energy(self) -> float:
-        """Kinetic energy at the full step (a free body's) plus the penalty energy (mJ), of the
-        whole run."""
+        """Kinetic energy at the full step (a free body's) plus the penalty energy (mJ): of the
+        whole run if ``every_step``, else this rank's share."""
         if not self.free:
             return self.energy_penalty
         v = self.velocity + 0.5 * self.last_dt * self.acceleration
         return 0.5 * self.body.mass * float(v @ v) + self.energy_penalty
 
     def energy(self) -> float:
-        """This rank's share of ``total_energy`` (mJ): all of it on rank 0 (the body is one
-        body, known to every rank)."""
+        """This rank's share of the body's energy (mJ): a body summed every step has all of it
+        on rank 0 (one body, known to every rank); the others their own penalty energy."""
+        if not self.every_step:
+            return self.energy_penalty
         return self.total_energy() if self.comm.rank == 0 else 0.0
 
-    def given_energy(self) -> float:
-        """Energy (mJ) the body has given the structure since t = 0: the work of the contact
-        forces on it."""
-        if self.free:
-            return self.initial - self.total_energy()
-        return self.drive_work - (self.energy_penalty - self.initial_penalty)
-
     def report(self, row, first: bool) -> None:
-        """The body's force on the structure's opposite (N, z: the force the structure applies
-        to it), its z displacement (mm) and the energy it gave since t = 0 (mJ, added to
-        ``impact_work``) into a history row; ``first``: the row at t = 0."""
+        """Collective: the body's force on the structure's opposite (N, z: the force the
+        structure applies to it), its z displacement (mm) and the energy it gave since t = 0
+        (mJ, added to ``impact_work``: the work of the contact forces on it) into a history
+        row; ``first``: the row at t = 0."""
+        force, penalty, drive_work = self.totals_over_ranks()
         if first:
             self.initial = self.total_energy()
-            self.initial_penalty = self.energy_penalty
+            self.initial_penalty = penalty
         displacement = float(self.centre[2] - self.z0)
         if self.body.name == "impactor":
-            row.contact_force = float(self.force[2])
+            row.contact_force = float(force[2])
             row.impactor_displacement = displacement
         else:
-            row.bodies[f"{self.body.name}_force"] = float(self.force[2])
+            row.bodies[f"{self.body.name}_force"] = float(force[2])
             row.bodies[f"{self.body.name}_displacement"] = displacement
-        row.impact_work += self.given_energy()
+        if self.free:
+            row.impact_work += self.initial - self.total_energy()
+        else:
+            row.impact_work += drive_work - (penalty - self.initial_penalty)
 
     def suspect(self) -> str:
         return (

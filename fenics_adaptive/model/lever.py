@@ -70,6 +70,7 @@ class LoadingLever(Contributor):
                  hinge_count: int, half_span: float, displacement):  # fmt: skip
         self.settings = settings
         self.saddle = saddle
+        saddle.every_step = True  # its force, over all ranks, pulls the hinge each step
         self.comm = comm
         self.displacement = displacement  # the base displacement vector (owned + ghosts)
         self.hinge_dofs = 3 * np.asarray(hinge_nodes, dtype=np.int64) + 2  # z, owned
