@@ -17,6 +17,7 @@ from pathlib import Path
 import basix.ufl
 import dolfinx
 import numpy as np
+import pytest
 import ufl
 from dolfinx import fem
 from fenics_adaptive.meshes import esl_mesh
@@ -376,3 +377,21 @@ def quick_fracture_run(data: dict, out: Path) -> tuple[object, dict, np.ndarray,
     dissipated = cohesive.history[cohesive.damage_row, :, H_DISSIPATED].sum(axis=1)
     areas = quad_areas(structure.gather(cohesive.nodes[:, :4], "X"))
     return config, history, dissipated[grown], areas[grown]
+
+
+def assert_on_the_propagation_branch(comparison: dict, history: dict) -> None:
+    """What a quick fracture run (``quick_fracture_run``) must show on its propagation branch
+    against ``comparison`` (``lefm.enf_comparison`` / ``mmb_comparison``): stable growth, the
+    peak within 5 % of the initiation load, the branch's force within 3 % on average and 5 %
+    per bin, the kinetic energy under 1 % of the work while the crack grows, the energy
+    balance within 1e-6 of the work."""
+    c = comparison
+    assert c["stable_growth"]
+    assert c["peak_over_initiation"] == pytest.approx(1.0, abs=0.05)
+    assert c["force_over_theory_mean"] == pytest.approx(1.0, abs=0.03)
+    assert c["force_over_theory_bins"]
+    for ratio in c["force_over_theory_bins"].values():
+        assert ratio == pytest.approx(1.0, abs=0.05)
+    growing = history["crack_growth_area"] > 0.0
+    assert np.all(history["kinetic_energy"][growing] < 0.01 * history["impact_work"][growing])
+    assert np.abs(history["energy_balance"]).max() < 1e-6 * history["impact_work"].max()

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from helpers import quick_fracture_run, theory_history
+from helpers import assert_on_the_propagation_branch, quick_fracture_run, theory_history
 
 from fenics_adaptive.analysis.lefm import (
     dcb_comparison,
@@ -175,17 +175,9 @@ def test_a_quick_enf_grows_its_crack_on_the_propagation_branch(tmp_path):
     base = enf_quick(tomllib.loads((DEMOS / "fracture_tests_enf.toml").read_text()))
     config, history, dissipated, areas = quick_fracture_run(base, tmp_path)
     c = enf_comparison(config, history)
-    assert c["stable_growth"]
+    assert_on_the_propagation_branch(c, history)
     assert c["crack_length_range_mm"][1] >= c["half_span_mm"] - 1.0
-    assert c["peak_over_initiation"] == pytest.approx(1.0, abs=0.05)
-    assert c["force_over_theory_mean"] == pytest.approx(1.0, abs=0.03)
-    assert c["force_over_theory_bins"]
-    for ratio in c["force_over_theory_bins"].values():
-        assert ratio == pytest.approx(1.0, abs=0.05)
     assert len(areas) >= 7
     assert np.allclose(dissipated / (areas * config.cohesive.GIIc), 1.0, atol=0.02)
     assert c["dissipation_rate_over_Gc"] == pytest.approx(1.0, abs=0.05)
-    growing = history["crack_growth_area"] > 0.0
-    assert np.all(history["kinetic_energy"][growing] < 0.01 * history["impact_work"][growing])
     assert c["initial_stiffness_N_per_mm"] == pytest.approx(c["theory_stiffness_N_per_mm"], 0.1)
-    assert np.abs(history["energy_balance"]).max() < 1e-6 * history["impact_work"].max()

@@ -19,7 +19,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from helpers import assert_restarted_history, quick_fracture_run, run_quietly, theory_history
+from helpers import (
+    assert_on_the_propagation_branch,
+    assert_restarted_history,
+    quick_fracture_run,
+    run_quietly,
+    theory_history,
+)
 
 from fenics_adaptive.analysis.lefm import (
     enf_compliance,
@@ -237,16 +243,8 @@ def test_a_quick_mmb_grows_its_crack_on_the_propagation_branch(base, tmp_path):
     the front); the demo's 1 mm MMB shows the same at G_II / G = 0.2 (+2.5 %)."""
     config, history, dissipated, areas = quick_fracture_run(mmb_quick(base), tmp_path)
     c = mmb_comparison(config, history)
-    assert c["stable_growth"]
+    assert_on_the_propagation_branch(c, history)
     assert c["crack_length_range_mm"][1] >= c["half_span_mm"] - 2.0
-    assert c["peak_over_initiation"] == pytest.approx(1.0, abs=0.05)
     assert c["initial_stiffness_N_per_mm"] == pytest.approx(c["theory_stiffness_N_per_mm"], 0.05)
-    assert c["force_over_theory_mean"] == pytest.approx(1.0, abs=0.03)
-    assert c["force_over_theory_bins"]
-    for ratio in c["force_over_theory_bins"].values():
-        assert ratio == pytest.approx(1.0, abs=0.05)
     assert len(areas) >= 6
     assert np.allclose(dissipated / (areas * c["Gc_N_per_mm"]), 1.0, atol=0.06)
-    growing = history["crack_growth_area"] > 0.0
-    assert np.all(history["kinetic_energy"][growing] < 0.01 * history["impact_work"][growing])
-    assert np.abs(history["energy_balance"]).max() < 1e-6 * history["impact_work"].max()
