@@ -44,7 +44,13 @@ from fenics_adaptive.settings.kinds import (
     RigidMotion,
 )
 from fenics_adaptive.settings.loads import Amplitude, PrescribedMotion, RigidBody
-from fenics_adaptive.solver.explicit import ExplicitSolver, HistoryRow, RunStats, choose_time_step
+from fenics_adaptive.solver.explicit import (
+    ExplicitSolver,
+    HistoryRow,
+    RunStats,
+    choose_time_step,
+    prepare_mass,
+)
 from fenics_adaptive.solver.observers import Observer
 
 
@@ -313,11 +319,12 @@ class Simulation:
     ):
         self.config = config
         self.structure = structure if structure is not None else build_structure(config, comm)
+        self.refinement = RefinementHook(config, indicators)
+        prepare_mass(self.structure, config.solver, self.refinement.active)
         # s: the step a fresh run takes and the stable one, and what limits it
         self.time_step, self.stable_time_step, self.critical = choose_time_step(
             self.structure, config.solver
         )
-        self.refinement = RefinementHook(config, indicators)
         run_contributors: list[ForceContributor] = []
         bodies = [config.impactor.body()] if config.impactor is not None else []
         for body in [*bodies, *config.rigid_bodies]:

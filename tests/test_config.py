@@ -431,6 +431,9 @@ def every_config() -> list[tuple[str, dict]]:
         {"interface": 6, "x_min": 8.0, "x_max": 10.0, "y_min": 0.0, "y_max": 0.5}
     ]
     configs.append(("refinement", tcb))
+    layerwise = tomllib.loads((root / "tests" / "data" / "tcb_layerwise.toml").read_text())
+    layerwise["solver"].update(mass_scaling="selective", mass_scaling_step=5e-8)
+    configs.append(("selective mass scaling", layerwise))
     bodies = tomllib.loads((root / "tests" / "data" / "three_point_bending.toml").read_text())
     bodies["rigid"][2].update(displacement=[0.0, 0.0, -0.5], curve=[[0.0, 0.0], [4e-3, 1.0]])
     for key in ("velocity", "rise_time", "profile"):

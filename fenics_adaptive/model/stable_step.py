@@ -23,7 +23,17 @@ if TYPE_CHECKING:
 
 def stable_time_step(structure: Structure) -> tuple[float, str]:
     """(min of L_e / c over unrefined cells and subelements, and of the cohesive pair limit;
-    where it is attained), reduced over ranks. The caller applies the safety factor."""
+    where it is attained), reduced over ranks. With a selectively scaled mass
+    (``structure.scaled_mass``) the solid part is its element eigenvalue bound instead
+    (``mass_scaling.SelectiveMass.stable_time_step``); the cohesive pairs keep their lumped
+    masses (see ``mass_scaling``'s docstring: why not the scaled ones). The caller applies the
+    safety factor."""
+    scaled = structure.scaled_mass
+    if scaled is not None:
+        step, cell = scaled.stable_time_step()
+        candidates = [(step, f"cell {structure.original_cell[cell]} (scaled mass)")]
+        candidates.append(cohesive_time_step(structure))
+        return structure.comm.allreduce(min(candidates), op=MPI.MIN)
     candidates = []
     ratios = characteristic_lengths(structure.cell_vertices())
     speeds = structure.base.cell_wave_speeds()

@@ -64,6 +64,7 @@ from fenics_adaptive.model.loading import (
     ResolvedLoads,
     extra_node_prescriptions,
 )
+from fenics_adaptive.model.mass_scaling import SelectiveMass
 from fenics_adaptive.model.ply_damage_state import PlyDamageState
 from fenics_adaptive.model.refined_cells import RefinedCells
 from fenics_adaptive.model.stable_step import stable_time_step
@@ -162,6 +163,9 @@ class Structure:
             *self.internal_forces.contributors,
             TieForces(self.stabilisation_state),
         ]
+        # the selectively scaled mass of the base nodes, if a run asks for it (set by the
+        # solver: ``model.mass_scaling.selective_mass``); None: the lumped masses alone
+        self.scaled_mass: SelectiveMass | None = None
         self.lumped = LumpedBlocks(
             V, base.mass, self.extra.index_map, loads.fixed, loads.fixed_motion
         )
@@ -412,6 +416,12 @@ class Structure:
         changed = np.flatnonzero((target != old_state).any(axis=1))
         if not self.comm.allreduce(len(changed), op=MPI.SUM):
             return False
+        if self.scaled_mass is not None:
+            raise InputError(
+                "solver.mass_scaling",
+                '"selective" cannot follow a refinement yet (its columns do not gain extra '
+                'nodes): run adaptive models with mass_scaling = "none"',
+            )
         self.refinement.record(t, requests)
         self.stabilisation_state.request(
             changed[

@@ -30,6 +30,7 @@ Sections (see demos/*.toml for complete examples and ``config_schema`` for every
   [[prescribed]] face, component, displacement (mm) or velocity (mm/s), time curve
   [[load]]       face, force = [Fx, Fy, Fz] (N, total over the face), time curve
   [solver]       end_time, safety_factor, time_step (optional, forced), mass_damping (1/s),
+                 mass_scaling ("none" | "selective"), mass_scaling_step (s, optional),
                  max_steps (default 1e9: more steps are refused), energy_error_limit (share of
                  the largest energy of the run the energy balance error may reach)
   [output]       interval (s between history rows), fields_interval (s, optional),
@@ -849,6 +850,10 @@ def _solver_options(table: _Table) -> dict[str, Any]:
         "time_step": table.number("time_step"),
         "mass_damping": table.number("mass_damping"),
     }
+    if table.has("mass_scaling"):
+        options["mass_scaling"] = table.choice("mass_scaling")
+    if table.has("mass_scaling_step"):
+        options["mass_scaling_step"] = table.number("mass_scaling_step")
     if table.has("max_steps"):
         options["max_steps"] = table.integer("max_steps")
     if table.has("energy_error_limit"):

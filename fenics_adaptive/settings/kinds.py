@@ -36,6 +36,14 @@ class ModelKind(StrEnum):
     LAYERWISE = "layerwise"
 
 
+class MassScaling(StrEnum):
+    """``[solver] mass_scaling``: lumped masses alone, or the through-thickness modes slowed
+    to a target step (``model.mass_scaling``)."""
+
+    NONE = "none"
+    SELECTIVE = "selective"
+
+
 class Refinement(StrEnum):
     """A refinement as the config names it: ``[interfaces] initial`` ("none", "weak", "strong")
     and ``[[refinement]] kind`` ("weak", "strong")."""

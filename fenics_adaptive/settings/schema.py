@@ -32,6 +32,7 @@ from dataclasses import dataclass, field
 from fenics_adaptive.settings.kinds import (
     ImpactorShape,
     Kinematics,
+    MassScaling,
     MixedModeLaw,
     ModelKind,
     Profile,
@@ -598,6 +599,24 @@ SECTIONS: tuple[Section, ...] = (
                 "1/s",
                 0.0,
                 0.0,
+            ),
+            Key(
+                "mass_scaling",
+                "choice",
+                '"selective": the through-thickness modes get mass so that thin layers '
+                "step at the in-plane step (ESL and layerwise models)",
+                "",
+                MassScaling.NONE,
+                choices=tuple(MassScaling),
+            ),
+            Key(
+                "mass_scaling_step",
+                "float",
+                "the step selective mass scaling aims at (default: the in-plane step)",
+                "s",
+                OPTIONAL,
+                0.0,
+                open_min=True,
             ),
             Key(
                 "max_steps",

@@ -8,6 +8,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from fenics_adaptive.settings.kinds import MassScaling
+
 
 @dataclass(frozen=True)
 class SolverSettings:
@@ -27,6 +29,16 @@ class SolverSettings:
     # 5e-4), a fifth of an error as large as the energies themselves.
     energy_error_limit: float = 0.2
     max_steps: int = 10**9  # a run (and `check`) refuses to take more steps than this
+    # "none": lumped masses; "selective": the through-thickness modes slowed to a target step
+    # (model.mass_scaling), s: that target (None: the step the in-plane size allows)
+    mass_scaling: MassScaling = MassScaling.NONE
+    mass_scaling_step: float | None = None
+
+    def __post_init__(self) -> None:
+        if self.mass_scaling not in tuple(MassScaling):
+            raise ValueError(
+                f"mass_scaling must be one of {', '.join(MassScaling)}, got {self.mass_scaling!r}"
+            )
 
 
 @dataclass(frozen=True)

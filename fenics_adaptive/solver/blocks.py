@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from fenics_adaptive.model.mass_scaling import SelectiveMass
 from fenics_adaptive.model.structure import Block
 
 # What a checkpoint keeps of each block: every array the next step reads (u and v with their
@@ -22,11 +23,20 @@ class BlockState:
 
     ``block``: the DOF block (``structure.Block``); ``damping``: the global mass-proportional
     damping (1/s); ``old``: the state of the block before it grew (a refinement), whose DOFs'
-    history (``du``, ``f_old``, ``f_ext_old``, ``reaction_old``) is carried over."""
+    history (``du``, ``f_old``, ``f_ext_old``, ``reaction_old``) is carried over;
+    ``scaled_mass``: the block's selectively scaled mass (``model.mass_scaling``; None: the
+    lumped masses alone), undamped."""
 
-    def __init__(self, block: Block, damping: float, old: BlockState | None = None):
+    def __init__(
+        self,
+        block: Block,
+        damping: float,
+        old: BlockState | None = None,
+        scaled_mass: SelectiveMass | None = None,
+    ):
         n = block.n_owned
         self.block = block
+        self.scaled_mass = scaled_mass
         self.u = block.u.array[:n]
         self.v = block.v.array[:n]
         self.f = block.f.array[:n]
@@ -52,16 +62,26 @@ class BlockState:
             self.reaction_old[new_at] = old.reaction_old[old_at]
 
     def accelerate(self, contact_force: np.ndarray | None, dt: float, mean_dt: float) -> None:
-        """a = (f_ext + f_contact - f_int) / m (``contact_force``: the CONTACT contributors'
-        force on this block, N, if any); on the prescribed DOFs the acceleration that takes
-        them exactly to u(t_{n+1}) and the reaction force it needs. ``dt``: dt_{n+1/2} (s);
-        ``mean_dt``: (dt_{n-1/2} + dt_{n+1/2}) / 2 (s)."""
+        """a = M^-1 (f_ext + f_contact - f_int) (``contact_force``: the CONTACT contributors'
+        force on this block, N, if any; M: the lumped or the scaled mass); on the prescribed
+        DOFs the acceleration that takes them exactly to u(t_{n+1}) and the reaction force it
+        needs. ``dt``: dt_{n+1/2} (s); ``mean_dt``: (dt_{n-1/2} + dt_{n+1/2}) / 2 (s).
+        Collective with a scaled mass."""
         np.subtract(self.f_ext, self.f, out=self.acc)
         if contact_force is not None:
             self.acc += contact_force
-        self.acc *= self.inv_m
-        if not len(self.block.fixed):
-            return
+        if self.scaled_mass is None:
+            self.acc *= self.inv_m
+        if len(self.block.fixed):
+            self._prescribed_accelerations(contact_force, dt, mean_dt)
+        if self.scaled_mass is not None:
+            self.scaled_mass.solve(self.acc, self.reaction)
+
+    def _prescribed_accelerations(
+        self, contact_force: np.ndarray | None, dt: float, mean_dt: float
+    ) -> None:
+        """The prescribed DOFs' accelerations into ``acc`` and their reactions m a + f_int -
+        f_ext - f_contact (lumped m; a scaled mass adds its share in ``SelectiveMass.solve``)."""
         fixed = self.block.fixed
         np.subtract(self.u_next, self.u_now, out=self.a_fixed)
         self.a_fixed /= dt
@@ -119,7 +139,10 @@ class BlockState:
         np.multiply(self.v, w, out=self.shrink)
         np.multiply(v_next, 1.0 - w, out=self.grow)
         self.shrink += self.grow
-        np.multiply(self.m, v_next, out=self.grow)
+        if self.scaled_mass is None:
+            np.multiply(self.m, v_next, out=self.grow)
+        else:
+            self.scaled_mass.multiply(v_next, self.grow)
         kinetic = 0.5 * np.dot(self.grow, self.shrink)
         np.add(self.v, v_next, out=self.v_mid)
         self.v_mid *= 0.5

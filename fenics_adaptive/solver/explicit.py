@@ -71,6 +71,7 @@ from fenics_adaptive.adaptivity.events import RefinementEvent
 from fenics_adaptive.errors import InputError
 from fenics_adaptive.model.forces import ForceContributor
 from fenics_adaptive.model.loading import on_top_or_bottom
+from fenics_adaptive.model.mass_scaling import selective_mass
 from fenics_adaptive.model.structure import Structure
 from fenics_adaptive.settings.solver import Probe, SolverSettings
 from fenics_adaptive.solver import guards
@@ -145,7 +146,8 @@ class RunStats:
 
 
 def choose_time_step(structure: Structure, settings: SolverSettings) -> tuple[float, float, str]:
-    """(step used, stable step, where the limit is). Stable = safety * min(L_e / c, cohesive)."""
+    """(step used, stable step, where the limit is). Stable = safety * min(L_e / c, cohesive)
+    (``Structure.stable_time_step``: with its scaled mass if it has one, ``prepare_mass``)."""
     limit, where = structure.stable_time_step()
     stable = settings.safety_factor * limit
     if settings.time_step is None:
@@ -157,6 +159,30 @@ def choose_time_step(structure: Structure, settings: SolverSettings) -> tuple[fl
             f"{settings.safety_factor}, limited by {where}); the run would blow up",
         )
     return settings.time_step, stable, where
+
+
+def prepare_mass(structure: Structure, settings: SolverSettings, refines: bool) -> None:
+    """Collective: give ``structure`` the mass ``settings.mass_scaling`` asks for: its scaled
+    mass (``model.mass_scaling.selective_mass``, built once per target step) or none. Before
+    the stable step is chosen. ``refines``: the run has a refiner. Raises InputError for what a
+    scaled mass cannot do yet: mass-proportional damping, refinement."""
+    if settings.mass_scaling == "none":
+        structure.scaled_mass = None
+        return
+    if settings.mass_damping > 0.0:
+        raise InputError(
+            "solver.mass_damping",
+            'mass-proportional damping is not yet available with mass_scaling = "selective"',
+        )
+    if refines:
+        raise InputError(
+            "solver.mass_scaling",
+            '"selective" is not yet available for adaptive models (their columns gain extra '
+            'nodes): run them with mass_scaling = "none"',
+        )
+    current, wanted = structure.scaled_mass, settings.mass_scaling_step
+    if current is None or (wanted is not None and wanted != current.target_step):
+        structure.scaled_mass = selective_mass(structure, wanted)
 
 
 # what a refiner is: called before every step, it refines the structure (collectively) or not
@@ -357,7 +383,12 @@ class ExplicitSolver:
     def _set_up(self) -> tuple[float, float]:
         """Collective: the work arrays and the inversion guard of the structure as it is now;
         (step, stable step) in s for it, the contributors prepared for them."""
-        self.blocks = [BlockState(b, self.settings.mass_damping) for b in self.structure.blocks]
+        prepare_mass(self.structure, self.settings, self.refiner is not None)
+        scaled = [self.structure.scaled_mass, None]
+        self.blocks = [
+            BlockState(b, self.settings.mass_damping, scaled_mass=m)
+            for b, m in zip(self.structure.blocks, scaled, strict=True)
+        ]
         self.inversion = guards.InversionGuard(self.structure)
         dt, stable, self.where = choose_time_step(self.structure, self.settings)
         if self.forced_step is not None:

@@ -1,0 +1,548 @@
+"""Selective mass scaling through the thickness: the scaled mass of every column of nodes.
+
+Units: N, mm, s, tonne.
+
+Why. A thin (sub)element's stable step is set by its thickness: the motion of its top nodes
+against its bottom nodes (thickness stretch, transverse shear) is its fastest mode, and one thin
+layer makes the whole model step at h / c. Selective mass scaling slows those modes alone
+(Olovsson, Simonsson and Unosson 2005; Cocchetti, Pagani and Perego 2013; Confalonieri, Ghisi
+and Perego 2015). With the lumped masses m, the scaled mass is
+
+    M_s = M_L + sum_e sum_a (e_a - e_a+4)(e_a - e_a+4)^T (x) B_ea,
+    B_ea = beta_t (I - n n^T) + beta_n n n^T,   beta_t = s_t,e mu_ea,   beta_n = s_n,e mu_ea,
+
+over the four through-thickness edges (vertex a below vertex a + 4, unit vector n from one to
+the other) of every solid element e, mu_ea = m_a m_a+4 / (m_a + m_a+4) the reduced mass of the
+edge's two (element) lumped masses. A motion in which the two nodes of every edge move together
+(a translation, membrane and in-plane motion) gets no mass: the total mass and the momentum
+M_s v are unchanged. The relative motion along n (thickness stretch) is (1 + s_n) times
+heavier, the relative motion across n (transverse shear, and the rotation of a column in
+bending) (1 + s_t) times. The two factors are found apart because their price differs: s_n
+slows through-thickness waves only, while s_t adds rotary inertia, which lowers the bending
+frequencies of a coarse mesh. So s_n is the smallest factor that brings the element's largest
+eigenvalue of M_s,e^-1 K_e to the target lambda_t = 4 / dt_t^2 with the shear modes held rigid,
+and s_t the smallest that then brings the element there (to ``SCALING_TOLERANCE``). On a
+[0/90]s plate 0.4 mm thick under 2 mm cells the thickness stretch needs s_n = 5.9, the shear
+s_t = 0.94 (``tests/test_mass_scaling.py`` measures the bending frequencies).
+
+The target step dt_t defaults to the step the in-plane size allows: the limit s -> infinity of
+every element, where each edge moves rigidly, with ``IN_PLANE_MARGIN`` (the limit itself needs
+an infinite mass). An element whose own limit is above a given target aims at its own limit.
+
+Columns. The edges join base nodes into chains through the thickness (one per column of an ESL
+mesh, one per sublaminate between split boundaries of an LW mesh: a cohesive element adds no
+edge); M_s is block diagonal by chain, a 3k x 3k matrix per chain of k nodes (DOF 3 slot +
+component). Each chain keeps the inverse of the free part of its matrix (a prescribed DOF's
+acceleration is given: the others solve M_ff a_f = r_f - M_fp a_p), computed once. The edge
+blocks B are summed over the ranks as the lumped masses are (an edge's elements may lie on
+several ranks), and a chain may hold ghost nodes (DOLFINx may give an edge's two nodes
+different owners): each step forward-scatters the residual once, and every rank solves the
+chains that hold one of its owned nodes.
+
+Stable step: lambda_max(M_s^-1 K) <= max_e lambda_max(M_s,e^-1 K_e) (the assembled masses and
+stiffnesses are sums of the element ones; Rayleigh quotients), so the largest element
+eigenvalue, computed exactly per element, bounds the step from the safe side. Cohesive springs
+keep their pair limit with the lumped masses (``element.timestep.cohesive_pair_time_steps``),
+not the scaled ones: with the effective masses 1 / (M_s^-1)_ii of their nodes the step of a
+layerwise TCB of 0.064 mm plies rose 1.3 x further, and the run, at 0.75 of the scaled system's
+true critical step, rang where the cohesive elements damaged (kinetic energy 0.03 mJ against
+1e-3, the state energy balance off by 0.1 mJ of 1.4, the work-based dissipation 16 % low); at
+the lumped pair limit (4 x the unscaled step there) it repeats the unscaled run (peak force to
+0.1 %, dissipation to 0.02 %).
+
+Not yet: adaptive models (extra nodes) and mass-proportional damping with a scaled mass: both
+are refused with an ``InputError`` (issue 17).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import TYPE_CHECKING
+
+import numpy as np
+from dolfinx import la
+from mpi4py import MPI
+from numba import njit
+
+from fenics_adaptive.element.subelement import solid_shell_forces
+from fenics_adaptive.errors import InputError
+
+if TYPE_CHECKING:
+    from fenics_adaptive.model.structure import Structure
+
+# the default target eigenvalue, over the largest in-plane limit of the elements (the step
+# 1 / sqrt(1.05) = 0.976 of the in-plane one): the limit itself takes an infinite mass
+IN_PLANE_MARGIN = 1.05
+# elements per block of the element eigenvalue problems (24 x 24 each: some 40 MiB a block)
+ELEMENT_BLOCK = 2048
+SCALING_ITERATIONS = 40
+SCALING_TOLERANCE = 0.02  # on 1 + s: the factor found is at most 2 % above the smallest
+# the largest factor tried, and the one that stands for "rigid" while the other is searched
+MAX_SCALING = 1.0e6
+# the six entries of a symmetric 3 x 3 block as the edge vectors carry them
+SYMMETRIC = ((0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2))
+
+
+# ------------------------------------------------------------------ element level (pure)
+def element_stiffness(X: np.ndarray, rule_of_element: np.ndarray, packed) -> np.ndarray:
+    """Small-strain stiffness matrices (n, 24, 24) N/mm of solid-shell (sub)elements with
+    reference vertices ``X`` (n, 8, 3) mm, DOF 3 vertex + component; ``rule_of_element``,
+    ``packed``: as ``subelement.solid_shell_forces`` takes them. Column j is the force of a unit
+    displacement of DOF j (the small-strain kernel is linear in u), symmetrised."""
+    n = len(X)
+    X = np.ascontiguousarray(X, dtype=np.float64)
+    K = np.empty((n, 24, 24))
+    u = np.zeros((n, 8, 3))
+    f = np.empty((n, 8, 3))
+    for j in range(24):
+        u.reshape(n, 24)[:, j - 1] = 0.0
+        u.reshape(n, 24)[:, j] = 1.0
+        solid_shell_forces(X, u, rule_of_element, *packed, f, False)
+        K[:, :, j] = f.reshape(n, 24)
+    return 0.5 * (K + K.transpose(0, 2, 1))
+
+
+def reduced_edge_masses(m: np.ndarray) -> np.ndarray:
+    """mu_a = m_a m_a+4 / (m_a + m_a+4) (n, 4) tonne of the edges of elements with vertex
+    masses ``m`` (n, 8)."""
+    return m[:, :4] * m[:, 4:] / (m[:, :4] + m[:, 4:])
+
+
+def edge_normals(X: np.ndarray) -> np.ndarray:
+    """Unit vectors (n, 4, 3) from vertex a to vertex a + 4 of hexahedra ``X`` (n, 8, 3)."""
+    d = X[:, 4:, :] - X[:, :4, :]
+    return d / np.linalg.norm(d, axis=2, keepdims=True)
+
+
+def edge_blocks(normals: np.ndarray, beta_t: np.ndarray, beta_n: np.ndarray) -> np.ndarray:
+    """B = beta_t (I - n n^T) + beta_n n n^T (..., 3, 3) tonne for edges with unit vectors
+    ``normals`` (..., 3) and edge masses ``beta_t``, ``beta_n`` (...)."""
+    nn = normals[..., :, None] * normals[..., None, :]
+    return beta_t[..., None, None] * (np.eye(3) - nn) + beta_n[..., None, None] * nn
+
+
+def element_scaled_mass(m: np.ndarray, blocks: np.ndarray) -> np.ndarray:
+    """Scaled mass matrices (n, 24, 24) tonne, DOF 3 vertex + component: diag(m) per component
+    plus, for each edge (a, a+4), its block B_a (``blocks`` (n, 4, 3, 3)) as the stiffness of
+    a spring between the two vertices."""
+    n = len(m)
+    M = np.zeros((n, 8, 3, 8, 3))
+    vertices = np.arange(8)
+    M[:, vertices, :, vertices, :] = m.T[:, :, None, None] * np.eye(3)
+    for a in range(4):
+        M[:, a, :, a, :] += blocks[:, a]
+        M[:, a + 4, :, a + 4, :] += blocks[:, a]
+        M[:, a, :, a + 4, :] -= blocks[:, a]
+        M[:, a + 4, :, a, :] -= blocks[:, a]
+    return M.reshape(n, 24, 24)
+
+
+def largest_eigenvalues(K: np.ndarray, M: np.ndarray) -> np.ndarray:
+    """Largest eigenvalue (1/s^2) of M^-1 K per element, K and M (n, q, q), M positive
+    definite."""
+    L_inv = np.linalg.inv(np.linalg.cholesky(M))  # M = L L^T
+    A = L_inv @ K @ L_inv.transpose(0, 2, 1)
+    return np.linalg.eigvalsh(0.5 * (A + A.transpose(0, 2, 1)))[:, -1]
+
+
+def in_plane_eigenvalues(K: np.ndarray, m: np.ndarray) -> np.ndarray:
+    """The limit of the largest eigenvalue of M_s,e^-1 K_e as the edge masses grow without end
+    (1/s^2, (n,)): every edge (a, a+4) moves as one node of mass m_a + m_a+4."""
+    n = len(K)
+    rigid = K.reshape(n, 2, 4, 3, 2, 4, 3).sum(axis=(1, 4)).reshape(n, 12, 12)
+    masses = np.repeat(m[:, :4] + m[:, 4:], 3, axis=1)  # (n, 12)
+    return largest_eigenvalues(rigid, masses[:, :, None] * np.eye(12))
+
+
+def smallest_factor(
+    eigenvalue: Callable[[np.ndarray, np.ndarray], np.ndarray],
+    aim: np.ndarray,
+    floor: np.ndarray,
+    start: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Per element, the smallest s >= 0 (to ``SCALING_TOLERANCE`` in 1 + s) with which
+    ``eigenvalue(elements, s)`` is at most ``aim`` (1/s^2), and that eigenvalue. ``floor``: its
+    limit as s grows (below the aim); ``start``: its value at s = 0. Until a factor reaches the
+    aim, each guess fits lambda(s) = floor + C / (1 + s) through the last value (exact for a
+    single mode); then bisection in log(1 + s)."""
+    s, lam = np.zeros(len(aim)), start.copy()
+    low = np.zeros(len(aim))  # a factor known too small
+    high = np.where(lam <= aim, 0.0, np.inf)  # the smallest known to reach the aim
+    lam_high = lam.copy()
+    for _ in range(SCALING_ITERATIONS):
+        over = lam > aim
+        low[over] = s[over]
+        reached = ~over & (s <= high)
+        high[reached], lam_high[reached] = s[reached], lam[reached]
+        open_ = np.flatnonzero((1.0 + high) > (1.0 + SCALING_TOLERANCE) * (1.0 + low))
+        if len(open_) == 0:
+            break
+        fit = (lam[open_] - floor[open_]) * (1.0 + s[open_])
+        guess = fit / (0.99 * aim[open_] - floor[open_]) - 1.0
+        s[open_] = np.where(
+            np.isfinite(high[open_]),
+            np.sqrt((1.0 + low[open_]) * (1.0 + high[open_])) - 1.0,
+            np.minimum(np.maximum(guess, 1.05 * low[open_] + 1e-3), MAX_SCALING),
+        )
+        lam[open_] = eigenvalue(open_, s[open_])
+    return high, lam_high
+
+
+def scaling_factors(
+    K: np.ndarray, m: np.ndarray, normals: np.ndarray, target: float, in_plane: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(s_t, s_n, the largest eigenvalue of M_s,e^-1 K_e with them) per element (see the module
+    docstring): s_n the smallest that brings the element to ``target`` (1/s^2) with its shear
+    modes held rigid, then s_t the smallest with that s_n. ``in_plane``: the elements' rigid
+    limits (``in_plane_eigenvalues``); an element whose limit is above the target aims at
+    ``IN_PLANE_MARGIN`` times its own limit instead (it then sets the step)."""
+    mu = reduced_edge_masses(m)
+    n = len(K)
+    aim = np.maximum(target, IN_PLANE_MARGIN * in_plane)
+    rigid = np.full(n, MAX_SCALING)
+
+    def eigenvalue(s_t: np.ndarray, s_n: np.ndarray, at: np.ndarray) -> np.ndarray:
+        blocks = edge_blocks(normals[at], s_t[:, None] * mu[at], s_n[:, None] * mu[at])
+        return largest_eigenvalues(K[at], element_scaled_mass(m[at], blocks))
+
+    everything = np.arange(n)
+    s_n, _ = smallest_factor(
+        lambda at, s: eigenvalue(rigid[at], s, at),
+        aim,
+        in_plane,
+        eigenvalue(rigid, np.zeros(n), everything),
+    )
+    s_t, lam = smallest_factor(
+        lambda at, s: eigenvalue(s, s_n[at], at),
+        aim,
+        in_plane,
+        eigenvalue(np.zeros(n), s_n, everything),
+    )
+    return s_t, s_n, lam
+
+
+# ------------------------------------------------------------------ per step (numba)
+@njit(cache=True)
+def _solve_chains(
+    chain_offsets,
+    chain_nodes,
+    matrix_offsets,
+    matrix,
+    inverse,
+    lumped,
+    prescribed,
+    w,
+    n_owned_dofs,
+    acc,
+    fixed_slot,
+    reaction,
+    scratch,
+):
+    """Accelerations of every chain from ``w`` (all local DOFs: the residual r = f_ext - f_int
+    at free DOFs, the acceleration at prescribed ones): a_f = G (r - M a_p), into ``acc``
+    (owned DOFs); the reaction m a_p - r_p of each owned prescribed DOF gains what the scaled
+    mass adds, (M_s a)_p - m_p a_p (``lumped``: m per chain DOF)."""
+    for c in range(len(chain_offsets) - 1):
+        start = chain_offsets[c]
+        q = 3 * (chain_offsets[c + 1] - start)
+        at = matrix_offsets[c]
+        for i in range(q):  # b = r - M a_p
+            dof = 3 * chain_nodes[start + i // 3] + i % 3
+            scratch[i] = 0.0 if prescribed[dof] else w[dof]
+        for j in range(q):
+            dof = 3 * chain_nodes[start + j // 3] + j % 3
+            if prescribed[dof]:
+                for i in range(q):
+                    scratch[i] -= matrix[at + i * q + j] * w[dof]
+        for i in range(q):
+            dof = 3 * chain_nodes[start + i // 3] + i % 3
+            if prescribed[dof]:
+                scratch[q + i] = w[dof]
+            else:
+                total = 0.0
+                for j in range(q):
+                    total += inverse[at + i * q + j] * scratch[j]
+                scratch[q + i] = total
+        for i in range(q):
+            dof = 3 * chain_nodes[start + i // 3] + i % 3
+            if dof >= n_owned_dofs:
+                continue
+            acc[dof] = scratch[q + i]
+            slot = fixed_slot[dof]
+            if slot >= 0:
+                added = -lumped[3 * start + i] * scratch[q + i]
+                for j in range(q):
+                    added += matrix[at + i * q + j] * scratch[q + j]
+                reaction[slot] += added
+
+
+@njit(cache=True)
+def _multiply_chains(chain_offsets, chain_nodes, matrix_offsets, matrix, x, n_owned_dofs, out):
+    """out = M_s x on the owned DOFs of the chains (``x``: all local DOFs)."""
+    for c in range(len(chain_offsets) - 1):
+        start = chain_offsets[c]
+        q = 3 * (chain_offsets[c + 1] - start)
+        at = matrix_offsets[c]
+        for i in range(q):
+            dof = 3 * chain_nodes[start + i // 3] + i % 3
+            if dof >= n_owned_dofs:
+                continue
+            total = 0.0
+            for j in range(q):
+                total += matrix[at + i * q + j] * x[3 * chain_nodes[start + j // 3] + j % 3]
+            out[dof] = total
+
+
+# ------------------------------------------------------------------ the scaled mass
+class SelectiveMass:
+    """The column-wise scaled mass of a structure's base nodes (see the module docstring), built
+    by ``selective_mass``. The solver's base block uses ``solve`` (accelerations and reactions)
+    and ``multiply`` (M_s v, for the kinetic energy).
+
+    ``chain_offsets``, ``chain_nodes``: CSR of the chains holding an owned node (local base
+    nodes, bottom to top); ``matrix``: their 3k x 3k matrices (tonne), packed row by row;
+    ``lumped``: the lumped mass of every chain DOF; ``prescribed`` (all local DOFs), ``fixed``
+    (the base block's prescribed owned DOFs, in the order of its reactions). Also kept:
+    ``target_step`` (s), ``element_eigenvalues`` (1/s^2, each element's largest, scaled),
+    ``element_cell`` (its owned cell), ``shear_scaling``, ``normal_scaling`` (s_t, s_n)."""
+
+    def __init__(
+        self,
+        index_map,
+        chain_offsets: np.ndarray,
+        chain_nodes: np.ndarray,
+        matrix: np.ndarray,
+        lumped: np.ndarray,
+        prescribed: np.ndarray,
+        fixed: np.ndarray,
+        target_step: float,
+        element_eigenvalues: np.ndarray,
+        element_cell: np.ndarray,
+        factors: tuple[np.ndarray, np.ndarray],
+    ):
+        self.target_step = target_step
+        self.element_eigenvalues = element_eigenvalues
+        self.element_cell = element_cell
+        self.shear_scaling, self.normal_scaling = factors
+        self.n_owned_dofs = 3 * index_map.size_local
+        self.chain_offsets = chain_offsets
+        self.chain_nodes = chain_nodes
+        self.matrix = matrix
+        self.lumped = lumped
+        sizes = 3 * np.diff(chain_offsets)
+        self.matrix_offsets = np.concatenate([[0], np.cumsum(sizes**2)]).astype(np.int64)
+        self.prescribed = np.asarray(prescribed, dtype=np.bool_)
+        self.inverse = np.zeros(len(matrix))
+        for q in np.unique(sizes):
+            self._invert(np.flatnonzero(sizes == q), int(q))
+        self.fixed_slot = np.full(self.n_owned_dofs, -1, dtype=np.int64)
+        self.fixed_slot[fixed] = np.arange(len(fixed))
+        self._w = la.vector(index_map, bs=3)
+        self._scratch = np.zeros(2 * int(sizes.max(initial=3)))
+
+    def _invert(self, chains: np.ndarray, q: int) -> None:
+        """The inverses of the free parts of ``chains`` (all of 3k = q DOFs)."""
+        at = self.matrix_offsets[chains][:, None] + np.arange(q * q)
+        M = self.matrix[at].reshape(-1, q, q)
+        G = np.linalg.inv(M)
+        nodes = self.chain_nodes[self.chain_offsets[chains][:, None] + np.arange(q // 3)]
+        dofs = (3 * nodes[:, :, None] + np.arange(3)).reshape(-1, q)
+        free = ~self.prescribed[dofs]
+        for c in np.flatnonzero(~free.all(axis=1)):  # few: the chains a motion holds
+            f = free[c]
+            G[c] = 0.0
+            if f.any():
+                G[c][np.ix_(f, f)] = np.linalg.inv(M[c][np.ix_(f, f)])
+        self.inverse[at] = G.reshape(len(chains), q * q)
+
+    def solve(self, acc: np.ndarray, reaction: np.ndarray) -> None:
+        """Collective: ``acc`` (owned DOFs) holds r = f_ext - f_int (N) at free DOFs and the
+        given accelerations at prescribed ones; overwritten with the accelerations of the scaled
+        mass (mm/s^2), and the reactions (N, one per prescribed owned DOF: the lumped
+        m a - r) get the scaled mass's share."""
+        w = self._w
+        w.array[: self.n_owned_dofs] = acc
+        w.scatter_forward()
+        _solve_chains(
+            self.chain_offsets,
+            self.chain_nodes,
+            self.matrix_offsets,
+            self.matrix,
+            self.inverse,
+            self.lumped,
+            self.prescribed,
+            w.array,
+            self.n_owned_dofs,
+            acc,
+            self.fixed_slot,
+            reaction,
+            self._scratch,
+        )
+
+    def multiply(self, x: np.ndarray, out: np.ndarray) -> np.ndarray:
+        """Collective: M_s x into ``out`` (owned DOFs; tonne x the unit of ``x``); ``x``: owned
+        DOFs (the ghosts it needs are forward-scattered here). Returns ``out``."""
+        w = self._w
+        w.array[: self.n_owned_dofs] = x
+        w.scatter_forward()
+        _multiply_chains(
+            self.chain_offsets,
+            self.chain_nodes,
+            self.matrix_offsets,
+            self.matrix,
+            w.array,
+            self.n_owned_dofs,
+            out,
+        )
+        return out
+
+    def stable_time_step(self) -> tuple[float, int]:
+        """(2 / sqrt of the largest scaled element eigenvalue (s), its owned cell) on this
+        rank; (inf, -1) without elements."""
+        if len(self.element_eigenvalues) == 0:
+            return np.inf, -1
+        e = int(np.argmax(self.element_eigenvalues))
+        return float(2.0 / np.sqrt(self.element_eigenvalues[e])), int(self.element_cell[e])
+
+
+def selective_mass(structure: Structure, target_step: float | None = None) -> SelectiveMass:
+    """Collective: the selective scaled mass of ``structure``'s base nodes for the target step
+    ``target_step`` (s; default: the in-plane step, see the module docstring). Raises
+    InputError for a structure with extra nodes (an adaptive model: not yet) or a mesh whose
+    elements do not stack into columns."""
+    comm = structure.comm
+    if structure.interfaces.refine or (
+        comm.allreduce(structure.extra.index_map.size_local, op=MPI.SUM) > 0
+    ):
+        raise InputError(
+            "solver.mass_scaling",
+            '"selective" is not yet available for adaptive models (extra nodes); use it with '
+            'ESL or layerwise models, or mass_scaling = "none"',
+        )
+    nodes, cells, plies = structure.elements()
+    nodes = nodes.astype(np.int64)
+    X = structure.gather(nodes, "X")
+    normals = edge_normals(X)
+    rules = structure.element_rules(plies)
+    m = structure.rule_table.lumped_masses(X, plies[:, 0], plies[:, 1])
+    packed = structure.rule_table.packed
+    blocks = [slice(i, i + ELEMENT_BLOCK) for i in range(0, len(nodes), ELEMENT_BLOCK)]
+    stiffness = [element_stiffness(X[b], rules[b], packed) for b in blocks]
+    in_plane = np.zeros(len(nodes))
+    for K, b in zip(stiffness, blocks, strict=True):
+        in_plane[b] = in_plane_eigenvalues(K, m[b])
+    if target_step is None:
+        largest = comm.allreduce(float(in_plane.max(initial=0.0)), op=MPI.MAX)
+        target = IN_PLANE_MARGIN * largest
+        target_step = 2.0 / np.sqrt(target)
+    else:
+        target = 4.0 / target_step**2
+    s_t, s_n, eigenvalues = (np.zeros(len(nodes)) for _ in range(3))
+    for K, b in zip(stiffness, blocks, strict=True):
+        s_t[b], s_n[b], eigenvalues[b] = scaling_factors(K, m[b], normals[b], target, in_plane[b])
+    mu = reduced_edge_masses(m)
+    edges = edge_blocks(normals, s_t[:, None] * mu, s_n[:, None] * mu)
+    chain_offsets, chain_nodes, matrix, lumped = _chain_matrices(
+        structure, nodes[:, :4], nodes[:, 4:], edges
+    )
+    base = structure.base_block
+    prescribed = la.vector(structure.mass_base.index_map, bs=3)
+    prescribed.array[base.fixed] = 1.0
+    prescribed.scatter_forward()
+    return SelectiveMass(
+        structure.mass_base.index_map,
+        chain_offsets,
+        chain_nodes,
+        matrix,
+        lumped,
+        prescribed.array > 0.5,
+        base.fixed,
+        float(target_step),
+        eigenvalues,
+        cells,
+        (s_t, s_n),
+    )
+
+
+def _chain_matrices(
+    structure: Structure, bottom: np.ndarray, top: np.ndarray, edges: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The chains of base nodes joined by the edges (``bottom`` -> ``top``, (n, 4) local nodes,
+    edge blocks ``edges`` (n, 4, 3, 3)) that hold an owned node, as CSR (offsets, local nodes
+    bottom to top); their 3k x 3k matrices packed row by row: the lumped masses on the
+    diagonal, each edge's block (summed over the ranks) as a spring between its two nodes; and
+    the lumped mass of each chain DOF."""
+    index_map = structure.mass_base.index_map
+    n_local = index_map.size_local + index_map.num_ghosts
+    n_owned = index_map.size_local
+    bottom, top, edges = bottom.ravel(), top.ravel(), edges.reshape(-1, 3, 3)
+    above = np.full(n_local, -1, dtype=np.int64)
+    above[bottom] = top
+    if np.any(above[bottom] != top):
+        i = int(np.flatnonzero(above[bottom] != top)[0])
+        raise InputError(
+            "mesh",
+            f"selective mass scaling: the node at {structure.X_base[bottom[i]].round(6).tolist()}"
+            " mm is the bottom of two through-thickness edges; the elements must stack in "
+            "columns (vertex a + 4 above vertex a)",
+        )
+    below = np.full(n_local, -1, dtype=np.int64)
+    below[top] = bottom
+    # each node's edge block to the node above and whether an edge starts or ends there,
+    # summed over the ranks (an edge's elements may lie on several)
+    edge = la.vector(index_map, bs=8)
+    values = edge.array.reshape(-1, 8)
+    for column, (i, j) in enumerate(SYMMETRIC):
+        np.add.at(values[:, column], bottom, edges[:, i, j])
+    np.add.at(values[:, 6], bottom, 1.0)
+    np.add.at(values[:, 7], top, 1.0)
+    edge.scatter_reverse(la.InsertMode.add)
+    edge.scatter_forward()
+    has_above, has_below = values[:, 6] > 0, values[:, 7] > 0
+    mass = la.vector(index_map, bs=3)
+    mass.array[:] = structure.mass_base.array
+    mass.scatter_forward()
+    node_mass = mass.array[::3].copy()
+
+    # walk up from every chain's bottom node, one level at a time
+    levels = [np.flatnonzero(below < 0)]
+    while True:
+        last = levels[-1]
+        up = np.where(last >= 0, above[np.maximum(last, 0)], -1)
+        if not np.any(up >= 0):
+            break
+        levels.append(up)
+    table = np.stack(levels, axis=1)  # (chains, levels), -1 past a chain's top
+    keep = ((table >= 0) & (table < n_owned)).any(axis=1)
+    table = table[keep]
+    sizes = (table >= 0).sum(axis=1)
+    chain_nodes = table[table >= 0]  # row by row: each chain bottom to top
+    broken = (has_above & (above < 0)) | (has_below & (below < 0))
+    if np.any(broken[chain_nodes]):
+        where = structure.X_base[chain_nodes[np.argmax(broken[chain_nodes])]].round(6).tolist()
+        raise InputError(
+            "mesh",
+            f"selective mass scaling: the column through {where} mm is split between MPI "
+            "ranks (its cells are not all on one rank); partition the mesh by columns or run "
+            "on one rank",
+        )
+    chain_offsets = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
+    q = 3 * sizes
+    matrix_offsets = np.concatenate([[0], np.cumsum(q**2)]).astype(np.int64)
+    matrix = np.zeros(int(matrix_offsets[-1]))
+    chain = np.repeat(np.arange(len(sizes)), sizes)
+    slot = np.arange(len(chain_nodes)) - chain_offsets[chain]
+    qq, first = q[chain], matrix_offsets[chain]  # per chain node
+    lumped = np.repeat(node_mass[chain_nodes], 3)
+    for d in range(3):
+        row = 3 * slot + d
+        matrix[first + row * qq + row] = node_mass[chain_nodes]
+    inner = np.flatnonzero(slot < sizes[chain] - 1)  # an edge from this slot to the next
+    for column, (i, j) in enumerate(SYMMETRIC):
+        b = values[chain_nodes[inner], column]
+        low, high = 3 * slot[inner], 3 * slot[inner] + 3
+        pairs = ((i, j), (j, i)) if i != j else ((i, i),)
+        for ri, ci in pairs:
+            for r, c, sign in ((low, low, 1), (high, high, 1), (low, high, -1), (high, low, -1)):
+                matrix[first[inner] + (r + ri) * qq[inner] + c + ci] += sign * b
+    return chain_offsets, chain_nodes.astype(np.int64), matrix, lumped
