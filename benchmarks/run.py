@@ -20,6 +20,8 @@ Rows (issue 5's targets in brackets):
 - ``step``: a whole explicit step, unrefined and fully refined (weak at interface 4, strong at 2
   and 6 in every cell) [unrefined/refined <= 0.70], and the share of the step that is not force
   computation [<= 20 %];
+- ``mass``: the step with lumped and selectively scaled masses, ESL and layerwise, on the TCB
+  beam of 0.064 mm plies (issue 17) [the scaled update costs <= 10 % of the step];
 - ``scaling``: unrefined step time per cell at growing sizes [within 15 % of linear];
 - ``mpi``: the unrefined step on 1 and 2 ranks [speed-up >= 1.7, same history];
 - ``memory``: peak resident memory of the impact plate (``demos/plate_impact.toml``): ESL,
@@ -234,6 +236,51 @@ def bench_step(n_cells: int, steps: int, repeat: int) -> list[dict]:
     return rows
 
 
+def bench_mass(n_cells: int, steps: int, repeat: int) -> list[dict]:
+    """The explicit step with lumped and with selectively scaled masses, ESL and layerwise
+    (one mesh layer per ply), on the TCB beam of plies 0.064 mm thick (0.512 mm under 0.5 mm
+    cells): the cost of a step, the step, the wall time per simulated microsecond."""
+    rows = []
+    for kind in ("esl", "layerwise"):
+        data = beam_config(n_cells, kind="esl" if kind == "esl" else "layerwise")
+        data["laminate"]["ply_thickness"] = 0.064
+        if kind == "esl":
+            data["model"]["kind"] = "esl"
+            for name in ("interfaces", "cohesive"):
+                data.pop(name, None)
+        else:
+            data["mesh"]["layers"] = [1] * 8
+        pair = []
+        for scaling in ("none", "selective"):
+            structure = build_structure(parse_config(data))
+            probe = Probe("x1&top", "x1&top", "z")
+            start = time.perf_counter()
+            settings = SolverSettings(end_time=1.0, output_interval=1.0, mass_scaling=scaling)
+            explicit.prepare_mass(structure, settings, refines=False)
+            built = time.perf_counter() - start
+            step, dt = time_per_step(
+                structure, probe, steps, repeat, statistics.median, mass_scaling=scaling
+            )
+            pair.append(
+                {
+                    "benchmark": "mass",
+                    "case": f"{kind}, {scaling}",
+                    "cells": structure.comm.allreduce(structure.base.n_owned_cells),
+                    "seconds": step,
+                    "time_step_s": dt,
+                    "wall_s_per_simulated_us": step / dt * 1e-6,
+                    "mass_setup_s": built,
+                }
+            )
+        lumped, scaled = pair
+        scaled["step_cost_over_lumped"] = scaled["seconds"] / lumped["seconds"]
+        scaled["time_to_solution_over_lumped"] = (
+            scaled["wall_s_per_simulated_us"] / lumped["wall_s_per_simulated_us"]
+        )
+        rows += pair
+    return rows
+
+
 def bench_scaling(sizes: list[int], steps: int, repeat: int) -> list[dict]:
     """Unrefined step time per cell at growing sizes (linear growth: constant per-cell time)."""
     rows = []
@@ -437,6 +484,11 @@ def table(rows: list[dict]) -> str:
             ("fixed_MiB", "{:.0f} MiB fixed"),
             ("relative_to_layerwise", "x{:.2f} of LW"),
             ("net_relative_to_layerwise", "net of the fixed x{:.2f}"),
+            ("time_step_s", "step {:.3g} s"),
+            ("wall_s_per_simulated_us", "{:.3g} s per simulated us"),
+            ("mass_setup_s", "scaled mass built in {:.1f} s"),
+            ("step_cost_over_lumped", "step cost x{:.2f}"),
+            ("time_to_solution_over_lumped", "time to solution x{:.2f}"),
         ):
             if key in r:
                 figure.append(fmt.format(r[key]))
@@ -451,13 +503,14 @@ def table(rows: list[dict]) -> str:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--only", default="kernels,step,scaling,mpi,memory,plate")
+    parser.add_argument("--only", default="kernels,step,mass,scaling,mpi,memory,plate")
     parser.add_argument("--quick", action="store_true", help="small sizes, a smoke run")
     parser.add_argument("--cells", type=int, default=None, help="cells of the step benchmark")
     parser.add_argument("--kernel-cells", type=int, default=100_000)
     parser.add_argument("--scaling", default="10000,100000,400000")
     parser.add_argument("--mpi-cells", type=int, default=200_000)
     parser.add_argument("--memory-cells", type=int, default=40_000)
+    parser.add_argument("--mass-cells", type=int, default=20_000, help="cells per mesh layer")
     parser.add_argument("--plate-end-time", type=float, default=3.0e-4, help="s")
     parser.add_argument("--steps", type=int, default=20, help="explicit steps per repetition")
     parser.add_argument("--repeat", type=int, default=5)
@@ -474,6 +527,7 @@ def main() -> None:
             2.0e-5,
         )
         args.memory_cells = 2_500
+        args.mass_cells = 2_000
     only = args.only.split(",")
     if only == ["mpi-worker"]:
         return mpi_worker(cells, args.steps, args.repeat)
@@ -485,6 +539,7 @@ def main() -> None:
     jobs = {
         "kernels": lambda: bench_kernels(args.kernel_cells, args.repeat),
         "step": lambda: bench_step(cells, args.steps, args.repeat),
+        "mass": lambda: bench_mass(args.mass_cells, args.steps, args.repeat),
         "scaling": lambda: bench_scaling(
             [int(n) for n in args.scaling.split(",")], args.steps, args.repeat
         ),
@@ -522,6 +577,7 @@ def main() -> None:
 JOB_ROWS = {
     "kernels": "kernel",
     "step": "step",
+    "mass": "mass",
     "scaling": "scaling",
     "mpi": "mpi",
     "memory": "memory",

@@ -73,16 +73,38 @@ def test_the_scaled_mass_keeps_translations_and_weighs_relative_motion():
     assert np.dot(r, mass.multiply(r, np.empty(n))) > 2.0 * lumped_energy
 
 
-def test_solve_gives_the_free_accelerations_and_the_reactions_of_the_scaled_mass():
+EDGE_NORMALS = ms.edge_normals
+
+
+def tilted_normals(X: np.ndarray) -> np.ndarray:
+    """The edges' unit vectors turned 30 degrees about x: every edge block couples y and z."""
+    c, s = math.cos(math.pi / 6), math.sin(math.pi / 6)
+    return EDGE_NORMALS(X) @ np.array([[1.0, 0.0, 0.0], [0.0, c, s], [0.0, -s, c]])
+
+
+@pytest.mark.parametrize("path", ["banded", "dense", "tilted"])
+def test_solve_gives_the_free_accelerations_and_the_reactions_of_the_scaled_mass(path, monkeypatch):
     """With a residual r and given accelerations a_p on the prescribed DOFs: M_s a = r on the
     free DOFs, and each reaction is (M_s a)_p - r_p (the lumped m_p a_p - r_p it starts from
-    plus the scaled mass's share)."""
+    plus the scaled mass's share); by each chain's tridiagonal factors per component (edges
+    along z), by the inverse of its whole matrix, and with edges that couple the components
+    (as a curved shell's would)."""
+    if path != "banded":
+        monkeypatch.setattr(ms, "BANDED_TOLERANCE", -1.0)
+    if path == "tilted":
+        monkeypatch.setattr(ms, "edge_normals", tilted_normals)
     model = esl_model(THIN, 10.0, WIDTH, 4, 1, ply_thickness=0.05)
     pulled = PrescribedMotion("x1&top", "z", "displacement", 0.1, Amplitude.constant())
     structure, mass = scaled(model, [*clamp("x0"), pulled])
     assert mass.normal_scaling.min() > 1.0
-    fixed = structure.base_block.fixed
+    assert mass.banded.all() == (path == "banded") and mass.held.any()
     lumped = structure.base_block.mass
+    n = len(lumped)
+    for d in range(3):  # a translation still sees the lumped masses alone
+        v = np.zeros(n)
+        v[d::3] = 1.0
+        np.testing.assert_allclose(mass.multiply(v, np.empty(n)), lumped * v, rtol=1e-12)
+    fixed = structure.base_block.fixed
     rng = np.random.default_rng(5)
     r = rng.standard_normal(len(lumped))
     acc = r.copy()

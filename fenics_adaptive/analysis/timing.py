@@ -14,6 +14,7 @@ import time
 from collections.abc import Callable, Sequence
 
 from fenics_adaptive.model.structure import Structure
+from fenics_adaptive.settings.kinds import MassScaling
 from fenics_adaptive.settings.solver import Probe, SolverSettings
 from fenics_adaptive.solver import explicit
 
@@ -45,17 +46,21 @@ def time_per_step(
     steps: int = 200,
     repeats: int = 3,
     statistic: Statistic = min,
+    mass_scaling: MassScaling = MassScaling.NONE,
 ) -> tuple[float, float]:
     """(wall time of one explicit step (s), the stable time step used (s)): the statistic of
     ``repeats`` runs of ``steps`` central-difference steps at the stable step from rest, each
     timed by the solver itself (its clock starts after set-up) and divided by its steps; a
-    short run first compiles everything. The structure's displacement is overwritten."""
-    dt, _, _ = explicit.choose_time_step(
-        structure, SolverSettings(end_time=1.0, output_interval=1.0)
-    )
-    warm = SolverSettings(end_time=5 * dt, output_interval=5 * dt)
+    short run first compiles everything (and builds a scaled mass, ``mass_scaling``). The
+    structure's displacement is overwritten."""
+    once = SolverSettings(end_time=1.0, output_interval=1.0, mass_scaling=mass_scaling)
+    explicit.prepare_mass(structure, once, refines=False)
+    dt, _, _ = explicit.choose_time_step(structure, once)
+    warm = SolverSettings(end_time=5 * dt, output_interval=5 * dt, mass_scaling=mass_scaling)
     explicit.run(structure, warm, probe)
-    settings = SolverSettings(end_time=steps * dt, output_interval=steps * dt)
+    settings = SolverSettings(
+        end_time=steps * dt, output_interval=steps * dt, mass_scaling=mass_scaling
+    )
     per_step = []
     for _ in range(repeats):
         stats = explicit.run(structure, settings, probe)

@@ -64,7 +64,7 @@ from dolfinx import la
 from mpi4py import MPI
 from numba import njit
 
-from fenics_adaptive.element.subelement import solid_shell_forces
+from fenics_adaptive.element.subelement import KERNEL_OPTIONS, solid_shell_forces
 from fenics_adaptive.errors import InputError
 
 if TYPE_CHECKING:
@@ -79,6 +79,9 @@ SCALING_ITERATIONS = 40
 SCALING_TOLERANCE = 0.02  # on 1 + s: the factor found is at most 2 % above the smallest
 # the largest factor tried, and the one that stands for "rigid" while the other is searched
 MAX_SCALING = 1.0e6
+# a chain whose entries across components are below this share of its largest is solved per
+# component (its edges are along a coordinate axis to within round-off of the coordinates)
+BANDED_TOLERANCE = 1.0e-9
 # the six entries of a symmetric 3 x 3 block as the edge vectors carry them
 SYMMETRIC = ((0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2))
 
@@ -222,13 +225,22 @@ def scaling_factors(
 
 
 # ------------------------------------------------------------------ per step (numba)
-@njit(cache=True)
-def _solve_chains(
-    chain_offsets,
+@njit(cache=True, inline="always")
+def _chain_dofs(chain_nodes, start, q, dofs):
+    """The local DOFs of a chain's q = 3k entries (slot-major) into ``dofs``."""
+    for i in range(q):
+        dofs[i] = 3 * chain_nodes[start + i // 3] + i % 3
+
+
+@njit(cache=True, inline="always")
+def _solve_banded(
     chain_nodes,
-    matrix_offsets,
-    matrix,
-    inverse,
+    start,
+    q,
+    factor_l,
+    factor_inverse_d,
+    band_diagonal,
+    band_coupling,
     lumped,
     prescribed,
     w,
@@ -236,61 +248,150 @@ def _solve_chains(
     acc,
     fixed_slot,
     reaction,
+    z,
+):
+    """One chain whose components do not couple, per component: the right-hand side r at free
+    DOFs less the couplings to prescribed neighbours (their accelerations given in ``w``), the
+    LDL^T factors of the tridiagonal matrix (forward z_i = b_i - l_i z_i-1, backward
+    a_i = z_i / d_i - l_i+1 a_i+1), ``acc`` (owned DOFs) and the reactions' scaled share
+    D_p a_p + O a_neighbours - m_p a_p. ``z``: scratch (2k,)."""
+    k = q // 3
+    at = 3 * start
+    for d in range(3):
+        previous = 0.0
+        for i in range(k):
+            slot = at + 3 * i + d
+            dof = 3 * chain_nodes[start + i] + d
+            b = w[dof]
+            if not prescribed[dof]:
+                if i > 0 and prescribed[3 * chain_nodes[start + i - 1] + d]:
+                    b -= band_coupling[slot - 3] * w[3 * chain_nodes[start + i - 1] + d]
+                if i < k - 1 and prescribed[3 * chain_nodes[start + i + 1] + d]:
+                    b -= band_coupling[slot] * w[3 * chain_nodes[start + i + 1] + d]
+            previous = b - factor_l[slot] * previous
+            z[i] = previous
+        a = 0.0
+        for i in range(k - 1, -1, -1):
+            slot = at + 3 * i + d
+            following = factor_l[slot + 3] * a if i < k - 1 else 0.0
+            a = z[i] * factor_inverse_d[slot] - following
+            z[k + i] = a
+        for i in range(k):
+            dof = 3 * chain_nodes[start + i] + d
+            if dof >= n_owned_dofs:
+                continue
+            acc[dof] = z[k + i]
+            if fixed_slot[dof] >= 0:
+                slot = at + 3 * i + d
+                added = (band_diagonal[slot] - lumped[slot]) * z[k + i]
+                if i > 0:
+                    added += band_coupling[slot - 3] * z[k + i - 1]
+                if i < k - 1:
+                    added += band_coupling[slot] * z[k + i + 1]
+                reaction[fixed_slot[dof]] += added
+
+
+@njit(cache=True, **KERNEL_OPTIONS)
+def _solve_chains(
+    chain_offsets,
+    chain_nodes,
+    matrix_offsets,
+    matrix,
+    inverse,
+    lumped,
+    held,
+    banded,
+    factor_l,
+    factor_inverse_d,
+    band_diagonal,
+    band_coupling,
+    prescribed,
+    w,
+    n_owned_dofs,
+    acc,
+    fixed_slot,
+    reaction,
+    dofs,
     scratch,
 ):
     """Accelerations of every chain from ``w`` (all local DOFs: the residual r = f_ext - f_int
     at free DOFs, the acceleration at prescribed ones): a_f = G (r - M a_p), into ``acc``
     (owned DOFs); the reaction m a_p - r_p of each owned prescribed DOF gains what the scaled
-    mass adds, (M_s a)_p - m_p a_p (``lumped``: m per chain DOF)."""
+    mass adds, (M_s a)_p - m_p a_p (``lumped``: m per chain DOF). ``held``: the chain has a
+    prescribed DOF (the others take a = G r alone); ``banded``: its components do not couple
+    (its tridiagonal factors ``factor_l``, ``factor_inverse_d`` solve it)."""
     for c in range(len(chain_offsets) - 1):
         start = chain_offsets[c]
         q = 3 * (chain_offsets[c + 1] - start)
+        if banded[c]:
+            _solve_banded(
+                chain_nodes,
+                start,
+                q,
+                factor_l,
+                factor_inverse_d,
+                band_diagonal,
+                band_coupling,
+                lumped,
+                prescribed,
+                w,
+                n_owned_dofs,
+                acc,
+                fixed_slot,
+                reaction,
+                scratch,
+            )
+            continue
         at = matrix_offsets[c]
-        for i in range(q):  # b = r - M a_p
-            dof = 3 * chain_nodes[start + i // 3] + i % 3
-            scratch[i] = 0.0 if prescribed[dof] else w[dof]
-        for j in range(q):
-            dof = 3 * chain_nodes[start + j // 3] + j % 3
-            if prescribed[dof]:
-                for i in range(q):
-                    scratch[i] -= matrix[at + i * q + j] * w[dof]
+        _chain_dofs(chain_nodes, start, q, dofs)
+        b, a = scratch[:q], scratch[q : 2 * q]
         for i in range(q):
-            dof = 3 * chain_nodes[start + i // 3] + i % 3
-            if prescribed[dof]:
-                scratch[q + i] = w[dof]
-            else:
-                total = 0.0
-                for j in range(q):
-                    total += inverse[at + i * q + j] * scratch[j]
-                scratch[q + i] = total
+            b[i] = w[dofs[i]]
+        if held[c]:  # b = r - M a_p, with a_p where b holds it
+            for i in range(q):
+                a[i] = b[i] if prescribed[dofs[i]] else 0.0
+            for i in range(q):
+                if prescribed[dofs[i]]:
+                    b[i] = 0.0
+                else:
+                    for j in range(q):
+                        b[i] -= matrix[at + i * q + j] * a[j]
         for i in range(q):
-            dof = 3 * chain_nodes[start + i // 3] + i % 3
+            if held[c] and prescribed[dofs[i]]:
+                continue
+            total = 0.0
+            for j in range(q):
+                total += inverse[at + i * q + j] * b[j]
+            a[i] = total
+        for i in range(q):
+            dof = dofs[i]
             if dof >= n_owned_dofs:
                 continue
-            acc[dof] = scratch[q + i]
-            slot = fixed_slot[dof]
-            if slot >= 0:
-                added = -lumped[3 * start + i] * scratch[q + i]
+            acc[dof] = a[i]
+            if held[c] and fixed_slot[dof] >= 0:
+                added = -lumped[3 * start + i] * a[i]
                 for j in range(q):
-                    added += matrix[at + i * q + j] * scratch[q + j]
-                reaction[slot] += added
+                    added += matrix[at + i * q + j] * a[j]
+                reaction[fixed_slot[dof]] += added
 
 
-@njit(cache=True)
-def _multiply_chains(chain_offsets, chain_nodes, matrix_offsets, matrix, x, n_owned_dofs, out):
+@njit(cache=True, **KERNEL_OPTIONS)
+def _multiply_chains(
+    chain_offsets, chain_nodes, matrix_offsets, matrix, x, n_owned_dofs, out, dofs
+):
     """out = M_s x on the owned DOFs of the chains (``x``: all local DOFs)."""
     for c in range(len(chain_offsets) - 1):
         start = chain_offsets[c]
         q = 3 * (chain_offsets[c + 1] - start)
         at = matrix_offsets[c]
+        _chain_dofs(chain_nodes, start, q, dofs)
         for i in range(q):
-            dof = 3 * chain_nodes[start + i // 3] + i % 3
-            if dof >= n_owned_dofs:
+            if dofs[i] >= n_owned_dofs:
                 continue
             total = 0.0
             for j in range(q):
-                total += matrix[at + i * q + j] * x[3 * chain_nodes[start + j // 3] + j % 3]
-            out[dof] = total
+                total += matrix[at + i * q + j] * x[dofs[j]]
+            out[dofs[i]] = total
 
 
 # ------------------------------------------------------------------ the scaled mass
@@ -333,27 +434,86 @@ class SelectiveMass:
         self.matrix_offsets = np.concatenate([[0], np.cumsum(sizes**2)]).astype(np.int64)
         self.prescribed = np.asarray(prescribed, dtype=np.bool_)
         self.inverse = np.zeros(len(matrix))
+        self.held = np.zeros(len(sizes), dtype=np.bool_)  # a chain with a prescribed DOF
+        # chains whose components do not couple (edges along a coordinate axis) solve each
+        # component's tridiagonal matrix by its LDL^T factors: per chain DOF, l and 1 / d
+        self.banded = np.zeros(len(sizes), dtype=np.bool_)
+        self.factor_l, self.factor_inverse_d = np.zeros(len(lumped)), np.zeros(len(lumped))
+        self.band_diagonal, self.band_coupling = np.zeros(len(lumped)), np.zeros(len(lumped))
         for q in np.unique(sizes):
             self._invert(np.flatnonzero(sizes == q), int(q))
         self.fixed_slot = np.full(self.n_owned_dofs, -1, dtype=np.int64)
         self.fixed_slot[fixed] = np.arange(len(fixed))
         self._w = la.vector(index_map, bs=3)
-        self._scratch = np.zeros(2 * int(sizes.max(initial=3)))
+        largest = int(sizes.max(initial=3))
+        self._scratch = np.zeros(2 * largest)
+        self._dofs = np.zeros(largest, dtype=np.int64)
 
     def _invert(self, chains: np.ndarray, q: int) -> None:
-        """The inverses of the free parts of ``chains`` (all of 3k = q DOFs)."""
+        """Factorise ``chains`` (all of 3k = q DOFs): the banded ones by their components'
+        tridiagonal factors, the others by the inverse of their matrix's free part."""
         at = self.matrix_offsets[chains][:, None] + np.arange(q * q)
         M = self.matrix[at].reshape(-1, q, q)
+        free = ~self.prescribed[self._chain_dof_table(chains, q // 3)]
+        self.held[chains] = ~free.all(axis=1)
+        self._factorise_banded(chains, M, at)
+        dense = ~self.banded[chains]
+        if not dense.any():
+            return
+        M, free, at = M[dense], free[dense], at[dense]
         G = np.linalg.inv(M)
-        nodes = self.chain_nodes[self.chain_offsets[chains][:, None] + np.arange(q // 3)]
-        dofs = (3 * nodes[:, :, None] + np.arange(3)).reshape(-1, q)
-        free = ~self.prescribed[dofs]
         for c in np.flatnonzero(~free.all(axis=1)):  # few: the chains a motion holds
             f = free[c]
             G[c] = 0.0
             if f.any():
                 G[c][np.ix_(f, f)] = np.linalg.inv(M[c][np.ix_(f, f)])
-        self.inverse[at] = G.reshape(len(chains), q * q)
+        self.inverse[at] = G.reshape(len(G), q * q)
+
+    def _factorise_banded(self, chains: np.ndarray, M: np.ndarray, at: np.ndarray) -> None:
+        """Mark the ``chains`` (matrices ``M`` (n, q, q), stored at ``at``) whose components do
+        not couple (edges along a coordinate axis: entries across components below
+        ``BANDED_TOLERANCE`` of the largest, then set to zero so that every path uses the same
+        matrix) and factorise each component's tridiagonal matrix with its prescribed DOFs'
+        rows and columns replaced by the identity (their accelerations are given):
+        d_0 = D_0, l_i = O_i-1 / d_i-1, d_i = D_i - l_i O_i-1 (D the diagonal, O the coupling to
+        the next node). D and O themselves are kept for the reactions."""
+        n, q = M.shape[0], M.shape[1]
+        k = q // 3
+        blocks = M.reshape(n, k, 3, k, 3).copy()
+        across = np.broadcast_to(~np.eye(3, dtype=bool)[None, None, :, None, :], blocks.shape)
+        largest = np.abs(M).max(axis=(1, 2))
+        crossing = np.where(across, np.abs(blocks), 0.0).max(axis=(1, 2, 3, 4))
+        banded = crossing <= BANDED_TOLERANCE * largest
+        if not banded.any():
+            return
+        blocks[across] = 0.0
+        chosen = chains[banded]
+        self.matrix[at[banded]] = blocks[banded].reshape(-1, q * q)
+        self.banded[chosen] = True
+        kept = blocks[banded]
+        D = np.einsum("nkdkd->nkd", kept)  # (m, k, 3)
+        O = np.zeros_like(D)  # coupling of node i to node i + 1 (the last: none)
+        if k > 1:
+            O[:, :-1] = np.einsum("nkdkd->nkd", kept[:, :-1, :, 1:, :])
+        first = 3 * self.chain_offsets[chosen][:, None] + np.arange(q)
+        held = self.prescribed[self._chain_dof_table(chosen, k)].reshape(-1, k, 3)
+        D_free = np.where(held, 1.0, D)
+        # a coupling that touches a prescribed DOF moves to the right-hand side
+        O_free = np.where(held | np.roll(held, -1, axis=1), 0.0, O)
+        d, l = np.empty_like(D), np.zeros_like(D)
+        d[:, 0] = D_free[:, 0]
+        for i in range(1, k):
+            l[:, i] = O_free[:, i - 1] / d[:, i - 1]
+            d[:, i] = D_free[:, i] - l[:, i] * O_free[:, i - 1]
+        self.factor_l[first] = l.reshape(-1, q)
+        self.factor_inverse_d[first] = (1.0 / d).reshape(-1, q)
+        self.band_diagonal[first] = D.reshape(-1, q)
+        self.band_coupling[first] = O.reshape(-1, q)
+
+    def _chain_dof_table(self, chains: np.ndarray, k: int) -> np.ndarray:
+        """The local DOFs (n, 3k) of ``chains`` (all of k nodes), slot-major."""
+        nodes = self.chain_nodes[self.chain_offsets[chains][:, None] + np.arange(k)]
+        return (3 * nodes[:, :, None] + np.arange(3)).reshape(len(chains), 3 * k)
 
     def solve(self, acc: np.ndarray, reaction: np.ndarray) -> None:
         """Collective: ``acc`` (owned DOFs) holds r = f_ext - f_int (N) at free DOFs and the
@@ -370,12 +530,19 @@ class SelectiveMass:
             self.matrix,
             self.inverse,
             self.lumped,
+            self.held,
+            self.banded,
+            self.factor_l,
+            self.factor_inverse_d,
+            self.band_diagonal,
+            self.band_coupling,
             self.prescribed,
             w.array,
             self.n_owned_dofs,
             acc,
             self.fixed_slot,
             reaction,
+            self._dofs,
             self._scratch,
         )
 
@@ -393,6 +560,7 @@ class SelectiveMass:
             w.array,
             self.n_owned_dofs,
             out,
+            self._dofs,
         )
         return out
 
@@ -422,13 +590,18 @@ def selective_mass(structure: Structure, target_step: float | None = None) -> Se
     nodes, cells, plies = structure.elements()
     nodes = nodes.astype(np.int64)
     X = structure.gather(nodes, "X")
-    normals = edge_normals(X)
     rules = structure.element_rules(plies)
-    m = structure.rule_table.lumped_masses(X, plies[:, 0], plies[:, 1])
+    # the element problems of each distinct (shape, rule) once (a structured mesh has a few),
+    # on the shape as its key gives it, so that the factors do not depend on the partition
+    scale = comm.allreduce(float(np.abs(X - X[:, :1, :]).max(initial=0.0)), op=MPI.MAX)
+    Xd, first, same = _distinct_elements(X, rules, scale or 1.0)
+    rules_d = rules[first]
+    normals = edge_normals(Xd)
+    m = structure.rule_table.lumped_masses(Xd, plies[first, 0], plies[first, 1])
     packed = structure.rule_table.packed
-    blocks = [slice(i, i + ELEMENT_BLOCK) for i in range(0, len(nodes), ELEMENT_BLOCK)]
-    stiffness = [element_stiffness(X[b], rules[b], packed) for b in blocks]
-    in_plane = np.zeros(len(nodes))
+    blocks = [slice(i, i + ELEMENT_BLOCK) for i in range(0, len(first), ELEMENT_BLOCK)]
+    stiffness = [element_stiffness(Xd[b], rules_d[b], packed) for b in blocks]
+    in_plane = np.zeros(len(first))
     for K, b in zip(stiffness, blocks, strict=True):
         in_plane[b] = in_plane_eigenvalues(K, m[b])
     if target_step is None:
@@ -437,11 +610,12 @@ def selective_mass(structure: Structure, target_step: float | None = None) -> Se
         target_step = 2.0 / np.sqrt(target)
     else:
         target = 4.0 / target_step**2
-    s_t, s_n, eigenvalues = (np.zeros(len(nodes)) for _ in range(3))
+    s_t, s_n, eigenvalues = (np.zeros(len(first)) for _ in range(3))
     for K, b in zip(stiffness, blocks, strict=True):
         s_t[b], s_n[b], eigenvalues[b] = scaling_factors(K, m[b], normals[b], target, in_plane[b])
     mu = reduced_edge_masses(m)
-    edges = edge_blocks(normals, s_t[:, None] * mu, s_n[:, None] * mu)
+    edges = edge_blocks(normals, s_t[:, None] * mu, s_n[:, None] * mu)[same]
+    s_t, s_n, eigenvalues = s_t[same], s_n[same], eigenvalues[same]
     chain_offsets, chain_nodes, matrix, lumped = _chain_matrices(
         structure, nodes[:, :4], nodes[:, 4:], edges
     )
@@ -462,6 +636,19 @@ def selective_mass(structure: Structure, target_step: float | None = None) -> Se
         cells,
         (s_t, s_n),
     )
+
+
+def _distinct_elements(
+    X: np.ndarray, rules: np.ndarray, scale: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The distinct element shapes (vertices relative to the first one, rounded to 1e-10 of
+    ``scale`` mm: (m, 8, 3)), the first element of each, and the distinct one of every element;
+    shapes count as the same only with the same ``rules``."""
+    relative = (X - X[:, :1, :]).reshape(len(X), -1)
+    keys = np.column_stack([rules, np.round(relative / scale * 1e10)])
+    unique, first, same = np.unique(keys, axis=0, return_index=True, return_inverse=True)
+    shapes = (unique[:, 1:] * (scale * 1e-10)).reshape(-1, 8, 3)
+    return shapes, first, same.ravel()
 
 
 def _chain_matrices(
