@@ -385,6 +385,25 @@ def test_a_restarted_scaled_run_repeats_the_uninterrupted_one(tmp_path):
     assert_restarted_history(tmp_path / "split", tmp_path / "whole")
 
 
+def test_where_no_element_needs_mass_the_run_is_the_lumped_one(tmp_path):
+    """The TCB of 0.256 mm plies, two per layer under 0.5 mm cells: no element needs mass
+    (its in-plane modes are the fastest already), the scaled mass adds none, and at the same
+    (forced) step the history is the lumped run's bit for bit."""
+    data = tomllib.loads((DATA / "tcb_layerwise.toml").read_text())
+    data["solver"]["end_time"] = 2.0e-5
+    data["output"].pop("fields_interval", None)
+    histories = {}
+    for scaling in ("none", "selective"):
+        data["solver"]["mass_scaling"] = scaling
+        simulation = Simulation(parse_config(data))
+        if scaling == "selective":
+            assert not simulation.structure.scaled_mass.adds_mass
+        run_quietly(data, tmp_path / scaling)
+        histories[scaling] = read_history(tmp_path / scaling / "history.csv")
+    for name, values in histories["none"].items():
+        np.testing.assert_array_equal(histories["selective"][name], values, err_msg=name)
+
+
 def test_the_config_names_the_choices_and_refuses_what_scaling_cannot_do_yet():
     data = tcb_layerwise("selective")
     assert parse_config(data).solver.mass_scaling == MassScaling.SELECTIVE

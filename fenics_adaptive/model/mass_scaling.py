@@ -404,11 +404,13 @@ class SelectiveMass:
     nodes, bottom to top); ``matrix``: their 3k x 3k matrices (tonne), packed row by row;
     ``lumped``: the lumped mass of every chain DOF; ``prescribed`` (all local DOFs), ``fixed``
     (the base block's prescribed owned DOFs, in the order of its reactions). Also kept:
-    ``target_step`` (s), ``element_eigenvalues`` (1/s^2, each element's largest, scaled),
+    ``adds_mass`` (any element's factor above zero, on any rank), ``target_step`` (s),
+    ``element_eigenvalues`` (1/s^2, each element's largest, scaled),
     ``element_cell`` (its owned cell), ``shear_scaling``, ``normal_scaling`` (s_t, s_n)."""
 
     def __init__(
         self,
+        adds_mass: bool,
         index_map,
         chain_offsets: np.ndarray,
         chain_nodes: np.ndarray,
@@ -421,6 +423,9 @@ class SelectiveMass:
         element_cell: np.ndarray,
         factors: tuple[np.ndarray, np.ndarray],
     ):
+        # False where no element needed any (thick layers): M_s is then the lumped mass, and the
+        # solver keeps its lumped arithmetic (the stable step is still the element bound)
+        self.adds_mass = adds_mass
         self.target_step = target_step
         self.element_eigenvalues = element_eigenvalues
         self.element_cell = element_cell
@@ -623,7 +628,9 @@ def selective_mass(structure: Structure, target_step: float | None = None) -> Se
     prescribed = la.vector(structure.mass_base.index_map, bs=3)
     prescribed.array[base.fixed] = 1.0
     prescribed.scatter_forward()
+    adds_mass = comm.allreduce(bool(np.any(s_t > 0.0) or np.any(s_n > 0.0)), op=MPI.LOR)
     return SelectiveMass(
+        adds_mass,
         structure.mass_base.index_map,
         chain_offsets,
         chain_nodes,

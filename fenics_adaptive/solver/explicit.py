@@ -384,7 +384,9 @@ class ExplicitSolver:
         """Collective: the work arrays and the inversion guard of the structure as it is now;
         (step, stable step) in s for it, the contributors prepared for them."""
         prepare_mass(self.structure, self.settings, self.refiner is not None)
-        scaled = [self.structure.scaled_mass, None]
+        # a scaled mass that adds none (thick layers) leaves the lumped arithmetic alone
+        scaled_mass = self.structure.scaled_mass
+        scaled = [scaled_mass if scaled_mass is not None and scaled_mass.adds_mass else None, None]
         self.blocks = [
             BlockState(b, self.settings.mass_damping, scaled_mass=m)
             for b, m in zip(self.structure.blocks, scaled, strict=True)
