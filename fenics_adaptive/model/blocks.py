@@ -90,6 +90,8 @@ class LumpedBlocks:
         (new nodes are numbered after the old owned ones, which keep their masses)."""
         old_mass = self.mass_extra
         self.f_extra = la.vector(extra_map, bs=3)
+        # the force vectors' arrays, taken once (each .array of a DOLFINx vector costs 2 us)
+        self._f_arrays = (self.f_base.array, self.f_extra.array)
         self.mass_extra = la.vector(extra_map, bs=3)
         if old_mass is not None:
             n_old = old_mass.index_map.size_local * 3
@@ -146,7 +148,7 @@ class LumpedBlocks:
         vectors (N): cleared, each contributor's share added into the local entries in order,
         the constrained DOFs' forces moved to their masters (the border's transfer), the
         shares summed on their owners (owned entries complete)."""
-        f_base, f_extra = self.f_base.array, self.f_extra.array
+        f_base, f_extra = self._f_arrays
         f_base.fill(0.0)
         f_extra.fill(0.0)
         for contributor in contributors:

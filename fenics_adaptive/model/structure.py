@@ -219,6 +219,8 @@ class Structure:
     def follow_border(self, velocity: bool = False) -> None:
         """Put the constrained extra DOFs (owned and ghosts) where their masters are (after
         the masters moved and were forward-scattered); also their velocities if asked."""
+        if not len(self.lumped.border):  # (each .array of a DOLFINx vector costs 2 us)
+            return
         self.lumped.follow_border(self.base.u.x.array, self.extra.vectors["u"].array)
         if velocity:
             self.lumped.follow_border(self.v_base.array, self.extra.vectors["v"].array)

@@ -119,6 +119,13 @@ class PrescribedMotion:
     def __post_init__(self) -> None:
         object.__setattr__(self, "kind", MotionKind(self.kind))  # frozen: set once, here
 
+    @property
+    def constant(self) -> bool:
+        """Its displacement never changes (a clamp, a held displacement)."""
+        if self.kind == MotionKind.DISPLACEMENT:
+            return self.value == 0.0 or len(self.amplitude.times) == 1
+        return self.value == 0.0
+
     def displacement(self, t: float) -> float:
         if self.kind == MotionKind.DISPLACEMENT:
             return self.value * self.amplitude(t)

@@ -85,17 +85,17 @@ class BlockState:
         fixed = self.block.fixed
         np.subtract(self.u_next, self.u_now, out=self.a_fixed)
         self.a_fixed /= dt
-        np.take(self.v, fixed, out=self.v_fixed)
+        self.v.take(fixed, out=self.v_fixed)
         self.a_fixed -= self.v_fixed
         self.a_fixed /= mean_dt
-        np.put(self.acc, fixed, self.a_fixed)
+        self.acc.put(fixed, self.a_fixed)
         # reaction = m a + f_int - f_ext (- f_contact) on the prescribed DOFs
-        np.take(self.m, fixed, out=self.reaction)
+        self.m.take(fixed, out=self.reaction)
         self.reaction *= self.a_fixed
-        self.reaction += np.take(self.f, fixed, out=self.scratch)
-        self.reaction -= np.take(self.f_ext, fixed, out=self.scratch)
+        self.reaction += self.f.take(fixed, out=self.scratch)
+        self.reaction -= self.f_ext.take(fixed, out=self.scratch)
         if contact_force is not None:
-            self.reaction -= np.take(contact_force, fixed, out=self.scratch)
+            self.reaction -= contact_force.take(fixed, out=self.scratch)
 
     def next_velocity(self, mean_dt: float, out: np.ndarray) -> np.ndarray:
         """v_{n+1/2} = ((1 - c h/2) v_{n-1/2} + h a_n) / (1 + c h/2) into ``out`` (mm/s; may be

@@ -244,6 +244,11 @@ class ExplicitSolver:
         self.inversion: guards.InversionGuard | None = None
         n_motions = len(structure.motions)
         self._motion_now, self._motion_next = np.zeros(n_motions), np.zeros(n_motions)
+        # the motions that change: the others (clamps) hold their one value in both arrays
+        self._moving = [k for k, m in enumerate(structure.motions) if not m.constant]
+        for k, motion in enumerate(structure.motions):
+            self._motion_now[k] = self._motion_next[k] = motion.displacement(0.0)
+        self._next_time = math.nan  # s, where _motion_next was evaluated
         self._clock = 0.0
         self.guards = RunGuards(self)
         self.recorder = HistoryRecorder(structure, probe, self.forces.added, self.guards)
@@ -297,7 +302,7 @@ class ExplicitSolver:
         on_faces = np.array([on_top_or_bottom(m.face) for m in self.structure.motions], bool)
         if len(on_faces):
             held = on_faces[base.block.fixed_motion]
-            np.put(out, base.block.fixed[held], base.reaction[held])
+            out.put(base.block.fixed[held], base.reaction[held])
         contact = self.forces.contact_force
         if contact is not None:
             out += contact[0]
@@ -404,7 +409,7 @@ class ExplicitSolver:
         the state was taken evaluated: then only its forces are recomputed)."""
         self.set_prescribed()
         for state in self.blocks:
-            np.put(state.u, state.block.fixed, state.u_now)
+            state.u.put(state.block.fixed, state.u_now)
             state.block.u.scatter_forward()
         self.started = True
         for observer in self.observers:
@@ -485,12 +490,18 @@ class ExplicitSolver:
     def set_prescribed(self) -> None:
         """The prescribed DOFs' values at t_n and t_n + dt into every block."""
         s = self.now
-        for k, motion in enumerate(self.structure.motions):
-            self._motion_now[k] = motion.displacement(s.t)
-            self._motion_next[k] = motion.displacement(s.t + s.dt)
+        motions = self.structure.motions
+        if self._next_time == s.t:  # the last call's t + dt is this t, bit for bit
+            np.copyto(self._motion_now, self._motion_next)
+        else:
+            for k in self._moving:
+                self._motion_now[k] = motions[k].displacement(s.t)
+        self._next_time = s.t + s.dt
+        for k in self._moving:
+            self._motion_next[k] = motions[k].displacement(self._next_time)
         for state in self.blocks:
-            np.take(self._motion_now, state.block.fixed_motion, out=state.u_now)
-            np.take(self._motion_next, state.block.fixed_motion, out=state.u_next)
+            self._motion_now.take(state.block.fixed_motion, out=state.u_now)
+            self._motion_next.take(state.block.fixed_motion, out=state.u_next)
 
     def forces_and_accelerations(self) -> None:
         """Collective: the forces (``forces.RunForces``), accelerations and reactions at t_n
@@ -508,7 +519,7 @@ class ExplicitSolver:
             s.work_int += 0.5 * (np.dot(state.f_old, state.du) + np.dot(state.f, state.du))
             s.work_ext += 0.5 * (np.dot(state.f_ext_old, state.du) + np.dot(state.f_ext, state.du))
             if len(state.block.fixed):
-                np.take(state.du, state.block.fixed, out=state.du_fixed)
+                state.du.take(state.block.fixed, out=state.du_fixed)
                 s.work_ext += 0.5 * (
                     np.dot(state.reaction_old, state.du_fixed)
                     + np.dot(state.reaction, state.du_fixed)
@@ -596,7 +607,7 @@ class ExplicitSolver:
             # u_n -> u_{n+1}; the prescribed DOFs land exactly on their prescribed values
             np.multiply(state.v, s.dt, out=state.du)
             state.u += state.du
-            np.put(state.u, state.block.fixed, state.u_next)
+            state.u.put(state.block.fixed, state.u_next)
             state.block.u.scatter_forward()
             state.f_old[:] = state.f
             state.f_ext_old[:] = state.f_ext
