@@ -20,6 +20,8 @@ Rows (issue 5's targets in brackets):
 - ``step``: a whole explicit step, unrefined and fully refined (weak at interface 4, strong at 2
   and 6 in every cell) [unrefined/refined <= 0.70], and the share of the step that is not force
   computation [<= 20 %];
+- ``overhead``: the step of a 100-cell ESL beam less its internal force: the fixed cost of a
+  step (issue 17) [<= 20 us];
 - ``mass``: the step with lumped and selectively scaled masses, ESL and layerwise, on the TCB
   beam of 0.064 mm plies (issue 17) [the scaled update costs <= 10 % of the step];
 - ``scaling``: unrefined step time per cell at growing sizes [within 15 % of linear];
@@ -234,6 +236,28 @@ def bench_step(n_cells: int, steps: int, repeat: int) -> list[dict]:
         )
     rows[0]["unrefined_over_refined"] = rows[0]["seconds"] / rows[1]["seconds"]
     return rows
+
+
+def bench_overhead(steps: int, repeat: int) -> list[dict]:
+    """The fixed cost of a step: a 100-cell ESL beam (ny = 1), the whole step and its internal
+    force; what is not force is the per-step overhead (issue 17: <= 20 us)."""
+    data = beam_config(100)
+    data["model"]["kind"] = "esl"
+    for name in ("interfaces", "cohesive"):
+        data.pop(name, None)
+    structure = build_structure(parse_config(data))
+    step, force = step_time(structure, max(steps, 2000), repeat)
+    return [
+        {
+            "benchmark": "overhead",
+            "case": "100-cell ESL beam",
+            "cells": structure.comm.allreduce(structure.base.n_owned_cells),
+            "seconds": step,
+            "us_per_cell": 1e6 * step / structure.base.n_owned_cells,
+            "force_seconds": force,
+            "overhead_us": 1e6 * (step - force),
+        }
+    ]
 
 
 def bench_mass(n_cells: int, steps: int, repeat: int) -> list[dict]:
@@ -484,6 +508,7 @@ def table(rows: list[dict]) -> str:
             ("fixed_MiB", "{:.0f} MiB fixed"),
             ("relative_to_layerwise", "x{:.2f} of LW"),
             ("net_relative_to_layerwise", "net of the fixed x{:.2f}"),
+            ("overhead_us", "overhead {:.0f} us per step"),
             ("time_step_s", "step {:.3g} s"),
             ("wall_s_per_simulated_us", "{:.3g} s per simulated us"),
             ("mass_setup_s", "scaled mass built in {:.1f} s"),
@@ -503,7 +528,7 @@ def table(rows: list[dict]) -> str:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--only", default="kernels,step,mass,scaling,mpi,memory,plate")
+    parser.add_argument("--only", default="kernels,step,overhead,mass,scaling,mpi,memory,plate")
     parser.add_argument("--quick", action="store_true", help="small sizes, a smoke run")
     parser.add_argument("--cells", type=int, default=None, help="cells of the step benchmark")
     parser.add_argument("--kernel-cells", type=int, default=100_000)
@@ -539,6 +564,7 @@ def main() -> None:
     jobs = {
         "kernels": lambda: bench_kernels(args.kernel_cells, args.repeat),
         "step": lambda: bench_step(cells, args.steps, args.repeat),
+        "overhead": lambda: bench_overhead(args.steps, args.repeat),
         "mass": lambda: bench_mass(args.mass_cells, args.steps, args.repeat),
         "scaling": lambda: bench_scaling(
             [int(n) for n in args.scaling.split(",")], args.steps, args.repeat
@@ -577,6 +603,7 @@ def main() -> None:
 JOB_ROWS = {
     "kernels": "kernel",
     "step": "step",
+    "overhead": "overhead",
     "mass": "mass",
     "scaling": "scaling",
     "mpi": "mpi",
