@@ -75,7 +75,7 @@ from fenics_adaptive.model.mass_scaling import selective_mass
 from fenics_adaptive.model.structure import Structure
 from fenics_adaptive.settings.solver import Probe, SolverSettings
 from fenics_adaptive.solver import guards
-from fenics_adaptive.solver.blocks import BLOCK_ARRAYS, BlockState
+from fenics_adaptive.solver.blocks import BLOCK_ARRAYS, BlockState, block_work, move_block
 from fenics_adaptive.solver.forces import RunForces
 from fenics_adaptive.solver.guards import Diverged, RunGuards
 from fenics_adaptive.solver.guards import ElementInverted as ElementInverted  # for readers
@@ -500,8 +500,9 @@ class ExplicitSolver:
         for k in self._moving:
             self._motion_next[k] = motions[k].displacement(self._next_time)
         for state in self.blocks:
-            self._motion_now.take(state.block.fixed_motion, out=state.u_now)
-            self._motion_next.take(state.block.fixed_motion, out=state.u_next)
+            if len(state.u_now):
+                self._motion_now.take(state.block.fixed_motion, out=state.u_now)
+                self._motion_next.take(state.block.fixed_motion, out=state.u_next)
 
     def forces_and_accelerations(self) -> None:
         """Collective: the forces (``forces.RunForces``), accelerations and reactions at t_n
@@ -516,14 +517,18 @@ class ExplicitSolver:
         """The work over the step just made (trapezoidal in the forces), this rank's share."""
         s = self.now
         for state in self.blocks:
-            s.work_int += 0.5 * (np.dot(state.f_old, state.du) + np.dot(state.f, state.du))
-            s.work_ext += 0.5 * (np.dot(state.f_ext_old, state.du) + np.dot(state.f_ext, state.du))
-            if len(state.block.fixed):
-                state.du.take(state.block.fixed, out=state.du_fixed)
-                s.work_ext += 0.5 * (
-                    np.dot(state.reaction_old, state.du_fixed)
-                    + np.dot(state.reaction, state.du_fixed)
-                )
+            internal, external = block_work(
+                state.f_old,
+                state.f,
+                state.f_ext_old,
+                state.f_ext,
+                state.du,
+                state.block.fixed,
+                state.reaction_old,
+                state.reaction,
+            )
+            s.work_int += internal
+            s.work_ext += external
         # the internal work sums every DOF's force and motion: a single non-finite value
         # anywhere shows here, in the step it appears (in parallel the other ranks learn it at
         # the next poll)
@@ -601,17 +606,25 @@ class ExplicitSolver:
         for state in self.blocks:
             if damped:
                 s.work_damp += state.damped_velocity(mean_dt)
-            else:
-                state.acc *= mean_dt
-                state.v += state.acc
             # u_n -> u_{n+1}; the prescribed DOFs land exactly on their prescribed values
-            np.multiply(state.v, s.dt, out=state.du)
-            state.u += state.du
-            state.u.put(state.block.fixed, state.u_next)
+            move_block(
+                state.v,
+                state.acc,
+                mean_dt,
+                s.dt,
+                not damped,
+                state.du,
+                state.u,
+                state.block.fixed,
+                state.u_next,
+                state.f,
+                state.f_old,
+                state.f_ext,
+                state.f_ext_old,
+                state.reaction,
+                state.reaction_old,
+            )
             state.block.u.scatter_forward()
-            state.f_old[:] = state.f
-            state.f_ext_old[:] = state.f_ext
-            state.reaction_old[:] = state.reaction
         self.structure.follow_border()
         self.forces.advance(mean_dt, s.dt)
         s.dt_prev = s.dt
