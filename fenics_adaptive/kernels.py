@@ -40,6 +40,8 @@ KERNEL_MODULES = (
     "fenics_adaptive.model.border",
     "fenics_adaptive.model.contact",
     "fenics_adaptive.model.forms",
+    "fenics_adaptive.model.mass_scaling",  # not in the warm-up: compiled as it is built
+    "fenics_adaptive.solver.blocks",
     "fenics_adaptive.solver.guards",
 )
 # s to compile the kernels of each variant (``compile_all`` on an empty cache) on this

@@ -408,7 +408,7 @@ class SelectiveMass:
     ``element_eigenvalues`` (1/s^2, each element's largest, scaled),
     ``element_cell`` (its owned cell), ``shear_scaling``, ``normal_scaling`` (s_t, s_n)."""
 
-    def __init__(
+    def __init__(  # collective (it warms the kernels up)
         self,
         adds_mass: bool,
         index_map,
@@ -453,6 +453,10 @@ class SelectiveMass:
         largest = int(sizes.max(initial=3))
         self._scratch = np.zeros(2 * largest)
         self._dofs = np.zeros(largest, dtype=np.int64)
+        # compile (or load) the per-step kernels now, at set-up, not in the first step
+        zeros = np.zeros(self.n_owned_dofs)
+        self.solve(zeros, np.zeros(len(fixed)))
+        self.multiply(zeros, zeros.copy())
 
     def _invert(self, chains: np.ndarray, q: int) -> None:
         """Factorise ``chains`` (all of 3k = q DOFs): the banded ones by their components'
