@@ -1,14 +1,17 @@
-"""Lumped-mass central-difference time integration with energy bookkeeping.
+"""Central-difference time integration with energy bookkeeping.
 
 Units: N, mm, s, tonne (energies in mJ = N mm).
 
 Staggered scheme (velocities at half steps, variable step allowed):
 
-    a_n       = (f_ext(t_n) - f_int(u_n)) / m                 (prescribed DOFs: their motion)
+    a_n       = M^-1 (f_ext(t_n) - f_int(u_n))                (prescribed DOFs: their motion)
     v_{n+1/2} = v_{n-1/2} + (dt_{n-1/2} + dt_{n+1/2}) / 2 * a_n
     u_{n+1}   = u_n + dt_{n+1/2} * v_{n+1/2}
 
-with optional mass-proportional damping c (1/s, per DOF) applied implicitly to v. The DOFs come
+with M the lumped masses, or with ``[solver] mass_scaling = "selective"`` the base nodes'
+selectively scaled mass (``model.mass_scaling``: a small matrix per column of nodes; the
+energies below hold with it as written, M symmetric), and optional mass-proportional damping c
+(1/s, per DOF, lumped masses only) applied implicitly to v. The DOFs come
 in blocks (``structure.Block``: base nodes, extra nodes of the enrichment), each in DOLFINx
 vectors (the memory of the ghosted PETSc Vecs): owned entries are updated, then the ghost entries
 of u are refreshed by a forward scatter, so any number of MPI ranks gives the same result up to
