@@ -447,6 +447,8 @@ class SelectiveMass:
         self.band_diagonal, self.band_coupling = np.zeros(len(lumped)), np.zeros(len(lumped))
         for q in np.unique(sizes):
             self._invert(np.flatnonzero(sizes == q), int(q))
+        if self.banded.all():  # no chain reads a dense inverse: do not keep one
+            self.inverse = np.zeros(0)
         self.fixed_slot = np.full(self.n_owned_dofs, -1, dtype=np.int64)
         self.fixed_slot[fixed] = np.arange(len(fixed))
         self._w = la.vector(index_map, bs=3)
@@ -686,6 +688,14 @@ def _chain_matrices(
         )
     below = np.full(n_local, -1, dtype=np.int64)
     below[top] = bottom
+    if np.any(below[top] != bottom):
+        i = int(np.flatnonzero(below[top] != bottom)[0])
+        raise InputError(
+            "mesh",
+            f"selective mass scaling: the node at {structure.X_base[top[i]].round(6).tolist()}"
+            " mm is the top of two through-thickness edges; the elements must stack in "
+            "columns (vertex a + 4 above vertex a)",
+        )
     # each node's edge block to the node above and whether an edge starts or ends there,
     # summed over the ranks (an edge's elements may lie on several)
     edge = la.vector(index_map, bs=8)
