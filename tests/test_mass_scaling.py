@@ -317,11 +317,12 @@ def tcb_layerwise(scaling: str, end_time: float = 2.0e-4, **solver) -> dict:
 
 
 @pytest.mark.slow
-def test_a_thin_layerwise_tcb_steps_4_x_longer_with_the_same_force_and_dissipation(tmp_path):
+def test_a_thin_layerwise_tcb_steps_3_x_longer_with_the_same_force_and_dissipation(tmp_path):
     """Eight mesh layers of 0.064 mm under 0.5 mm cells, both cracks growing: scaled, the stable
-    step is 3.5 x the lumped one (measured: 3.99 x; the cohesive springs limit it now), the peak
-    force is the lumped run's to 0.5 % (measured 0.1 %), the force at every row to 2 % of the
-    peak (1 %), the dissipated energy to 0.5 % (0.02 %), the delaminated area the same; both
+    step is 3 x the lumped one (measured: 3.53 x; the cohesive springs and the elements share
+    it now), the peak force is the lumped run's to 0.5 % (measured 0.23 %), the force at every
+    row to 2 % of the peak (1.05 %), the dissipated energy to 0.5 % (0.05 %), the delaminated
+    area the same; both
     energy balances close (the work-based to round-off, the one from the states to 1e-8 of the
     external work)."""
     runs = {}
@@ -329,7 +330,7 @@ def test_a_thin_layerwise_tcb_steps_4_x_longer_with_the_same_force_and_dissipati
         summary = run_quietly(tcb_layerwise(scaling), tmp_path / scaling)
         runs[scaling] = (summary["time_step"], read_history(tmp_path / scaling / "history.csv"))
     (lumped_step, lumped), (scaled_step, selective) = runs["none"], runs["selective"]
-    assert scaled_step["used_s"] > 3.5 * lumped_step["used_s"]
+    assert scaled_step["used_s"] > 3.0 * lumped_step["used_s"]
     assert "cohesive" in scaled_step["limited_by"]
     force, reference = np.asarray(selective["reaction_force"]), np.asarray(lumped["reaction_force"])
     assert force.max() == pytest.approx(reference.max(), rel=5e-3)
