@@ -189,6 +189,11 @@ def _summary_at_start(config: RunConfig, simulation: Simulation, comm: MPI.Comm)
             "safety_factor": config.solver.safety_factor,
             "limited_by": simulation.critical,
         },
+        "mass_scaling": (
+            None
+            if simulation.structure.scaled_mass is None
+            else simulation.structure.scaled_mass.report(comm)
+        ),
         "mpi_ranks": comm.size,
         "versions": versions(),
     }
@@ -230,6 +235,20 @@ def _announce(
         config.layer_laminates(), config.points_per_ply, config.preintegrate
     ):
         say(line)
+    scaling = summary.get("mass_scaling")
+    if scaling is not None:
+        say(
+            f"selective mass scaling: {scaling['elements_scaled']} of {scaling['elements']} "
+            f"elements scaled (largest factors: normal {scaling['largest_normal_factor']:.3g}, "
+            f"shear {scaling['largest_shear_factor']:.3g}) for a target step of "
+            f"{scaling['target_step_s']:.4e} s"
+        )
+        if scaling["element_step_s"] < 0.97 * scaling["target_step_s"]:
+            say(
+                f"warning: the elements allow {scaling['element_step_s']:.4e} s, not the "
+                f"target {scaling['target_step_s']:.4e} s (solver.mass_scaling_step): mass "
+                "cannot shorten the in-plane modes of the smallest cells"
+            )
 
 
 def _refinement_log(

@@ -436,6 +436,33 @@ def test_where_no_element_needs_mass_the_run_is_the_lumped_one(tmp_path):
         np.testing.assert_array_equal(histories["selective"][name], values, err_msg=name)
 
 
+def test_the_run_reports_the_scaling_and_warns_of_a_target_it_cannot_reach(tmp_path):
+    """summary.json says what the scaling did; a target step above what the cells' in-plane
+    size allows is not silently cut: the log says so, with both steps."""
+    from fenics_adaptive.runner import run_config
+
+    lines: list[str] = []
+    data = tcb_layerwise("selective", 4.0e-6, mass_scaling_step=1.0e-6)
+    summary = run_config(
+        parse_config(data), tmp_path / "run", show_progress=False, log=lines.append
+    )
+    scaling = summary["mass_scaling"]
+    assert scaling["target_step_s"] == 1.0e-6
+    assert 0 < scaling["elements_scaled"] <= scaling["elements"] == 160
+    assert scaling["element_step_s"] < 0.2 * scaling["target_step_s"]
+    assert scaling["largest_normal_factor"] > scaling["largest_shear_factor"] > 0
+    (warning,) = [line for line in lines if line.startswith("warning: the elements allow")]
+    assert "1.0000e-06 s" in warning and "solver.mass_scaling_step" in warning
+    assert any("selective mass scaling: " in line for line in lines)
+    lumped = run_config(
+        parse_config(tcb_layerwise("none", 4.0e-6)),
+        tmp_path / "lumped",
+        show_progress=False,
+        log=None,
+    )
+    assert lumped["mass_scaling"] is None
+
+
 def test_the_config_names_the_choices_and_refuses_what_scaling_cannot_do_yet():
     data = tcb_layerwise("selective")
     assert parse_config(data).solver.mass_scaling == MassScaling.SELECTIVE

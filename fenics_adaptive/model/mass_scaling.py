@@ -583,6 +583,27 @@ class SelectiveMass:
         )
         return out
 
+    def report(self, comm: MPI.Comm) -> dict:
+        """Collective: what the scaling did, over all ranks, as ``summary.json`` gives it: the
+        target step and the step the scaled elements allow (s), how many elements got mass,
+        the largest factors."""
+        lam = comm.allreduce(float(self.element_eigenvalues.max(initial=0.0)), op=MPI.MAX)
+        return {
+            "target_step_s": self.target_step,
+            "element_step_s": 2.0 / np.sqrt(lam) if lam > 0 else np.inf,
+            "elements": comm.allreduce(len(self.element_eigenvalues), op=MPI.SUM),
+            "elements_scaled": comm.allreduce(
+                int(np.count_nonzero((self.normal_scaling > 0) | (self.shear_scaling > 0))),
+                op=MPI.SUM,
+            ),
+            "largest_normal_factor": comm.allreduce(
+                float(self.normal_scaling.max(initial=0.0)), op=MPI.MAX
+            ),
+            "largest_shear_factor": comm.allreduce(
+                float(self.shear_scaling.max(initial=0.0)), op=MPI.MAX
+            ),
+        }
+
     def stable_time_step(self) -> tuple[float, int]:
         """(2 / sqrt of the largest scaled element eigenvalue (s), its owned cell) on this
         rank; (inf, -1) without elements."""
