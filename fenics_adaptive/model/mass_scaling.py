@@ -27,11 +27,10 @@ s_t = 0.62 (``tests/test_mass_scaling.py`` measures the bending frequencies).
 
 The target step dt_t defaults to the step the in-plane size allows: the limit s -> infinity of
 every element, where each edge moves rigidly, with ``IN_PLANE_MARGIN`` (the limit itself needs
-an infinite mass, and the last per cent of step costs the most mass); or to twice the cohesive springs' limit where that is shorter, since the
-springs and the elements share one stable step, 1 / sqrt(1 / dt_solid^2 + 1 / dt_springs^2)
-(``stable_step``), and mass beyond that buys little (on the layerwise plate impact the largest
-shear factor drops from 50 to 0: no element needs mass there). An element whose own limit is
-above a given target aims at its own limit.
+an infinite mass, and the last per cent of step costs the most mass); or to twice the
+cohesive springs' limit where that is shorter, since the springs and the elements share one
+stable step, 1 / sqrt(1 / dt_solid^2 + 1 / dt_springs^2) (``stable_step``), and mass beyond
+that buys little. An element whose own limit is above a given target aims at its own limit.
 
 Columns. The edges join base nodes into chains through the thickness (one per column of an ESL
 mesh, one per sublaminate between split boundaries of an LW mesh: a cohesive element adds no
