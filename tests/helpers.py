@@ -12,6 +12,7 @@ from mpi4py import MPI  # first: the DOLFINx wheel finds libmpi through it
 # isort: split
 import json
 import math
+import tomllib
 from pathlib import Path
 
 import basix.ufl
@@ -26,6 +27,8 @@ from fenics_adaptive.element import solid_shell
 from fenics_adaptive.element import subelement as se
 from fenics_adaptive.materials.laminate import Laminate, Ply, PlyMaterial
 from fenics_adaptive.model.forms import CondensedThicknessStrain, LayeredModel, build_model
+
+DATA = Path(__file__).parent / "data"  # the test configs
 
 # ------------------------------------------------------------------ materials and models
 CROSS_PLY = [0, 90, 0, 90, 90, 0, 90, 0]  # ply angles (degrees), bottom to top
@@ -250,28 +253,101 @@ def tip_loaded_cantilever_error(
 
 
 # ------------------------------------------------------------------ explicit dynamics
-def highest_frequency(model, fixed: np.ndarray, iterations: int = 400) -> float:
-    """omega_max^2 = largest eigenvalue of M^-1 K by power iteration (K u = f_int(u))."""
+def highest_frequency(model, fixed: np.ndarray, iterations: int = 400, scaled_mass=None) -> float:
+    """omega_max (1/s): omega_max^2 = largest eigenvalue of M^-1 K on the free DOFs by power
+    iteration (K u = f_int(u)), M the lumped masses, or ``scaled_mass`` (a
+    ``mass_scaling.SelectiveMass`` of a structure on ``model``, whose prescribed DOFs are
+    ``fixed``)."""
     n = model.n_owned_dofs
     rng = np.random.default_rng(0)
     x = rng.standard_normal(len(model.u.x.array))
     f = fem.Function(model.V).x
     m = model.mass[:n]
+    Mx = np.empty(n)
     lam = 0.0
     for _ in range(iterations):
         x[fixed] = 0.0
-        x /= np.sqrt(np.dot(m * x[:n], x[:n]))
+        if scaled_mass is None:
+            x /= np.sqrt(np.dot(m * x[:n], x[:n]))
+        else:
+            x /= np.sqrt(np.dot(scaled_mass.multiply(x[:n], Mx), x[:n]))
         model.u.x.array[:] = x
         model.u.x.scatter_forward()
         model.internal_force(f)
-        y = f.array[:n] / m
-        y[fixed] = 0.0
-        lam = np.dot(m * x[:n], y)  # Rayleigh quotient with the M-inner product
+        if scaled_mass is None:
+            y = f.array[:n] / m
+            y[fixed] = 0.0
+            lam = np.dot(m * x[:n], y)  # Rayleigh quotient with the M-inner product
+        else:
+            y = f.array[:n].copy()
+            scaled_mass.solve(y, np.zeros(len(fixed)))  # M_s^-1 K x, 0 on the held DOFs
+            lam = np.dot(x[:n], f.array[:n])  # x.K.x with x.M_s.x = 1
         x[:n] = y
+    model.u.x.array[:] = 0.0
     return math.sqrt(lam)
 
 
+def crossing_times(t, y) -> np.ndarray:
+    """Times where y crosses zero going upwards (linear interpolation)."""
+    t, y = np.asarray(t), np.asarray(y)
+    i = np.flatnonzero((y[:-1] < 0) & (y[1:] >= 0))
+    return t[i] - y[i] * (t[i + 1] - t[i]) / (y[i + 1] - y[i])
+
+
+def cantilever_first_period(laminate: Laminate, width: float, length: float) -> float:
+    """s: Euler-Bernoulli cantilever, omega_1 = 1.8751^2 sqrt(EI / (rho A L^4)) (mm, N)."""
+    EI = laminate.narrow_beam_bending_stiffness(width)
+    rho_A = laminate.areal_mass() * width
+    return 2 * math.pi / (1.8751**2 * math.sqrt(EI / (rho_A * length**4)))
+
+
 # ------------------------------------------------------------------ configs
+def edited(path: Path, edits: tuple[tuple[str, str], ...]) -> str:
+    """The text of a test config with each (old, new) replaced (each old must be there)."""
+    text = path.read_text()
+    for old, new in edits:
+        assert old in text, (path.name, old)
+        text = text.replace(old, new)
+    return text
+
+
+def thin_tcb_layerwise(scaling: str = "selective", end_time: float = 2.0e-4, **solver) -> dict:
+    """The short TCB of ``data/tcb_layerwise.toml`` with plies of 0.064 mm (a laminate
+    0.512 mm thick under 0.5 mm cells), one mesh layer per ply, at its stable step (not the
+    file's forced one), with ``[solver] mass_scaling = scaling`` and ``solver`` keys."""
+    text = edited(
+        DATA / "tcb_layerwise.toml",
+        (
+            ("time_step = 4.0e-8", ""),
+            ("layers = [2, 2, 2, 2]", "layers = [1, 1, 1, 1, 1, 1, 1, 1]"),
+            ("ply_thickness = 0.256", "ply_thickness = 0.064"),
+        ),
+    )
+    data = tomllib.loads(text)
+    data["solver"].update(end_time=end_time, mass_scaling=scaling, **solver)
+    data["output"].pop("fields_interval", None)
+    return data
+
+
+def thin_pulled_beam(scaling: str = "selective", displacement: float = 0.05) -> dict:
+    """``data/small_beam.toml`` with plies of 0.02 mm (0.16 mm under 2.5 x 1 mm cells), its
+    tip's top edge alone pulled up by ``displacement`` (mm; the nodes below move freely), with
+    ``[solver] mass_scaling = scaling``, no field output."""
+    text = edited(
+        DATA / "small_beam.toml",
+        (
+            ("ply_thickness = 0.25", "ply_thickness = 0.02"),
+            ('[[prescribed]]\nface = "x1"', '[[prescribed]]\nface = "x1&top"'),
+            ('reaction_face = "x1"', 'reaction_face = "x1&top"'),
+            ("displacement = 0.05", f"displacement = {displacement!r}"),
+        ),
+    )
+    data = tomllib.loads(text)
+    data["solver"]["mass_scaling"] = scaling
+    data["output"].pop("fields_interval")
+    return data
+
+
 def toml_text(data: dict) -> str:
     """A TOML writer for these configs: tables (nested), arrays of tables, flat values."""
     lines = []

@@ -10,7 +10,13 @@ import re
 import numpy as np
 import pytest
 from dolfinx import fem
-from helpers import CROSS_PLY, esl_model, highest_frequency
+from helpers import (
+    CROSS_PLY,
+    cantilever_first_period,
+    crossing_times,
+    esl_model,
+    highest_frequency,
+)
 
 from fenics_adaptive.errors import InputError
 from fenics_adaptive.model import loading
@@ -29,18 +35,8 @@ def cantilever(angles=(0,) * 8, nx=20):
 
 
 def first_bending_period(model) -> float:
-    """Euler-Bernoulli cantilever: omega_1 = 1.8751^2 sqrt(EI / (rho A L^4))."""
-    laminate = model.layer_laminates[0]
-    EI = laminate.narrow_beam_bending_stiffness(WIDTH)
-    rho_A = laminate.areal_mass() * WIDTH
-    return 2 * math.pi / (1.8751**2 * math.sqrt(EI / (rho_A * LENGTH**4)))
-
-
-def crossing_times(t, y):
-    """Times where y crosses zero going upwards (linear interpolation)."""
-    t, y = np.asarray(t), np.asarray(y)
-    i = np.flatnonzero((y[:-1] < 0) & (y[1:] >= 0))
-    return t[i] - y[i] * (t[i + 1] - t[i]) / (y[i + 1] - y[i])
+    """The cantilever's Euler-Bernoulli first period (s)."""
+    return cantilever_first_period(model.layer_laminates[0], WIDTH, LENGTH)
 
 
 @pytest.mark.slow

@@ -14,7 +14,16 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from helpers import assert_restarted_history, esl_model, run_quietly
+from helpers import (
+    assert_restarted_history,
+    cantilever_first_period,
+    crossing_times,
+    esl_model,
+    highest_frequency,
+    run_quietly,
+    thin_pulled_beam,
+    thin_tcb_layerwise,
+)
 
 from fenics_adaptive.errors import InputError
 from fenics_adaptive.io.output import read_history
@@ -153,39 +162,6 @@ def test_each_element_reaches_its_target_with_the_least_shear_scaling():
     assert np.all(reached <= ms.IN_PLANE_MARGIN * in_plane * (1 + 1e-12))
 
 
-def highest_eigenvalue(structure: Structure, iterations: int = 600) -> float:
-    """lambda_max of M^-1 K on the free DOFs by power iteration (K x = f_int(x), small strain),
-    with the M inner product; M the structure's scaled mass, or its lumped one without."""
-    mass = structure.scaled_mass
-    lumped = structure.base_block.mass
-    n = len(lumped)
-    u = structure.base.u.x
-    x = np.random.default_rng(0).standard_normal(n)
-    fixed = structure.base_block.fixed
-    y, Mx = np.empty(n), np.empty(n)
-    lam = 0.0
-    for _ in range(iterations):
-        x[fixed] = 0.0
-        if mass is None:
-            np.multiply(lumped, x, out=Mx)
-        else:
-            mass.multiply(x, Mx)
-        x /= math.sqrt(np.dot(x, Mx))
-        u.array[:n] = x
-        u.scatter_forward()
-        structure.internal_force()
-        y[:] = structure.f_base.array[:n]
-        if mass is None:
-            y /= lumped
-            y[fixed] = 0.0
-        else:
-            mass.solve(y, np.zeros(len(fixed)))  # y = M_s^-1 K x, 0 on the held DOFs
-        lam = np.dot(x, structure.f_base.array[:n])  # x.K.x with x.M.x = 1
-        x[:] = y
-    u.array[:] = 0.0
-    return lam
-
-
 @pytest.mark.slow
 def test_the_element_bound_is_safe_and_sharp_on_the_scaled_system():
     """On a cantilever of 0.4 mm under cells of 2.5 x 2 mm: the scaled step estimate is below
@@ -196,11 +172,11 @@ def test_the_element_bound_is_safe_and_sharp_on_the_scaled_system():
     structure, mass = scaled(model, motions)
     estimate, where = structure.stable_time_step()
     assert "scaled mass" in where
-    critical = 2.0 / math.sqrt(highest_eigenvalue(structure))
+    fixed = structure.base_block.fixed
+    critical = 2.0 / highest_frequency(model, fixed, 600, scaled_mass=mass)
     assert 0.97 * critical < estimate <= critical
     assert estimate >= 0.97 * mass.target_step
-    structure.scaled_mass = None
-    lumped_critical = 2.0 / math.sqrt(highest_eigenvalue(structure))
+    lumped_critical = 2.0 / highest_frequency(model, fixed, 600)
     assert critical > 1.9 * lumped_critical
 
 
@@ -262,12 +238,6 @@ def swing(model, motions, u0, period: float, scaling: str):
     )
 
 
-def upward_crossings(t, y):
-    t, y = np.asarray(t), np.asarray(y)
-    i = np.flatnonzero((y[:-1] < 0) & (y[1:] >= 0))
-    return t[i] - y[i] * (t[i + 1] - t[i]) / (y[i + 1] - y[i])
-
-
 @pytest.mark.slow
 def test_a_cantilever_swings_with_the_same_period_in_a_third_of_the_steps():
     """A cantilever 0.4 mm thick under cells of 2.5 x 2 mm released from its static deflection
@@ -279,15 +249,12 @@ def test_a_cantilever_swings_with_the_same_period_in_a_third_of_the_steps():
     model, motions = thin_cantilever(nx=10, ply_thickness=0.05, length=length)
     tip = loading.resolve(model, motions, [FaceLoad("x1", (0, 0, -1.0), Amplitude.constant())])
     u0 = solve_static(model, motions, tip, 0.0)
-    laminate = model.layer_laminates[0]
-    EI = laminate.narrow_beam_bending_stiffness(WIDTH)
-    rho_A = laminate.areal_mass() * WIDTH
-    period = 2 * math.pi / (1.8751**2 * math.sqrt(EI / (rho_A * length**4)))
+    period = cantilever_first_period(model.layer_laminates[0], WIDTH, length)
     periods = {}
     for scaling in ("none", "selective"):
         stats = swing(model, motions, u0, period, scaling)
         rows = stats.history
-        up = upward_crossings([r.time for r in rows], [r.displacement for r in rows])
+        up = crossing_times([r.time for r in rows], [r.displacement for r in rows])
         periods[scaling] = ((up[-1] - up[0]) / (len(up) - 1), stats.time_step)
         energy = max(r.kinetic_energy for r in rows)
         drift = [r.energy_balance - rows[0].energy_balance for r in rows]
@@ -296,24 +263,6 @@ def test_a_cantilever_swings_with_the_same_period_in_a_third_of_the_steps():
     assert selective == pytest.approx(lumped, rel=1e-3)
     assert selective == pytest.approx(period, rel=0.01)
     assert dt_selective > 3.0 * dt_lumped
-
-
-def tcb_layerwise(scaling: str, end_time: float = 2.0e-4, **solver) -> dict:
-    """The short TCB of ``tests/data/tcb_layerwise.toml`` with plies of 0.064 mm (a laminate
-    0.512 mm thick under 0.5 mm cells), one mesh layer per ply, at its stable step (not the
-    file's forced one)."""
-    text = (DATA / "tcb_layerwise.toml").read_text()
-    for old, new in (
-        ("time_step = 4.0e-8", ""),
-        ("layers = [2, 2, 2, 2]", "layers = [1, 1, 1, 1, 1, 1, 1, 1]"),
-        ("ply_thickness = 0.256", "ply_thickness = 0.064"),
-    ):
-        assert old in text
-        text = text.replace(old, new)
-    data = tomllib.loads(text)
-    data["solver"].update(end_time=end_time, mass_scaling=scaling, **solver)
-    data["output"].pop("fields_interval", None)
-    return data
 
 
 @pytest.mark.slow
@@ -327,7 +276,7 @@ def test_a_thin_layerwise_tcb_steps_3_x_longer_with_the_same_force_and_dissipati
     external work)."""
     runs = {}
     for scaling in ("none", "selective"):
-        summary = run_quietly(tcb_layerwise(scaling), tmp_path / scaling)
+        summary = run_quietly(thin_tcb_layerwise(scaling), tmp_path / scaling)
         runs[scaling] = (summary["time_step"], read_history(tmp_path / scaling / "history.csv"))
     (lumped_step, lumped), (scaled_step, selective) = runs["none"], runs["selective"]
     assert scaled_step["used_s"] > 3.0 * lumped_step["used_s"]
@@ -351,20 +300,9 @@ def test_a_prescribed_tip_motion_closes_the_balance_with_the_scaled_reactions(tm
     edge pulled up while the nodes below it move freely: the reactions of the driven DOFs take
     the scaled mass's share (the coupling to the free nodes of their columns; without it the
     balance drifts by 6e-4 of the work), and the step is 2 x the lumped one."""
-    text = (DATA / "small_beam.toml").read_text()
-    for old, new in (
-        ("ply_thickness = 0.25", "ply_thickness = 0.02"),
-        ('[[prescribed]]\nface = "x1"', '[[prescribed]]\nface = "x1&top"'),
-        ('reaction_face = "x1"', 'reaction_face = "x1&top"'),
-        ("displacement = 0.05", "displacement = 0.01"),
-    ):
-        assert old in text
-        text = text.replace(old, new)
     histories = {}
     for scaling in ("none", "selective"):
-        data = tomllib.loads(text)
-        data["solver"]["mass_scaling"] = scaling
-        data["output"].pop("fields_interval")
+        data = thin_pulled_beam(scaling, displacement=0.01)
         run_quietly(data, tmp_path / scaling)
         histories[scaling] = read_history(tmp_path / scaling / "history.csv")
     selective = histories["selective"]
@@ -378,11 +316,11 @@ def test_a_prescribed_tip_motion_closes_the_balance_with_the_scaled_reactions(tm
 
 @pytest.mark.slow
 def test_a_restarted_scaled_run_repeats_the_uninterrupted_one(tmp_path):
-    run_quietly(tcb_layerwise("selective", 1.0e-4), tmp_path / "whole")
-    split = tcb_layerwise("selective", 6.0e-5)
+    run_quietly(thin_tcb_layerwise("selective", 1.0e-4), tmp_path / "whole")
+    split = thin_tcb_layerwise("selective", 6.0e-5)
     split["output"]["checkpoint_interval"] = 500
     run_quietly(split, tmp_path / "split")
-    resumed = tcb_layerwise("selective", 1.0e-4)
+    resumed = thin_tcb_layerwise("selective", 1.0e-4)
     run_quietly(resumed, tmp_path / "split", restart=tmp_path / "split")
     assert_restarted_history(tmp_path / "split", tmp_path / "whole")
 
@@ -442,7 +380,7 @@ def test_the_run_reports_the_scaling_and_warns_of_a_target_it_cannot_reach(tmp_p
     from fenics_adaptive.runner import run_config
 
     lines: list[str] = []
-    data = tcb_layerwise("selective", 4.0e-6, mass_scaling_step=1.0e-6)
+    data = thin_tcb_layerwise("selective", 4.0e-6, mass_scaling_step=1.0e-6)
     summary = run_config(
         parse_config(data), tmp_path / "run", show_progress=False, log=lines.append
     )
@@ -455,7 +393,7 @@ def test_the_run_reports_the_scaling_and_warns_of_a_target_it_cannot_reach(tmp_p
     assert "1.0000e-06 s" in warning and "solver.mass_scaling_step" in warning
     assert any("selective mass scaling: " in line for line in lines)
     lumped = run_config(
-        parse_config(tcb_layerwise("none", 4.0e-6)),
+        parse_config(thin_tcb_layerwise("none", 4.0e-6)),
         tmp_path / "lumped",
         show_progress=False,
         log=None,
@@ -464,15 +402,15 @@ def test_the_run_reports_the_scaling_and_warns_of_a_target_it_cannot_reach(tmp_p
 
 
 def test_the_config_names_the_choices_and_refuses_what_scaling_cannot_do_yet():
-    data = tcb_layerwise("selective")
+    data = thin_tcb_layerwise("selective")
     assert parse_config(data).solver.mass_scaling == MassScaling.SELECTIVE
     with pytest.raises(
         InputError, match=r"solver\.mass_scaling: must be one of none, selective \(got 'lumped'\)"
     ):
-        parse_config(tcb_layerwise("lumped"))
+        parse_config(thin_tcb_layerwise("lumped"))
     with pytest.raises(InputError, match=r"solver\.mass_scaling_step"):
-        parse_config(tcb_layerwise("selective", mass_scaling_step=-1.0))
-    damped = tcb_layerwise("selective", mass_damping=100.0)
+        parse_config(thin_tcb_layerwise("selective", mass_scaling_step=-1.0))
+    damped = thin_tcb_layerwise("selective", mass_damping=100.0)
     with pytest.raises(InputError, match=r"solver\.mass_damping"):
         Simulation(parse_config(damped))
     adaptive = tomllib.loads((DATA / "tcb_adaptive.toml").read_text())

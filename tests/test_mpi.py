@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import thin_pulled_beam, thin_tcb_layerwise, toml_text
 
 from fenics_adaptive.io.output import COLUMN_UNITS, body_unit, read_history
 from fenics_adaptive.io.refinement_log import read_log as read_refinement_log
@@ -113,31 +114,16 @@ def test_the_mmb_lever_on_two_ranks_reproduces_the_serial_history(tmp_path):
 
 
 def selective_configs(folder: Path) -> dict[str, Path]:
-    """Two configs with selective mass scaling: the small ESL beam of 0.02 mm plies, its tip's
-    top edge pulled, and a layerwise TCB of eight 0.064 mm layers whose cracks grow."""
-    beam = SMALL.read_text()
-    for old, new in (
-        ("mass_damping = 0.0", 'mass_scaling = "selective"'),
-        ("ply_thickness = 0.25", "ply_thickness = 0.02"),
-        ('[[prescribed]]\nface = "x1"', '[[prescribed]]\nface = "x1&top"'),
-        ('reaction_face = "x1"', 'reaction_face = "x1&top"'),
-        ("fields_interval = 1.0e-4\n", ""),
-    ):
-        assert old in beam
-        beam = beam.replace(old, new)
-    tcb = (DATA / "tcb_layerwise.toml").read_text()
-    for old, new in (
-        ("time_step = 4.0e-8", 'mass_scaling = "selective"'),
-        ("layers = [2, 2, 2, 2]", "layers = [1, 1, 1, 1, 1, 1, 1, 1]"),
-        ("ply_thickness = 0.256", "ply_thickness = 0.064"),
-        ("end_time = 2.0e-4", "end_time = 1.2e-4"),
-    ):
-        assert old in tcb
-        tcb = tcb.replace(old, new)
+    """Two configs with selective mass scaling, as files: the small ESL beam of 0.02 mm plies,
+    its tip's top edge pulled, and a layerwise TCB of eight 0.064 mm layers whose cracks
+    grow."""
     paths = {}
-    for name, text in (("esl", beam), ("layerwise", tcb)):
+    for name, data in (
+        ("esl", thin_pulled_beam()),
+        ("layerwise", thin_tcb_layerwise(end_time=1.2e-4)),
+    ):
         paths[name] = folder / f"selective_{name}.toml"
-        paths[name].write_text(text)
+        paths[name].write_text(toml_text(data))
     return paths
 
 
