@@ -40,6 +40,7 @@ sys.path.insert(0, str(ROOT))
 
 from fenics_adaptive.meshes import esl_mesh  # noqa: E402
 
+from fenics_adaptive.analysis.vibration import dense_system, frequencies  # noqa: E402
 from fenics_adaptive.io.output import read_history  # noqa: E402
 from fenics_adaptive.materials.laminate import Laminate, PlyMaterial  # noqa: E402
 from fenics_adaptive.model import loading  # noqa: E402
@@ -66,38 +67,12 @@ def clamped_plate(ply_thickness: float, cells: int) -> Structure:
     return Structure(model, loading.resolve(model, motions, []))
 
 
-def dense_problem(structure: Structure) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """K, the lumped and the scaled mass on the free DOFs."""
-    structure.scaled_mass = selective_mass(structure)
-    n = len(structure.base_block.mass)
-    free = np.setdiff1d(np.arange(n), structure.base_block.fixed)
-    u = structure.base.u.x
-    K, M = np.zeros((n, len(free))), np.zeros((n, len(free)))
-    unit = np.zeros(n)
-    for column, j in enumerate(free):
-        u.array[:] = 0.0
-        u.array[j] = 1.0
-        structure.internal_force()
-        K[:, column] = structure.f_base.array[:n]
-        unit[:] = 0.0
-        unit[j] = 1.0
-        structure.scaled_mass.multiply(unit, M[:, column])
-    u.array[:] = 0.0
-    K = K[free]
-    return 0.5 * (K + K.T), np.diag(structure.base_block.mass[free]), M[free]
-
-
-def frequencies(K: np.ndarray, M: np.ndarray) -> np.ndarray:
-    """Frequencies (Hz, ascending) of K x = omega^2 M x."""
-    L_inv = np.linalg.inv(np.linalg.cholesky(M))
-    return np.sqrt(np.maximum(np.linalg.eigvalsh(L_inv @ K @ L_inv.T), 0.0)) / (2 * math.pi)
-
-
 def plate_rows(quick: bool) -> list[str]:
     rows = []
     for ply in (0.05,) if quick else (0.05, 0.025):
         structure = clamped_plate(ply, 10)
-        K, lumped, scaled = dense_problem(structure)
+        structure.scaled_mass = selective_mass(structure)
+        K, lumped, scaled = dense_system(structure)
         f_l, f_s = frequencies(K, lumped), frequencies(K, scaled)
         mass = structure.scaled_mass
         ratio = f_s[:3] / f_l[:3] - 1.0

@@ -25,6 +25,7 @@ from helpers import (
     thin_tcb_layerwise,
 )
 
+from fenics_adaptive.analysis.vibration import dense_system, eigenvalues
 from fenics_adaptive.errors import InputError
 from fenics_adaptive.io.output import read_history
 from fenics_adaptive.model import loading
@@ -180,33 +181,6 @@ def test_the_element_bound_is_safe_and_sharp_on_the_scaled_system():
     assert critical > 1.9 * lumped_critical
 
 
-def dense_matrices(structure: Structure) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """K (column j: f_int of a unit displacement of DOF j, small strain), the lumped and the
-    scaled mass matrix, on the free DOFs of a one-rank structure."""
-    n = len(structure.base_block.mass)
-    free = np.setdiff1d(np.arange(n), structure.base_block.fixed)
-    u = structure.base.u.x
-    K, M = np.zeros((n, len(free))), np.zeros((n, len(free)))
-    unit = np.zeros(n)
-    for column, j in enumerate(free):
-        u.array[:] = 0.0
-        u.array[j] = 1.0
-        structure.internal_force()
-        K[:, column] = structure.f_base.array[:n]
-        unit[:] = 0.0
-        unit[j] = 1.0
-        structure.scaled_mass.multiply(unit, M[:, column])
-    u.array[:] = 0.0
-    K = K[free]
-    return 0.5 * (K + K.T), np.diag(structure.base_block.mass[free]), M[free]
-
-
-def eigenvalues(K: np.ndarray, M: np.ndarray) -> np.ndarray:
-    """Of K x = lambda M x (1/s^2), ascending."""
-    L_inv = np.linalg.inv(np.linalg.cholesky(M))
-    return np.linalg.eigvalsh(L_inv @ K @ L_inv.T)
-
-
 def test_a_clamped_plate_keeps_its_lowest_bending_frequencies():
     """A [0/90/0/90]s plate 20 x 20 mm, 0.4 mm thick, clamped on its four edges, 10 x 10
     cells: the lowest three frequencies with the scaled mass within 1 % of the lumped ones
@@ -216,7 +190,7 @@ def test_a_clamped_plate_keeps_its_lowest_bending_frequencies():
     model = esl_model(THIN, 20.0, 20.0, 10, 10, ply_thickness=0.05)
     motions = [m for face in ("x0", "x1", "y0", "y1") for m in clamp(face)]
     structure, _ = scaled(model, motions)
-    K, lumped, selective = dense_matrices(structure)
+    K, lumped, selective = dense_system(structure)
     np.testing.assert_allclose(selective, selective.T, rtol=0, atol=1e-12 * lumped.max())
     lam_lumped, lam_scaled = eigenvalues(K, lumped), eigenvalues(K, selective)
     ratio = np.sqrt(lam_scaled[:3] / lam_lumped[:3])
