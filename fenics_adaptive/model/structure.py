@@ -64,7 +64,7 @@ from fenics_adaptive.model.loading import (
     ResolvedLoads,
     extra_node_prescriptions,
 )
-from fenics_adaptive.model.mass_scaling import SelectiveMass
+from fenics_adaptive.model.mass_scaling import SelectiveMass, adaptive_refused
 from fenics_adaptive.model.ply_damage_state import PlyDamageState
 from fenics_adaptive.model.refined_cells import RefinedCells
 from fenics_adaptive.model.stable_step import stable_time_step
@@ -419,11 +419,7 @@ class Structure:
         if not self.comm.allreduce(len(changed), op=MPI.SUM):
             return False
         if self.scaled_mass is not None:
-            raise InputError(
-                "solver.mass_scaling",
-                '"selective" cannot follow a refinement yet (its columns do not gain extra '
-                'nodes): run adaptive models with mass_scaling = "none"',
-            )
+            raise adaptive_refused()
         self.refinement.record(t, requests)
         self.stabilisation_state.request(
             changed[

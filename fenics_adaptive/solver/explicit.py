@@ -74,7 +74,7 @@ from fenics_adaptive.adaptivity.events import RefinementEvent
 from fenics_adaptive.errors import InputError
 from fenics_adaptive.model.forces import ForceContributor
 from fenics_adaptive.model.loading import on_top_or_bottom
-from fenics_adaptive.model.mass_scaling import selective_mass
+from fenics_adaptive.model.mass_scaling import adaptive_refused, selective_mass
 from fenics_adaptive.model.structure import Structure
 from fenics_adaptive.settings.solver import Probe, SolverSettings
 from fenics_adaptive.solver import guards
@@ -178,11 +178,7 @@ def prepare_mass(structure: Structure, settings: SolverSettings, refines: bool) 
             'mass-proportional damping is not yet available with mass_scaling = "selective"',
         )
     if refines:
-        raise InputError(
-            "solver.mass_scaling",
-            '"selective" is not yet available for adaptive models (their columns gain extra '
-            'nodes): run them with mass_scaling = "none"',
-        )
+        raise adaptive_refused()
     current, wanted = structure.scaled_mass, settings.mass_scaling_step
     if current is None or (wanted is not None and wanted != current.target_step):
         structure.scaled_mass = selective_mass(structure, wanted)
