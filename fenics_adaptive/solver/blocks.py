@@ -66,17 +66,16 @@ def block_work(f_old, f, f_ext_old, f_ext, du, fixed, reaction_old, reaction):
 
 @njit(cache=True)
 def prescribed_accelerations(
-    fixed, u_next, u_now, dt, mean_dt, v, acc, m, f, f_ext, contact, a_fixed, reaction
+    fixed, u_next, u_now, dt, mean_dt, v, acc, m, f, f_ext, contact, reaction
 ):
     """On each prescribed DOF the acceleration that takes it to u(t_{n+1}),
-    a = ((u_next - u_now) / dt - v) / h, into ``acc`` and ``a_fixed``, and its reaction
+    a = ((u_next - u_now) / dt - v) / h, into ``acc``, and its reaction
     m a + f_int - f_ext - f_contact (``contact`` empty: none)."""
     for k in range(len(fixed)):
         i = fixed[k]
         a = (u_next[k] - u_now[k]) / dt
         a -= v[i]
         a /= mean_dt
-        a_fixed[k] = a
         acc[i] = a
         r = m[i] * a
         r += f[i]
@@ -121,7 +120,7 @@ class BlockState:
         self.damping[block.fixed] = 0.0
         self.shrink, self.grow, self.v_mid, self.v_next = (np.zeros(n) for _ in range(4))
         k = len(block.fixed)
-        self.u_now, self.u_next, self.a_fixed = (np.zeros(k) for _ in range(3))
+        self.u_now, self.u_next = np.zeros(k), np.zeros(k)
         self.reaction, self.reaction_old = np.zeros(k), np.zeros(k)
         self.no_contact = np.zeros(0)
         if old is not None:  # the block grew: carry the old DOFs' history over
@@ -166,7 +165,6 @@ class BlockState:
             self.f,
             self.f_ext,
             self.no_contact if contact_force is None else contact_force,
-            self.a_fixed,
             self.reaction,
         )
 
