@@ -476,7 +476,7 @@ class SelectiveMass:
         M = self.matrix[at].reshape(-1, q, q)
         free = ~self.prescribed[self._chain_dof_table(chains, q // 3)]
         self.held[chains] = ~free.all(axis=1)
-        self._factorise_banded(chains, M, at)
+        self._factorise_banded(chains, M, at, ~free)
         dense = ~self.banded[chains]
         if not dense.any():
             return
@@ -489,9 +489,12 @@ class SelectiveMass:
                 G[c][np.ix_(f, f)] = np.linalg.inv(M[c][np.ix_(f, f)])
         self.inverse[at] = G.reshape(len(G), q * q)
 
-    def _factorise_banded(self, chains: np.ndarray, M: np.ndarray, at: np.ndarray) -> None:
-        """Mark the ``chains`` (matrices ``M`` (n, q, q), stored at ``at``) whose components do
-        not couple (edges along a coordinate axis: entries across components below
+    def _factorise_banded(
+        self, chains: np.ndarray, M: np.ndarray, at: np.ndarray, held: np.ndarray
+    ) -> None:
+        """Mark the ``chains`` (matrices ``M`` (n, q, q), stored at ``at``; ``held`` (n, q):
+        their prescribed DOFs) whose components do not couple (edges along a coordinate axis:
+        entries across components below
         ``BANDED_TOLERANCE`` of the largest, then set to zero so that every path uses the same
         matrix) and factorise each component's tridiagonal matrix with its prescribed DOFs'
         rows and columns replaced by the identity (their accelerations are given):
@@ -516,7 +519,7 @@ class SelectiveMass:
         if k > 1:
             O[:, :-1] = np.einsum("nkdkd->nkd", kept[:, :-1, :, 1:, :])
         first = 3 * self.chain_offsets[chosen][:, None] + np.arange(q)
-        held = self.prescribed[self._chain_dof_table(chosen, k)].reshape(-1, k, 3)
+        held = held[banded].reshape(-1, k, 3)
         D_free = np.where(held, 1.0, D)
         # a coupling that touches a prescribed DOF moves to the right-hand side
         O_free = np.where(held | np.roll(held, -1, axis=1), 0.0, O)
