@@ -56,6 +56,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return _command(argv, interrupt)
     except KeyboardInterrupt as error:
+        interrupt.release()
         return _interrupted(error)
     finally:
         interrupt.release()
@@ -173,6 +174,7 @@ def _command(argv: list[str] | None, interrupt: _StartupInterrupt) -> int:
         return fail_ranks(errors, 2, _input_error_line(args.config, error))
     except Exception as error:  # the run itself failed: say why in one line
         if interrupt.fired:  # Ctrl-C killed a compiler or Gmsh under us: not a failure
+            interrupt.release()
             return _interrupted(error)
         return fail_ranks(errors, 1, _failure_line(args.command, error))
     return 0
@@ -266,6 +268,7 @@ def _demo(name: str | None, demo_args: list[str], interrupt: _StartupInterrupt) 
         return 2
     except Exception as error:
         if interrupt.fired:
+            interrupt.release()
             return _interrupted(error)
         print(_failure_line(f"demo {name}", error), file=sys.stderr)
         return 1
@@ -395,19 +398,38 @@ def _duration(seconds: float) -> str:
 class _StartupInterrupt:
     """SIGINT before the time loop: remember it (a Ctrl-C may kill a compiler or Gmsh under
     the program, which then fails with some other error) and raise KeyboardInterrupt. The run
-    puts its own handler in place for the time loop (checkpoint, then stop)."""
+    puts its own handler in place for the time loop (checkpoint, then stop).
+
+    A KeyboardInterrupt raised while Python runs inside a ctypes callback (numba's compiler
+    calls back into Python for its cache) is printed and dropped, and start-up went on
+    compiling (seen once in CI). So once fired it is raised again every ``AGAIN`` s (SIGALRM)
+    until the program catches it and calls ``release``."""
+
+    AGAIN = 0.25  # s
 
     def __init__(self):
         self.fired = False
         self.previous = None
+        self.previous_alarm = None
         if threading.current_thread() is threading.main_thread():
             self.previous = signal.signal(signal.SIGINT, self._handle)
 
     def _handle(self, number, frame) -> None:
         self.fired = True
+        if self.previous_alarm is None:
+            self.previous_alarm = signal.signal(signal.SIGALRM, self._again)
+            signal.setitimer(signal.ITIMER_REAL, self.AGAIN, self.AGAIN)
+        raise KeyboardInterrupt
+
+    def _again(self, number, frame) -> None:
         raise KeyboardInterrupt
 
     def release(self) -> None:
+        """Restore the handlers (and stop raising again); idempotent."""
+        if self.previous_alarm is not None:
+            signal.setitimer(signal.ITIMER_REAL, 0.0)
+            signal.signal(signal.SIGALRM, self.previous_alarm)
+            self.previous_alarm = None
         if self.previous is not None:
             signal.signal(signal.SIGINT, self.previous)
             self.previous = None
