@@ -192,14 +192,14 @@ def four_point_bending(variant: str) -> dict:
 def test_a_refined_region_is_bounded_by_the_esl_and_refined_beams(tmp_path):
     """Four-point bending at 0.05 mm: the beam refined around mid-span carries the ESL beam's
     force (within 0.5 %; without the border constraints the region ended in a partial hinge,
-    20 % softer than ESL) and the beam refined everywhere a little less (1 %: its sublaminates
-    bend on their own; with the compatible thickness strain alone the ESL cells locked and
-    everywhere/ESL was 0.945)."""
+    20 % softer than ESL) and the beam refined everywhere about as much (0.1 % more with the
+    laminate's shear correction, which gives the ESL cells the shear compliance the refined
+    ones get from their sublaminates; 1 % less without it; with the compatible thickness
+    strain alone the ESL cells locked and everywhere/ESL was 0.945)."""
     force = {}
     for variant in ("esl", "region", "everywhere"):
         config = parse_config(four_point_bending(variant), source=variant)
         summary = run_config(config, tmp_path / variant, show_progress=False, log=None)
         force[variant] = abs(summary["final"]["reaction_force_N"])
-    assert force["everywhere"] < force["region"]
     assert force["region"] / force["esl"] == pytest.approx(1.0, abs=0.005)
-    assert force["everywhere"] / force["esl"] == pytest.approx(0.99, abs=0.005)
+    assert force["everywhere"] / force["esl"] == pytest.approx(1.0, abs=0.005)

@@ -97,8 +97,9 @@ def errors(results, layup, model, against="errors_vs_lw"):
 def test_recovered_interlaminar_stresses_match_lw_constitutive_ones_do_not(results, layup):
     constitutive = errors(results, layup, "esl_constitutive")
     recovered = errors(results, layup, "esl_recovered")
-    # constant transverse shear strain through the thickness: off by about a third of the peak
-    assert constitutive["tau_xz_interfaces"] > 0.25
+    # constant transverse shear strain through the thickness: off by a fifth to a third of the
+    # peak (18-36 %)
+    assert constitutive["tau_xz_interfaces"] > 0.15
     assert recovered["tau_xz_interfaces"] < 0.02
     # sigma_zz from the thickness strain and Poisson coupling, not from the load: 41-48 % of
     # its peak off (more than 100 % with the compatible thickness strain alone)
@@ -117,9 +118,9 @@ def test_refined_element_equals_lw_and_beats_esl(results, layup):
     for name in ("tip_deflection", "sigma_xx_plies", "tau_xz_interfaces", "sigma_zz_interfaces"):
         assert abs(refined[name]) < 1e-7, name  # the paper: matches the reference exactly
         assert abs(refined[name]) < abs(esl[name]), name
-    # ESL is stiffer (constant shear strain through the thickness, no shear correction here)
-    # by a little, not by much
-    assert -0.03 < esl["tip_deflection"] < -0.005
+    # with the laminate's shear correction (the default) the ESL's constant shear strain
+    # carries the exact shear compliance: within 1 % of LW (0.9-1.4 % too stiff without)
+    assert abs(esl["tip_deflection"]) < 0.01
 
 
 @pytest.mark.parametrize("layup", list(LAYUPS))

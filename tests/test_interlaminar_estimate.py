@@ -122,7 +122,10 @@ def test_a_dcb_arm_opening_is_seen_at_the_mid_plane(dcb):
 def test_the_dcb_peel_profile_at_the_loaded_end_follows_lw(dcb):
     """At the loaded end the estimate has LW's through-thickness profile of the peel stress
     (highest next to the pulled faces, where the load comes in), interface by interface within
-    20 % (LW at its x = 0 node line); a few cells in, the opening has faded."""
+    20 % (LW at its x = 0 node line), 25 % at the two interfaces next to the faces (21 %: the
+    shear correction's softer shear lowers the ESL's pull under the prescribed opening, 85.6 N
+    against 93.0 N without it and LW's 59.9 N, and with it the face values; 16 % without it); a
+    few cells in, the opening has faded."""
     esl, lw = dcb
     estimate = ind.interlaminar_stresses(esl, 0.0, face_force=support_force(esl))
     tractions = cmp.interface_tractions(lw)
@@ -131,7 +134,8 @@ def test_the_dcb_peel_profile_at_the_loaded_end_follows_lw(dcb):
     for interface in range(1, 12):
         lines, traction = tractions[interface]
         at_end = traction[np.argmin(lines), 0]
-        assert estimate[end, interface, 0] == pytest.approx(at_end, rel=0.2), interface
+        tolerance = 0.25 if interface in (1, 11) else 0.2
+        assert estimate[end, interface, 0] == pytest.approx(at_end, rel=tolerance), interface
     index = ind.interface_initiation(estimate, 60.0, 90.0)
     assert index.max(axis=1).argmax() == end
     assert index[x > 4.0].max() < 0.1 * index[end].max()

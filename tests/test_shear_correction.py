@@ -76,9 +76,10 @@ def test_every_span_of_every_laminate_gets_a_factor_in_0_1_tending_to_1_when_thi
 
 def test_the_ufl_form_and_the_numba_rule_carry_the_same_factors():
     laminate = Laminate.from_angles(PLY, [0.0, 45.0, 90.0, -45.0], 0.25)
-    table, plain = RuleTable(laminate, 2, shear_correction=True), RuleTable(laminate, 2)
+    table, plain = RuleTable(laminate, 2), RuleTable(laminate, 2, shear_correction=False)
     for first, stop in table.spans:
-        k_xz, k_yz = shear_correction_factors(laminate, first, stop)
+        # spans of several plies carry the span's factors, a one-ply element the ply's moduli
+        k_xz, k_yz = shear_correction_factors(laminate, first, stop) if stop - first > 1 else (1, 1)
         rule, reference = table.rule(first, stop), plain.rule(first, stop)
         ratio = rule.weights / reference.weights
         codes = {t: solid_shell.TERMS.index(t) for t in solid_shell.TERMS}

@@ -25,7 +25,7 @@ from fenics_adaptive.element.subelement import CORNERS, pack_rule, sublaminate_p
 from fenics_adaptive.element.timestep import characteristic_lengths, hexahedron_volumes
 from fenics_adaptive.errors import InputError
 from fenics_adaptive.materials import ply_damage as pd
-from fenics_adaptive.materials.laminate import Laminate, Ply
+from fenics_adaptive.materials.laminate import Laminate, Ply, element_shear_factors
 from fenics_adaptive.model.assembly import CohesiveSet
 from fenics_adaptive.model.ply_damage_state import PlyDamageState
 from fenics_adaptive.settings.adaptivity import Interfaces, Stabilisation
@@ -81,6 +81,9 @@ def test_slab_between_thickness_weights():
 def test_rule_table_gives_each_span_its_rule(points_per_ply):
     table = RuleTable(LAMINATE, points_per_ply)
     n = LAMINATE.n_plies
+    shear_factors = {
+        (a, b): element_shear_factors(LAMINATE, a, b) for a in range(n) for b in range(a + 1, n + 1)
+    }
     assert table.spans == [(a, b) for a in range(n) for b in range(a + 1, n + 1)]
     stiffness = np.array(LAMINATE.ply_stiffnesses())
     for first, stop in table.spans:
@@ -88,7 +91,9 @@ def test_rule_table_gives_each_span_its_rule(points_per_ply):
         # one ply: two points through it whatever points_per_ply, else points_per_ply per ply
         points = points_per_ply if stop - first > 1 else 2
         zeta = sublaminate_ply_zeta(LAMINATE.ply_fractions, first, stop)
-        expected = pack_rule(zeta, stiffness[first:stop], points, enhanced=True)
+        expected = pack_rule(
+            zeta, stiffness[first:stop], points, shear_factors[first, stop], enhanced=True
+        )
         for got, want in zip(rule, expected, strict=True):
             np.testing.assert_array_equal(got, want)
     # a one-ply subelement bends with energy: its normal-term points integrate (zeta - 1/2)^2

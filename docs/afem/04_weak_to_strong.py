@@ -24,6 +24,7 @@ from mpi4py import MPI
 
 from fenics_adaptive.adaptivity import enrichment as enr
 from fenics_adaptive.materials.cohesive import cohesive_element_force
+from fenics_adaptive.materials.laminate import element_shear_factors
 from fenics_adaptive.model.structure import cells_in_x_range
 from fenics_adaptive.settings.config import parse_config
 from fenics_adaptive.settings.kinds import InterfaceState
@@ -170,9 +171,9 @@ start = snapshot(structure)
 #
 # This holds for any nodal field, not only for the simple one chosen above: whatever the base
 # nodes carry, the field of a cell is linear along each of its columns. Every subelement then
-# reproduces the part of the old field it covers. The strain energy, the mass (the subelements'
-# masses replace the cell's) and the momentum (the lumped masses move with the same
-# interpolation weights) do not change.
+# reproduces the part of the old field it covers. The mass (the subelements' masses replace the
+# cell's) and the momentum (the lumped masses move with the same interpolation weights) do not
+# change; the strain does not either.
 
 # %%
 region = cells_in_x_range(structure, 2.5, 6.5)
@@ -200,20 +201,42 @@ weak = snapshot(structure)
 report("after the weak refinement", weak, start)
 print(f"  extra nodes off the old field: u by {du:.1e} mm, v by {dv:.1e} mm/s")
 assert du < 1e-15 and dv < 1e-13
-assert abs(weak["solid"] - start["solid"]) < 1e-12 * start["solid"]
 assert abs(weak["mass"] - start["mass"]) < 1e-14 * start["mass"]
 momentum_scale = np.linalg.norm(start["momentum"])
 assert np.abs(weak["momentum"] - start["momentum"]).max() < 1e-13 * momentum_scale
 
 # %% [markdown]
-# The kinetic energy is the one quantity that may change: the same velocities now multiply
-# redistributed lumped masses. The structure books the difference as `refinement_energy`, so
-# the energy balance of a run still closes.
+# Two energies may change. The kinetic energy: the same velocities now multiply redistributed
+# lumped masses. And the transverse shear energy, by design. An element's transverse shear
+# strain is constant through its thickness, so each (sub)element's shear moduli carry the
+# laminate's shear correction factor over its own span of plies
+# (`materials.laminate.element_shear_factors`: the span's share of the laminate's exact shear
+# flow, stored with the exact complementary energy). The eight-ply cell has $k = 5/6$, a
+# homogeneous section's; each two-ply subelement has the factor of where it sits in that flow
+# (nearer 1 in the middle, where the flow hardly varies). The uniform shear $g$ of this state
+# then stores $	frac12 g^2 G_{13} A \sum_i k_i h_i$ instead of $	frac12 g^2 G_{13} A\, k\, h$
+# over the refined area $A$: more, because the subelements may follow the flow the cell had to
+# average (by Cauchy-Schwarz, $\sum_i k_i h_i \ge k h$ for any split). We compute the change by
+# hand. With `[model] shear_correction = false` every factor is 1 and the strain energy stays
+# to round-off. The structure books both changes as `refinement_energy`, so the energy balance
+# of a run still closes.
 
 # %%
-print(f"  booked refinement energy    {structure.refinement_energy:.3e} mJ")
+laminate = structure.laminate
+G13 = laminate.plies[0].stiffness()[4, 4]  # MPa: C_55 of the 0-degree plies
+h_ply = laminate.thickness / laminate.n_plies  # mm
+area = len(region) * (10.0 / 20) * 0.5  # mm^2: refined cells of 0.5 x 0.5 mm
+k_cell = element_shear_factors(laminate, 0, 8)[0]
+k_spans = [element_shear_factors(laminate, first, first + 2)[0] for first in (0, 2, 4, 6)]
+expected = 0.5 * shear**2 * G13 * area * h_ply * (2 * sum(k_spans) - 8 * k_cell)  # mJ
+print(f"  shear factors k_xz: cell {k_cell:.4f}, subelements {np.round(k_spans, 4)}")
+change = weak["solid"] - start["solid"]
+print(f"  strain energy change        {change:.6e} mJ ({expected:.6e} by hand)")
+print(f"  booked refinement energy    {structure.refinement_energy:.6e} mJ")
+assert abs(weak["solid"] - start["solid"] - expected) < 1e-9 * start["solid"]
 kinetic_change = weak["kinetic"] - start["kinetic"]
-assert abs(kinetic_change - structure.refinement_energy) < 1e-12 * start["kinetic"]
+booked = kinetic_change + weak["solid"] - start["solid"]
+assert abs(booked - structure.refinement_energy) < 1e-12 * start["solid"]
 
 # %% [markdown]
 # ## Strong refinement: unzip, closed
@@ -221,8 +244,9 @@ assert abs(kinetic_change - structure.refinement_energy) < 1e-12 * start["kineti
 # The same cells now turn strong at interfaces 2 and 6. Each interface gets its set-B nodes,
 # copied from set A (position, displacement, velocity), and a cohesive element between the two
 # sets. The twins move together, so this time even the kinetic energy stays: set B takes over
-# part of set A's lumped mass, at the same velocity. Before this step we record the internal
-# force on every set-A node.
+# part of set A's lumped mass, at the same velocity. The subelements keep their spans (the
+# interfaces were weak already), hence their shear factors: the strain energy stays too. Before
+# this step we record the internal force on every set-A node.
 
 # %%
 f_extra_before = structure.f_extra.array.reshape(-1, 3).copy()
@@ -242,7 +266,7 @@ for key, local in structure.extra.index.items():
 a_nodes, b_nodes, a_before = (np.array(column) for column in zip(*pairs, strict=True))
 assert np.array_equal(u_extra[a_nodes], u_extra[b_nodes])
 assert np.array_equal(v_extra[a_nodes], v_extra[b_nodes])
-assert abs(strong["solid"] - start["solid"]) < 1e-12 * start["solid"]
+assert abs(strong["solid"] - weak["solid"]) < 1e-12 * weak["solid"]
 assert abs(strong["kinetic"] - weak["kinetic"]) < 1e-12 * weak["kinetic"]
 assert np.abs(strong["momentum"] - start["momentum"]).max() < 1e-13 * momentum_scale
 print(f"  {len(pairs)} node pairs, each with the same u and v on both sides")
@@ -277,9 +301,12 @@ assert largest_traction_force == 0.0 and strong["cohesive"] == 0.0
 # Before, a set-A node collected the force of the subelement below and of the subelement above
 # the interface. Now the subelement above acts on the set-B twin. The sum of the two is the old
 # force, to round-off. But each side alone now carries the whole interface stress: in our
-# uniform state, on a node away from the edges of the region, f_A = +(sigma_xz, 0, sigma_zz) A
-# and f_B = -(sigma_xz, 0, sigma_zz) A, with A the node's share of the interface area
-# (0.125 mm^2 here: a quarter of each of the two 0.5 x 0.5 mm cells around it). The two faces
+# uniform state, on a node away from the edges of the region, f_A = +(k_b sigma_xz, 0,
+# sigma_zz) A and f_B = -(k_a sigma_xz, 0, sigma_zz) A, with A the node's share of the
+# interface area (0.125 mm^2 here: a quarter of each of the two 0.5 x 0.5 mm cells around it)
+# and k_b, k_a the shear factors of the subelements below and above. (Their difference is the x
+# force the node carried before the split: the uniform strain is not in equilibrium at a
+# change of shear factor, as it would not be at a change of shear modulus.) The two faces
 # would accelerate apart at once, although nothing has opened yet. That jump is the subject of
 # `05_stabilisation.py`. (The y components come from the in-plane stress sigma_yy, which the
 # Poisson effect creates, acting on the free side face y = 0 of the beam. They are not an
@@ -295,6 +322,7 @@ C = structure.laminate.plies[0].stiffness()  # Voigt order xx, yy, zz, yz, xz, x
 strain = np.array([0.0, 0.0, stretch, 0.0, shear, 0.0])
 sigma = C @ strain
 traction = np.array([sigma[4], 0.0, sigma[2]])  # MPa, on a plane of normal z
+k_below, k_above = k_spans[0], k_spans[1]  # the subelements either side of interface 2
 X_extra = structure.extra.vectors["X"].array.reshape(-1, 3)
 middle = np.flatnonzero(np.isclose(X_extra[a_nodes, 0], 4.5) & np.isclose(X_extra[a_nodes, 1], 0.0))
 pair = middle[0]
@@ -304,9 +332,11 @@ print(f"  pair at x = 4.5 mm: sigma_zz = {sigma[2]:.3f} MPa, sigma_xz = {sigma[4
 print(f"    f on A before the split {f_extra_before[a_before[pair]]} N")
 print(f"    f on A after            {f_extra[A]} N")
 print(f"    f on B after            {f_extra[B]} N")
-print(f"    traction x node area    {traction * node_area} N")
-assert np.allclose(f_extra[A, [0, 2]], traction[[0, 2]] * node_area, rtol=1e-10)
-assert np.allclose(f_extra[B, [0, 2]], -traction[[0, 2]] * node_area, rtol=1e-10)
+print(f"    traction x node area    {traction * node_area} N (x: times k_b, k_a)")
+expected_a = np.array([k_below * traction[0], traction[2]]) * node_area
+expected_b = -np.array([k_above * traction[0], traction[2]]) * node_area
+assert np.allclose(f_extra[A, [0, 2]], expected_a, rtol=1e-10)
+assert np.allclose(f_extra[B, [0, 2]], expected_b, rtol=1e-10)
 
 # %% [markdown]
 # ## The picture: one column before and after

@@ -145,10 +145,21 @@ def ply_strains(structure) -> np.ndarray:
 
 
 def ply_stresses(structure, strains: np.ndarray | None = None) -> np.ndarray:
-    """(n_owned_cells, n_plies, 6) shell-frame stress (MPa) at each ply's mid-point."""
+    """(n_owned_cells, n_plies, 6) shell-frame stress (MPa) at each ply's mid-point, as the
+    element holding the ply carries it: its transverse shear with the element's shear
+    correction (``RuleTable.shear_factors``), sigma_s = D C_s D gamma_s with D = diag(sqrt
+    k_yz, sqrt k_xz), the stress whose work with the strain is the element's energy (a ply's
+    transverse shear does not couple to its other strains)."""
     strains = ply_strains(structure) if strains is None else strains
     stiffness = np.array(structure.laminate.ply_stiffnesses())  # (n_plies, 6, 6)
-    return np.einsum("kij,ckj->cki", stiffness, strains)
+    scale = np.ones_like(strains)
+    _, cells, plies = structure.elements()
+    root = np.sqrt(structure.rule_table.shear_factors(plies))  # (n_elements, 2)
+    for ply in range(strains.shape[1]):
+        holds = (plies[:, 0] <= ply) & (ply < plies[:, 1])
+        scale[cells[holds], ply, 3] = root[holds, 1]  # yz
+        scale[cells[holds], ply, 4] = root[holds, 0]  # xz
+    return scale * np.einsum("kij,ckj->cki", stiffness, scale * strains)
 
 
 def to_material_frame(stresses: np.ndarray, angles_deg: np.ndarray) -> np.ndarray:

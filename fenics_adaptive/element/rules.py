@@ -26,7 +26,7 @@ from fenics_adaptive.element.subelement import (
 from fenics_adaptive.materials.laminate import (
     Laminate,
     bending_about_neutral_plane,
-    shear_correction_factors,
+    element_shear_factors,
 )
 
 # A one-ply (sub)element with one Gauss point through its thickness bends with zero energy (an
@@ -47,7 +47,8 @@ class RuleTable:
     (0, 1), (0, 2), ..., (0, n), (1, 2), ... (``spans``); ``points_per_ply``: Gauss points
     through each ply of spans of more than one ply; ``shear_correction``: each span's transverse
     shear correction from the whole laminate's shear distribution
-    (``materials.laminate.shear_correction_factors``; (1, 1) without), and
+    (``materials.laminate.element_shear_factors``: spans of several plies; (1, 1) for one ply
+    and without), and
     ``enhanced_strain``: the enhanced assumed thickness strain, ``preintegrate``: the spans'
     pre-integrated through-thickness rules where ``solid_shell.thickness_rule`` takes them
     (not for the ply-damage kernel, which needs its points ply by ply), all as the UFL forms of
@@ -57,7 +58,7 @@ class RuleTable:
         self,
         laminate: Laminate,
         points_per_ply: int,
-        shear_correction: bool = False,
+        shear_correction: bool = True,
         enhanced_strain: bool = True,
         preintegrate: bool = False,
     ):
@@ -78,6 +79,8 @@ class RuleTable:
         # rule index and fastest wave speed (mm/s) of each span, for whole arrays of spans
         self._rule_of_plies = np.full((n + 1, n + 1), -1, dtype=np.int64)
         self._speed_of_plies = np.zeros((n + 1, n + 1))
+        # (k_xz, k_yz) of each span: what its rule scales the transverse shear by
+        self._shear_of_plies = np.ones((n + 1, n + 1, 2))
         for first in range(n):
             for stop in range(first + 1, n + 1):
                 zeta = sublaminate_ply_zeta(fractions, first, stop)
@@ -85,11 +88,8 @@ class RuleTable:
                 self._speed_of_plies[first, stop] = ply_speeds[first:stop].max()
                 self.spans.append((first, stop))
                 points = points_through_ply(stop - first, points_per_ply)
-                factors = (
-                    shear_correction_factors(laminate, first, stop)
-                    if shear_correction
-                    else (1.0, 1.0)
-                )
+                factors = element_shear_factors(laminate, first, stop, shear_correction)
+                self._shear_of_plies[first, stop] = factors
                 self.rules.append(
                     pack_rule(
                         zeta, stiffness[first:stop], points, factors, enhanced_strain, preintegrate
@@ -112,6 +112,12 @@ class RuleTable:
         """Rule index (int64) of each span of ``plies`` (n, 2) [first, stop)."""
         plies = np.asarray(plies, dtype=np.int64).reshape(-1, 2)
         return self._rule_of_plies[plies[:, 0], plies[:, 1]].astype(np.int64)
+
+    def shear_factors(self, plies: np.ndarray) -> np.ndarray:
+        """(n, 2) transverse shear correction factors (k_xz, k_yz) that the rule of each span
+        of ``plies`` (n, 2) [first, stop) carries (``element_shear_factors``)."""
+        plies = np.asarray(plies, dtype=np.int64).reshape(-1, 2)
+        return self._shear_of_plies[plies[:, 0], plies[:, 1]]
 
     def wave_speed(self, plies: np.ndarray) -> np.ndarray:
         """Fastest dilatational wave speed (mm/s) of the plies of each span of ``plies``."""

@@ -239,6 +239,26 @@ def bending_about_neutral_plane(laminate: Laminate) -> tuple[np.ndarray, np.ndar
     return z, E, np.stack([z_n, D])
 
 
+def element_shear_factors(
+    laminate: Laminate, first: int, stop: int, shear_correction: bool = True
+) -> tuple[float, float]:
+    """(k_xz, k_yz) that a (sub)element spanning plies [first, stop) of ``laminate`` carries:
+    ``shear_correction_factors`` for a span of several plies, (1, 1) for a single ply or
+    without ``shear_correction``.
+
+    The one rule for the UFL forms (``model.forms.LayeredModel``) and the numba rules
+    (``element.rules.RuleTable``). A one-ply element is a 3D solid layer: the layerwise
+    reference keeps the plies' own shear moduli (a constant transverse shear passes the patch
+    test exactly), and refined-from-start stays equal to it."""
+    if not shear_correction or stop - first == 1:
+        if not 0 <= first < stop <= laminate.n_plies:
+            raise ValueError(
+                f"no ply span [{first}, {stop}) in a laminate of {laminate.n_plies} plies"
+            )
+        return 1.0, 1.0
+    return shear_correction_factors(laminate, first, stop)
+
+
 def shear_correction_factors(
     laminate: Laminate, first: int = 0, stop: int | None = None
 ) -> tuple[float, float]:

@@ -30,7 +30,7 @@ from fenics_adaptive.element.subelement import (
     pack_rule,
 )
 from fenics_adaptive.element.timestep import characteristic_lengths
-from fenics_adaptive.materials.laminate import Laminate, shear_correction_factors
+from fenics_adaptive.materials.laminate import Laminate, element_shear_factors
 from fenics_adaptive.meshes.beam import BeamMesh
 from fenics_adaptive.settings.kinds import Kinematics
 
@@ -67,8 +67,8 @@ class LayeredModel:
     force_form: fem.Form | None = None
     energy_form: fem.Form | None = None
     kinematics: str = "small"  # "small" | "finite" (solid_shell.KINEMATICS)
-    # transverse shear correction of each layer's elements (laminate.shear_correction_factors)
-    shear_correction: bool = False
+    # transverse shear correction of each layer's elements (laminate.element_shear_factors)
+    shear_correction: bool = True
     # the enhanced assumed thickness strain (no Poisson thickness locking), condensed per cell
     enhanced_strain: bool = True
     enhanced: CondensedThicknessStrain | None = None
@@ -173,15 +173,12 @@ class LayeredModel:
 
     def shear_factors(self) -> list[tuple[float, float]]:
         """(k_xz, k_yz) of each layer's elements: the whole laminate's shear distribution over
-        the layer's plies, or (1, 1) without ``shear_correction``."""
+        the layer's plies (``materials.laminate.element_shear_factors``: (1, 1) for a one-ply
+        layer or without ``shear_correction``)."""
         laminate, first, out = self.laminate, 0, []
         for layer in self.layer_laminates:
             stop = first + layer.n_plies
-            out.append(
-                shear_correction_factors(laminate, first, stop)
-                if self.shear_correction
-                else (1.0, 1.0)
-            )
+            out.append(element_shear_factors(laminate, first, stop, self.shear_correction))
             first = stop
         return out
 
@@ -266,19 +263,20 @@ def build_model(
     points_per_ply: int = 2,
     selective: bool = True,
     kinematics: str = "small",
-    shear_correction: bool = False,
+    shear_correction: bool = True,
     enhanced_strain: bool = True,
     preintegrate: bool = True,
 ) -> LayeredModel:
     """``selective=False`` gives the plain fully integrated hexahedron (locks; for comparison).
     ``kinematics``: "small" (linear strain) or "finite" (total Lagrangian, Green-Lagrange).
     ``shear_correction``: the laminate's transverse shear correction on each layer's elements
-    (``materials.laminate.shear_correction_factors``); off, the constant shear strain of the
-    element carries the plies' full shear moduli. ``enhanced_strain``: the enhanced assumed
-    thickness strain (``solid_shell`` module docstring); off, the element has Poisson thickness
-    locking in bending (kept for comparison). ``preintegrate``: each layer's plies
-    pre-integrated onto three points through the thickness where ``solid_shell.thickness_rule``
-    takes that rule (exact in bending, cheaper than a point per ply); off, or where it is not
+    of several plies (``materials.laminate.element_shear_factors``); off, the constant shear
+    strain of the element carries the plies' full shear moduli. ``enhanced_strain``: the
+    enhanced assumed thickness strain (``solid_shell`` module docstring); off, the element has
+    Poisson thickness locking in bending (kept for comparison). ``preintegrate``: each layer's
+    plies pre-integrated onto three points through the thickness where
+    ``solid_shell.thickness_rule`` takes that rule (exact in bending, cheaper than a point per
+    ply); off, or where it is not
     positive definite, ``points_per_ply`` Gauss points in each ply."""
     if kinematics not in solid_shell.KINEMATICS:
         raise ValueError(

@@ -18,7 +18,7 @@ Sections (see demos/*.toml for complete examples and ``config_schema`` for every
   [model]        kind = "esl" | "adaptive" | "layerwise"; thickness_integration =
                  "preintegrated" (default) | "plies"; points_per_ply (1 or 2, default 2);
                  kinematics = "small" (default) | "finite" (total Lagrangian: large rotations;
-                 no ply_damage); ply_damage; shear_correction (default false); enhanced_strain
+                 no ply_damage); ply_damage; shear_correction (default true); enhanced_strain
                  (default true); check_units (default true);
                  max_memory (GB, default 16)
   [mesh]         length, width (mm), nx, ny (cells in-plane); layers = [plies per mesh layer]
@@ -146,7 +146,7 @@ class RunConfig:
     ply_damage: bool = False
     kinematics: Kinematics = Kinematics.SMALL
     # transverse shear correction of the elements (materials.laminate.shear_correction_factors)
-    shear_correction: bool = False
+    shear_correction: bool = True
     # the enhanced assumed thickness strain (element.solid_shell)
     enhanced_strain: bool = True
     # through-thickness rule (element.solid_shell.thickness_rule)

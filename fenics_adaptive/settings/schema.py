@@ -293,9 +293,10 @@ SECTIONS: tuple[Section, ...] = (
             Key(
                 "shear_correction",
                 "bool",
-                "the laminate's transverse shear correction factors on every element "
-                "(from the exact shear distribution of the laminate; false: none)",
-                default=False,
+                "the laminate's transverse shear correction factors on every element of "
+                "several plies (from the exact shear distribution of the laminate; one-ply "
+                "elements keep the plies' moduli; false: none)",
+                default=True,
             ),
             Key(
                 "enhanced_strain",
