@@ -109,6 +109,10 @@ class BlockState:
         n = block.n_owned
         self.block = block
         self.scaled_mass = scaled_mass
+        # DOFs on some rank (the same answer on every rank): a block empty everywhere (the
+        # extra nodes of a model not yet refined) is skipped by the step, its scatters too
+        index_map = block.u.index_map
+        self.live = index_map.size_global > 0
         self.u = block.u.array[:n]
         self.v = block.v.array[:n]
         self.f = block.f.array[:n]

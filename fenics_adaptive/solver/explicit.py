@@ -510,12 +510,15 @@ class ExplicitSolver:
         contact = self.forces.evaluate(s.t, self.blocks)
         mean_dt = 0.5 * (s.dt_prev + s.dt)
         for index, state in enumerate(self.blocks):
-            state.accelerate(contact[index] if contact else None, s.dt, mean_dt)
+            if state.live:
+                state.accelerate(contact[index] if contact else None, s.dt, mean_dt)
 
     def update_work(self) -> None:
         """The work over the step just made (trapezoidal in the forces), this rank's share."""
         s = self.now
         for state in self.blocks:
+            if not state.live:
+                continue
             internal, external = block_work(
                 state.f_old,
                 state.f,
@@ -603,6 +606,8 @@ class ExplicitSolver:
         mean_dt = 0.5 * (s.dt_prev + s.dt)
         damped = self._damped or self._damping_changes < math.inf
         for state in self.blocks:
+            if not state.live:
+                continue
             if damped:
                 s.work_damp += state.damped_velocity(mean_dt)
             # u_n -> u_{n+1}; the prescribed DOFs land exactly on their prescribed values
