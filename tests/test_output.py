@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from fenics_adaptive.adaptivity.indicators import to_material_frame
 from fenics_adaptive.io.output import (
     COLUMN_UNITS,
     HEADER,
@@ -24,6 +25,7 @@ from fenics_adaptive.io.output import (
     read_history,
     write_summary,
 )
+from fenics_adaptive.materials.laminate import element_shear_factors
 from fenics_adaptive.materials.ply_damage import strain_rotation
 from fenics_adaptive.settings.config import parse_config
 from fenics_adaptive.settings.solver import FieldSelection
@@ -252,13 +254,17 @@ def test_displacement_xdmf_holds_the_mesh_once_and_every_time(tmp_path):
 
 
 @pytest.mark.slow
-def test_ply_file_holds_every_ply_as_a_slab_with_its_stress(tmp_path):
+@pytest.mark.parametrize("shear_correction", [False, True])
+def test_ply_file_holds_every_ply_as_a_slab_with_its_stress(tmp_path, shear_correction):
     """A uniform strain on the refined TCB beam: 8 slabs per cell at the plies' heights, and
-    each slab's material-frame stress is C0 T eps of its ply, from whichever subelement holds
-    the ply."""
+    each slab's material-frame stress is T (D C D eps) of its ply, from whichever subelement
+    holds the ply: C its shell-frame stiffness, D = 1 but for the transverse shears, sqrt of
+    the holding subelement's shear correction factors (k_yz, k_xz; 1 without the correction,
+    and the stress is C0 T eps)."""
     data = tomllib.loads((DATA / "tcb_adaptive.toml").read_text())
     data["laminate"]["angles"] = [0, 45, 90, -45, -45, 90, 45, 0]
     data["interfaces"]["symmetry"] = []
+    data["model"]["shear_correction"] = shear_correction
     # the element's strain is then the imposed one exactly: a uniform strain of plies at
     # different angles is not a constant stress, and the enhanced thickness strain would add
     # its condensed part (what the file must show then; indicators' ply strains carry it)
@@ -281,8 +287,20 @@ def test_ply_file_holds_every_ply_as_a_slab_with_its_stress(tmp_path):
     np.testing.assert_allclose(points[:, 4, 2], z[ply], atol=1e-12)
     voigt = np.array([strain[0, 0], strain[1, 1], strain[2, 2], 2 * strain[1, 2],
                       2 * strain[0, 2], 2 * strain[0, 1]])  # fmt: skip
+    _, _, spans = structure.elements()
+    shell_stiffness = structure.laminate.ply_stiffnesses()
     for k, p in enumerate(structure.laminate.plies):
         expected = p.material.stiffness() @ strain_rotation(p.angle) @ voigt
+        first, stop = spans[(spans[:, 0] <= k) & (k < spans[:, 1])][0]
+        k_xz, k_yz = element_shear_factors(structure.laminate, first, stop, shear_correction)
+        if shear_correction:
+            assert stop - first > 1 and k_xz < 1.0  # the case tests something
+        D = np.diag([1.0, 1.0, 1.0, np.sqrt(k_yz), np.sqrt(k_xz), 1.0])
+        shell = D @ shell_stiffness[k] @ D @ voigt
+        rotated = to_material_frame(shell[None, None, :], np.array([p.angle]))[0, 0]
+        if not shear_correction:
+            np.testing.assert_allclose(rotated, expected, rtol=1e-9, atol=1e-9)
+        expected = rotated
         for i, name in enumerate(STRESS_NAMES):
             values = grid["cell"][name][0][ply == k + 1]
             np.testing.assert_allclose(values, expected[i], rtol=1e-9, atol=1e-9)

@@ -144,21 +144,30 @@ def ply_strains(structure) -> np.ndarray:
     return out
 
 
-def ply_stresses(structure, strains: np.ndarray | None = None) -> np.ndarray:
-    """(n_owned_cells, n_plies, 6) shell-frame stress (MPa) at each ply's mid-point, as the
-    element holding the ply carries it: its transverse shear with the element's shear
-    correction (``RuleTable.shear_factors``), sigma_s = D C_s D gamma_s with D = diag(sqrt
-    k_yz, sqrt k_xz), the stress whose work with the strain is the element's energy (a ply's
-    transverse shear does not couple to its other strains)."""
-    strains = ply_strains(structure) if strains is None else strains
-    stiffness = np.array(structure.laminate.ply_stiffnesses())  # (n_plies, 6, 6)
-    scale = np.ones_like(strains)
+def ply_shear_scale(structure) -> np.ndarray:
+    """(n_owned_cells, n_plies, 6) Voigt factors D that give each ply the stress its element
+    carries, sigma = D C (D epsilon): 1 but for the transverse shears, sqrt k_yz and sqrt k_xz
+    of the element holding the ply (its shear correction, ``RuleTable.shear_factors``; the
+    stress whose work with the strain is the element's energy, a ply's transverse shear not
+    coupling to its other strains)."""
+    n_plies = structure.laminate.n_plies
+    scale = np.ones((structure.base.n_owned_cells, n_plies, 6))
     _, cells, plies = structure.elements()
     root = np.sqrt(structure.rule_table.shear_factors(plies))  # (n_elements, 2)
-    for ply in range(strains.shape[1]):
+    for ply in range(n_plies):
         holds = (plies[:, 0] <= ply) & (ply < plies[:, 1])
         scale[cells[holds], ply, 3] = root[holds, 1]  # yz
         scale[cells[holds], ply, 4] = root[holds, 0]  # xz
+    return scale
+
+
+def ply_stresses(structure, strains: np.ndarray | None = None) -> np.ndarray:
+    """(n_owned_cells, n_plies, 6) shell-frame stress (MPa) at each ply's mid-point, as the
+    element holding the ply carries it (its transverse shear with the element's shear
+    correction, ``ply_shear_scale``)."""
+    strains = ply_strains(structure) if strains is None else strains
+    stiffness = np.array(structure.laminate.ply_stiffnesses())  # (n_plies, 6, 6)
+    scale = ply_shear_scale(structure)
     return scale * np.einsum("kij,ckj->cki", stiffness, scale * strains)
 
 

@@ -36,7 +36,12 @@ import dolfinx.io
 import numpy as np
 from mpi4py import MPI
 
-from fenics_adaptive.adaptivity.indicators import ply_failure_indices, ply_strains
+from fenics_adaptive.adaptivity.indicators import (
+    ply_failure_indices,
+    ply_shear_scale,
+    ply_strains,
+    to_material_frame,
+)
 from fenics_adaptive.element.geometry import slab_vertices, thickness_weight
 from fenics_adaptive.errors import InputError, shared_errors
 from fenics_adaptive.materials.ply_damage import S_D, S_FC, S_FT, S_MC, S_MT, nominal_ply_stresses
@@ -484,6 +489,19 @@ class PlyWriter(SeriesWriter):
         if due:
             self.write(t)
 
+    @staticmethod
+    def _ply_stresses(structure, plies, damage: np.ndarray | None) -> np.ndarray:
+        """Material-frame stress (MPa) of every (cell, ply) as its element carries it: the
+        damaged secant stress of the strain, the transverse shears with the element's shear
+        correction (``ply_shear_scale``, applied in the shell frame, where it is defined)."""
+        scale = ply_shear_scale(structure)
+        stress = nominal_ply_stresses(scale * ply_strains(structure), plies, damage)
+        if np.all(scale == 1.0):
+            return stress
+        angles = np.array([p.angle for p in plies])
+        shell = scale * to_material_frame(stress, -angles)  # rotated back into the shell frame
+        return to_material_frame(shell, angles)
+
     def write(self, t: float) -> None:
         s = self.structure
         plies = s.laminate.plies
@@ -508,7 +526,7 @@ class PlyWriter(SeriesWriter):
         connectivity = 8 * np.arange(n)[:, None] + _VTK_HEX[None, :]
         owner = cells[element]
         damage = s.damage_state[:, :, S_D] if s.ply_damage else None
-        stress = nominal_ply_stresses(ply_strains(s), plies, damage)[owner, ply]
+        stress = self._ply_stresses(s, plies, damage)[owner, ply]
         cell_data = {
             "ply": (ply + 1).astype(np.int32),
             "angle": np.array([p.angle for p in plies], dtype=float)[ply],
