@@ -32,6 +32,9 @@ Rows (issue 5's targets in brackets):
 - ``plate``: the impact plate run past its peak force, adaptive against layerwise [wall time
   <= 0.35 x LW, peak contact force within 2 %].
 
+The peer comparison (the same DCB in Akantu 5.0.7, interleaved) is its own script,
+``benchmarks/peer.py``: it needs a second environment with Akantu's wheel, which it makes.
+
 Units: seconds, cells, integration points.
 """
 
