@@ -42,10 +42,11 @@ IM7 = {
 }  # MPa, tonne/mm^3
 
 
-def beam(kind: str, angles, motions, loads=(), length=10.0, nx=20):
-    """A 2 mm wide beam of 0.25 mm IM7 plies, clamped at x = 1, statically solved."""
+def beam(kind: str, angles, motions, loads=(), length=10.0, nx=20, **model):
+    """A 2 mm wide beam of 0.25 mm IM7 plies, clamped at x = 1, statically solved; ``model``:
+    more keys of its [model] table."""
     data = {
-        "model": {"kind": kind, "points_per_ply": 2},
+        "model": {"kind": kind, "points_per_ply": 2, **model},
         "mesh": {"length": length, "width": 2.0, "nx": nx, "ny": 1},
         "materials": copy.deepcopy(IM7),
         "laminate": {"material": "im7", "ply_thickness": 0.25, "angles": list(angles)},
@@ -215,3 +216,21 @@ def test_a_run_refines_from_the_opened_end_of_the_tcb():
         on_arm = motion.face.startswith("x1&")
         reactions = base.reaction[base.block.fixed_motion == motion_index]
         np.testing.assert_array_equal(force[dofs], reactions if on_arm else 0.0)
+
+
+@pytest.mark.parametrize("shear_correction", [True, False])
+def test_the_plies_carry_the_shear_force_the_element_carries(shear_correction):
+    """The ply stresses (``ply_stresses``) of an ESL cantilever under a top pressure q
+    integrate through the thickness to the shear force of equilibrium, V(x) = q b x (free end
+    at x = 0), to 1e-9 at the cell centres: the element carries k G gamma in each ply, and so
+    do they (with the factor left out they summed to V / k, 1.19 V here)."""
+    angles = [0.0, 90.0, 0.0, 90.0, 90.0, 0.0, 90.0, 0.0]
+    load = [{"face": "top", "force": [0.0, 0.0, -10.0], "curve": [[0.0, 1.0]]}]
+    esl = beam("esl", angles, [], load, length=20.0, nx=40, shear_correction=shear_correction)
+    stresses = ind.ply_stresses(esl)
+    thickness = np.full(len(angles), 0.25)
+    x = centres(esl)
+    away = (x > 4.0) & (x < 16.0)  # away from the free end and the clamp
+    shear_force = np.einsum("k,ck->c", thickness, stresses[:, :, 4]) * 2.0  # N, width 2 mm
+    q_b = 10.0 / 20.0  # N/mm: the pressure's resultant per length
+    np.testing.assert_allclose(shear_force[away], q_b * x[away], rtol=1e-9)
