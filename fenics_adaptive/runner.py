@@ -29,7 +29,7 @@ from fenics_adaptive.model.diagnostics import insert_film_area
 from fenics_adaptive.model.structure import Structure
 from fenics_adaptive.settings.config import RunConfig, check_step_count
 from fenics_adaptive.settings.kinds import ModelKind
-from fenics_adaptive.simulation import Simulation, build_structure
+from fenics_adaptive.simulation import Simulation, build_structure, indicator_defaults
 from fenics_adaptive.solver import explicit
 from fenics_adaptive.solver.observers import Observer
 
@@ -194,9 +194,19 @@ def _summary_at_start(config: RunConfig, simulation: Simulation, comm: MPI.Comm)
             if simulation.structure.scaled_mass is None
             else simulation.structure.scaled_mass.report(comm)
         ),
+        "indicators": _indicator_defaults(config, simulation.structure),
         "mpi_ranks": comm.size,
         "versions": versions(),
     }
+
+
+def _indicator_defaults(config: RunConfig, structure: Structure) -> dict | None:
+    """[indicators]' values as the run uses them (``simulation.indicator_defaults``), or None."""
+    if config.indicators is None:
+        return None
+    front, interval = indicator_defaults(config, structure)
+    at = structure.interfaces.delaminate
+    return {"interval_s": interval, "front_distance_mm": {str(i): float(front[i - 1]) for i in at}}
 
 
 def versions() -> dict[str, str]:
@@ -235,6 +245,14 @@ def _announce(
         config.layer_laminates(), config.points_per_ply, config.preintegrate
     ):
         say(line)
+    indicators = summary.get("indicators")
+    if indicators is not None:
+        front = indicators["front_distance_mm"]
+        at = ", ".join(f"{d:.3g} mm at interface {i}" for i, d in front.items() if d > 0)
+        say(
+            f"indicators every {indicators['interval_s']:.3e} s"
+            + (f"; delamination fronts kept refined {at} around" if at else "")
+        )
     scaling = summary.get("mass_scaling")
     if scaling is not None:
         say(

@@ -22,7 +22,13 @@ import numpy as np
 from mpi4py import MPI
 
 from fenics_adaptive.adaptivity.events import RefinementEvent, note, refine
-from fenics_adaptive.adaptivity.indicators import front_requests, indicator_requests, spread
+from fenics_adaptive.adaptivity.indicators import (
+    default_interval,
+    front_distances,
+    front_requests,
+    indicator_requests,
+    spread,
+)
 from fenics_adaptive.adaptivity.refinement import Request
 from fenics_adaptive.errors import InputError, shared_errors
 from fenics_adaptive.meshes.beam import layered_mesh
@@ -179,6 +185,16 @@ def insert_films(structure: Structure, films: Iterable[Delamination]) -> None:
         cohesive.delaminate(np.flatnonzero(at))
 
 
+def indicator_defaults(config: RunConfig, structure: Structure) -> tuple[np.ndarray, float]:
+    """The [indicators] values that depend on the model, the config's where given: the front
+    distance per interface (mm, ``indicators.front_distances``) and the interval between
+    evaluations (s, ``indicators.default_interval``)."""
+    settings = config.indicators
+    front = front_distances(structure, config.cohesive, settings.front_distance)
+    interval = settings.interval
+    return front, default_interval(structure) if interval is None else interval
+
+
 class RefinementHook:
     """The solver's refiner (``ExplicitSolver(refiner=...)``): the config's manual
     [[refinement]] entries and its [indicators]; returns the ``RefinementEvent`` of a
@@ -196,9 +212,16 @@ class RefinementHook:
         self.probe_dofs: np.ndarray | None = None
         cohesive = config.cohesive
         self.strengths = (cohesive.N, cohesive.S) if cohesive is not None else None
+        # the indicators' defaults that depend on the model, set at their first evaluation
+        self.front: np.ndarray | None = None  # mm per interface (indicators.front_distances)
+        self.interval: float | None = None  # s (indicators.default_interval)
         # N, the forces from outside on the base DOFs besides the face loads (reactions,
         # contact) at the time of the call: the solver's, set by ``Simulation``
         self.face_force: Callable[[], np.ndarray] | None = None
+
+    def _resolve(self, structure: Structure) -> None:
+        if self.front is None:
+            self.front, self.interval = indicator_defaults(self.config, structure)
 
     @property
     def active(self) -> bool:
@@ -253,17 +276,18 @@ class RefinementHook:
             requests += asked
         evaluate = settings is not None and t >= self.next_check
         if evaluate:
+            self._resolve(structure)
             face_force = self.face_force() if self.face_force is not None else None
             requests += indicator_requests(
                 structure, settings, self.strengths, t, reasons, face_force
             )
-            self.next_check = t + settings.interval
+            self.next_check = t + self.interval
             if settings.spread:
                 around = spread(structure, requests, settings.spread)
                 note(reasons, around, "spread")
                 requests += around
-            if settings.front:
-                requests += front_requests(structure, settings.front, reasons)
+            if self.front.any():
+                requests += front_requests(structure, self.front, reasons)
         python_due = np.flatnonzero(self.python_next <= t)  # the same on every rank
         for k in python_due:
             indicator = self.python[k]

@@ -490,7 +490,7 @@ def test_schema_defaults_are_the_dataclass_defaults():
     for name in ("safety_factor", "mass_damping", "max_steps", "energy_error_limit"):
         assert section("solver").key(name).default == getattr(solver, name), name
     indicators = IndicatorSettings(interval=1.0)
-    for name in ("spread", "front", "matrix_damage"):
+    for name in ("spread", "front_distance", "matrix_damage"):
         assert section("indicators").key(name).default == getattr(indicators, name), name
     for name in ("damping", "damping_window", "release_window"):
         assert section("stabilisation").key(name).default == getattr(Stabilisation(), name)

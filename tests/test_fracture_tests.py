@@ -28,6 +28,7 @@ from fenics_adaptive.analysis.lefm import (
 )
 from fenics_adaptive.analysis.studies import dcb_quick, enf_quick, fracture_variant
 from fenics_adaptive.io.output import read_history
+from fenics_adaptive.io.refinement_log import read_log
 from fenics_adaptive.runner import run_config
 from fenics_adaptive.settings.config import parse_config
 from fenics_adaptive.simulation import build_structure
@@ -134,6 +135,32 @@ def test_the_adaptive_dcb_refined_from_the_start_is_the_layerwise_one(quick_base
     assert grown > 0.0
     a, b = forces["adaptive"], forces["layerwise"]
     assert np.abs(a - b).max() <= 1e-6 * np.abs(b).max()
+
+
+@pytest.mark.slow
+def test_the_dcb_refined_by_the_indicators_at_their_defaults_meets_the_theory(quick_base, tmp_path):
+    """ESL but for the film, ``[indicators]`` empty: the front is kept refined the process
+    zone (Turon's M E2 G_c / tau0^2, M = 1, the longer mode: 10.85 mm) plus two arm
+    thicknesses ahead of every started delamination, and the run meets the demo's targets as
+    the layerwise model does (the border constraint never holds the process zone)."""
+    config = parse_config(fracture_variant(quick_base, "automatic"))
+    law = config.cohesive
+    front = 10100.0 * max(law.GIc / law.N**2, law.GIIc / law.S**2) + 2 * 1.56
+    summary = run_config(config, tmp_path, show_progress=False, log=None)
+    assert summary["indicators"]["front_distance_mm"]["4"] == pytest.approx(front, rel=1e-12)
+    comparison = dcb_comparison(config, read_history(tmp_path / "history.csv"))
+    missed = demo_module().failures(comparison)
+    assert not missed, (missed, comparison)
+    assert comparison["crack_length_range_mm"][1] > comparison["a0_mm"] + 12.0
+    log = read_log(tmp_path / "refinement_log.csv", np.inf)  # (t, cell, x, y, i, state, why, value)
+    by_front = [row for row in log if row[6] == "front"]
+    assert {row[6] for row in log} == {"initial", "front"}
+    assert all(row[7] <= front for row in by_front)
+    # at t = 0 the cells within the distance of the film's first cell (x = 25.5 mm)
+    film_tip = config.delaminations[0].region.x_min + 0.5
+    at_start = sorted({row[2] for row in by_front if row[0] == 0.0})
+    expected = [x for x in np.arange(0.5, film_tip, 1.0) if film_tip - x <= front]
+    assert at_start == pytest.approx(expected, abs=1e-6)
 
 
 @pytest.mark.slow

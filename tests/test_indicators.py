@@ -11,6 +11,7 @@ from mpi4py import MPI
 
 from fenics_adaptive.adaptivity import indicators as ind
 from fenics_adaptive.adaptivity.events import Reason
+from fenics_adaptive.errors import InputError
 from fenics_adaptive.materials.laminate import Laminate, PlyMaterial
 from fenics_adaptive.model import loading
 from fenics_adaptive.model.forms import build_model
@@ -125,18 +126,72 @@ def test_spread_reaches_the_neighbours_once_per_ring():
 
 def test_front_keeps_a_started_delamination_inside_the_refined_region():
     """A cohesive element that has started to fail asks for strong refinement of the cells
-    within ``front`` rings, at its interface only; undamaged ones ask for nothing."""
+    whose centroid lies within the front distance of its cell's, at its interface only;
+    undamaged ones ask for nothing, nor do cells already strong; each request notes its
+    distance."""
     structure = build_structure(parse_config(tcb()))
     x = structure.X_base[structure.bottom_local][:, :, 0].mean(axis=1)
     middle = int(np.argmin(np.abs(x - 5.25)))
     structure.refine(
         [(c, 2, InterfaceState.STRONG) for c in np.flatnonzero(np.abs(x - 5.25) < 0.3)]
     )
-    assert ind.front_requests(structure, 2) == []
+    distances = np.array([0.0, 1.01, 0.0, 0.0, 0.0, 0.0, 0.0])  # mm, interface 2 only
+    assert ind.front_requests(structure, distances) == []
     structure.cohesive.damage[structure.damage_rows[(middle, 2)], 1] = 0.01
-    requests = ind.front_requests(structure, 2)
-    assert sorted(np.round(x[[c for c, _, _ in requests]], 6)) == [4.25, 4.75, 5.25, 5.75, 6.25]
+    reasons = {}
+    requests = ind.front_requests(structure, distances, reasons)
+    assert sorted(np.round(x[[c for c, _, _ in requests]], 6)) == [4.25, 4.75, 5.75, 6.25]
     assert {(i, k) for _, i, k in requests} == {(2, InterfaceState.STRONG)}
+    for cell, interface, kind in requests:
+        assert reasons[(cell, interface, kind)].indicator == "front"
+        assert reasons[(cell, interface, kind)].value == pytest.approx(abs(x[cell] - 5.25))
+    distances[1] = 0.99
+    assert sorted(np.round(x[[c for c, _, _ in ind.front_requests(structure, distances)]], 6)) == [
+        4.75,
+        5.75,
+    ]
+
+
+def test_front_distance_is_the_process_zone_plus_two_sublaminates():
+    """By default an interface keeps M E2 G_c / tau0^2 (Turon et al. 2007, M = 1, the longer
+    of the two modes) plus twice its thicker sublaminate refined around a started
+    delamination; a distance given in the config is every delaminable interface's."""
+    config = parse_config(tcb())
+    structure = build_structure(config)
+    law = config.cohesive
+    zone = 10000.0 * max(law.GIc / law.N**2, law.GIIc / law.S**2)  # E2 = 10 GPa
+    # interfaces 2 and 6 delaminate: interface 2 splits plies 1-2 from 3-6 (4 x 0.256 mm)
+    expected = np.zeros(7)
+    expected[[1, 5]] = zone + 2.0 * 4 * 0.256
+    assert ind.front_distances(structure, law) == pytest.approx(expected, rel=1e-12)
+    assert ind.front_distances(structure, law, 3.0) == pytest.approx(3.0 * (expected > 0))
+    thick = ind.sublaminate_thicknesses(structure.laminate, (2, 6))
+    assert thick == pytest.approx(0.256 * np.array([1, 4, 3, 2, 3, 4, 1]))
+
+
+def test_indicators_run_as_often_as_a_front_could_cross_its_band():
+    """By default every 2 h / sqrt(G12 / rho): the time a shear wave (faster than any
+    delamination front) takes to cross the band kept refined ahead of a process zone at the
+    interface where it is narrowest; a config's interval is kept. TCB: interfaces 2, 4, 6
+    may refine, so every sublaminate is two plies."""
+    from fenics_adaptive.simulation import indicator_defaults
+
+    config = parse_config(tcb(indicators={"interface_stress": 0.9}))
+    structure = build_structure(config)
+    material = config.laminate.plies[0].material
+    expected = 2 * 2 * 0.256 / np.sqrt(material.G12 / material.rho)
+    assert ind.default_interval(structure) == pytest.approx(expected, rel=1e-12)
+    front, interval = indicator_defaults(config, structure)
+    assert interval == pytest.approx(expected, rel=1e-12)
+    assert front == pytest.approx(ind.front_distances(structure, config.cohesive))
+    config = parse_config(tcb(indicators={"interface_stress": 0.9, "interval": 1e-6}))
+    assert indicator_defaults(config, structure)[1] == 1e-6
+
+
+def test_front_rings_are_refused_with_what_replaced_them():
+    data = tcb(indicators={"interval": 1e-6, "interface_stress": 0.9, "front": 2})
+    with pytest.raises(InputError, match=r"indicators\.front: no longer a key: .*front_distance"):
+        parse_config(data)
 
 
 def failure_cantilever(ply_damage: bool):

@@ -29,6 +29,8 @@ undone.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from dolfinx import la
 from mpi4py import MPI
@@ -37,6 +39,7 @@ from numba import njit
 from fenics_adaptive.adaptivity.events import Reasons, note
 from fenics_adaptive.element.geometry import quad_areas
 from fenics_adaptive.element.subelement import enhanced_parameter_maps, gather_nodes
+from fenics_adaptive.materials.cohesive import cohesive_zone_length
 from fenics_adaptive.materials.laminate import rotation_about_z
 from fenics_adaptive.materials.ply_damage import S_D, S_FT, S_MC, hashin_indices
 from fenics_adaptive.settings.adaptivity import IndicatorSettings
@@ -426,20 +429,119 @@ def indicator_requests(
     return requests
 
 
+def sublaminate_thicknesses(laminate, delaminate: tuple[int, ...]) -> np.ndarray:
+    """(n_plies - 1,) mm: at each ply interface, the thicker of the two sublaminates it
+    separates once every interface in ``delaminate`` (1-based) has split: the plies up to the
+    next delaminable interface (or face) below and above."""
+    t = np.array([p.thickness for p in laminate.plies])
+    z = np.concatenate([[0.0], np.cumsum(t)])
+    bounds = np.array(sorted({0, len(t), *delaminate}))
+    out = np.zeros(len(t) - 1)
+    for interface in range(1, len(t)):
+        below = bounds[bounds < interface].max()
+        above = bounds[bounds > interface].min()
+        out[interface - 1] = max(z[interface] - z[below], z[above] - z[interface])
+    return out
+
+
+def front_distances(structure, law, distance: float | None = None) -> np.ndarray:
+    """(n_plies - 1,) mm: how far around a started delamination each interface refines
+    strongly (``front_requests``); 0 where the interface may not delaminate. ``distance``: the
+    user's, or None for each interface's own: the length of its process zone when fully grown
+    (``cohesive.cohesive_zone_length`` of ``law``, with the larger transverse modulus of the
+    two plies it joins) plus two thicknesses of the thicker sublaminate it separates. The zone
+    then develops inside the refined region, and ahead of it the band where the peel and shear
+    stresses of the bonded part decay (over a few sublaminate thicknesses: a beam on an elastic
+    foundation) is refined as well, so that the border constraint, which holds the interface
+    to the unrefined neighbour's kinematics, acts on neither."""
+    plies = structure.laminate.plies
+    out = np.zeros(len(plies) - 1)
+    delaminate = tuple(structure.interfaces.delaminate)
+    if distance is not None:
+        out[[i - 1 for i in delaminate]] = distance
+        return out
+    sublaminate = sublaminate_thicknesses(structure.laminate, delaminate)
+    for i in delaminate:
+        modulus = max(plies[i - 1].material.E2, plies[i].material.E2)
+        out[i - 1] = cohesive_zone_length(law, modulus) + 2.0 * sublaminate[i - 1]
+    return out
+
+
+def default_interval(structure) -> float:
+    """Time (s) between indicator evaluations when the config gives none: the time a shear
+    wave, sqrt(G12 / rho) of the slowest ply, takes to cross the narrowest band that
+    ``front_distances`` keeps refined ahead of a process zone (two thicknesses of the thicker
+    sublaminate at an interface that may refine). No delamination front runs faster than that
+    wave, so between two evaluations a front cannot cross the band."""
+    plies = structure.laminate.plies
+    interfaces = sorted(set(structure.interfaces.refine) | set(structure.interfaces.delaminate))
+    if interfaces:
+        thick = sublaminate_thicknesses(structure.laminate, tuple(interfaces))
+        band = 2.0 * min(thick[i - 1] for i in interfaces)
+    else:
+        band = 2.0 * structure.laminate.thickness
+    speed = min(math.sqrt(p.material.G12 / p.material.rho) for p in plies)
+    return band / speed
+
+
+@njit(cache=True)
+def _nearest_within(points, sources, reach, out):
+    """out[k]: distance from points[k] to the nearest of ``sources`` (sorted by x), inf if none
+    lies within ``reach``: only the sources whose x lies within reach are measured."""
+    n = sources.shape[0]
+    for k in range(points.shape[0]):
+        x = points[k, 0]
+        lo, hi = 0, n
+        while lo < hi:  # first source with x >= x - reach
+            mid = (lo + hi) // 2
+            if sources[mid, 0] < x - reach:
+                lo = mid + 1
+            else:
+                hi = mid
+        best = np.inf
+        j = lo
+        while j < n and sources[j, 0] <= x + reach:
+            d = np.sqrt(
+                (sources[j, 0] - x) ** 2
+                + (sources[j, 1] - points[k, 1]) ** 2
+                + (sources[j, 2] - points[k, 2]) ** 2
+            )
+            if d < best:
+                best = d
+            j += 1
+        out[k] = best if best <= reach else np.inf
+
+
 def front_requests(
-    structure, rings: int, reasons: Reasons | None = None
+    structure, distances: np.ndarray, reasons: Reasons | None = None
 ) -> list[tuple[int, int, int]]:
-    """Collective: strong refinements that keep every started delamination ``rings`` cells
-    inside the refined region: the cells whose cohesive element at an interface has damage > 0,
-    spread by ``rings`` (noted in ``reasons``, when given, as ``front``)."""
+    """Collective: strong refinements that keep every started delamination inside the refined
+    region: at each interface i, the cells whose centroid lies within ``distances[i - 1]``
+    (mm, ``front_distances``) of the centroid of a cell whose cohesive element there has
+    damage > 0 (on any rank), not yet strong there. Noted in ``reasons``, when given, as
+    ``front`` with the distance (mm) to the nearest such cell."""
     damage = structure.cohesive.damage
-    started = [
-        (cell, interface, InterfaceState.STRONG)
-        for (cell, interface), row in structure.damage_rows.items()
-        if damage[row].max() > 0.0
-    ]
-    requests = spread(structure, started, rings)
-    note(reasons, requests, "front")
+    state = structure.interface_state
+    centroids = structure.cell_vertices().mean(axis=1)
+    started = {}
+    for (cell, interface), row in structure.damage_rows.items():
+        if distances[interface - 1] > 0.0 and damage[row].max() > 0.0:
+            started.setdefault(interface, []).append(cell)
+    # every rank takes part, whatever it holds: the interfaces in order, one gather each
+    everywhere = structure.comm.allgather(sorted(started))
+    requests = []
+    for interface in sorted(set().union(*everywhere)):
+        local = centroids[started.get(interface, [])].reshape(-1, 3)
+        sources = np.vstack(structure.comm.allgather(local))
+        sources = np.ascontiguousarray(sources[np.argsort(sources[:, 0], kind="stable")])
+        nearest = np.empty(len(centroids))
+        _nearest_within(centroids, sources, distances[interface - 1], nearest)
+        todo = np.flatnonzero(
+            np.isfinite(nearest) & (state[:, interface - 1] < InterfaceState.STRONG)
+        )
+        asked = [(int(c), interface, InterfaceState.STRONG) for c in todo]
+        note(reasons, asked, "front", nearest[todo])
+        requests += asked
     return requests
 
 

@@ -148,17 +148,22 @@ def fracture_variant(base: dict, name: str) -> dict:
     Parameters:
         base: the specimen's config as a TOML table (``demos/fracture_tests.toml``, the DCB,
             or ``demos/fracture_tests_enf.toml``, the ENF).
-        name: ``layerwise`` (``base`` as it is) or ``adaptive`` (one cell through the
-            thickness, refined strongly from the start at the delaminating interfaces).
+        name: ``layerwise`` (``base`` as it is), ``adaptive`` (one cell through the
+            thickness, refined strongly from the start at the delaminating interfaces) or
+            ``automatic`` (one cell through the thickness, refined by the indicators at their
+            defaults: only the films' cells strong at the start).
 
     Returns:
         A new config table.
     """
     data = copy.deepcopy(base)
-    if name == "adaptive":
+    if name in ("adaptive", "automatic"):
         data["model"]["kind"] = "adaptive"
         del data["mesh"]["layers"]
+    if name == "adaptive":
         data["interfaces"]["initial"] = "strong"
+    if name == "automatic":
+        data["indicators"] = {}
     return data
 
 

@@ -111,6 +111,20 @@ def critical_energy(law: CohesiveLaw, mixity: float) -> float:
     return (((1.0 - mixity) / law.GIc) ** a + (mixity / law.GIIc) ** a) ** (-1.0 / a)
 
 
+def cohesive_zone_length(law: CohesiveLaw, transverse_modulus: float, M: float = 1.0) -> float:
+    """Length (mm) of a fully developed process zone of ``law`` in a body of transverse (through-
+    thickness) modulus ``transverse_modulus`` (MPa): Turon et al. (2007, Eng. Fract. Mech. 74,
+    1665), l_cz = M E G_c / tau0^2, the longer of mode I (GIc, N) and mode II (GIIc, S), since a
+    delamination's mode is not known before it grows. M = 1 is Hillerborg's estimate; the
+    zone of a slender arm is shorter (Yang and Cox 2005), so this length errs on the long side.
+    """
+    if transverse_modulus <= 0.0 or M <= 0.0:
+        raise ValueError(f"modulus and M must be > 0 (got {transverse_modulus}, {M})")
+    mode_i = law.GIc / law.N**2
+    mode_ii = law.GIIc / law.S**2
+    return M * transverse_modulus * max(mode_i, mode_ii)
+
+
 @njit(cache=True)
 def _law(d1, d2, d3, params, damage_old):
     """Scalar kernel: returns (t1, t2, t3, damage_new, stored_energy_density)."""

@@ -65,22 +65,27 @@ class Stabilisation:
 
 @dataclass(frozen=True)
 class IndicatorSettings:
-    """Which indicators run, every ``interval`` seconds: fractions of 1 for the ply failure
+    """Which indicators run, every ``interval`` seconds (None, the default: the time a shear
+    wave takes to cross the band refined ahead of a front, ``indicators.default_interval``):
+    fractions of 1 for the ply failure
     index (weak) and the interface initiation criterion (strong), matrix damage (strong), how
     many rings of neighbours refine with a flagged cell, and ``strong_after``: a delaminable
     interface refined weakly turns strong that long after (the paper's four-point bending:
-    damping for 0.2 ms after the weak refinement, then the strong one). ``front``: the
-    delamination front stays inside the refined region: the cells within that many rings of a
-    cell whose cohesive element has started to fail refine strongly at that interface (the
-    stress recovery of the unrefined cells ahead of a front does not see its stress peak)."""
+    damping for 0.2 ms after the weak refinement, then the strong one). ``front_distance``
+    (mm): the delamination front stays inside the refined region: the cells whose centroid
+    lies within that distance of the centroid of a cell whose cohesive element has started to
+    fail refine strongly at that interface, so that the border constraint of the refined
+    region never holds the process zone or the stress peak ahead of it. None (the default):
+    each interface's own, the process zone length plus two sublaminate thicknesses
+    (``indicators.front_distances``); 0: none."""
 
-    interval: float
+    interval: float | None = None  # s
     ply_failure: float | None = None
     interface_stress: float | None = None
     matrix_damage: bool = False
     spread: int = 0
     strong_after: float | None = None  # s: a weak delaminable interface turns strong this late
-    front: int = 0  # rings refined strongly around cohesive elements that have started to fail
+    front_distance: float | None = None  # mm, around cohesive elements that have started to fail
 
 
 @dataclass(frozen=True)

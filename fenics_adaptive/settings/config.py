@@ -276,6 +276,9 @@ class _Table:
     def __init__(self, path: str, data: Any, schema: Section, reading: _Reading):
         _expect(data, dict, path, "a table", shown=_type_name)
         for name in data:
+            if name in schema.retired:
+                retired = schema.retired[name]
+                raise InputError(f"{path}.{_name(name)}", f"no longer a key: {retired}")
             if name not in schema.by_name:
                 raise InputError(
                     f"{path}.{_name(name)}", f"unknown key (allowed: {', '.join(schema.names)})"
@@ -1428,11 +1431,11 @@ def _indicators(root: _Root, kind: ModelKind, interfaces: Interfaces) -> Indicat
         matrix_damage=table.boolean("matrix_damage"),
         spread=table.integer("spread"),
         strong_after=table.number("strong_after"),
-        front=table.integer("front"),
+        front_distance=table.number("front_distance"),
     )
     if not interfaces.delaminate:
         for name, used in (
-            (IndicatorKind.FRONT, settings.front),
+            ("front_distance", bool(settings.front_distance)),
             (IndicatorKind.STRONG_AFTER, settings.strong_after is not None),
             (IndicatorKind.INTERFACE_STRESS, settings.interface_stress is not None),
             (IndicatorKind.MATRIX_DAMAGE, settings.matrix_damage),
@@ -1441,12 +1444,18 @@ def _indicators(root: _Root, kind: ModelKind, interfaces: Interfaces) -> Indicat
                 raise InputError(
                     f"indicators.{name}", "no interface may delaminate ([interfaces] delaminate)"
                 )
+    front = bool(interfaces.delaminate) and settings.front_distance != 0.0
     if (
         settings.ply_failure is None
         and settings.interface_stress is None
         and not settings.matrix_damage
+        and not front
     ):
-        raise InputError("indicators", "switch on at least one indicator")
+        raise InputError(
+            "indicators",
+            "switch on at least one indicator (ply_failure, interface_stress, matrix_damage, "
+            "or the front of a delaminable interface)",
+        )
     return settings
 
 

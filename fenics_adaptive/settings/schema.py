@@ -27,6 +27,7 @@ off says so where every reader of the file looks first.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 from fenics_adaptive.settings.kinds import (
@@ -144,13 +145,15 @@ class Key:
 @dataclass(frozen=True)
 class Section:
     """A TOML table (``[name]``) or array of tables (``[[name]]``, ``array=True``). ``NAME`` in a
-    name stands for a name the user chooses (a material)."""
+    name stands for a name the user chooses (a material). ``retired``: keys of earlier versions,
+    each with what replaced it (the error that refuses them says so)."""
 
     name: str
     description: str
     keys: tuple[Key, ...]
     array: bool = False
     required: bool = False
+    retired: Mapping[str, str] = field(default_factory=dict)  # former key -> what replaced it
     by_name: dict[str, Key] = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
@@ -891,7 +894,16 @@ SECTIONS: tuple[Section, ...] = (
         "indicators",
         "adaptive: automatic refinement",
         (
-            Key("interval", "float", "time between evaluations", "s", REQUIRED, 0.0, open_min=True),
+            Key(
+                "interval",
+                "float",
+                "time between evaluations (default: a shear wave's time across the band "
+                "refined ahead of a front)",
+                "s",
+                OPTIONAL,
+                0.0,
+                open_min=True,
+            ),
             Key(
                 "ply_failure",
                 "float",
@@ -925,15 +937,20 @@ SECTIONS: tuple[Section, ...] = (
             ),
             _time("strong_after", "weak turns strong this long after", OPTIONAL, positive=False),
             Key(
-                "front",
-                "int",
-                "rings kept refined around a started delamination",
-                "",
-                0,
-                0,
-                MAX_RINGS,
+                "front_distance",
+                "float",
+                "kept refined around a started delamination "
+                "(default: the process zone length plus two sublaminate thicknesses; 0: none)",
+                "mm",
+                OPTIONAL,
+                0.0,
+                MAX_LENGTH,
             ),
         ),
+        retired={
+            "front": "rings of cells are now front_distance in mm (by default the interface's "
+            "process zone length plus two sublaminate thicknesses)"
+        },
     ),
     Section(
         "impactor",
