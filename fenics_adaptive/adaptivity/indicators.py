@@ -71,41 +71,47 @@ def _ply_center_strains(
     """Small strain (Voigt, engineering shears) at the in-plane centre of every ply of every
     element, at the ply's mid-thickness, into out[cell, ply]; with the element's enhanced
     thickness strain alpha_center[e] g(zeta) / |det J| (``alpha_center``: its parameter at the
-    in-plane centre)."""
+    in-plane centre).
+
+    On the element's axis (xi = eta = 1/2) the trilinear shape functions' in-plane derivatives
+    are (1 - zeta) times the bottom face's plus zeta times the top face's, and the thickness
+    derivative does not depend on zeta: the Jacobian and the displacement gradient (in the
+    element's coordinates) are formed once per element, as a bottom, a top and a normal part,
+    and combined per ply."""
     n_base = X_base.shape[0]
     X = np.empty((8, 3))
     u = np.empty((8, 3))
-    dN = np.empty((8, 3))
+    parts = np.empty((2, 3, 5))  # (X, u), component, (d_xi bottom, top, d_eta bottom, top, d_zeta)
     J = np.empty((3, 3))
     G = np.empty((3, 3))
     Jinv = np.empty((3, 3))
     grad = np.empty((3, 3))
-    point = np.empty(3)
-    v = np.empty(3)
-    s = np.empty(3)
     for e in range(nodes.shape[0]):
         gather_nodes(nodes[e], n_base, X_base, X_extra, X)
         gather_nodes(nodes[e], n_base, u_base, u_extra, u)
-        first, stop = plies[e, 0], plies[e, 1]
-        bottom, top = fractions[first], fractions[stop]
-        for k in range(first, stop):
-            zeta = (0.5 * (fractions[k] + fractions[k + 1]) - bottom) / (top - bottom)
-            point[0], point[1], point[2] = 0.5, 0.5, zeta
-            for a in range(8):
-                for d in range(3):
-                    corner = (a >> d) & 1
-                    v[d] = point[d] if corner == 1 else 1.0 - point[d]
-                    s[d] = 1.0 if corner == 1 else -1.0
-                dN[a, 0] = s[0] * v[1] * v[2]
-                dN[a, 1] = v[0] * s[1] * v[2]
-                dN[a, 2] = v[0] * v[1] * s[2]
+        parts[:] = 0.0
+        for a in range(8):
+            s_xi = 1.0 if a & 1 else -1.0
+            s_eta = 1.0 if (a >> 1) & 1 else -1.0
+            top = (a >> 2) & 1
+            s_zeta = 1.0 if top else -1.0
             for i in range(3):
-                for r in range(3):
-                    J[i, r] = 0.0
-                    G[i, r] = 0.0
-                    for a in range(8):
-                        J[i, r] += X[a, i] * dN[a, r]
-                        G[i, r] += u[a, i] * dN[a, r]
+                for f in range(2):
+                    value = X[a, i] if f == 0 else u[a, i]
+                    parts[f, i, top] += 0.5 * s_xi * value
+                    parts[f, i, 2 + top] += 0.5 * s_eta * value
+                    parts[f, i, 4] += 0.25 * s_zeta * value
+        first, stop = plies[e, 0], plies[e, 1]
+        bottom, top_f = fractions[first], fractions[stop]
+        for k in range(first, stop):
+            zeta = (0.5 * (fractions[k] + fractions[k + 1]) - bottom) / (top_f - bottom)
+            for i in range(3):
+                J[i, 0] = (1.0 - zeta) * parts[0, i, 0] + zeta * parts[0, i, 1]
+                J[i, 1] = (1.0 - zeta) * parts[0, i, 2] + zeta * parts[0, i, 3]
+                J[i, 2] = parts[0, i, 4]
+                G[i, 0] = (1.0 - zeta) * parts[1, i, 0] + zeta * parts[1, i, 1]
+                G[i, 1] = (1.0 - zeta) * parts[1, i, 2] + zeta * parts[1, i, 3]
+                G[i, 2] = parts[1, i, 4]
             _inverse_3x3(J, Jinv)
             det = (
                 J[0, 0] * (J[1, 1] * J[2, 2] - J[1, 2] * J[2, 1])
@@ -115,12 +121,41 @@ def _ply_center_strains(
             for i in range(3):
                 for r in range(3):
                     grad[i, r] = G[i, 0] * Jinv[0, r] + G[i, 1] * Jinv[1, r] + G[i, 2] * Jinv[2, r]
-            out[cells[e], k, 0] = grad[0, 0]
-            out[cells[e], k, 1] = grad[1, 1]
-            out[cells[e], k, 2] = grad[2, 2] + alpha_center[e] * (zeta - 0.5) / abs(det)
-            out[cells[e], k, 3] = grad[1, 2] + grad[2, 1]
-            out[cells[e], k, 4] = grad[0, 2] + grad[2, 0]
-            out[cells[e], k, 5] = grad[0, 1] + grad[1, 0]
+            c = cells[e]
+            out[c, k, 0] = grad[0, 0]
+            out[c, k, 1] = grad[1, 1]
+            out[c, k, 2] = grad[2, 2] + alpha_center[e] * (zeta - 0.5) / abs(det)
+            out[c, k, 3] = grad[1, 2] + grad[2, 1]
+            out[c, k, 4] = grad[0, 2] + grad[2, 0]
+            out[c, k, 5] = grad[0, 1] + grad[1, 0]
+
+
+@njit(cache=True)
+def _ply_stress(stiffness, scale, strains, out):
+    """out[c, k] = D C_k (D strains[c, k]), D = diag(scale[c, k]) (``ply_stresses``)."""
+    scaled = np.empty(6)
+    for c in range(strains.shape[0]):
+        for k in range(strains.shape[1]):
+            for j in range(6):
+                scaled[j] = scale[c, k, j] * strains[c, k, j]
+            for i in range(6):
+                total = 0.0
+                for j in range(6):
+                    total += stiffness[k, i, j] * scaled[j]
+                out[c, k, i] = scale[c, k, i] * total
+
+
+@njit(cache=True)
+def _sum_at_corners(corners, values, table):
+    """table[node, :m] += values[cell] and table[node, m] += 1 for every node of every cell
+    (``corners``: (n_cells, 4) local node numbers; table: (n_nodes, m + 1))."""
+    m = values.shape[1]
+    for c in range(corners.shape[0]):
+        for a in range(corners.shape[1]):
+            node = corners[c, a]
+            for j in range(m):
+                table[node, j] += values[c, j]
+            table[node, m] += 1.0
 
 
 def ply_strains(structure) -> np.ndarray:
@@ -171,7 +206,9 @@ def ply_stresses(structure, strains: np.ndarray | None = None) -> np.ndarray:
     strains = ply_strains(structure) if strains is None else strains
     stiffness = np.array(structure.laminate.ply_stiffnesses())  # (n_plies, 6, 6)
     scale = ply_shear_scale(structure)
-    return scale * np.einsum("kij,ckj->cki", stiffness, scale * strains)
+    out = np.empty_like(strains)
+    _ply_stress(stiffness, scale, strains, out)
+    return out
 
 
 def to_material_frame(stresses: np.ndarray, angles_deg: np.ndarray) -> np.ndarray:
@@ -222,8 +259,7 @@ def _column_average(structure, values: np.ndarray) -> np.ndarray:
     index_map = structure.base.V.dofmap.index_map
     sums = la.vector(index_map, bs=m + 1)
     table = sums.array.reshape(-1, m + 1)
-    np.add.at(table[:, :m], structure.bottom_local.ravel(), np.repeat(values, 4, axis=0))
-    np.add.at(table[:, m], structure.bottom_local.ravel(), 1.0)
+    _sum_at_corners(structure.bottom_local, np.ascontiguousarray(values), table)
     sums.scatter_reverse(la.InsertMode.add)
     sums.scatter_forward()
     averages = table[:, :m] / np.maximum(table[:, m:], 1.0)

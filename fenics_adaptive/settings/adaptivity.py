@@ -63,6 +63,14 @@ class Stabilisation:
         return self.damping > 0.0 and self.damping_window > 0.0
 
 
+# [indicators] interface_stress where an interface may delaminate and the config is silent:
+# strong refinement once the estimated interlaminar stress reaches 90 % of the cohesive
+# initiation criterion, so that the cohesive elements are in place before their traction
+# reaches the strength (between two evaluations the stress may rise further; a cell refined
+# above its strength would open at once)
+DEFAULT_INTERFACE_STRESS = 0.9
+
+
 @dataclass(frozen=True)
 class IndicatorSettings:
     """Which indicators run, every ``interval`` seconds (None, the default: the time a shear

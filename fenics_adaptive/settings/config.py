@@ -61,6 +61,7 @@ from typing import Any
 from fenics_adaptive.errors import InputError
 from fenics_adaptive.materials.laminate import Laminate, Ply, PlyMaterial
 from fenics_adaptive.settings.adaptivity import (
+    DEFAULT_INTERFACE_STRESS,
     Delamination,
     IndicatorSettings,
     Interfaces,
@@ -1417,6 +1418,14 @@ def _stabilisation(root: _Root, kind: ModelKind) -> Stabilisation:
     return Stabilisation(damping, window, release)
 
 
+def _interface_stress(given: float | None, interfaces: Interfaces) -> float | None:
+    """[indicators] interface_stress as the run uses it: the given fraction, off for 0, and
+    ``DEFAULT_INTERFACE_STRESS`` where it is not given and an interface may delaminate."""
+    if given is None:
+        return DEFAULT_INTERFACE_STRESS if interfaces.delaminate else None
+    return given if given > 0.0 else None
+
+
 def _indicators(root: _Root, kind: ModelKind, interfaces: Interfaces) -> IndicatorSettings | None:
     """[indicators] of an adaptive model: which refinement indicators run, and how often."""
     table = root.table("indicators")
@@ -1427,7 +1436,7 @@ def _indicators(root: _Root, kind: ModelKind, interfaces: Interfaces) -> Indicat
     settings = IndicatorSettings(
         interval=table.number("interval"),
         ply_failure=table.number("ply_failure"),
-        interface_stress=table.number("interface_stress"),
+        interface_stress=_interface_stress(table.number("interface_stress"), interfaces),
         matrix_damage=table.boolean("matrix_damage"),
         spread=table.integer("spread"),
         strong_after=table.number("strong_after"),
@@ -1435,7 +1444,7 @@ def _indicators(root: _Root, kind: ModelKind, interfaces: Interfaces) -> Indicat
     )
     if not interfaces.delaminate:
         for name, used in (
-            ("front_distance", bool(settings.front_distance)),
+            (IndicatorKind.FRONT_DISTANCE, bool(settings.front_distance)),
             (IndicatorKind.STRONG_AFTER, settings.strong_after is not None),
             (IndicatorKind.INTERFACE_STRESS, settings.interface_stress is not None),
             (IndicatorKind.MATRIX_DAMAGE, settings.matrix_damage),

@@ -123,5 +123,5 @@ class IndicatorKind(StrEnum):
     PLY_FAILURE = "ply_failure"
     INTERFACE_STRESS = "interface_stress"
     MATRIX_DAMAGE = "matrix_damage"
-    FRONT = "front"
+    FRONT_DISTANCE = "front_distance"
     STRONG_AFTER = "strong_after"

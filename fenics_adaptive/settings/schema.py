@@ -917,13 +917,13 @@ SECTIONS: tuple[Section, ...] = (
             Key(
                 "interface_stress",
                 "float",
-                "strong where the recovered interlaminar stress "
-                "reaches this fraction of the cohesive initiation criterion",
+                "strong where the estimated interlaminar stress reaches this fraction of the "
+                "cohesive initiation criterion (default 0.9 where an interface may delaminate; "
+                "0: off)",
                 "",
                 OPTIONAL,
                 0.0,
                 10.0,
-                open_min=True,
             ),
             Key("matrix_damage", "bool", "strong next to a cracked ply", default=False),
             Key(
