@@ -126,14 +126,14 @@ def test_the_adaptive_dcb_refined_from_the_start_is_the_layerwise_one(quick_base
     data = copy.deepcopy(quick_base)
     data["solver"]["end_time"] *= 0.45
     forces = {}
-    for name in ("layerwise", "adaptive"):
+    for name in ("layerwise", "refined_from_start"):
         config = parse_config(fracture_variant(data, name))
         structure = build_structure(config)
         stats = explicit.run(structure, config.solver, config.probe)
         forces[name] = np.array([row.reaction_force for row in stats.history])
         grown = stats.history[-1].crack_growth_area
     assert grown > 0.0
-    a, b = forces["adaptive"], forces["layerwise"]
+    a, b = forces["refined_from_start"], forces["layerwise"]
     assert np.abs(a - b).max() <= 1e-6 * np.abs(b).max()
 
 
@@ -143,7 +143,7 @@ def test_the_dcb_refined_by_the_indicators_at_their_defaults_meets_the_theory(qu
     zone (Turon's M E2 G_c / tau0^2, M = 1, the longer mode: 10.85 mm) plus two arm
     thicknesses ahead of every started delamination, and the run meets the demo's targets as
     the layerwise model does (the border constraint never holds the process zone)."""
-    config = parse_config(fracture_variant(quick_base, "automatic"))
+    config = parse_config(fracture_variant(quick_base, "adaptive"))
     law = config.cohesive
     front = 10100.0 * max(law.GIc / law.N**2, law.GIIc / law.S**2) + 2 * 1.56
     summary = run_config(config, tmp_path, show_progress=False, log=None)

@@ -177,9 +177,9 @@ def test_a_top_pressure_enters_at_the_face(angles):
 
 @pytest.mark.slow
 def test_a_run_refines_from_the_opened_end_of_the_tcb():
-    """The TCB (arms pulled open at x = 10 mm) with only the interface stress indicator (no front): the
-    cells refine strongly at interfaces 2 and 6, from the loaded end inward, each asked by
-    ``interface_stress``; the solver hands the estimate the reactions of the arm motions
+    """The TCB (arms pulled open at x = 10 mm) with only the interface stress indicator (no
+    front): the cells refine strongly at interfaces 2 and 6, from the loaded end inward, each
+    asked by ``interface_stress``; the solver hands the estimate the reactions of the arm motions
     (``face_force``), not those of the clamp."""
     data = tomllib.loads((DATA / "tcb_adaptive.toml").read_text())
     del data["interfaces"]["initial"]

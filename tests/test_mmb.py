@@ -216,12 +216,12 @@ def test_the_adaptive_mmb_refined_from_the_start_is_the_layerwise_one(base, tmp_
     """Through the lever too: the adaptive element refined strongly at the film's interface
     from the start gives the layerwise model's history (the first millisecond, in contact)."""
     histories = {}
-    for name in ("layerwise", "adaptive"):
+    for name in ("layerwise", "refined_from_start"):
         data = fracture_variant(short_mmb(base), name)
         data["solver"]["end_time"] = 1.0e-3
         run_config(parse_config(data), tmp_path / name)
         histories[name] = read_history(tmp_path / name / "history.csv")
-    layerwise, adaptive = histories["layerwise"], histories["adaptive"]
+    layerwise, adaptive = histories["layerwise"], histories["refined_from_start"]
     assert max(layerwise["lever_force"]) > 50.0
     for column in ("lever_force", "hinge_force", "hinge_displacement", "saddle_displacement",
                    "roller_force", "internal_energy"):  # fmt: skip

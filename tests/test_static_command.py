@@ -95,11 +95,11 @@ def test_static_dcb_open_film_matches_beam_theory_in_every_model(tmp_path):
     chi = lefm.root_rotation_correction(material)
 
     forces = {}
-    partly = studies.fracture_variant(base, "adaptive")
+    partly = studies.fracture_variant(base, "refined_from_start")
     del partly["interfaces"]["initial"]  # refined under the film only
     runs = {
         "layerwise": studies.fracture_variant(base, "layerwise"),
-        "adaptive": studies.fracture_variant(base, "adaptive"),
+        "adaptive": studies.fracture_variant(base, "refined_from_start"),
         "partly": partly,
     }
     for name, data in runs.items():

@@ -13,8 +13,9 @@ Studies (``STUDIES``):
 - ``plate_impact``: ``demos/plate_impact.toml`` (the adaptive run): ESL, adaptive, layerwise;
 - ``fracture_tests``: the DCB of ``demos/fracture_tests.toml``, the ENF of
   ``demos/fracture_tests_enf.toml`` and the MMB of ``demos/fracture_tests_mmb.toml`` (the
-  layerwise runs; ``mmb_mixity`` makes the MMB's other mixities): layerwise, adaptive refined
-  from the start at the delaminating interface.
+  layerwise runs; ``mmb_mixity`` makes the MMB's other mixities): layerwise, adaptive (the
+  indicators at their defaults), and, outside the demo, refined from the start at the
+  delaminating interface.
 
 A variant never changes its ``base``: it works on a deep copy.
 """
@@ -149,21 +150,24 @@ def fracture_variant(base: dict, name: str) -> dict:
         base: the specimen's config as a TOML table (``demos/fracture_tests.toml``, the DCB,
             or ``demos/fracture_tests_enf.toml``, the ENF).
         name: ``layerwise`` (``base`` as it is), ``adaptive`` (one cell through the
-            thickness, refined strongly from the start at the delaminating interfaces) or
-            ``automatic`` (one cell through the thickness, refined by the indicators at their
-            defaults: only the films' cells strong at the start).
+            thickness, refined by the indicators at their defaults: only the films' cells
+            strong at the start) or ``refined_from_start`` (one cell through the thickness,
+            strong from the start at the delaminating interfaces: the layerwise model's
+            equal).
 
     Returns:
         A new config table.
     """
+    if name not in (*FRACTURE_RUNS, "refined_from_start"):
+        raise ValueError(f"fracture_variant: no run {name!r}")
     data = copy.deepcopy(base)
-    if name in ("adaptive", "automatic"):
+    if name != "layerwise":
         data["model"]["kind"] = "adaptive"
         del data["mesh"]["layers"]
     if name == "adaptive":
-        data["interfaces"]["initial"] = "strong"
-    if name == "automatic":
         data["indicators"] = {}
+    if name == "refined_from_start":
+        data["interfaces"]["initial"] = "strong"
     return data
 
 

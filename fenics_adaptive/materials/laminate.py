@@ -10,6 +10,7 @@ towards y. Voigt order everywhere is (xx, yy, zz, yz, xz, xy) with engineering s
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -142,8 +143,14 @@ class Ply:
     thickness: float  # mm
 
     def stiffness(self) -> np.ndarray:
-        """6x6 stiffness in the shell frame."""
-        return rotate_stiffness(self.material.stiffness(), self.angle)
+        """6x6 stiffness in the shell frame (a new array)."""
+        return _shell_frame_stiffness(self.material, self.angle).copy()
+
+
+@functools.lru_cache(maxsize=1024)
+def _shell_frame_stiffness(material: PlyMaterial, angle: float) -> np.ndarray:
+    # the indicators ask for every ply's at each evaluation: formed once per material and angle
+    return rotate_stiffness(material.stiffness(), angle)
 
 
 @dataclass(frozen=True)

@@ -1,6 +1,6 @@
 """What one reads off a structure for reports and error messages, outside the structure: the
-delaminated area (and its grown part), the energy its damage laws dissipated, a DOF and a
-cell's maps in words.
+delaminated area (and its grown part), the strongly refined area, the energy its damage laws
+dissipated, a DOF and a cell's maps in words.
 
 Units: N, mm, s, tonne (areas mm^2, energies mJ).
 
@@ -18,6 +18,7 @@ from mpi4py import MPI
 
 from fenics_adaptive.adaptivity import enrichment as enr
 from fenics_adaptive.element.geometry import quad_areas
+from fenics_adaptive.settings.kinds import InterfaceState
 
 if TYPE_CHECKING:
     from fenics_adaptive.model.structure import Structure
@@ -34,6 +35,15 @@ def delaminated_areas(structure: Structure) -> tuple[float, float]:
     local = np.array([areas[failed].sum(), areas[failed & ~cohesive.inserted()].sum()])
     total, grown = structure.comm.allreduce(local, op=MPI.SUM)
     return float(total), float(grown)
+
+
+def strong_area(structure: Structure) -> float:
+    """Collective: the area (mm^2, bottom faces) of the cells refined strongly at one interface
+    or more, over all ranks."""
+    strong = (structure.interface_state == InterfaceState.STRONG).any(axis=1)
+    faces = structure.X_base[structure.bottom_local[strong]]
+    area = quad_areas(faces).sum() if strong.any() else 0.0
+    return float(structure.comm.allreduce(float(area), op=MPI.SUM))
 
 
 def insert_film_area(structure: Structure) -> float:
