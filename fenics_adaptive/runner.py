@@ -206,7 +206,10 @@ def _indicator_defaults(config: RunConfig, structure: Structure) -> dict | None:
         return None
     front, interval = indicator_defaults(config, structure)
     at = structure.interfaces.delaminate
-    return {"interval_s": interval, "front_distance_mm": {str(i): float(front[i - 1]) for i in at}}
+    return {
+        "interval_s": float(interval),
+        "front_distance_mm": {str(i): float(front[i - 1]) for i in at},
+    }
 
 
 def versions() -> dict[str, str]:

@@ -100,6 +100,32 @@ def test_events_on_one_rank_reproduce_the_serial_history(case, tmp_path):
 
 
 @pytest.mark.mpi
+def test_a_front_kept_refined_across_the_partition_reproduces_the_serial_run(tmp_path):
+    """The indicators at their defaults on the quick DCB split in two along x: the started
+    delaminations lie on one rank, the cells within the front distance of them on both, so
+    each rank refines cells around another rank's damage (the sources are gathered from all
+    ranks). The same history, and the same refinements for the same reasons at the same
+    distances."""
+    config = DATA / "mpi_front_across_ranks.toml"
+    serial, _ = run_case(config, tmp_path / "serial", 1)
+    parallel, ranks = run_case(config, tmp_path / "parallel", 2)
+    low, high = sorted(ranks, key=lambda r: r["x_min"])
+    assert low["x_max"] < high["x_min"] < 25.0  # the film (x > 25 mm) on the upper rank
+    assert low["cohesive"] > 0 and high["cohesive"] > 0  # the front reached across
+    assert_same_history(serial, parallel)
+    logs = [
+        read_refinement_log(tmp_path / run / "refinement_log.csv", math.inf)
+        for run in ("serial", "parallel")
+    ]
+    fronts = [r for r in logs[0] if r[6] == "front"]
+    assert len({r[0] for r in fronts}) >= 3  # at t = 0 and as the damage grew
+    exact, close = [0, 1, 4, 5, 6], [2, 3, 7]  # time, cell, interface, state, indicator
+    assert [[r[k] for k in exact] for r in logs[0]] == [[r[k] for k in exact] for r in logs[1]]
+    a, b = ([[r[k] for k in close] for r in log] for log in logs)
+    np.testing.assert_allclose(a, b, rtol=1e-10, atol=1e-10)
+
+
+@pytest.mark.mpi
 def test_the_mmb_lever_on_two_ranks_reproduces_the_serial_history(tmp_path):
     """The lever reduces its hinge's displacement over the ranks and moves a saddle every rank
     knows; the partition puts the roller (x = 5 mm) on one rank, the saddle (30 mm) and the
