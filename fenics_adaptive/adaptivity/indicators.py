@@ -466,7 +466,7 @@ def indicator_requests(
 
 
 def sublaminate_thicknesses(laminate, delaminate: tuple[int, ...]) -> np.ndarray:
-    """(n_plies - 1,) mm: at each ply interface, the thicker of the two sublaminates it
+    """(n_plies - 1,) mm: at each ply interface, the thinner of the two sublaminates it
     separates once every interface in ``delaminate`` (1-based) has split: the plies up to the
     next delaminable interface (or face) below and above."""
     t = np.array([p.thickness for p in laminate.plies])
@@ -476,7 +476,7 @@ def sublaminate_thicknesses(laminate, delaminate: tuple[int, ...]) -> np.ndarray
     for interface in range(1, len(t)):
         below = bounds[bounds < interface].max()
         above = bounds[bounds > interface].min()
-        out[interface - 1] = max(z[interface] - z[below], z[above] - z[interface])
+        out[interface - 1] = min(z[interface] - z[below], z[above] - z[interface])
     return out
 
 
@@ -485,11 +485,12 @@ def front_distances(structure, law, distance: float | None = None) -> np.ndarray
     strongly (``front_requests``); 0 where the interface may not delaminate. ``distance``: the
     user's, or None for each interface's own: the length of its process zone when fully grown
     (``cohesive.cohesive_zone_length`` of ``law``, with the larger transverse modulus of the
-    two plies it joins) plus two thicknesses of the thicker sublaminate it separates. The zone
+    two plies it joins) plus two thicknesses of the thinner sublaminate it separates. The zone
     then develops inside the refined region, and ahead of it the band where the peel and shear
-    stresses of the bonded part decay (over a few sublaminate thicknesses: a beam on an elastic
-    foundation) is refined as well, so that the border constraint, which holds the interface
-    to the unrefined neighbour's kinematics, acts on neither."""
+    stresses of the bonded part decay (over a few thicknesses of the more compliant, thinner
+    arm: a beam on an elastic foundation, a film on a substrate) is refined as well, so that the
+    border constraint, which holds the interface to the unrefined neighbour's kinematics, acts
+    on neither."""
     plies = structure.laminate.plies
     out = np.zeros(len(plies) - 1)
     delaminate = tuple(structure.interfaces.delaminate)
@@ -506,7 +507,7 @@ def front_distances(structure, law, distance: float | None = None) -> np.ndarray
 def default_interval(structure) -> float:
     """Time (s) between indicator evaluations when the config gives none: the time a shear
     wave, sqrt(G12 / rho) of the slowest ply, takes to cross the narrowest band that
-    ``front_distances`` keeps refined ahead of a process zone (two thicknesses of the thicker
+    ``front_distances`` keeps refined ahead of a process zone (two thicknesses of the thinner
     sublaminate at an interface that may refine). No delamination front runs faster than that
     wave, so between two evaluations a front cannot cross the band."""
     plies = structure.laminate.plies
