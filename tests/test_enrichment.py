@@ -121,6 +121,62 @@ def test_weak_then_strong_refinement_conserves_mass_momentum_and_the_field(shear
     assert len(structure.cohesive) == 2 * len(cells)
 
 
+def bent_structure(angles=(0, 90, 45, -45, 0, 90, 30, 0)):
+    """A TCB (by default of an unsymmetric layup) without the shear correction, in a smooth
+    field of bending, stretching and twisting (quadratic in x, y, z)."""
+    data = tcb(initial="none")
+    data["model"]["shear_correction"] = False
+    data["laminate"]["angles"] = list(angles)
+    structure = structure_of(data)
+    X = structure.X_base
+    x, y, z = X[:, 0], X[:, 1], X[:, 2] - X[:, 2].mean()
+    u = structure.base_block.u.array.reshape(-1, 3)
+    u[:, 0] = 1e-3 * (-z * x + 0.3 * x + 0.2 * y * z)
+    u[:, 1] = 1e-3 * (0.4 * z * x - 0.1 * y)
+    u[:, 2] = 1e-3 * (0.5 * x**2 - 0.2 * x * y + 0.05 * z * x)
+    return structure
+
+
+@pytest.mark.parametrize("interfaces", [(2,), (6,), (2, 4, 6)])
+def test_weak_refinement_keeps_the_enhanced_thickness_strain(interfaces, monkeypatch):
+    """Bending makes the ESL cell's enhanced thickness strain nonzero. New nodes placed on
+    that field (compatible plus enhanced, ``solid_shell.enhanced_displacement``) give
+    subelements that hold the cell's strain exactly: with every cell refined (no border
+    constraint) and no shear correction, the strain energy is unchanged to round-off. On the
+    straight line alone, the energy jumps by several tenths of a per cent."""
+
+    def jump(straight_line):
+        if straight_line:
+            monkeypatch.setattr(
+                "fenics_adaptive.model.structure.enhanced_displacement",
+                lambda X, alpha, zeta: np.zeros((len(X), 4, 3)),
+            )
+        structure = bent_structure()
+        structure.internal_force()
+        before = structure.internal_forces.energies()[0]
+        cells = np.arange(structure.base.n_owned_cells)
+        structure.refine([(c, i, InterfaceState.WEAK) for c in cells for i in interfaces])
+        structure.internal_force()
+        return structure.internal_forces.energies()[0] / before - 1.0
+
+    kept = jump(False)
+    assert -1e-4 < kept <= 1e-13
+    assert jump(True) > 50 * abs(kept)
+
+
+def test_one_material_split_keeps_the_strain_energy_to_round_off():
+    """Plies of one material: the subelements' own enhanced strains have nothing to add to the
+    cell's, so refining every cell of the bent TCB at an off-centre interface leaves the strain
+    energy unchanged to round-off."""
+    structure = bent_structure(angles=[0] * 8)
+    structure.internal_force()
+    before = structure.internal_forces.energies()[0]
+    cells = np.arange(structure.base.n_owned_cells)
+    structure.refine([(c, 2, InterfaceState.WEAK) for c in cells])
+    structure.internal_force()
+    assert structure.internal_forces.energies()[0] == pytest.approx(before, rel=1e-12)
+
+
 def test_refined_cell_masses_are_the_subelement_masses():
     structure = structure_of(tcb(initial="none"))
     m_base = structure.mass_base.array.copy()

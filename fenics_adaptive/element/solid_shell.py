@@ -109,10 +109,9 @@ def enhanced_mode(zeta: np.ndarray) -> np.ndarray:
 ENHANCED_LINES = np.array([[a, b] for a in GAUSS_2 for b in GAUSS_2])
 
 
-def enhanced_nodal_map(points: np.ndarray) -> np.ndarray:
-    """(n, 4) map T from the four line parameters alpha (``ENHANCED_LINES``) to the values of
-    alpha(xi, eta) g(zeta) at reference ``points`` (n, 3): a trilinear field, so its values at
-    the 8 vertices of a Q1 element give it exactly (``model.forms``)."""
+def enhanced_in_plane_map(points: np.ndarray) -> np.ndarray:
+    """(n, 4) map from the four line parameters alpha (``ENHANCED_LINES``) to the bilinear
+    alpha(xi, eta) at in-plane reference ``points`` (n, >= 2; columns xi, eta)."""
     g1, g2 = GAUSS_2
 
     def lagrange(x, node):
@@ -122,7 +121,44 @@ def enhanced_nodal_map(points: np.ndarray) -> np.ndarray:
     T = np.empty((len(points), len(ENHANCED_LINES)))
     for k, (a, b) in enumerate(ENHANCED_LINES):
         T[:, k] = lagrange(points[:, 0], a) * lagrange(points[:, 1], b)
-    return T * enhanced_mode(points[:, 2])[:, None]
+    return T
+
+
+def enhanced_nodal_map(points: np.ndarray) -> np.ndarray:
+    """(n, 4) map T from the four line parameters alpha (``ENHANCED_LINES``) to the values of
+    alpha(xi, eta) g(zeta) at reference ``points`` (n, 3): a trilinear field, so its values at
+    the 8 vertices of a Q1 element give it exactly (``model.forms``)."""
+    points = np.asarray(points, dtype=np.float64)
+    return enhanced_in_plane_map(points) * enhanced_mode(points[:, 2])[:, None]
+
+
+# the four vertical edges of a hexahedron: bottom vertex a (tensor order) and a's xi, eta
+_COLUMN_XI_ETA = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0], [1.0, 1.0]])
+
+
+def enhanced_displacement(X: np.ndarray, alpha: np.ndarray, zeta: np.ndarray) -> np.ndarray:
+    """(m, 4, 3) displacement (mm) that the enhanced thickness strain of m (sub)elements adds at
+    height ``zeta`` (m,) of their four vertical edges: the strain alpha g / |det J| integrated
+    along each edge from its bottom, alpha(xi, eta) G(zeta) d / |det J| with d the edge
+    (top - bottom vertex), G = (zeta^2 - zeta) / 2 the integral of g (zero at both faces, as
+    g's mean is zero). Where a refinement splits an element at ``zeta``, adding it to the
+    straight-line interpolation of the edge puts the new nodes on the element's own
+    (compatible plus enhanced) thickness field, so that the subelements start with its
+    thickness strain instead of its compatible part alone. Small strain: the edge is the
+    reference one. ``X`` (m, 8, 3) reference vertices (mm), ``alpha`` (m, 4) line parameters
+    in ``ENHANCED_LINES`` order (mm^3, ``subelement.enhanced_parameter_maps``)."""
+    X = np.asarray(X, dtype=np.float64)
+    zeta = np.asarray(zeta, dtype=np.float64)
+    bottom, top = X[:, :4], X[:, 4:]
+    edge = top - bottom  # d X / d zeta on each vertical edge
+    # d X / d xi and d X / d eta on an edge: the face edges through it, blended in zeta
+    blend = (1.0 - zeta)[:, None, None] * bottom + zeta[:, None, None] * top
+    along_xi = blend[:, [1, 1, 3, 3]] - blend[:, [0, 0, 2, 2]]
+    along_eta = blend[:, [2, 3, 2, 3]] - blend[:, [0, 1, 0, 1]]
+    det = np.abs(np.einsum("mai,mai->ma", np.cross(along_xi, along_eta), edge))
+    alpha_at_edges = alpha @ enhanced_in_plane_map(_COLUMN_XI_ETA).T  # (m, 4)
+    G = 0.5 * (zeta**2 - zeta)
+    return (alpha_at_edges * G[:, None] / det)[:, :, None] * edge
 
 
 class ThicknessRule(NamedTuple):

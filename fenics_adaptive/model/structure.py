@@ -51,6 +51,8 @@ from fenics_adaptive.adaptivity.refinement import RefinementState
 from fenics_adaptive.adaptivity.stabilisation import DampingWindow, StabilisationState, Ties
 from fenics_adaptive.element.geometry import thickness_weight
 from fenics_adaptive.element.rules import RuleTable
+from fenics_adaptive.element.solid_shell import enhanced_displacement
+from fenics_adaptive.element.subelement import enhanced_parameter_maps
 from fenics_adaptive.errors import InputError
 from fenics_adaptive.model.assembly import CohesiveSet
 from fenics_adaptive.model.blocks import Block, LumpedBlocks, subelement_mass_change
@@ -514,6 +516,16 @@ class Structure:
             values[name] = (1.0 - w[:, None, None]) * gathered[:, :4] + w[:, None, None] * (
                 gathered[:, 4:]
             )
+        if not self.base.finite:
+            # the split element's enhanced thickness strain, integrated to the new nodes: the
+            # subelements start with the thickness strain the element had (no energy jump)
+            X = self.gather(nodes, "X")
+            maps = np.zeros((len(cells), 4, 8, 3))
+            rules = self.rule_table.rule_of(np.stack([below, above], axis=1))
+            enhanced_parameter_maps(X, rules, *self.rule_table.packed, maps)
+            for name in ("u", "v"):
+                alpha = np.einsum("ekai,eai->ek", maps, self.gather(nodes, name))
+                values[name] += enhanced_displacement(X, alpha, w)
         self.refinement.mark_weak(cells, interface, t)
         self.extra.activate(
             *self.columns.node_requests(cells, interface, enr.SET_A, n_interfaces, values)
