@@ -52,6 +52,16 @@ from fenics_adaptive.simulation import build_structure
 # s = \frac{\alpha_i - f_{\mathrm{lo}}}{f_{\mathrm{hi}} - f_{\mathrm{lo}}}$$
 #
 # Its force and its lumped mass are handed to the masters with the same weights (1 - s, s).
+#
+# One refinement of this rule: a node keeps the offset from that line that it has when its
+# constraint is made, and moves with its masters from there (`border.record_offsets`). A new
+# border node is placed by its refining cell on that cell's own field, which includes the
+# enhanced thickness strain (a parabola through the thickness, zero at both faces,
+# `solid_shell.enhanced_displacement`) that the straight line misses; on the straight line, a
+# region grown one strip at a time, as behind a delamination front, jumped in strain energy at
+# every step. The offset is fixed between refinements, so the node's velocity follows its
+# masters' exactly and the mass, the momentum and the energy balance stay exact. Here the
+# structure is at rest when it refines: the offsets are zero.
 
 # %%
 CONFIG = """

@@ -26,6 +26,7 @@ from fenics_adaptive.element.rules import RuleTable
 from fenics_adaptive.model.border import (
     BorderConstraints,
     follow_masters,
+    record_offsets,
     transfer_forces,
     transfer_masses,
 )
@@ -76,6 +77,7 @@ class LumpedBlocks:
         self.mass_extra: la.Vector | None = None
         self.f_extra: la.Vector
         self.border = BorderConstraints.empty()
+        self.offsets = self._no_offsets = np.zeros(0)  # mm per constrained DOF (rebuild)
         self.base_block: Block | None = None
         self.extra_block: Block | None = None
         self.resize_extra(extra_map)
@@ -123,11 +125,14 @@ class LumpedBlocks:
         DOF, -1 if free; ``*_fields``: the blocks' (displacement, velocity) vectors."""
         self.border = border
         self._border_args = (border.dofs, border.masters, border.weights, 3 * self.n_base)
+        self._no_offsets = np.zeros(len(border))
+        self.offsets = np.zeros(len(border))
         mass_base, mass_extra = transfer_masses(
             border, self.mass_base, self.mass_extra, self.n_base
         )
-        for base, extra in zip(base_fields, extra_fields, strict=True):
-            self.follow_border(base.array, extra.array)
+        (u_base, v_base), (u_extra, v_extra) = base_fields, extra_fields
+        self.record_offsets(u_base.array, u_extra.array)
+        self.follow_border(v_base.array, v_extra.array)
         n_owned = self.mass_extra.index_map.size_local * 3
         fixed = np.flatnonzero(prescribed[:n_owned] >= 0).astype(np.int32)
         self.base_block = Block(
@@ -137,11 +142,21 @@ class LumpedBlocks:
             *extra_fields, self.f_extra, mass_extra, fixed, prescribed[fixed].astype(np.int32)
         )
 
-    def follow_border(self, base: np.ndarray, extra: np.ndarray) -> None:
+    def follow_border(self, base: np.ndarray, extra: np.ndarray, displacement=False) -> None:
         """Put the constrained extra DOFs of ``extra`` (a field of all local extra DOFs, flat)
-        where their masters in ``base`` / ``extra`` are."""
+        where their masters in ``base`` / ``extra`` are: on their straight line, plus the
+        recorded offsets for the ``displacement`` (``record_offsets``)."""
         if len(self.border):
-            follow_masters(*self._border_args, base, extra)
+            offsets = self.offsets if displacement else self._no_offsets
+            follow_masters(*self._border_args, base, extra, offsets)
+
+    def record_offsets(self, u_base: np.ndarray, u_extra: np.ndarray) -> None:
+        """Record how far each constrained DOF of the displacement is from its masters'
+        straight line (``border.record_offsets``), after a rebuild; a restart puts the
+        checkpoint's back (``Structure.restore``). Velocities carry no offset (the offsets are
+        constant)."""
+        if len(self.border):
+            record_offsets(*self._border_args, u_base, u_extra, self.offsets)
 
     def add_internal_forces(self, t: float, contributors: Iterable[ForceContributor]) -> None:
         """Collective: f_int at time t (s) of the INTERNAL ``contributors`` into both force

@@ -210,14 +210,34 @@ def transfer_forces(dofs, masters, weights, n_base_dofs, f_base, f_extra):
 
 
 @numba.njit(cache=True)
-def follow_masters(dofs, masters, weights, n_base_dofs, x_base, x_extra):
-    """Set the constrained DOFs of x (displacement or velocity) from their masters."""
+def _interpolated(k, masters, weights, n_base_dofs, x_base, x_extra):
+    """The value of constrained DOF k on the straight line through its masters."""
+    value = 0.0
+    for j in range(2):
+        master = masters[k, j]
+        if master < n_base_dofs:
+            value += weights[k, j] * x_base[master]
+        else:
+            value += weights[k, j] * x_extra[master - n_base_dofs]
+    return value
+
+
+@numba.njit(cache=True)
+def follow_masters(dofs, masters, weights, n_base_dofs, x_base, x_extra, offsets):
+    """Set the constrained DOFs of x (displacement or velocity) from their masters, plus
+    ``offsets`` (the displacement's, ``record_offsets``; zeros for a velocity)."""
     for k in range(dofs.shape[0]):
-        value = 0.0
-        for j in range(2):
-            master = masters[k, j]
-            if master < n_base_dofs:
-                value += weights[k, j] * x_base[master]
-            else:
-                value += weights[k, j] * x_extra[master - n_base_dofs]
-        x_extra[dofs[k] - n_base_dofs] = value
+        value = _interpolated(k, masters, weights, n_base_dofs, x_base, x_extra)
+        x_extra[dofs[k] - n_base_dofs] = value + offsets[k]
+
+
+@numba.njit(cache=True)
+def record_offsets(dofs, masters, weights, n_base_dofs, x_base, x_extra, offsets):
+    """offsets[k]: how far constrained DOF k of the displacement x is from the straight line
+    through its masters. Recorded when the constraints are rebuilt and kept until the next
+    rebuild: a new border node stays where its refinement put it (the refining element's
+    field, enhanced thickness strain included, ``Structure._activate_weak``), a node that was
+    constrained already keeps its offset, and ``follow_masters`` moves them with the masters."""
+    for k in range(dofs.shape[0]):
+        value = _interpolated(k, masters, weights, n_base_dofs, x_base, x_extra)
+        offsets[k] = x_extra[dofs[k] - n_base_dofs] - value
