@@ -38,7 +38,7 @@ from numba import njit
 
 from fenics_adaptive.adaptivity.events import Reasons, note
 from fenics_adaptive.element.geometry import quad_areas
-from fenics_adaptive.element.subelement import enhanced_parameter_maps, gather_nodes
+from fenics_adaptive.element.subelement import gather_nodes
 from fenics_adaptive.materials.cohesive import cohesive_zone_length
 from fenics_adaptive.materials.laminate import rotation_about_z
 from fenics_adaptive.materials.ply_damage import S_D, S_FT, S_MC, hashin_indices
@@ -164,9 +164,9 @@ def ply_strains(structure) -> np.ndarray:
     nodes, cells, plies = structure.elements()
     out = np.zeros((structure.base.n_owned_cells, structure.laminate.n_plies, 6))
     table = structure.rule_table
-    maps = np.zeros((len(nodes), 4, 8, 3))  # each element's enhanced strain parameters of u
-    enhanced_parameter_maps(structure.gather(nodes, "X"), table.rule_of(plies), *table.packed, maps)
-    alpha = np.einsum("ekai,eai->ek", maps, structure.gather(nodes, "u"))
+    alpha = table.enhanced_parameters(
+        structure.gather(nodes, "X"), structure.gather(nodes, "u"), plies
+    )
     _ply_center_strains(
         structure.X_base,
         structure.extra.vectors["X"].array.reshape(-1, 3),

@@ -18,6 +18,7 @@ from fenics_adaptive.element.subelement import (
     PackedRule,
     PackedRules,
     concatenate_rules,
+    enhanced_parameter_maps,
     pack_mass_rule,
     pack_rule,
     solid_shell_lumped_masses,
@@ -112,6 +113,15 @@ class RuleTable:
         """Rule index (int64) of each span of ``plies`` (n, 2) [first, stop)."""
         plies = np.asarray(plies, dtype=np.int64).reshape(-1, 2)
         return self._rule_of_plies[plies[:, 0], plies[:, 1]].astype(np.int64)
+
+    def enhanced_parameters(self, X: np.ndarray, u: np.ndarray, plies: np.ndarray) -> np.ndarray:
+        """(n, 4) small-strain enhanced thickness strain parameters alpha (mm^3, lines in
+        ``solid_shell.ENHANCED_LINES`` order; zero where the rule has none) of n (sub)elements
+        with reference vertices ``X`` and displacements ``u`` (n, 8, 3; mm) spanning ``plies``
+        (n, 2) [first, stop), undamaged (``subelement.enhanced_parameter_maps``)."""
+        maps = np.zeros((len(X), 4, 8, 3))
+        enhanced_parameter_maps(X, self.rule_of(plies), *self.packed, maps)
+        return np.einsum("ekai,eai->ek", maps, u)
 
     def shear_factors(self, plies: np.ndarray) -> np.ndarray:
         """(n, 2) transverse shear correction factors (k_xz, k_yz) that the rule of each span

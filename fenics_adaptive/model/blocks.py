@@ -142,7 +142,9 @@ class LumpedBlocks:
             *extra_fields, self.f_extra, mass_extra, fixed, prescribed[fixed].astype(np.int32)
         )
 
-    def follow_border(self, base: np.ndarray, extra: np.ndarray, displacement=False) -> None:
+    def follow_border(
+        self, base: np.ndarray, extra: np.ndarray, displacement: bool = False
+    ) -> None:
         """Put the constrained extra DOFs of ``extra`` (a field of all local extra DOFs, flat)
         where their masters in ``base`` / ``extra`` are: on their straight line, plus the
         recorded offsets for the ``displacement`` (``record_offsets``)."""

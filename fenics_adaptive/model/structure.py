@@ -52,7 +52,6 @@ from fenics_adaptive.adaptivity.stabilisation import DampingWindow, Stabilisatio
 from fenics_adaptive.element.geometry import thickness_weight
 from fenics_adaptive.element.rules import RuleTable
 from fenics_adaptive.element.solid_shell import enhanced_displacement
-from fenics_adaptive.element.subelement import enhanced_parameter_maps
 from fenics_adaptive.errors import InputError
 from fenics_adaptive.model.assembly import CohesiveSet
 from fenics_adaptive.model.blocks import Block, LumpedBlocks, subelement_mass_change
@@ -516,21 +515,17 @@ class Structure:
         nodes = self._subelement_nodes_many(states, below, above, cells)
         fractions = self.laminate.ply_fractions
         w = thickness_weight(fractions, interface, below, above)
-        values = {}
-        for name in ("u", "v", "X"):
-            gathered = self.gather(nodes, name)
-            values[name] = (1.0 - w[:, None, None]) * gathered[:, :4] + w[:, None, None] * (
-                gathered[:, 4:]
-            )
+        gathered = {name: self.gather(nodes, name) for name in ("u", "v", "X")}
+        values = {
+            name: (1.0 - w[:, None, None]) * field[:, :4] + w[:, None, None] * field[:, 4:]
+            for name, field in gathered.items()
+        }
         if not self.base.finite:
             # the split element's enhanced thickness strain, integrated to the new nodes: the
             # subelements start with the strain the element had, so the strain energy does not
             # jump. Not in v: on the straight line the lumped masses keep the momentum exactly
-            X = self.gather(nodes, "X")
-            maps = np.zeros((len(cells), 4, 8, 3))
-            rules = self.rule_table.rule_of(np.stack([below, above], axis=1))
-            enhanced_parameter_maps(X, rules, *self.rule_table.packed, maps)
-            alpha = np.einsum("ekai,eai->ek", maps, self.gather(nodes, "u"))
+            X, u = gathered["X"], gathered["u"]
+            alpha = self.rule_table.enhanced_parameters(X, u, np.stack([below, above], axis=1))
             values["u"] += enhanced_displacement(X, alpha, w)
         self.refinement.mark_weak(cells, interface, t)
         self.extra.activate(
