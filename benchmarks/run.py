@@ -29,6 +29,10 @@ Rows (issue 5's targets in brackets):
 - ``memory``: peak resident memory of the impact plate (``demos/plate_impact.toml``): ESL,
   adaptive with the central 10 % of cells refined, layerwise [adaptive <= 0.4 x LW]; also net
   of what every process holds whatever the plate's size (measured on a 100-cell plate first);
+- ``refined``: a refined cell against the layerwise cells and cohesive elements it replaces,
+  elastic and with ply damage, the TCB demo refined from the start against its layerwise
+  reference, and where a refined cell's time goes (issue 21; ``benchmarks/refined.py``)
+  [strong cell <= 1.1 x, TCB step <= 1.0 x];
 - ``plate``: the impact plate run past its peak force, adaptive against layerwise [wall time
   <= 0.35 x LW, peak contact force within 2 %].
 
@@ -58,6 +62,9 @@ from mpi4py import MPI
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "benchmarks"))
+
+from refined import bench_refined, force_profile, profile_rows  # noqa: E402
 
 from fenics_adaptive.analysis.studies import plate_impact_variant  # noqa: E402
 from fenics_adaptive.analysis.timing import time_call, time_per_step  # noqa: E402
@@ -387,10 +394,12 @@ def plate_config(name: str, end_time: float | None = None) -> dict:
     return data
 
 
-def bench_plate(end_time: float) -> list[dict]:
+def bench_plate(end_time: float, repeat: int) -> list[dict]:
     """The impact plate to ``end_time`` (past the peak force), adaptive against the layerwise
-    reference: wall time, peak contact force, refined fraction."""
-    rows = []
+    reference: wall time, peak contact force, refined fraction; then where the adaptive
+    plate's internal force goes in its final state (``refined.force_profile``) against its
+    mean step."""
+    rows, profile = [], []
     for name in ("adaptive", "layerwise"):
         config = parse_config(plate_config(name, end_time), source=name)
         summary, structure = execute(
@@ -407,10 +416,17 @@ def bench_plate(end_time: float) -> list[dict]:
                 "refined_fraction": float(refined) if structure.interface_state.size else 0.0,
             }
         )
+        if name == "adaptive":
+            seconds = force_profile(structure, repeat)
+            seconds["mean explicit step of the run"] = summary["time_per_step_s"]
+            profile = profile_rows("adaptive, final state", structure, seconds, "plate")
+            step_row = profile[-1]  # the step is not a part of the force: the other way round
+            del step_row["share_of_force"]
+            step_row["force_share_of_step"] = seconds["whole internal force"] / step_row["seconds"]
     adaptive, layerwise = rows
     adaptive["wall_over_layerwise"] = adaptive["seconds"] / layerwise["seconds"]
     adaptive["peak_vs_layerwise"] = adaptive["peak_contact_N"] / layerwise["peak_contact_N"] - 1
-    return rows
+    return rows + profile
 
 
 def bench_memory(n_cells: int) -> list[dict]:
@@ -517,6 +533,11 @@ def table(rows: list[dict]) -> str:
             ("mass_setup_s", "scaled mass built in {:.1f} s"),
             ("step_cost_over_lumped", "step cost x{:.2f}"),
             ("time_to_solution_over_lumped", "time to solution x{:.2f}"),
+            ("layerwise_us_per_cell", "LW {:.2f} us/cell"),
+            ("over_layerwise", "x{:.2f} of LW"),
+            ("energy_difference", "energy diff {:.1e}"),
+            ("share_of_force", "{:.0%} of the force"),
+            ("force_share_of_step", "internal force {:.0%} of it"),
         ):
             if key in r:
                 figure.append(fmt.format(r[key]))
@@ -531,7 +552,9 @@ def table(rows: list[dict]) -> str:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--only", default="kernels,step,overhead,mass,scaling,mpi,memory,plate")
+    parser.add_argument(
+        "--only", default="kernels,step,overhead,mass,scaling,mpi,memory,refined,plate"
+    )
     parser.add_argument("--quick", action="store_true", help="small sizes, a smoke run")
     parser.add_argument("--cells", type=int, default=None, help="cells of the step benchmark")
     parser.add_argument("--kernel-cells", type=int, default=100_000)
@@ -539,6 +562,7 @@ def main() -> None:
     parser.add_argument("--mpi-cells", type=int, default=200_000)
     parser.add_argument("--memory-cells", type=int, default=40_000)
     parser.add_argument("--mass-cells", type=int, default=20_000, help="cells per mesh layer")
+    parser.add_argument("--refined-cells", type=int, default=20_000)
     parser.add_argument("--plate-end-time", type=float, default=3.0e-4, help="s")
     parser.add_argument("--steps", type=int, default=20, help="explicit steps per repetition")
     parser.add_argument("--repeat", type=int, default=5)
@@ -555,6 +579,7 @@ def main() -> None:
             2.0e-5,
         )
         args.memory_cells = 2_500
+        args.refined_cells = 1_000
         args.mass_cells = 2_000
     only = args.only.split(",")
     if only == ["mpi-worker"]:
@@ -574,7 +599,8 @@ def main() -> None:
         ),
         "mpi": lambda: bench_mpi(args.mpi_cells, args.steps, args.repeat),
         "memory": lambda: bench_memory(args.memory_cells),
-        "plate": lambda: bench_plate(args.plate_end_time),
+        "refined": lambda: bench_refined(args.refined_cells, args.steps, args.repeat),
+        "plate": lambda: bench_plate(args.plate_end_time, args.repeat),
     }
     for name in only:
         if name not in jobs:
@@ -611,6 +637,7 @@ JOB_ROWS = {
     "scaling": "scaling",
     "mpi": "mpi",
     "memory": "memory",
+    "refined": "refined",
     "plate": "plate",
 }
 
