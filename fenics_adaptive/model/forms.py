@@ -20,6 +20,7 @@ import dolfinx
 import numpy as np
 import ufl
 from dolfinx import fem
+from dolfinx.fem.forms import CompiledForm
 from mpi4py import MPI
 from numba import njit
 
@@ -50,6 +51,21 @@ JIT_OPTIONS = {
 
 
 @dataclass
+class CompiledForms:
+    """The model's force and energy forms compiled without their cells: ``subdomains`` is the
+    (id, cells) list the UFL measures share, ``layer_of_subdomain`` the (id, mesh layer) of
+    each, ``field`` the enhanced thickness strain's coefficient (or None), ``key`` the
+    formulation they were compiled for (``LayeredModel._form_key``)."""
+
+    key: tuple
+    force: CompiledForm
+    energy: CompiledForm
+    subdomains: list[tuple[int, np.ndarray]]
+    layer_of_subdomain: list[tuple[int, int]]
+    field: fem.Function | None
+
+
+@dataclass
 class LayeredModel:
     """The base discretisation. Its UFL forms integrate the cells listed in ``ufl_cells`` (per
     mesh layer; all owned cells at first): an adaptive model takes refined cells out of them and
@@ -76,6 +92,7 @@ class LayeredModel:
     # (solid_shell.thickness_rule), else points_per_ply Gauss points in each ply
     preintegrate: bool = True
     _enhanced_maps: np.ndarray | None = None  # enhanced_parameter_maps, once computed
+    _compiled: CompiledForms | None = None  # the forms' kernels, once per formulation
 
     @property
     def finite(self) -> bool:
@@ -103,31 +120,77 @@ class LayeredModel:
         return cells[cells < self.n_owned_cells].astype(np.int32)
 
     def set_ufl_cells(self, cells_per_layer: list[np.ndarray]) -> None:
-        """Integrate the UFL forms over these owned cells of each layer (compiled kernels are
-        cached, so this is cheap)."""
+        """Integrate the UFL forms over these owned cells of each layer. The forms are built
+        and compiled once per formulation (``_form_key``); a new set of cells only hands the
+        compiled kernels new integration cells (a refinement event used to spend 60 ms here
+        re-deriving and looking up the same kernels)."""
         self.ufl_cells = [np.asarray(c, dtype=np.int32) for c in cells_per_layer]
+        if self._compiled is None or self._compiled.key != self._form_key():
+            self._compiled = self._compile_forms()
+        compiled = self._compiled
+        # the UFL forms' measures share this list: force_ufl and energy_ufl follow it too
+        for k, (subdomain_id, layer) in enumerate(compiled.layer_of_subdomain):
+            compiled.subdomains[k] = (subdomain_id, self.ufl_cells[layer])
+        subdomains = {fem.IntegralType.cell: list(compiled.subdomains)}
+        coefficients = {self.u: self.u}
+        if compiled.field is not None:
+            coefficients[compiled.field] = compiled.field
+        self.force_form, self.energy_form = (
+            fem.create_form(form, spaces, self.mesh, subdomains, coefficients, {})
+            for form, spaces in ((compiled.force, [self.V]), (compiled.energy, []))
+        )
+        field = compiled.field
+        self.packed = PackedDisplacement([self.force_form, self.energy_form], self.u, self.V, field)
+        self.enhanced = None
+        if field is not None:
+            cells = np.concatenate(self.ufl_cells) if self.ufl_cells else np.zeros(0, np.int32)
+            maps = None if self.finite else self.enhanced_parameter_maps()[cells]
+            self.enhanced = CondensedThicknessStrain(
+                self.energy_ufl, field, self.u, self.V, cells, maps
+            )
+
+    def _form_key(self) -> tuple:
+        """What the compiled forms depend on besides the cells."""
+        return (
+            tuple(self.layer_laminates),
+            self.points_per_ply,
+            self.selective,
+            self.kinematics,
+            self.shear_correction,
+            self.enhanced_strain,
+            self.preintegrate,
+        )
+
+    def _compile_forms(self) -> CompiledForms:
+        """The energy and force forms of the layers over the cells ``ufl_cells`` holds now, and
+        their compiled kernels; each integral's subdomain id remembers its layer."""
         v = ufl.TestFunction(self.V)
         kernels = solid_shell.SeparateKernels(self.mesh)
         field = None
         if self.enhanced_strain:
             field = fem.Function(fem.functionspace(self.mesh, ("DG", 1)), name="enhanced_zz")
         energy = 0
+        layer_of_subdomain = []
         factors = self.shear_factors()
-        for laminate, cells, k in zip(self.layer_laminates, self.ufl_cells, factors, strict=True):
+        for layer, (laminate, cells, k) in enumerate(
+            zip(self.layer_laminates, self.ufl_cells, factors, strict=True)
+        ):
             groups = solid_shell.energy_groups(laminate, self.points_per_ply, k, self.preintegrate)
+            first = len(kernels.subdomains)
             energy += solid_shell.strain_energy_form(
                 self.u, groups, kernels, cells, self.selective, self.kinematics, field
             )
+            layer_of_subdomain += [(i, layer) for i, _ in kernels.subdomains[first:]]
         self.energy_ufl = energy
         self.force_ufl = ufl.derivative(energy, self.u, v)
-        self.force_form = fem.form(self.force_ufl, jit_options=JIT_OPTIONS)
-        self.energy_form = fem.form(energy, jit_options=JIT_OPTIONS)
-        self.packed = PackedDisplacement([self.force_form, self.energy_form], self.u, self.V, field)
-        self.enhanced = None
-        if field is not None:
-            cells = np.concatenate(self.ufl_cells) if self.ufl_cells else np.zeros(0, np.int32)
-            maps = None if self.finite else self.enhanced_parameter_maps()[cells]
-            self.enhanced = CondensedThicknessStrain(energy, field, self.u, self.V, cells, maps)
+        return CompiledForms(
+            key=self._form_key(),
+            force=fem.compile_form(self.comm, self.force_ufl, jit_options=JIT_OPTIONS),
+            energy=fem.compile_form(self.comm, energy, jit_options=JIT_OPTIONS),
+            subdomains=kernels.subdomains,
+            layer_of_subdomain=layer_of_subdomain,
+            field=field,
+        )
 
     def reference_geometry_changed(self) -> None:
         """Call after moving the mesh's reference nodes (``mesh.geometry.x``): the small-strain
