@@ -376,6 +376,7 @@ def _finish(
     peak = max(rows, key=lambda r: abs(r.reaction_force))
     # the energy put in: by loads and motions, or by an impactor
     scale = max(max(max(abs(r.external_work), abs(r.impact_work)) for r in rows), 1e-300)
+    cost = simulation.refinement.cost(comm)
     summary.update(
         {
             "status": "completed",
@@ -407,6 +408,11 @@ def _finish(
                 "refinement_energy_mJ": rows[-1].refinement_energy,
             },
             "refinement_events": stats.refinements,
+            "adaptivity_cost": {
+                "indicator_evaluations": cost[0],
+                "indicator_wall_s": cost[1],
+                "refinement_wall_s": cost[2],
+            },
             "extra_nodes_at_end": comm.allreduce(structure.extra.n_owned, op=MPI.SUM),
             "cohesive_elements_at_end": comm.allreduce(len(structure.cohesive), op=MPI.SUM),
             # judged as the energy guard judges it: the change since t = 0, where the balance

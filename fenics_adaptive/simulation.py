@@ -15,6 +15,7 @@ plus a run folder: history file, fields, checkpoints, summary and plots.
 from __future__ import annotations
 
 import math
+import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 
@@ -218,6 +219,11 @@ class RefinementHook:
         # N, the forces from outside on the base DOFs besides the face loads (reactions,
         # contact) at the time of the call: the solver's, set by ``Simulation``
         self.face_force: Callable[[], np.ndarray] | None = None
+        # this rank's wall time (s) in the indicators' evaluations and in refinements, and
+        # the evaluations made, since the hook was made (a restart starts them again)
+        self.evaluations = 0
+        self.indicator_seconds = 0.0
+        self.refinement_seconds = 0.0
 
     def _resolve(self, structure: Structure) -> None:
         if self.front is None:
@@ -276,6 +282,7 @@ class RefinementHook:
             requests += asked
         evaluate = settings is not None and t >= self.next_check
         if evaluate:
+            started = time.perf_counter()
             self._resolve(structure)
             face_force = self.face_force() if self.face_force is not None else None
             requests += indicator_requests(
@@ -288,6 +295,8 @@ class RefinementHook:
                 requests += around
             if self.front.any():
                 requests += front_requests(structure, self.front, reasons)
+            self.evaluations += 1
+            self.indicator_seconds += time.perf_counter() - started
         python_due = np.flatnonzero(self.python_next <= t)  # the same on every rank
         for k in python_due:
             indicator = self.python[k]
@@ -297,7 +306,18 @@ class RefinementHook:
             self.python_next[k] = t + indicator.interval
         if not due and not evaluate and not len(python_due):
             return None
-        return refine(structure, requests, t, reasons)
+        started = time.perf_counter()
+        event = refine(structure, requests, t, reasons)
+        self.refinement_seconds += time.perf_counter() - started
+        return event
+
+    def cost(self, comm: MPI.Comm) -> tuple[int, float, float]:
+        """Collective: (evaluations of the indicators so far, the wall time (s, the slowest
+        rank's) spent in them, and in refining)."""
+        local = np.array([self.indicator_seconds, self.refinement_seconds])
+        slowest = np.empty(2)
+        comm.Allreduce(local, slowest, op=MPI.MAX)
+        return self.evaluations, float(slowest[0]), float(slowest[1])
 
 
 def probe_displacement(structure: Structure, probe, dofs: np.ndarray | None = None) -> float:

@@ -297,3 +297,42 @@ def test_matrix_damage_indicator_delaminates_next_to_a_cracked_ply():
     assert structure.refine(requests)
     assert structure.interface_state[3, 0] == InterfaceState.STRONG
     assert ind.indicator_requests(structure, settings, (50.0, 80.0)) == []
+
+
+def test_ply_strains_follow_each_refinement_and_keep_the_unchanged_elements_maps():
+    """The indicators keep what their element loop reads until the structure refines
+    (``ElementData``); a refinement gives them the new elements, the maps of the elements it
+    did not change are kept, and they equal those of a build from scratch (bit for bit); the
+    ply strains then equal the enhanced-strain parameters of each element computed afresh."""
+    structure = build_structure(parse_config(tcb()))
+    rng = np.random.default_rng(3)
+    x = structure.X_base[structure.bottom_local][:, :, 0].mean(axis=1)
+    for step, (interface, kind, near) in enumerate(
+        [
+            (4, InterfaceState.WEAK, 3.0),
+            (2, InterfaceState.STRONG, 3.0),
+            (6, InterfaceState.STRONG, 7.0),
+        ]
+    ):
+        before = ind.element_data(structure)
+        structure.refine([(c, interface, kind) for c in np.flatnonzero(np.abs(x - near) < 1.6)])
+        structure.base.u.x.array[:] = 1e-3 * rng.standard_normal(structure.base.u.x.array.shape)
+        structure.extra.vectors["u"].array[:] = 1e-3 * rng.standard_normal(
+            structure.extra.vectors["u"].array.shape
+        )
+        kept = ind.element_data(structure)
+        assert kept is not before and kept.subelements is structure.refined_cells.subelements
+        fresh = ind.ElementData.of(structure)
+        assert np.array_equal(kept.keys, fresh.keys)
+        assert np.array_equal(kept.centre_maps, fresh.centre_maps)
+        assert np.array_equal(kept.shear_scale, fresh.shear_scale)
+        assert ind.element_data(structure) is kept  # no refinement: nothing made again
+        # the strains read the centre parameters of each element, as computed afresh
+        nodes, _, plies = structure.elements()
+        alpha = structure.rule_table.enhanced_parameters(
+            structure.gather(nodes, "X"), structure.gather(nodes, "u"), plies
+        ).mean(axis=1)
+        u = np.concatenate([structure.base.u.x.array, structure.extra.vectors["u"].array])
+        from_maps = np.einsum("eai,eai->e", kept.centre_maps, u.reshape(-1, 3)[nodes])
+        np.testing.assert_allclose(from_maps, alpha, rtol=1e-12, atol=1e-12 * abs(alpha).max())
+        assert len(kept.nodes) > len(before.nodes) or step == 0
