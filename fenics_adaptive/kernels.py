@@ -33,6 +33,8 @@ from mpi4py import MPI
 # the modules that define numba kernels (tests/test_kernels.py checks the list is complete)
 KERNEL_MODULES = (
     "fenics_adaptive.adaptivity.indicators",
+    "fenics_adaptive.adaptivity.interlaminar",
+    "fenics_adaptive.adaptivity.ply_fields",
     "fenics_adaptive.element.subelement",
     "fenics_adaptive.materials.cohesive",
     "fenics_adaptive.materials.ply_damage",

@@ -1,0 +1,369 @@
+"""The stresses and strains the indicators read at every ply of every cell: at the ply's
+mid-thickness, at the in-plane centre of its cell, from whichever element holds the ply (the
+whole cell, a subelement of a refined cell, or a layerwise cell), with the element's enhanced
+thickness strain and its transverse shear correction (paper, "Adaptivity").
+
+Units: N, mm, s, tonne (stresses MPa).
+
+``ElementData`` keeps what the element loop reads until the structure refines (the elements,
+the maps from their displacements to their enhanced strain parameter, the plies' shear scale
+and stiffness); a refinement keeps the maps of the elements it did not change.
+"""
+
+from __future__ import annotations
+
+import weakref
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit
+
+from fenics_adaptive.element.solid_shell import NORMAL  # a monoclinic ply couples these
+from fenics_adaptive.element.subelement import enhanced_parameter_maps, gather_nodes
+from fenics_adaptive.materials.laminate import rotation_about_z
+from fenics_adaptive.materials.ply_damage import S_FT, S_MC, hashin_indices
+
+
+@njit(cache=True)
+def _inverse_3x3(A, out):
+    """out = A^-1 (3 x 3, by cofactors and one reciprocal); returns det A."""
+    c00 = A[1, 1] * A[2, 2] - A[1, 2] * A[2, 1]
+    c01 = A[1, 2] * A[2, 0] - A[1, 0] * A[2, 2]
+    c02 = A[1, 0] * A[2, 1] - A[1, 1] * A[2, 0]
+    det = A[0, 0] * c00 + A[0, 1] * c01 + A[0, 2] * c02
+    r = 1.0 / det
+    out[0, 0] = c00 * r
+    out[0, 1] = (A[0, 2] * A[2, 1] - A[0, 1] * A[2, 2]) * r
+    out[0, 2] = (A[0, 1] * A[1, 2] - A[0, 2] * A[1, 1]) * r
+    out[1, 0] = c01 * r
+    out[1, 1] = (A[0, 0] * A[2, 2] - A[0, 2] * A[2, 0]) * r
+    out[1, 2] = (A[0, 2] * A[1, 0] - A[0, 0] * A[1, 2]) * r
+    out[2, 0] = c02 * r
+    out[2, 1] = (A[0, 1] * A[2, 0] - A[0, 0] * A[2, 1]) * r
+    out[2, 2] = (A[0, 0] * A[1, 1] - A[0, 1] * A[1, 0]) * r
+    return det
+
+
+@njit(cache=True)
+def _ply_center_strains(
+    X_base,
+    X_extra,
+    u_base,
+    u_extra,
+    nodes,
+    cells,
+    plies,
+    fractions,
+    alpha_center,
+    stiffness,
+    root,
+    to_stress,
+    out,
+):
+    """Small strain (Voigt, engineering shears) at the in-plane centre of every ply of every
+    element, at the ply's mid-thickness, into out[cell, ply]; with the element's enhanced
+    thickness strain alpha_center[e] g(zeta) / |det J| (``alpha_center``: its parameter at the
+    in-plane centre). ``to_stress``: the ply's stress D C_k (D strain) instead (``stiffness``
+    (n_plies, 6, 6), monoclinic; D the element's shear scale, ``root`` (n_elements, 2) its
+    sqrt k_xz, sqrt k_yz: ``ply_stresses``).
+
+    On the element's axis (xi = eta = 1/2) the trilinear shape functions' in-plane derivatives
+    are (1 - zeta) times the bottom face's plus zeta times the top face's, and the thickness
+    derivative does not depend on zeta: the Jacobian and the displacement gradient (in the
+    element's coordinates) are formed once per element, as a bottom, a top and a normal part,
+    and combined per ply."""
+    n_base = X_base.shape[0]
+    X = np.empty((8, 3))
+    u = np.empty((8, 3))
+    parts = np.empty((2, 3, 5))  # (X, u), component, (d_xi bottom, top, d_eta bottom, top, d_zeta)
+    J = np.empty((3, 3))
+    G = np.empty((3, 3))
+    Jinv = np.empty((3, 3))
+    grad = np.empty((3, 3))
+    ends = np.empty((2, 3, 3))
+    strain = np.empty(6)
+    enhanced = 0.0  # alpha / |det J| of the element (a prism) or of the ply
+    for e in range(nodes.shape[0]):
+        gather_nodes(nodes[e], n_base, X_base, X_extra, X)
+        gather_nodes(nodes[e], n_base, u_base, u_extra, u)
+        parts[:] = 0.0
+        for a in range(8):
+            s_xi = 1.0 if a & 1 else -1.0
+            s_eta = 1.0 if (a >> 1) & 1 else -1.0
+            top = (a >> 2) & 1
+            s_zeta = 1.0 if top else -1.0
+            for i in range(3):
+                for f in range(2):
+                    value = X[a, i] if f == 0 else u[a, i]
+                    parts[f, i, top] += 0.5 * s_xi * value
+                    parts[f, i, 2 + top] += 0.5 * s_eta * value
+                    parts[f, i, 4] += 0.25 * s_zeta * value
+        first, stop = plies[e, 0], plies[e, 1]
+        bottom, top_f = fractions[first], fractions[stop]
+        # a prism (top face a translate of the bottom one): J does not vary along the axis,
+        # and grad u = G J^-1 is linear in zeta there: two products per element
+        prism = True
+        for i in range(3):
+            if parts[0, i, 0] != parts[0, i, 1] or parts[0, i, 2] != parts[0, i, 3]:
+                prism = False
+        if prism:
+            for i in range(3):
+                J[i, 0] = parts[0, i, 0]
+                J[i, 1] = parts[0, i, 2]
+                J[i, 2] = parts[0, i, 4]
+            enhanced = alpha_center[e] / abs(_inverse_3x3(J, Jinv))
+            for f in range(2):  # grad u on the bottom (0) and top (1) face
+                for i in range(3):
+                    g0, g1, g2 = parts[1, i, f], parts[1, i, 2 + f], parts[1, i, 4]
+                    for r in range(3):
+                        ends[f, i, r] = g0 * Jinv[0, r] + g1 * Jinv[1, r] + g2 * Jinv[2, r]
+        span = 1.0 / (top_f - bottom)
+        for k in range(first, stop):
+            zeta = (0.5 * (fractions[k] + fractions[k + 1]) - bottom) * span
+            if prism:
+                for i in range(3):
+                    for r in range(3):
+                        grad[i, r] = (1.0 - zeta) * ends[0, i, r] + zeta * ends[1, i, r]
+            else:
+                for i in range(3):
+                    J[i, 0] = (1.0 - zeta) * parts[0, i, 0] + zeta * parts[0, i, 1]
+                    J[i, 1] = (1.0 - zeta) * parts[0, i, 2] + zeta * parts[0, i, 3]
+                    J[i, 2] = parts[0, i, 4]
+                    G[i, 0] = (1.0 - zeta) * parts[1, i, 0] + zeta * parts[1, i, 1]
+                    G[i, 1] = (1.0 - zeta) * parts[1, i, 2] + zeta * parts[1, i, 3]
+                    G[i, 2] = parts[1, i, 4]
+                enhanced = alpha_center[e] / abs(_inverse_3x3(J, Jinv))
+                for i in range(3):
+                    for r in range(3):
+                        grad[i, r] = (
+                            G[i, 0] * Jinv[0, r] + G[i, 1] * Jinv[1, r] + G[i, 2] * Jinv[2, r]
+                        )
+            c = cells[e]
+            strain[0] = grad[0, 0]
+            strain[1] = grad[1, 1]
+            strain[2] = grad[2, 2] + enhanced * (zeta - 0.5)
+            strain[3] = grad[1, 2] + grad[2, 1]
+            strain[4] = grad[0, 2] + grad[2, 0]
+            strain[5] = grad[0, 1] + grad[1, 0]
+            if to_stress:  # monoclinic plies: the normal and the transverse shear parts apart
+                for a in range(4):
+                    i = NORMAL[a]
+                    total = 0.0
+                    for b in range(4):
+                        total += stiffness[k, i, NORMAL[b]] * strain[NORMAL[b]]
+                    out[c, k, i] = total
+                yz = root[e, 1] * strain[3]
+                xz = root[e, 0] * strain[4]
+                out[c, k, 3] = root[e, 1] * (stiffness[k, 3, 3] * yz + stiffness[k, 3, 4] * xz)
+                out[c, k, 4] = root[e, 0] * (stiffness[k, 4, 3] * yz + stiffness[k, 4, 4] * xz)
+            else:
+                for i in range(6):
+                    out[c, k, i] = strain[i]
+
+
+@njit(cache=True)
+def _centre_parameters(maps, nodes, n_base, u_base, u_extra, out):
+    """out[e] = sum over element e's nodes a and components i of maps[e, a, i] u[a, i]: its
+    enhanced parameter at the in-plane centre (``ElementData.centre_maps``)."""
+    for e in range(nodes.shape[0]):
+        total = 0.0
+        for a in range(8):
+            node = nodes[e, a]
+            for i in range(3):
+                value = u_base[node, i] if node < n_base else u_extra[node - n_base, i]
+                total += maps[e, a, i] * value
+        out[e] = total
+
+
+@njit(cache=True)
+def _shear_scale(cells, plies, root, scale):
+    """scale[cell, ply, 3 (yz), 4 (xz)] = root[e, 1], root[e, 0] for the plies [first, stop)
+    of every element e (``ply_shear_scale``); the rest of ``scale`` untouched."""
+    for e in range(cells.shape[0]):
+        for ply in range(plies[e, 0], plies[e, 1]):
+            scale[cells[e], ply, 3] = root[e, 1]
+            scale[cells[e], ply, 4] = root[e, 0]
+
+
+@dataclass
+class ElementData:
+    """What the ply strains and stresses read of the structure's solid elements, which change
+    only when it refines: the elements (``Structure.elements``), the map from each one's
+    nodal displacements (8, 3) to its enhanced thickness strain parameter at the in-plane
+    centre (the mean of its four lines' small-strain maps, undamaged:
+    ``RuleTable.enhanced_parameters``), the plies' shear scale (``ply_shear_scale``) and
+    stiffnesses, and where each (cell, interface) keeps its cohesive damage. ``subelements``:
+    the structure's ``SubelementSet`` they were made for (a
+    refinement makes a new one); ``keys``: each element's (cell, first ply, stop ply) as one
+    integer, by which a refinement keeps the maps of the elements it did not change."""
+
+    subelements: object
+    nodes: np.ndarray
+    cells: np.ndarray
+    plies: np.ndarray
+    keys: np.ndarray
+    centre_maps: np.ndarray  # (n_elements, 8, 3) mm^3 / mm
+    shear_scale: np.ndarray  # (n_owned_cells, n_plies, 6)
+    shear_roots: np.ndarray  # (n_elements, 2) sqrt k_xz, sqrt k_yz of each element
+    stiffness: np.ndarray  # (n_plies, 6, 6) MPa, shell frame
+    alpha: np.ndarray  # (n_elements,) scratch for the centre parameters
+    cohesive_rows: np.ndarray  # (m, 3) cell, interface, damage row (``Structure.damage_rows``)
+    fractions: np.ndarray  # (n_plies + 1,) the ply boundaries' height in the laminate, 0 to 1
+    stresses: np.ndarray  # (n_owned_cells, n_plies, 6) the indicators' ply stresses, zero at first
+
+    @classmethod
+    def of(cls, structure, previous: ElementData | None = None) -> ElementData:
+        """The structure's element data now; the maps of elements ``previous`` holds (the
+        same cell and plies: the same nodes and rule) are taken from it."""
+        nodes, cells, plies = structure.elements()
+        table = structure.rule_table
+        n_plies = structure.laminate.n_plies
+        keys = (cells * (n_plies + 1) + plies[:, 0]) * (n_plies + 1) + plies[:, 1]
+        centre_maps = np.empty((len(nodes), 8, 3))
+        todo = np.ones(len(nodes), dtype=bool)
+        if previous is not None and len(previous.keys):
+            order = np.argsort(previous.keys)
+            at = np.minimum(np.searchsorted(previous.keys, keys, sorter=order), len(order) - 1)
+            todo = previous.keys[order[at]] != keys
+            centre_maps[~todo] = previous.centre_maps[order[at[~todo]]]
+        maps = np.zeros((int(todo.sum()), 4, 8, 3))
+        enhanced_parameter_maps(
+            structure.gather(nodes[todo], "X"), table.rule_of(plies[todo]), *table.packed, maps
+        )
+        centre_maps[todo] = maps.mean(axis=1)
+        scale = np.ones((structure.base.n_owned_cells, n_plies, 6))
+        root = np.sqrt(table.shear_factors(plies))  # (n_elements, 2)
+        _shear_scale(cells, plies.astype(np.int64), root, scale)
+        if previous is not None:
+            stiffness = previous.stiffness
+        else:
+            stiffness = np.array(structure.laminate.ply_stiffnesses()).reshape(n_plies, 6, 6)
+        return cls(
+            structure.refined_cells.subelements,
+            nodes,
+            cells,
+            plies,
+            keys,
+            centre_maps,
+            scale,
+            np.ascontiguousarray(root),
+            stiffness,
+            np.zeros(len(nodes)),
+            np.array(
+                [(c, i, row) for (c, i), row in structure.damage_rows.items()], dtype=np.int64
+            ).reshape(-1, 3),
+            np.asarray(structure.laminate.ply_fractions, dtype=float),
+            np.zeros((structure.base.n_owned_cells, n_plies, 6)),
+        )
+
+
+# per structure (weakly held): its ElementData until it refines
+_ELEMENTS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def element_data(structure) -> ElementData:
+    """The structure's ``ElementData``, made again after it refined."""
+    data = _ELEMENTS.get(structure)
+    if data is None or data.subelements is not structure.refined_cells.subelements:
+        data = _ELEMENTS[structure] = ElementData.of(structure, data)
+    return data
+
+
+def _ply_field(structure, to_stress: bool, out: np.ndarray) -> np.ndarray:
+    """The ply-centre strains, or stresses (``to_stress``), of every ply into ``out``
+    (n_owned_cells, n_plies, 6), which the call overwrites where a ply is (zero it first for
+    a layerwise model, whose cells hold some plies each). Returns ``out``."""
+    data = element_data(structure)
+    u_base = structure.base.u.x.array.reshape(-1, 3)
+    u_extra = structure.extra.vectors["u"].array.reshape(-1, 3)
+    _centre_parameters(data.centre_maps, data.nodes, structure.n_base, u_base, u_extra, data.alpha)
+    _ply_center_strains(
+        structure.X_base,
+        structure.extra.vectors["X"].array.reshape(-1, 3),
+        u_base,
+        u_extra,
+        data.nodes,
+        data.cells,
+        data.plies,
+        data.fractions,
+        data.alpha,
+        data.stiffness,
+        data.shear_roots,
+        to_stress,
+        out,
+    )
+    return out
+
+
+def ply_strains(structure) -> np.ndarray:
+    """(n_owned_cells, n_plies, 6) strain at each ply's mid-point (in-plane centre of its cell),
+    shell frame, from whichever element (cell or subelement) holds the ply."""
+    shape = (structure.base.n_owned_cells, structure.laminate.n_plies, 6)
+    return _ply_field(structure, False, np.zeros(shape))
+
+
+def ply_shear_scale(structure) -> np.ndarray:
+    """(n_owned_cells, n_plies, 6) Voigt factors D that give each ply the stress its element
+    carries, sigma = D C (D epsilon): 1 but for the transverse shears, sqrt k_yz and sqrt k_xz
+    of the element holding the ply (its shear correction, ``RuleTable.shear_factors``; the
+    stress whose work with the strain is the element's energy, a ply's transverse shear not
+    coupling to its other strains). Do not modify: it is kept until the structure refines."""
+    return element_data(structure).shear_scale
+
+
+def ply_stresses(structure, strains: np.ndarray | None = None) -> np.ndarray:
+    """(n_owned_cells, n_plies, 6) shell-frame stress (MPa) at each ply's mid-point, as the
+    element holding the ply carries it (its transverse shear with the element's shear
+    correction, ``ply_shear_scale``): sigma = D C (D strain), of ``strains`` if given."""
+    data = element_data(structure)
+    if strains is None:
+        shape = (structure.base.n_owned_cells, structure.laminate.n_plies, 6)
+        return _ply_field(structure, True, np.zeros(shape))
+    D = data.shear_scale
+    return D * np.einsum("kij,ckj->cki", data.stiffness, D * strains)
+
+
+def indicator_stresses(structure) -> np.ndarray:
+    """``ply_stresses`` into the indicators' own array (``ElementData.stresses``): valid until
+    the next call."""
+    return _ply_field(structure, True, element_data(structure).stresses)
+
+
+def to_material_frame(stresses: np.ndarray, angles_deg: np.ndarray) -> np.ndarray:
+    """Rotate Voigt stresses (..., n_plies, 6) of plies at ``angles_deg`` into their material
+    frames (1 fibre, 2 transverse, 3 normal)."""
+    out = np.empty_like(stresses)
+    pairs = ((0, 0), (1, 1), (2, 2), (1, 2), (0, 2), (0, 1))
+    for k, angle in enumerate(angles_deg):
+        R = rotation_about_z(angle)  # columns: material axes in the shell frame
+        sigma = np.zeros((*stresses.shape[:-2], 3, 3))
+        for a, (i, j) in enumerate(pairs):
+            sigma[..., i, j] = sigma[..., j, i] = stresses[..., k, a]
+        material = np.einsum("ai,...ij,bj->...ab", R.T, sigma, R.T)
+        for a, (i, j) in enumerate(pairs):
+            out[..., k, a] = material[..., i, j]
+    return out
+
+
+@njit(cache=True)
+def _hashin_field(stresses, params, out):
+    """Largest Hashin exposure factor (fibre or matrix) of each (cell, ply) material-frame
+    stress."""
+    for c in range(stresses.shape[0]):
+        for k in range(stresses.shape[1]):
+            s = stresses[c, k]
+            ft, fc, mt, mc = hashin_indices(s[0], s[1], s[2], s[3], s[4], s[5], params[k])
+            out[c, k] = max(max(ft, fc), max(mt, mc))
+
+
+def ply_failure_indices(structure) -> np.ndarray:
+    """(n_cells, n_plies) largest Hashin index (fibre or matrix; 1 = failure) of each ply: the
+    largest recorded so far when the ply damage model runs, else that of the current stress."""
+    if structure.ply_damage:
+        return structure.damage_state[:, :, S_FT : S_MC + 1].max(axis=2)
+    plies = structure.laminate.plies
+    params = np.array([structure.failures[p.material.name].as_array() for p in plies])
+    material = to_material_frame(ply_stresses(structure), np.array([p.angle for p in plies]))
+    out = np.zeros(material.shape[:2])
+    _hashin_field(material, params, out)
+    return out
