@@ -93,6 +93,7 @@ class LayeredModel:
     preintegrate: bool = True
     _enhanced_maps: np.ndarray | None = None  # enhanced_parameter_maps, once computed
     _compiled: CompiledForms | None = None  # the forms' kernels, once per formulation
+    _cell_time_steps: np.ndarray | None = None  # cell_time_steps, once computed
 
     @property
     def finite(self) -> bool:
@@ -195,8 +196,10 @@ class LayeredModel:
     def reference_geometry_changed(self) -> None:
         """Call after moving the mesh's reference nodes (``mesh.geometry.x``): the small-strain
         enhanced parameter maps are computed from it once (``enhanced_parameter_maps``) and
-        are rebuilt here, with the forms. The package itself never moves them."""
+        are rebuilt here, with the forms, as are the cells' time steps. The package itself never
+        moves them."""
         self._enhanced_maps = None
+        self._cell_time_steps = None
         self.set_ufl_cells(self.ufl_cells)
 
     def enhanced_parameter_maps(self) -> np.ndarray:
@@ -309,11 +312,19 @@ class LayeredModel:
             )
         return speeds
 
+    def cell_time_steps(self) -> np.ndarray:
+        """(n_owned_cells,) L_e / c (s) of each cell: L_e = volume / largest face area, c the
+        fastest dilatational wave speed of its plies. Computed once from the reference geometry
+        (``reference_geometry_changed`` after moving the mesh); do not modify."""
+        if self._cell_time_steps is None:
+            ratios = characteristic_lengths(cell_vertex_coordinates(self.mesh))
+            self._cell_time_steps = ratios / self.cell_wave_speeds()
+        return self._cell_time_steps
+
     def stable_time_step(self) -> tuple[float, int]:
-        """(min over cells of L_e / c, the cell attaining it), reduced over ranks. L_e = volume /
-        largest face area; c = fastest dilatational wave speed of the cell's plies."""
-        ratios = characteristic_lengths(cell_vertex_coordinates(self.mesh))
-        ratios /= self.cell_wave_speeds()
+        """(min over cells of L_e / c, the cell attaining it), reduced over ranks
+        (``cell_time_steps``)."""
+        ratios = self.cell_time_steps()
         if len(ratios) == 0:  # a rank without cells still joins the reduction
             return self.comm.allreduce((np.inf, -1), op=MPI.MIN)
         cell = int(np.argmin(ratios))

@@ -32,11 +32,8 @@ def stable_time_step(structure: Structure) -> tuple[float, str]:
     if scaled is not None:
         return _scaled_time_step(structure, scaled)
     candidates = []
-    ratios = characteristic_lengths(structure.cell_vertices())
-    speeds = structure.base.cell_wave_speeds()
-    refined = structure.refinement.refined_cells()
-    ratios /= speeds
-    ratios[refined] = np.inf
+    ratios = structure.base.cell_time_steps().copy()
+    ratios[structure.refinement.refined_cells()] = np.inf
     if len(ratios):
         cell = int(np.argmin(ratios))
         candidates.append((float(ratios[cell]), f"cell {structure.original_cell[cell]}"))
