@@ -191,11 +191,11 @@ class ElementData:
     only when it refines: the elements (``Structure.elements``), the map from each one's
     nodal displacements (8, 3) to its enhanced thickness strain parameter at the in-plane
     centre (the mean of its four lines' small-strain maps, undamaged:
-    ``RuleTable.enhanced_parameters``), the plies' shear scale (``ply_shear_scale``) and
-    stiffnesses, and where each (cell, interface) keeps its cohesive damage. ``subelements``:
-    the structure's ``SubelementSet`` they were made for (a
-    refinement makes a new one); ``keys``: each element's (cell, first ply, stop ply) as one
-    integer, by which a refinement keeps the maps of the elements it did not change."""
+    ``RuleTable.enhanced_parameters``), the square roots of its shear correction factors, the
+    plies' stiffnesses, and where each (cell, interface) keeps its cohesive damage.
+    ``subelements``: the structure's ``SubelementSet`` they were made for (a refinement makes
+    a new one); ``keys``: each element's (cell, first ply, stop ply) as one integer, by which a
+    refinement keeps the maps of the elements it did not change."""
 
     subelements: object
     nodes: np.ndarray
@@ -203,7 +203,6 @@ class ElementData:
     plies: np.ndarray
     keys: np.ndarray
     centre_maps: np.ndarray  # (n_elements, 8, 3) mm^3 / mm
-    shear_scale: np.ndarray  # (n_owned_cells, n_plies, 6)
     shear_roots: np.ndarray  # (n_elements, 2) sqrt k_xz, sqrt k_yz of each element
     stiffness: np.ndarray  # (n_plies, 6, 6) MPa, shell frame
     alpha: np.ndarray  # (n_elements,) scratch for the centre parameters
@@ -231,9 +230,7 @@ class ElementData:
             structure.gather(nodes[todo], "X"), table.rule_of(plies[todo]), *table.packed, maps
         )
         centre_maps[todo] = maps.mean(axis=1)
-        scale = np.ones((structure.base.n_owned_cells, n_plies, 6))
         root = np.sqrt(table.shear_factors(plies))  # (n_elements, 2)
-        _shear_scale(cells, plies.astype(np.int64), root, scale)
         if previous is not None:
             stiffness = previous.stiffness
         else:
@@ -245,7 +242,6 @@ class ElementData:
             plies,
             keys,
             centre_maps,
-            scale,
             np.ascontiguousarray(root),
             stiffness,
             np.zeros(len(nodes)),
@@ -307,8 +303,11 @@ def ply_shear_scale(structure) -> np.ndarray:
     carries, sigma = D C (D epsilon): 1 but for the transverse shears, sqrt k_yz and sqrt k_xz
     of the element holding the ply (its shear correction, ``RuleTable.shear_factors``; the
     stress whose work with the strain is the element's energy, a ply's transverse shear not
-    coupling to its other strains). Do not modify: it is kept until the structure refines."""
-    return element_data(structure).shear_scale
+    coupling to its other strains)."""
+    data = element_data(structure)
+    scale = np.ones((structure.base.n_owned_cells, structure.laminate.n_plies, 6))
+    _shear_scale(data.cells, data.plies.astype(np.int64), data.shear_roots, scale)
+    return scale
 
 
 def ply_stresses(structure, strains: np.ndarray | None = None) -> np.ndarray:
@@ -319,7 +318,7 @@ def ply_stresses(structure, strains: np.ndarray | None = None) -> np.ndarray:
     if strains is None:
         shape = (structure.base.n_owned_cells, structure.laminate.n_plies, 6)
         return _ply_field(structure, True, np.zeros(shape))
-    D = data.shear_scale
+    D = ply_shear_scale(structure)
     return D * np.einsum("kij,ckj->cki", data.stiffness, D * strains)
 
 
