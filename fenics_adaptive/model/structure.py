@@ -445,13 +445,20 @@ class Structure:
             vector.scatter_forward()
         kinetic_before, potential_before = self._mechanical_energy()
 
-        n_interfaces = self.refinement.n_interfaces
-        for interface in range(1, n_interfaces + 1):  # weak, bottom to top
-            cells = self.refinement.to_weaken(changed, target, interface)
-            self._activate_weak(cells, interface, t)
-        for interface in range(1, n_interfaces + 1):  # then strong
-            cells = self.refinement.to_strengthen(changed, target, interface)
-            self._activate_strong(cells, interface, t)
+        # weak, bottom to top, then strong; an interface no rank changes is skipped by all
+        # (each activation is collective). Each interface's cells read only its own column of
+        # the states, so they can be taken before the lower interfaces change theirs.
+        for selected, activate in (
+            (self.refinement.to_weaken, self._activate_weak),
+            (self.refinement.to_strengthen, self._activate_strong),
+        ):
+            interfaces = range(1, self.refinement.n_interfaces + 1)
+            cells = [selected(changed, target, interface) for interface in interfaces]
+            anywhere = np.zeros(len(cells), dtype=np.int64)
+            self.comm.Allreduce(np.array([len(c) for c in cells], dtype=np.int64), anywhere)
+            for interface, these, count in zip(interfaces, cells, anywhere, strict=True):
+                if count:
+                    activate(these, interface, t)
 
         self.lumped.resize_extra(self.extra.index_map)
         self.lumped.add_mass_change(
