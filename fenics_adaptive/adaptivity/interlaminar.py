@@ -91,7 +91,8 @@ _GEOMETRY: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 
 def face_geometry(structure) -> FaceGeometry:
-    """The structure's ``FaceGeometry``, made on first use."""
+    """The structure's ``FaceGeometry``, made on first use: collective then (its tributary
+    areas are summed over ranks), as every caller here is."""
     if structure not in _GEOMETRY:
         _GEOMETRY[structure] = FaceGeometry.of(structure)
     return _GEOMETRY[structure]
