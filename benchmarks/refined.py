@@ -29,7 +29,9 @@ import tomllib
 from collections.abc import Callable
 from pathlib import Path
 
+import mpi4py  # noqa: F401  (before dolfinx)
 import numpy as np
+from dolfinx import la
 from numba import njit
 
 from fenics_adaptive.analysis.studies import tcb_variant
@@ -221,8 +223,8 @@ def force_profile(structure, repeat: int) -> dict[str, float]:
     if len(lumped.border):
         parts["border transfer"] = lambda: transfer_forces(*lumped._border_args, f_base, f_extra)
     parts["reverse scatter"] = lambda: (
-        lumped.f_base.scatter_reverse(la_add()),
-        lumped.f_extra.scatter_reverse(la_add()),
+        lumped.f_base.scatter_reverse(la.InsertMode.add),
+        lumped.f_extra.scatter_reverse(la.InsertMode.add),
     )
     return interleaved(parts, repeat)
 
@@ -266,13 +268,6 @@ def bench_profile(n_cells: int, repeat: int) -> list[dict]:
     refine_every_cell(structure, "strong")
     impose_field(structure)
     return profile_rows("profile, strong cells", structure, force_profile(structure, repeat))
-
-
-def la_add():
-    """DOLFINx's additive insert mode (imported late: dolfinx after mpi4py)."""
-    from dolfinx import la
-
-    return la.InsertMode.add
 
 
 def bench_refined(n_cells: int, steps: int, repeat: int) -> list[dict]:

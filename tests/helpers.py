@@ -10,6 +10,7 @@ from __future__ import annotations
 from mpi4py import MPI  # first: the DOLFINx wheel finds libmpi through it
 
 # isort: split
+import importlib.util
 import json
 import math
 import tomllib
@@ -471,3 +472,13 @@ def assert_on_the_propagation_branch(comparison: dict, history: dict) -> None:
     growing = history["crack_growth_area"] > 0.0
     assert np.all(history["kinetic_energy"][growing] < 0.01 * history["impact_work"][growing])
     assert np.abs(history["energy_balance"]).max() < 1e-6 * history["impact_work"].max()
+
+
+def load_benchmark(name: str):
+    """The module ``benchmarks/<name>.py``, loaded from its file (``benchmarks/`` is not a
+    package)."""
+    path = Path(__file__).parents[1] / "benchmarks" / f"{name}.py"
+    spec = importlib.util.spec_from_file_location(name, path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module

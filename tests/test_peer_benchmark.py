@@ -3,26 +3,18 @@ Akantu side's mesh has fenics-adaptive's nodes, cuts the film and nothing else, 
 arms with the same history. Akantu itself is not needed here (its worker's mesh and loading are
 plain numpy)."""
 
-import importlib.util
 from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import load_benchmark
 from mpi4py import MPI
 
 from fenics_adaptive.settings.config import parse_config
 from fenics_adaptive.settings.loads import Amplitude
 from fenics_adaptive.simulation import build_structure
 
-BENCHMARKS = Path(__file__).parents[1] / "benchmarks"
 pytestmark = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="serial benchmark helpers")
-
-
-def load(name: str):
-    spec = importlib.util.spec_from_file_location(name, BENCHMARKS / f"{name}.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
 
 
 def read_msh(path: Path) -> tuple[np.ndarray, np.ndarray]:
@@ -38,7 +30,7 @@ def read_msh(path: Path) -> tuple[np.ndarray, np.ndarray]:
 
 
 def test_the_akantu_arms_open_as_the_prescribed_motion_of_fenics_adaptive():
-    akantu = load("akantu_dcb")
+    akantu = load_benchmark("akantu_dcb")
     velocity, rise = 857.0, 3.5e-4
     ramp = Amplitude.ramp(rise, smooth=True)
     for t in np.linspace(0.0, 3 * rise, 13):
@@ -47,7 +39,7 @@ def test_the_akantu_arms_open_as_the_prescribed_motion_of_fenics_adaptive():
 
 
 def test_the_akantu_mesh_has_the_same_nodes_and_cuts_only_the_film(tmp_path):
-    peer, akantu = load("peer"), load("akantu_dcb")
+    peer, akantu = load_benchmark("peer"), load_benchmark("akantu_dcb")
     nx, ny = 20, 2
     config = parse_config(peer.base_config(nx, ny))
     structure = build_structure(config)

@@ -2,25 +2,15 @@
 weakly or strongly refined beam and the layerwise beam it is timed against hold the same nodes
 and, given the same displacement field, the same forces and stored energy."""
 
-import importlib.util
-from pathlib import Path
-
 import numpy as np
 import pytest
+from helpers import load_benchmark
 from mpi4py import MPI
 
 from fenics_adaptive.settings.config import parse_config
 from fenics_adaptive.simulation import build_structure
 
-BENCHMARKS = Path(__file__).parents[1] / "benchmarks"
 pytestmark = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="serial benchmark helpers")
-
-
-def load(name: str):
-    spec = importlib.util.spec_from_file_location(name, BENCHMARKS / f"{name}.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
 
 
 def nodal_forces(structure) -> np.ndarray:
@@ -43,8 +33,8 @@ def nodal_forces(structure) -> np.ndarray:
 
 @pytest.mark.parametrize("pattern", ["weak", "strong"])
 def test_a_refined_beam_and_its_layerwise_beam_hold_the_same_forces(pattern):
-    run = load("run")
-    refined = load("refined")
+    run = load_benchmark("run")
+    refined = load_benchmark("refined")
     adaptive, layerwise = (
         build_structure(parse_config(data))
         for data in refined.pair_configs(run.beam_config(12), pattern)

@@ -193,18 +193,18 @@ def _peel_profile(corners, table, d_dx, d_dy, t, out):
             below = above
 
 
-def _column_table(structure, width: int) -> tuple[la.Vector, np.ndarray]:
-    """A zeroed work vector of ``width`` values per base node and its (n_nodes, width) view."""
+def _column_averages(structure, values: np.ndarray) -> np.ndarray:
+    """Collective: (n_nodes, m + 1) the averages of per-cell ``values`` (n_cells, m) over the
+    cells around each bottom node, over all ranks (a view of a work vector, valid until the
+    next call with the same m)."""
+    width = values.shape[1] + 1
     sums = face_geometry(structure).sums_vector(structure, width)
-    return sums, sums.array.reshape(-1, width)
-
-
-def _average_on_columns(sums: la.Vector, table: np.ndarray) -> None:
-    """Collective: complete the column sums on the owners, then on the ghosts, and make them
-    averages (``_to_averages``)."""
+    table = sums.array.reshape(-1, width)
+    _corner_sums(structure.bottom_local, values, table)
     sums.scatter_reverse(la.InsertMode.add)
     sums.scatter_forward()
     _to_averages(table)
+    return table
 
 
 def recovered_interface_stresses(structure, stresses: np.ndarray | None = None) -> np.ndarray:
@@ -219,14 +219,10 @@ def recovered_interface_stresses(structure, stresses: np.ndarray | None = None) 
     out = np.empty((n_cells, n_plies + 1, 3))
     in_plane = np.empty((n_cells, 3 * n_plies))
     _in_plane_stresses(stresses, in_plane)
-    sums, table = _column_table(structure, 3 * n_plies + 1)
-    _corner_sums(corners, in_plane, table)
-    _average_on_columns(sums, table)
+    table = _column_averages(structure, in_plane)
     shear = np.empty((n_cells, 2 * (n_plies + 1)))
     _shear_profile(corners, table, geometry.d_dx, geometry.d_dy, t, out, shear)
-    sums, table = _column_table(structure, 2 * (n_plies + 1) + 1)
-    _corner_sums(corners, shear, table)
-    _average_on_columns(sums, table)
+    table = _column_averages(structure, shear)
     _peel_profile(corners, table, geometry.d_dx, geometry.d_dy, t, out)
     return out
 

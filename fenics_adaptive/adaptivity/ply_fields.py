@@ -19,7 +19,7 @@ import numpy as np
 from numba import njit
 
 from fenics_adaptive.element.solid_shell import NORMAL  # a monoclinic ply couples these
-from fenics_adaptive.element.subelement import enhanced_parameter_maps, gather_nodes
+from fenics_adaptive.element.subelement import gather_nodes
 from fenics_adaptive.materials.laminate import rotation_about_z
 from fenics_adaptive.materials.ply_damage import S_FT, S_MC, hashin_indices
 
@@ -191,7 +191,7 @@ class ElementData:
     only when it refines: the elements (``Structure.elements``), the map from each one's
     nodal displacements (8, 3) to its enhanced thickness strain parameter at the in-plane
     centre (the mean of its four lines' small-strain maps, undamaged:
-    ``RuleTable.enhanced_parameters``), the square roots of its shear correction factors, the
+    ``RuleTable.enhanced_parameter_maps``), the square roots of its shear correction factors, the
     plies' stiffnesses, and where each (cell, interface) keeps its cohesive damage.
     ``subelements``: the structure's ``SubelementSet`` they were made for (a refinement makes
     a new one); ``keys``: each element's (cell, first ply, stop ply) as one integer, by which a
@@ -225,16 +225,10 @@ class ElementData:
             at = np.minimum(np.searchsorted(previous.keys, keys, sorter=order), len(order) - 1)
             todo = previous.keys[order[at]] != keys
             centre_maps[~todo] = previous.centre_maps[order[at[~todo]]]
-        maps = np.zeros((int(todo.sum()), 4, 8, 3))
-        enhanced_parameter_maps(
-            structure.gather(nodes[todo], "X"), table.rule_of(plies[todo]), *table.packed, maps
-        )
+        maps = table.enhanced_parameter_maps(structure.gather(nodes[todo], "X"), plies[todo])
         centre_maps[todo] = maps.mean(axis=1)
         root = np.sqrt(table.shear_factors(plies))  # (n_elements, 2)
-        if previous is not None:
-            stiffness = previous.stiffness
-        else:
-            stiffness = np.array(structure.laminate.ply_stiffnesses()).reshape(n_plies, 6, 6)
+        stiffness = np.array(structure.laminate.ply_stiffnesses()).reshape(n_plies, 6, 6)
         return cls(
             structure.refined_cells.subelements,
             nodes,
@@ -310,16 +304,12 @@ def ply_shear_scale(structure) -> np.ndarray:
     return scale
 
 
-def ply_stresses(structure, strains: np.ndarray | None = None) -> np.ndarray:
+def ply_stresses(structure) -> np.ndarray:
     """(n_owned_cells, n_plies, 6) shell-frame stress (MPa) at each ply's mid-point, as the
     element holding the ply carries it (its transverse shear with the element's shear
-    correction, ``ply_shear_scale``): sigma = D C (D strain), of ``strains`` if given."""
-    data = element_data(structure)
-    if strains is None:
-        shape = (structure.base.n_owned_cells, structure.laminate.n_plies, 6)
-        return _ply_field(structure, True, np.zeros(shape))
-    D = ply_shear_scale(structure)
-    return D * np.einsum("kij,ckj->cki", data.stiffness, D * strains)
+    correction, ``ply_shear_scale``): sigma = D C (D strain)."""
+    shape = (structure.base.n_owned_cells, structure.laminate.n_plies, 6)
+    return _ply_field(structure, True, np.zeros(shape))
 
 
 def indicator_stresses(structure) -> np.ndarray:

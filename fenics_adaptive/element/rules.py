@@ -114,14 +114,19 @@ class RuleTable:
         plies = np.asarray(plies, dtype=np.int64).reshape(-1, 2)
         return self._rule_of_plies[plies[:, 0], plies[:, 1]].astype(np.int64)
 
-    def enhanced_parameters(self, X: np.ndarray, u: np.ndarray, plies: np.ndarray) -> np.ndarray:
-        """(n, 4) small-strain enhanced thickness strain parameters alpha (mm^3, lines in
-        ``solid_shell.ENHANCED_LINES`` order; zero where the rule has none) of n (sub)elements
-        with reference vertices ``X`` and displacements ``u`` (n, 8, 3; mm) spanning ``plies``
-        (n, 2) [first, stop), undamaged (``subelement.enhanced_parameter_maps``)."""
+    def enhanced_parameter_maps(self, X: np.ndarray, plies: np.ndarray) -> np.ndarray:
+        """(n, 4, 8, 3) small-strain maps from the nodal displacements of n (sub)elements with
+        reference vertices ``X`` (n, 8, 3; mm) spanning ``plies`` (n, 2) [first, stop) to their
+        enhanced thickness strain parameters (lines in ``solid_shell.ENHANCED_LINES`` order;
+        zero where the rule has none), undamaged (``subelement.enhanced_parameter_maps``)."""
         maps = np.zeros((len(X), 4, 8, 3))
         enhanced_parameter_maps(X, self.rule_of(plies), *self.packed, maps)
-        return np.einsum("ekai,eai->ek", maps, u)
+        return maps
+
+    def enhanced_parameters(self, X: np.ndarray, u: np.ndarray, plies: np.ndarray) -> np.ndarray:
+        """(n, 4) the enhanced thickness strain parameters alpha (mm^3) of displacements ``u``
+        (n, 8, 3; mm) (``enhanced_parameter_maps``)."""
+        return np.einsum("ekai,eai->ek", self.enhanced_parameter_maps(X, plies), u)
 
     def shear_factors(self, plies: np.ndarray) -> np.ndarray:
         """(n, 2) transverse shear correction factors (k_xz, k_yz) that the rule of each span
