@@ -362,18 +362,10 @@ def _fill_line(bx, bu, xi, eta, line):
 
 
 @njit(inline="always")
-def _inverse_jacobian(line, z):
-    """(det J, K) at height z of a vertical line (``_fill_line``); K = J^-1 (K[r, j] =
-    dX_r/dx_j) as a row-major 9-tuple."""
-    J00 = line[0, 0, 0] + z * line[1, 0, 0]
-    J01 = line[0, 0, 1] + z * line[1, 0, 1]
-    J02 = line[0, 0, 2]
-    J10 = line[0, 1, 0] + z * line[1, 1, 0]
-    J11 = line[0, 1, 1] + z * line[1, 1, 1]
-    J12 = line[0, 1, 2]
-    J20 = line[0, 2, 0] + z * line[1, 2, 0]
-    J21 = line[0, 2, 1] + z * line[1, 2, 1]
-    J22 = line[0, 2, 2]
+def _inverse3(J):
+    """(det J, K = J^-1) of a row-major 3 x 3 9-tuple J, K as a row-major 9-tuple (the
+    cofactors over the determinant; one division)."""
+    J00, J01, J02, J10, J11, J12, J20, J21, J22 = J
     c00 = J11 * J22 - J12 * J21
     c01 = J12 * J20 - J10 * J22
     c02 = J10 * J21 - J11 * J20
@@ -391,6 +383,25 @@ def _inverse_jacobian(line, z):
         (J00 * J11 - J01 * J10) * inv_det,
     )
     return det, K
+
+
+@njit(inline="always")
+def _inverse_jacobian(line, z):
+    """(det J, K) at height z of a vertical line (``_fill_line``); K = J^-1 (K[r, j] =
+    dX_r/dx_j) as a row-major 9-tuple."""
+    return _inverse3(
+        (
+            line[0, 0, 0] + z * line[1, 0, 0],
+            line[0, 0, 1] + z * line[1, 0, 1],
+            line[0, 0, 2],
+            line[0, 1, 0] + z * line[1, 1, 0],
+            line[0, 1, 1] + z * line[1, 1, 1],
+            line[0, 1, 2],
+            line[0, 2, 0] + z * line[1, 2, 0],
+            line[0, 2, 1] + z * line[1, 2, 1],
+            line[0, 2, 2],
+        )
+    )
 
 
 @njit(inline="always")

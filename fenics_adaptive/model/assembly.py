@@ -21,15 +21,15 @@ the internal force f_int of m a = f_ext - f_int.
 from __future__ import annotations
 
 import contextlib
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from numba import njit
 
+from fenics_adaptive.element import batched
+from fenics_adaptive.element.batched import lane_order
 from fenics_adaptive.element.subelement import (
-    KERNEL_OPTIONS,
     PackedRules,
-    element_force_kernel,
     gather_nodes,
     scatter_add_nodes,
 )
@@ -43,11 +43,16 @@ UNREACHABLE_STRENGTH = 1e100
 @dataclass
 class SubelementSet:
     """Layered solid-shell (sub)elements computed by numba: nodes (n, 8) combined local
-    indices; each uses rule ``rule_of_element`` of ``rules``."""
+    indices; each uses rule ``rule_of_element`` of ``rules``. ``order``: the elements grouped by
+    rule (``batched.lane_order``), the order the batched kernel takes them in."""
 
     nodes: np.ndarray
     rule_of_element: np.ndarray
     rules: PackedRules
+    order: np.ndarray = field(init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        self.order = lane_order(self.rule_of_element)
 
     @classmethod
     def empty(cls, rules: PackedRules) -> SubelementSet:
@@ -166,8 +171,9 @@ def add_subelement_forces(
     total Lagrangian kinematics (Green-Lagrange strain), else small strain."""
     if len(subelements) == 0:
         return 0.0
-    return _add_subelement_forces(
+    return batched.add_subelement_forces(
         subelements.nodes,
+        subelements.order,
         subelements.rule_of_element,
         *subelements.rules,
         X_base,
@@ -207,65 +213,6 @@ def add_cohesive_forces(
         f_base,
         f_extra,
     )
-
-
-@njit(cache=True, **KERNEL_OPTIONS)
-def _add_subelement_forces(
-    element_nodes,
-    rule_of_element,
-    rule_offsets,
-    zeta,
-    weights,
-    terms,
-    ply_of_point,
-    position_of_point,
-    positions,
-    stiffness,
-    enhanced_mode,
-    X_base,
-    X_extra,
-    u_base,
-    u_extra,
-    f_base,
-    f_extra,
-    finite,
-):
-    n_base = X_base.shape[0]
-    work = np.empty((2, 8, 3))
-    line = np.empty((4, 3, 3))
-    X = np.empty((8, 3))
-    u = np.empty((8, 3))
-    f = np.empty((8, 3))
-    energy = 0.0
-    for e in range(element_nodes.shape[0]):
-        nodes = element_nodes[e]
-        gather_nodes(nodes, n_base, X_base, X_extra, X)
-        gather_nodes(nodes, n_base, u_base, u_extra, u)
-        start = rule_offsets[rule_of_element[e]]
-        stop = rule_offsets[rule_of_element[e] + 1]
-        energy += element_force_kernel(
-            X,
-            u,
-            start,
-            stop,
-            zeta,
-            weights,
-            terms,
-            ply_of_point,
-            position_of_point,
-            positions,
-            stiffness,
-            enhanced_mode,
-            work,
-            line,
-            f,
-            None,
-            None,
-            None,
-            finite,
-        )
-        scatter_add_nodes(nodes, n_base, f, 1.0, f_base, f_extra)
-    return energy
 
 
 @njit(cache=True)
