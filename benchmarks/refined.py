@@ -37,6 +37,7 @@ from numba import njit
 from fenics_adaptive.analysis.studies import tcb_variant
 from fenics_adaptive.analysis.timing import time_per_step
 from fenics_adaptive.element.subelement import gather_nodes, scatter_add_nodes
+from fenics_adaptive.model.assembly import SubelementSet, add_subelement_forces
 from fenics_adaptive.model.border import transfer_forces
 from fenics_adaptive.settings.config import parse_config
 from fenics_adaptive.settings.kinds import InterfaceState
@@ -194,8 +195,8 @@ def _scatter_only(element_nodes, n_base, f_base, f_extra) -> None:
 
 def force_profile(structure, repeat: int) -> dict[str, float]:
     """Median seconds of each part of ``structure.internal_force`` in its present state: each
-    contributor (the UFL form of the unrefined cells, the subelements, the cohesive elements,
-    or the damaged solids), the subelements' gather and scatter alone, the border's force
+    contributor (the solids, elastic or damaged, and the cohesive elements), the solids' whole
+    cells and subelements apart, the subelements' gather and scatter alone, the border's force
     transfer, the reverse scatter; "whole internal force" first."""
     lumped = structure.lumped
     f_base, f_extra = lumped._f_arrays
@@ -203,19 +204,26 @@ def force_profile(structure, repeat: int) -> dict[str, float]:
     X_base, X_extra, u_base, u_extra, fb, fe = node_args
     nodes = structure.refined_cells.subelements.nodes
     parts: dict[str, Callable[[], object]] = {"whole internal force": structure.internal_force}
+    n_sub = len(structure.refined_cells.subelements)
     for contributor in structure.internal_forces.contributors:
         parts[contributor.name] = lambda c=contributor: c.add_force(0.0, f_base, f_extra)
-        if contributor.name == "ply":  # one kernel for all: time the whole cells and the
-            # subelements apart (the subelements are the last elements)
-            n_sub = len(structure.refined_cells.subelements)
+        # one kernel for all solids: time the whole cells and the subelements apart (the
+        # subelements are the last elements)
+        if contributor.name == "ply":
             n_all = len(contributor.damage.elements[0])
-            for label, part in (
-                ("whole cells", slice(0, n_all - n_sub)),
-                ("subelements", slice(n_all - n_sub, n_all)),
-            ):
-                parts[f"ply, {label}"] = lambda c=contributor, p=part: _damaged_part(
-                    c, p, node_args
-                )
+            time_part = _damaged_part
+        elif contributor.name == "solid":
+            n_all = len(contributor.solids)
+            time_part = _elastic_part
+        else:
+            continue
+        for label, part in (
+            ("whole cells", slice(0, n_all - n_sub)),
+            ("subelements", slice(n_all - n_sub, n_all)),
+        ):
+            parts[f"{contributor.name}, {label}"] = lambda c=contributor, p=part, f=time_part: f(
+                c, p, node_args
+            )
     parts["subelements: gather alone"] = lambda: _gather_only(
         nodes, X_base, X_extra, u_base, u_extra
     )
@@ -227,6 +235,13 @@ def force_profile(structure, repeat: int) -> dict[str, float]:
         lumped.f_extra.scatter_reverse(la.InsertMode.add),
     )
     return interleaved(parts, repeat)
+
+
+def _elastic_part(contributor, part: slice, node_args: tuple) -> None:
+    """The elastic solids' kernel on the elements ``part`` only."""
+    solids = contributor.solids
+    elements = SubelementSet(solids.nodes[part], solids.rule_of_element[part], solids.rules)
+    add_subelement_forces(elements, *node_args, contributor.model.finite)
 
 
 def _damaged_part(contributor, part: slice, node_args: tuple) -> None:

@@ -113,7 +113,7 @@ def test_a_spring_to_ground_of_one_s_own_moves_the_beam_as_the_closed_form(kind)
 def test_contributors_are_named_once_and_added_before_the_start():
     simulation = fa.Simulation(free_beam())
     structure = simulation.structure
-    assert [c.name for c in structure.contributors] == ["solid", "subelements", "cohesive", "ties"]
+    assert [c.name for c in structure.contributors] == ["solid", "cohesive", "ties"]
     simulation.add_contributor(MassSprings(structure, 1.0, ForceKind.INTERNAL))
     with pytest.raises(ValueError, match="unique names"):
         simulation.add_contributor(MassSprings(structure, 1.0, ForceKind.EXTERNAL))

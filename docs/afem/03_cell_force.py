@@ -84,9 +84,9 @@ for key, local in structure.extra.index.items():
 # %% [markdown]
 # ## Path 1: the package
 #
-# `internal_force` fills `f_base` and `f_extra`: the UFL form for unrefined cells (none here),
-# the subelement loop, the cohesive loop (with the minus sign), then the border transfer (none
-# here).
+# `internal_force` fills `f_base` and `f_extra`: the solid elements' loop (unrefined cells
+# whole, none here, and the subelements), the cohesive loop (with the minus sign), then the
+# border transfer (none here).
 
 # %%
 structure.internal_force()

@@ -4,10 +4,9 @@ Units: N, mm, s, tonne (forces N, energies mJ = N mm).
 
 A force contributor adds its force, says the energy it stores and keeps its state; the solver
 sums every contributor each step. The structure's own are its internal forces and tie forces
-(``Structure.contributors``): the UFL/FFCx form of the unrefined cells
-(``internal_forces.SolidForm``), the numba subelements of the refined cells
-(``internal_forces.Subelements``), or, with ply damage, every (sub)element through the
-damage-aware kernel (``internal_forces.DamagedSolid``), the cohesive elements
+(``Structure.contributors``): every solid (sub)element, unrefined cells whole and the refined
+cells' subelements, through the batched elastic kernel (``internal_forces.ElasticSolid``) or,
+with ply damage, the damage-aware one (``internal_forces.DamagedSolid``), the cohesive elements
 (``internal_forces.CohesiveElements``) and the tie forces of new strong interfaces
 (``tie_forces.TieForces``). A run adds more (``ExplicitSolver(contributors=...)``,
 ``Simulation.add_contributor``): a rigid impactor (``contact.Contact``), or one of a user's own.

@@ -2,15 +2,17 @@
 
 Units: N, mm, s, tonne (energies mJ = N mm).
 
-Paper Eq. (3): f_int = f_UFL(unrefined cells) + sum_i P_i^T f^sublam_i - sum_j P_j^T f^coh_j.
-Each term is one contributor:
+Paper Eq. (3): f_int = f(unrefined cells) + sum_i P_i^T f^sublam_i - sum_j P_j^T f^coh_j.
+Each kind of element is one contributor:
 
-- ``SolidForm`` ("solid"): the UFL/FFCx form of the cells that are not refined (ESL cells, the
-  cells of a layerwise model);
-- ``Subelements`` ("subelements"): the refined cells' subelements, numba;
-- ``DamagedSolid`` ("ply"): with ply damage, every solid (sub)element instead of the two above,
-  through the damage-aware numba kernel (the same for ESL, adaptive and layerwise cells); its
-  state is the ply damage;
+- ``ElasticSolid`` ("solid"): every solid (sub)element, the unrefined cells (ESL cells, the
+  cells of a layerwise model) and the refined cells' subelements alike, through the batched
+  numba kernel; the paper's first term is the UFL form of the unrefined cells, which that kernel
+  equals to round-off (``tests/test_subelement.py``) at a third of its cost, and which the
+  base model keeps for its linearisation (static solves);
+- ``DamagedSolid`` ("ply"): with ply damage, every solid (sub)element instead, through the
+  damage-aware numba kernel (the same for ESL, adaptive and layerwise cells); its state is the
+  ply damage;
 - ``CohesiveElements`` ("cohesive"): the cohesive elements of the strong interfaces (or of a
   layerwise model), numba; their state is the cohesive damage.
 
@@ -34,6 +36,7 @@ from mpi4py import MPI
 from fenics_adaptive.adaptivity.enrichment import ExtraNodes
 from fenics_adaptive.adaptivity.refinement import RefinementState
 from fenics_adaptive.element.rules import RuleTable
+from fenics_adaptive.model.assembly import SubelementSet, add_subelement_forces
 from fenics_adaptive.model.forces import Contributor, ForceKind
 from fenics_adaptive.model.forms import LayeredModel
 from fenics_adaptive.model.ply_damage_state import PlyDamageState
@@ -75,64 +78,58 @@ class NodeArrays:
         )
 
 
-class SolidForm(Contributor):
-    """The UFL/FFCx internal force of the cells the base model's forms integrate (all cells
-    that are not refined).
+class ElasticSolid(Contributor):
+    """Every solid (sub)element of the structure through the batched elastic kernel
+    (``element.batched``): unrefined cells whole (all plies, or an LW layer's), refined cells by
+    subelement, with the base model's kinematics (read per call, so that
+    ``LayeredModel.set_kinematics`` switches it with the forms).
 
-    ``model``: the base model (its forms and displacement); ``refinement``: the interface
-    states, from which ``refined`` takes the unrefined cells (None: the cells never change)."""
+    The base model's UFL form is not assembled in a step; it keeps integrating the unrefined
+    cells (``refined``) for what linearises it: ``solver.static`` and the stiffness probes.
+
+    ``model``: the base model; ``refinement``: the interface states (their unrefined cells go
+    to the form); ``rule_table``: the packed rules; ``nodes``: the node arrays; ``elements()``:
+    the structure's solid elements now (``Structure.elements``), taken again after each
+    refinement."""
 
     name = "solid"
     kind = ForceKind.INTERNAL
 
-    def __init__(self, model: LayeredModel, refinement: RefinementState | None = None):
+    def __init__(
+        self,
+        model: LayeredModel,
+        refinement: RefinementState,
+        rule_table: RuleTable,
+        nodes: NodeArrays,
+        elements: Callable[[], tuple[np.ndarray, np.ndarray, np.ndarray]],
+    ):
         self.model = model
         self.refinement = refinement
-
-    def update_coefficients(self) -> None:
-        """The per-step pre-pass before the form is assembled: everything its kernels read
-        that depends on the displacement (``LayeredModel.update_coefficients``: the packed
-        displacement; per-cell element parameters computed from it belong there too)."""
-        self.model.update_coefficients()
-
-    def add_force(self, t: float, f_base: np.ndarray, f_extra: np.ndarray) -> None:
-        """This rank's share of f_int (N) of the form's cells into ``f_base`` (local DOFs)."""
-        self.update_coefficients()
-        self.model.assemble_internal_force(f_base)
-
-    def energy(self) -> float:
-        """Strain energy (mJ) of this rank's cells of the form."""
-        return self.model.local_strain_energy()
-
-    def refined(self) -> None:
-        """The form integrates the cells that are still unrefined."""
-        if self.refinement is not None:
-            self.model.set_ufl_cells([self.refinement.unrefined_cells()])
-
-
-class Subelements(Contributor):
-    """The layered subelements of the refined cells (numba, paper Eq. (3) f^sublam), with the
-    base model's kinematics (read per call, so that ``LayeredModel.set_kinematics`` switches
-    this path with the form)."""
-
-    name = "subelements"
-    kind = ForceKind.INTERNAL
-
-    def __init__(self, cells: RefinedCells, nodes: NodeArrays, model: LayeredModel):
-        self.cells = cells
+        self.rule_table = rule_table
         self.nodes = nodes
-        self.model = model
+        self.elements = elements
         self._energy = 0.0
+        self.solids = SubelementSet.empty(rule_table.packed)
+        self._take_elements()
 
     def add_force(self, t: float, f_base: np.ndarray, f_extra: np.ndarray) -> None:
-        """Add the subelements' forces (N) into the local base and extra DOFs."""
-        self._energy = self.cells.add_subelement_forces(
-            *self.nodes.kernel_arguments(f_base, f_extra), self.model.finite
+        """Add the elements' forces (N) into the local base and extra DOFs."""
+        self._energy = add_subelement_forces(
+            self.solids, *self.nodes.kernel_arguments(f_base, f_extra), self.model.finite
         )
 
     def energy(self) -> float:
-        """Strain energy (mJ) of this rank's subelements at the last ``add_force``."""
+        """Strain energy (mJ) of this rank's elements at the last ``add_force``."""
         return self._energy
+
+    def refined(self) -> None:
+        """The kernel computes the structure's elements of now; the form, its unrefined cells."""
+        self._take_elements()
+        self.model.set_ufl_cells([self.refinement.unrefined_cells()])
+
+    def _take_elements(self) -> None:
+        nodes, _, plies = self.elements()
+        self.solids = SubelementSet(nodes, self.rule_table.rule_of(plies), self.rule_table.packed)
 
 
 class DamagedSolid(Contributor):
@@ -246,13 +243,12 @@ class InternalForces:
         damage: PlyDamageState | None,
         elements: Callable[[], tuple[np.ndarray, np.ndarray, np.ndarray]],
     ) -> InternalForces:
-        """The contributors of a structure: with ply ``damage`` (None: without) every solid
-        element through the damaged kernel, else the form of the unrefined cells and the
-        subelements; the cohesive elements in both."""
+        """The contributors of a structure: every solid element through the damaged kernel with
+        ply ``damage``, else (None) through the elastic one; the cohesive elements in both."""
         if damage is not None:
             solids = [DamagedSolid(damage, cells.rule_table, nodes, elements)]
         else:
-            solids = [SolidForm(model, refinement), Subelements(cells, nodes, model)]
+            solids = [ElasticSolid(model, refinement, cells.rule_table, nodes, elements)]
         return cls(solids, CohesiveElements(cells, nodes, model.comm), model.comm)
 
     def energies(self) -> tuple[float, float]:

@@ -7,15 +7,16 @@ Units: N, mm, s, tonne.
 - layerwise (LW) reference: one cell layer per sublaminate, UFL forms, and cohesive elements
   joining the node sets of split layer boundaries (the high-fidelity model).
 - adaptive: the ESL mesh whose cells are refined through the thickness (weak: extra nodes,
-  strong: duplicated extra nodes + a cohesive element). Refined cells leave the UFL form and are
-  computed subelement by subelement by numba (paper Eqs. (3)-(7)):
+  strong: duplicated extra nodes + a cohesive element). Refined cells are computed subelement
+  by subelement (paper Eqs. (3)-(7)):
 
-      f_int = f_UFL(unrefined cells) + sum_i P_i^T f^sublam_i - sum_j P_j^T f^coh_j
+      f_int = f(unrefined cells) + sum_i P_i^T f^sublam_i - sum_j P_j^T f^coh_j
 
-Each term is a force contributor (``model.internal_forces``: the form, the subelements or,
-with ply damage, the damaged solid, the cohesive elements); with the tie forces of new strong
-interfaces they are the structure's ``contributors`` (``model.forces``), which the solver sums
-with a run's own. ``internal_force()`` sums the internal ones into the blocks.
+The solid terms are one force contributor (``model.internal_forces``: every solid element
+through one numba kernel, elastic or, with ply damage, damaged; the base model's UFL form keeps
+the unrefined cells for static solves), the cohesive elements another; with the tie forces of
+new strong interfaces they are the structure's ``contributors`` (``model.forces``), which the
+solver sums with a run's own. ``internal_force()`` sums the internal ones into the blocks.
 
 Refinement (``Structure.refine``) is collective and happens between steps: new extra nodes get
 positions and velocities interpolated from the cell's active nodes below and above (weak) or
