@@ -135,6 +135,13 @@ class ExtraNodes:
     def local_base_node(self, global_node: int) -> int:
         return self._global_to_local[global_node]
 
+    def local_base_nodes(self, global_nodes: np.ndarray) -> np.ndarray:
+        """Local indices (int64) of global base nodes of this rank (owned or ghosts)."""
+        found, local = sorted_lookup(self._base_sorted, global_nodes)
+        if not found.all():
+            raise KeyError(int(np.asarray(global_nodes)[~found].flat[0]))
+        return local.astype(np.int64)
+
     def locate(self, keys: np.ndarray) -> np.ndarray:
         """Local indices of active extra nodes given their keys (any shape); KeyError if one
         is not active here."""

@@ -115,49 +115,69 @@ def border_constraints(
     ``prescribed``: bool per local extra DOF (owned and ghosts), True where a motion holds it."""
     n_interfaces = extra.n_interfaces
     n_plies = n_interfaces + 1
+    n = len(extra.index)
+    keys = np.fromiter(extra.index.keys(), dtype=np.int64, count=n)
+    local = np.fromiter(extra.index.values(), dtype=np.int64, count=n)
+    node_set = keys % 2
+    g = keys // 2 // n_interfaces
+    interface = keys // 2 % n_interfaces + 1
+    bottom = extra.local_base_nodes(g)
+    # free[s][b, j - 1]: node set s of interface j above base node b is active in every cell
+    # around the column (the column count's entry equals the number of cells)
+    cells_around = counts[:, :1]
+    free = (
+        counts[:, 1 : 1 + n_interfaces] == cells_around,
+        counts[:, 1 + n_interfaces :] == cells_around,
+    )
+    free_a = free[enr.SET_A][bottom]  # (n, n_interfaces)
+    free_b = free[enr.SET_B][bottom]
+    rows = np.arange(n)
+    own = np.where(node_set == enr.SET_A, free_a[rows, interface - 1], free_b[rows, interface - 1])
+    free_keys = keys[own & (node_set == enr.SET_B)]
 
-    def free(bottom: int, interface: int, node_set: int) -> bool:
-        row = counts[bottom]
-        column = 1 + (node_set * n_interfaces) + interface - 1
-        return row[column] == row[0]
+    # a constrained set B whose set A is free follows it; any other constrained node lies on
+    # the straight line between the nearest free set-A nodes below and above (or the column's
+    # bottom and top base nodes)
+    c = np.flatnonzero(~own)
+    follows_a = (node_set[c] == enr.SET_B) & free_a[c, interface[c] - 1]
+    below = np.zeros(len(c), dtype=np.int64)
+    above = np.full(len(c), n_plies, dtype=np.int64)
+    for j in range(1, n_plies):  # ascending: the last free one below wins
+        below = np.where((j < interface[c]) & free_a[c, j - 1], j, below)
+    for j in range(n_interfaces, 0, -1):  # descending: the last free one above wins
+        above = np.where((j > interface[c]) & free_a[c, j - 1], j, above)
 
-    def node(g: int, interface: int, node_set: int) -> int:
-        return n_base + extra.index[enr.extra_key(g, interface, node_set, n_interfaces)]
+    def node(at: np.ndarray, level: np.ndarray, sets: np.ndarray) -> np.ndarray:
+        """Combined local index of extra nodes (g of ``at``, interface ``level``, ``sets``)."""
+        if len(at) == 0:
+            return np.zeros(0, dtype=np.int64)
+        return n_base + extra.locate(enr.extra_keys(g[at], level, sets, n_interfaces))
 
-    dofs, masters, weights, free_b = [], [], [], set()
-    for key, local in extra.index.items():
-        g, interface, node_set = enr.key_parts(key, n_interfaces)
-        bottom = extra.local_base_node(g)
-        if free(bottom, interface, node_set):
-            if node_set == enr.SET_B:
-                free_b.add(key)
-            continue
-        if node_set == enr.SET_B and free(bottom, interface, enr.SET_A):
-            nodes, w = (node(g, interface, enr.SET_A),) * 2, (1.0, 0.0)
-        else:
-            below = max((j for j in range(1, interface) if free(bottom, j, enr.SET_A)), default=0)
-            above = min(
-                (j for j in range(interface + 1, n_plies) if free(bottom, j, enr.SET_A)),
-                default=n_plies,
-            )
-            if below == 0:
-                lower = bottom
-            else:
-                lower = node(g, below, enr.SET_B if free(bottom, below, enr.SET_B) else enr.SET_A)
-            upper = column_top[bottom] if above == n_plies else node(g, above, enr.SET_A)
-            s = thickness_weight(fractions, interface, below, above)
-            nodes, w = (lower, upper), (1.0 - s, s)
-        for component in range(3):
-            if prescribed[3 * local + component]:
-                continue
-            dofs.append(3 * (n_base + local) + component)
-            masters.append([3 * nodes[0] + component, 3 * nodes[1] + component])
-            weights.append(w)
+    lower = bottom[c].copy()
+    has_below = below > 0
+    at = c[has_below]
+    lower_set = np.where(free_b[at, below[has_below] - 1], enr.SET_B, enr.SET_A)
+    lower[has_below] = node(at, below[has_below], lower_set)
+    upper = np.empty(len(c), dtype=np.int64)
+    at_top = above == n_plies
+    upper[at_top] = [column_top[b] for b in bottom[c[at_top]].tolist()]
+    upper[~at_top] = node(c[~at_top], above[~at_top], np.full(int((~at_top).sum()), enr.SET_A))
+    s = thickness_weight(np.asarray(fractions, dtype=float), interface[c], below, above)
+    weights = np.column_stack([1.0 - s, s])
+    if follows_a.any():
+        at = c[follows_a]
+        lower[follows_a] = upper[follows_a] = node(at, interface[at], np.zeros(len(at), int))
+        weights[follows_a] = (1.0, 0.0)
+
+    # per DOF, node by node (the index's order) and x, y, z; the prescribed ones are left out
+    dofs = 3 * (n_base + local[c])[:, None] + np.arange(3)
+    masters = 3 * np.stack([lower, upper], axis=1)[:, None, :] + np.arange(3)[None, :, None]
+    keep = ~np.asarray(prescribed, dtype=bool)[dofs - 3 * n_base]
     return BorderConstraints(
-        np.array(dofs, dtype=np.int64),
-        np.array(masters, dtype=np.int64).reshape(-1, 2),
-        np.array(weights, dtype=np.float64).reshape(-1, 2),
-        frozenset(free_b),
+        dofs[keep].astype(np.int64),
+        masters[keep].reshape(-1, 2).astype(np.int64),
+        np.broadcast_to(weights[:, None, :], (len(c), 3, 2))[keep].reshape(-1, 2).copy(),
+        frozenset(free_keys.tolist()),
     )
 
 
@@ -173,20 +193,19 @@ def transfer_masses(
     n_base_dofs = 3 * n_base
     out = []
     scratch = [la.vector(v.index_map, bs=3) for v in (mass_base, mass_extra)]
-    n_owned_extra = 3 * mass_extra.index_map.size_local
-    m_extra = mass_extra.array
-    for dof, masters, weights in zip(
-        constraints.dofs, constraints.masters, constraints.weights, strict=True
-    ):
-        c = dof - n_base_dofs
-        if c >= n_owned_extra:  # a ghost: its owner transfers it
-            continue
-        scratch[1].array[c] -= m_extra[c]
-        for master, w in zip(masters, weights, strict=True):
-            if master < n_base_dofs:
-                scratch[0].array[master] += w * m_extra[c]
-            else:
-                scratch[1].array[master - n_base_dofs] += w * m_extra[c]
+    delta_base, delta_extra = (v.array for v in scratch)
+    constrained = constraints.dofs - n_base_dofs
+    owned = constrained < 3 * mass_extra.index_map.size_local  # a ghost's owner transfers it
+    constrained = constrained[owned]
+    m = mass_extra.array[constrained]
+    # masters are never constrained themselves: the constrained entries only lose their mass
+    delta_extra[constrained] -= m
+    # constraint by constraint, master by master (the order of the sums at a shared master)
+    masters = constraints.masters[owned].ravel()
+    shares = (constraints.weights[owned] * m[:, None]).ravel()
+    in_base = masters < n_base_dofs
+    np.add.at(delta_base, masters[in_base], shares[in_base])
+    np.add.at(delta_extra, masters[~in_base] - n_base_dofs, shares[~in_base])
     for vector, delta in zip((mass_base, mass_extra), scratch, strict=True):
         delta.scatter_reverse(la.InsertMode.add)
         n_owned = 3 * vector.index_map.size_local
