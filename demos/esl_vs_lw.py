@@ -33,8 +33,8 @@ force is V = q L / 2 and clamp and tip are four thicknesses or more away.
 - **(c) refined**: the adaptive element refined weakly at all seven interfaces from the start
   (``[interfaces] refine = [1..7]``, ``initial = "weak"``): extra nodes at every interface,
   one subelement per ply, computed by the numba kernel.
-- **(d) LW**: the layerwise reference, one cell layer per ply (``mesh.layers = [1]*8``),
-  computed by the UFL form. It is the reference of every error below.
+- **(d) LW**: the layerwise reference, one cell layer per ply (``mesh.layers = [1]*8``).
+  It is the reference of every error below.
 
 For (c) and (d), which have nodes at the interfaces, the interlaminar stress is the traction
 the interface transmits (``comparison.interface_tractions``): the internal force of the elements
@@ -92,10 +92,9 @@ What it shows:
   wrong sign in the upper plies, with the compatible thickness strain alone);
 - recovered from equilibrium (b): within about 2 % of LW at every interface for all three
   layups, for the price of one recovery per indicator check;
-- the refined element (c) equals LW (to round-off: the paper's "matches the reference"), at a
-  cost per step above LW's here: fully refined cells go through the numba subelement kernel,
-  which is slower than the UFL form that integrates LW's cells, on top of the two-fold smaller
-  stable time step it shares with LW.
+- the refined element (c) equals LW (to round-off: the paper's "matches the reference"), at
+  about LW's cost per step (both go through the same element kernel), with the two-fold
+  smaller stable time step it shares with LW.
 
 So for a laminate in bending, ESL with recovered out-of-plane stresses is enough to see where
 interlaminar stresses become critical (which is what the strong-refinement indicator needs);

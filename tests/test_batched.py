@@ -2,7 +2,7 @@
 
 Units: N, mm, s, tonne.
 
-``batched.add_subelement_forces`` is the refined cells' production path; ``subelement``'s
+``batched.add_subelement_forces`` is every elastic solid element's production path; ``subelement``'s
 ``solid_shell_force`` computes one element with the same mathematics in another loop order. Here
 both compute the same elements (distorted, off-axis plies, enhanced thickness strain, several
 rules interleaved, more elements than one batch holds, nodes among base and extra arrays, some

@@ -159,7 +159,7 @@ def test_finite_kernel_is_small_strain_kernel_for_small_displacements():
 def refined_strip() -> Structure:
     """The 3 x 2 strip of ``finite_rotation.toml``: cell 0 refined weakly at interfaces 1 and 3
     and strongly at 2 (three subelements and a cohesive element), cell 1 strongly at 2, cell 2
-    weakly at 3; cells 3-5 stay with the UFL form (neighbours of refined cells, so the border
+    weakly at 3; cells 3-5 stay unrefined (neighbours of refined cells, so the border
     constraints are in play too)."""
     _, structure = finite_structure("finite_rotation.toml")
     requests = [
@@ -403,7 +403,7 @@ def test_cantilever_large_tip_load_matches_elastica():
     f_ufl = f_ufl.array[: model.n_owned_dofs].reshape(-1, 3).copy()
     cells = range(model.n_owned_cells)
     structure.refine([(c, i, InterfaceState.WEAK) for c in cells for i in config.interfaces.refine])
-    assert all(len(c) == 0 for c in model.ufl_cells)  # every cell is numba's now
+    assert all(len(c) == 0 for c in model.ufl_cells)  # no unrefined cell is left
     f_base, f_extra = forces(structure)
     # hand each extra node's force to the two base nodes of its column (the transpose of its
     # interpolation at the interface's thickness fraction)

@@ -26,7 +26,7 @@ from fenics_adaptive.element.timestep import characteristic_lengths, hexahedron_
 from fenics_adaptive.errors import InputError
 from fenics_adaptive.materials import ply_damage as pd
 from fenics_adaptive.materials.laminate import Laminate, Ply, element_shear_factors
-from fenics_adaptive.model.assembly import CohesiveSet
+from fenics_adaptive.model.assembly import CohesiveSet, add_subelement_forces
 from fenics_adaptive.model.ply_damage_state import PlyDamageState
 from fenics_adaptive.settings.adaptivity import Interfaces, Stabilisation
 from fenics_adaptive.settings.kinds import InterfaceState
@@ -426,7 +426,9 @@ def test_refined_cells_of_one_cell_open_only_at_its_strong_interface():
     u_base[4:, 2] = delta  # the top of the cell and set B lifted
     u_extra[8:, 2] = delta
     f_base, f_extra = np.zeros((8, 3)), np.zeros((12, 3))
-    solid = refined.add_subelement_forces(X_base, X_extra, u_base, u_extra, f_base, f_extra, False)
+    solid = add_subelement_forces(
+        refined.subelements, X_base, X_extra, u_base, u_extra, f_base, f_extra, False
+    )
     assert abs(solid) < 1e-20
     assert np.abs(f_base).max() < 1e-9 and np.abs(f_extra).max() < 1e-9
     cohesive = refined.add_cohesive_forces(X_base, X_extra, u_base, u_extra, f_base, f_extra)

@@ -65,6 +65,13 @@ def extra_keys(
     return (g * n_interfaces + (np.asarray(interfaces, dtype=np.int64) - 1)) * 2 + node_sets
 
 
+def key_arrays(keys: np.ndarray, n_interfaces: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``key_parts`` of an array of keys: (global bottom base nodes, interfaces, sets), int64."""
+    keys = np.asarray(keys, dtype=np.int64)
+    rest = keys // 2
+    return rest // n_interfaces, rest % n_interfaces + 1, keys % 2
+
+
 def key_parts(key: int, n_interfaces: int) -> tuple[int, int, int]:
     """(global bottom base node, interface, set) of an extra-node key."""
     node_set = int(key % 2)

@@ -1,5 +1,6 @@
 """The elastic internal force of many solid-shell (sub)elements at once, vectorised across
-elements that share a packed rule: the refined cells' production kernel.
+elements that share a packed rule: the production kernel of every elastic solid element
+(unrefined cells whole, subelements of refined ones, layerwise cells).
 
 Units: N, mm, s, tonne (forces N, strain energy mJ).
 
@@ -13,6 +14,10 @@ Jacobian, strain, stress maps, first Piola-Kirchhoff stress; the same condensati
 enhanced thickness strain line by line; the same monomial moments and butterflies), and
 ``tests/test_batched.py`` holds the two equal to round-off on distorted elements, small strain
 and finite.
+
+Stiffness. The rule's stiffnesses are read as symmetric (C[0, 1] for both C[0, 1] and C[1, 0],
+and so on): ``pack_rule`` checks that they are, to 1e-12 of their largest entry, and the
+one-element kernel reads the other triangle where it needs it, so the two agree to round-off.
 
 Layout. Per-lane values live in flat arrays with the lane index last and a stride of the
 compile-time constant ``LANES``: row r of lane w is ``a[r * LANES + w]``. With that constant
@@ -277,6 +282,8 @@ def _add_line_moments(acc, forces, xi, eta, nw):
 
 @njit(cache=True, **KERNEL_OPTIONS)
 def _vertex_forces(forces, nw):
+    """Monomial derivatives (8 x 3 x LANES) back to vertex forces in place (the transposed
+    butterfly), compiled alone so that its lane loops vectorise."""
     _butterfly(forces, True, nw)
 
 

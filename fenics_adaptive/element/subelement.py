@@ -849,8 +849,8 @@ def solid_shell_force(
     ``X``, ``u``: (8, 3) vertex coordinates and displacements (mm), DOLFINx vertex order. The
     remaining inputs are the fields of a ``PackedRule`` (``pack_rule``), so the usual call is
     ``solid_shell_force(X, u, *rule, f_out)``. Small strain (or, ``finite=True``, total
-    Lagrangian), selective (ANS-equivalent) rule; see the module docstring. The batched kernel
-    with one element (one compiled kernel fewer)."""
+    Lagrangian), selective (ANS-equivalent) rule; see the module docstring.
+    ``solid_shell_forces`` with one element (one compiled kernel fewer)."""
     rule = PackedRule(
         zeta, weights, terms, ply_of_point, position_of_point, positions, stiffness, enhanced_mode
     )

@@ -27,7 +27,6 @@ import numpy as np
 from numba import njit
 
 from fenics_adaptive.element import batched
-from fenics_adaptive.element.batched import lane_order
 from fenics_adaptive.element.subelement import (
     PackedRules,
     gather_nodes,
@@ -52,7 +51,7 @@ class SubelementSet:
     order: np.ndarray = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
-        self.order = lane_order(self.rule_of_element)
+        self.order = batched.lane_order(self.rule_of_element)
 
     @classmethod
     def empty(cls, rules: PackedRules) -> SubelementSet:

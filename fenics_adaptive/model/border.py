@@ -118,9 +118,7 @@ def border_constraints(
     n = len(extra.index)
     keys = np.fromiter(extra.index.keys(), dtype=np.int64, count=n)
     local = np.fromiter(extra.index.values(), dtype=np.int64, count=n)
-    node_set = keys % 2
-    g = keys // 2 // n_interfaces
-    interface = keys // 2 % n_interfaces + 1
+    g, interface, node_set = enr.key_arrays(keys, n_interfaces)
     bottom = extra.local_base_nodes(g)
     # free[s][b, j - 1]: node set s of interface j above base node b is active in every cell
     # around the column (the column count's entry equals the number of cells)

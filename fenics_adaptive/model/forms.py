@@ -260,9 +260,10 @@ class LayeredModel:
         self.set_ufl_cells(self.ufl_cells)
 
     def update_coefficients(self) -> None:
-        """The per-step pre-pass of the forms: pack what their kernels read that depends on
-        the displacement (``PackedDisplacement``), and condense the enhanced thickness strain
-        of every UFL cell from it, so that the force and the energy both see it."""
+        """The pre-pass of the forms before an assembly: pack what their kernels read that
+        depends on the displacement (``PackedDisplacement``), and condense the enhanced
+        thickness strain of every UFL cell from it, so that the force and the energy both see
+        it."""
         self.packed.update()
         if self.enhanced is not None:
             self.enhanced.condense()

@@ -85,7 +85,12 @@ class ElasticSolid(Contributor):
     ``LayeredModel.set_kinematics`` switches it with the forms).
 
     The base model's UFL form is not assembled in a step; it keeps integrating the unrefined
-    cells (``refined``) for what linearises it: ``solver.static`` and the stiffness probes.
+    cells (``refined``) for ``solver.static`` (a linear static solve of the base model's cells,
+    which differentiates the form). The static solver of whole structures and the stiffness
+    probes (``solver.equilibrium``, ``analysis.comparison``) use this contributor's forces.
+    The base model's ``selective = False`` (the fully integrated hexahedron, a UFL-only
+    variant kept to show what the selective rule buys) is refused: the kernel's rules are
+    selective.
 
     ``model``: the base model; ``refinement``: the interface states (their unrefined cells go
     to the form); ``rule_table``: the packed rules; ``nodes``: the node arrays; ``elements()``:
@@ -109,7 +114,11 @@ class ElasticSolid(Contributor):
         self.nodes = nodes
         self.elements = elements
         self._energy = 0.0
-        self.solids = SubelementSet.empty(rule_table.packed)
+        if not model.selective:
+            raise ValueError(
+                "a structure's solids use the selective rule: selective=False is a UFL-form-only "
+                "variant of the base model (build_model), for static solves of it"
+            )
         self._take_elements()
 
     def add_force(self, t: float, f_base: np.ndarray, f_extra: np.ndarray) -> None:

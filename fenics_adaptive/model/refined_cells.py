@@ -1,4 +1,4 @@
-"""The elements of the refined cells, which leave the UFL form and are computed by numba: the
+"""The elements of the refined cells: the
 subelements (with the owned cell and the plies each spans, and its dilatational wave speed) and
 the cohesive elements of the strong interfaces (paper Eq. (3)).
 
@@ -6,7 +6,9 @@ Units: N, mm, s, tonne.
 
 ``RefinedCells.rebuild`` makes both sets anew from the refined cells' interface states after a
 refinement (the cohesive damage rows persist: each strong (cell, interface) keeps its row);
-``add_subelement_forces`` / ``add_cohesive_forces`` add their internal forces in a step.
+``add_cohesive_forces`` adds the cohesive elements' internal forces in a step (the
+subelements' go through the solids' kernel with every other solid element,
+``internal_forces.ElasticSolid``).
 """
 
 from __future__ import annotations
@@ -21,7 +23,6 @@ from fenics_adaptive.model.assembly import (
     CohesiveSet,
     SubelementSet,
     add_cohesive_forces,
-    add_subelement_forces,
 )
 from fenics_adaptive.settings.kinds import InterfaceState
 
@@ -98,23 +99,6 @@ class RefinedCells:
             cells = np.concatenate([cells, self.cells])
             plies = np.vstack([plies, self.plies])
         return nodes.astype(np.int32), cells, plies
-
-    def add_subelement_forces(
-        self,
-        X_base: np.ndarray,
-        X_extra: np.ndarray,
-        u_base: np.ndarray,
-        u_extra: np.ndarray,
-        f_base: np.ndarray,
-        f_extra: np.ndarray,
-        finite: bool,
-    ) -> float:
-        """Add the subelements' internal forces (N) into ``f_base`` / ``f_extra`` (n, 3) from the
-        reference positions ``X_*`` and displacements ``u_*`` (mm); ``finite``: the total
-        Lagrangian kernel. Returns their strain energy (mJ)."""
-        return add_subelement_forces(
-            self.subelements, X_base, X_extra, u_base, u_extra, f_base, f_extra, finite
-        )
 
     def add_cohesive_forces(
         self,

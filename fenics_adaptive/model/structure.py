@@ -3,8 +3,8 @@ masses, prescribed DOFs and internal forces, for the three kinds of model.
 
 Units: N, mm, s, tonne.
 
-- ESL: one cell through the thickness; every cell integrated by the UFL form.
-- layerwise (LW) reference: one cell layer per sublaminate, UFL forms, and cohesive elements
+- ESL: one cell through the thickness.
+- layerwise (LW) reference: one cell layer per sublaminate, and cohesive elements
   joining the node sets of split layer boundaries (the high-fidelity model).
 - adaptive: the ESL mesh whose cells are refined through the thickness (weak: extra nodes,
   strong: duplicated extra nodes + a cohesive element). Refined cells are computed subelement
