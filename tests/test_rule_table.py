@@ -37,7 +37,7 @@ from mpi4py import MPI
 
 from fenics_adaptive.analysis import comparison as cmp
 from fenics_adaptive.materials.laminate import Laminate
-from fenics_adaptive.model.assembly import add_cohesive_forces
+from fenics_adaptive.model.assembly import SubelementSet, add_cohesive_forces, add_subelement_forces
 from fenics_adaptive.model.border import transfer_forces
 from fenics_adaptive.model.forms import build_model
 from fenics_adaptive.model.loading import resolve
@@ -325,3 +325,26 @@ def test_linear_static_tools_refuse_finite_kinematics():
         cmp.probe_stiffness(structure)
     with pytest.raises(ValueError, match="finite kinematics"):
         cmp.solve_linear_static(structure)
+
+
+def test_a_refined_structures_form_takes_its_unrefined_cells_when_next_used():
+    """A refinement hands the base model's form its new cells lazily (the step does not use
+    the form): the first use after it integrates exactly the cells left unrefined, whose
+    energy the kernel's whole-cell elements give too."""
+    structure = build_structure(parse_config(strip("adaptive", 2, "small")))
+    for _, requests in list(refinement_chain(structure))[:4]:  # none .. mixed
+        structure.refine(requests)
+    deform(structure, np.eye(3), noise=1e-3)
+    assert structure.base._cells_pending
+    unrefined = structure.refinement.unrefined_cells()
+    assert 0 < len(unrefined) < structure.base.n_owned_cells
+    solids = next(c for c in structure.internal_forces.contributors if c.name == "solid").solids
+    whole_cells = SubelementSet(
+        solids.nodes[: len(unrefined)], solids.rule_of_element[: len(unrefined)], solids.rules
+    )
+    f_base = np.zeros_like(structure.base.u.x.array)
+    f_extra = np.zeros_like(structure.extra.vectors["u"].array)
+    args = structure.node_arrays.kernel_arguments(f_base, f_extra)
+    energy = add_subelement_forces(whole_cells, *args, False)
+    assert structure.base.local_strain_energy() == pytest.approx(energy, rel=1e-10)
+    assert not structure.base._cells_pending

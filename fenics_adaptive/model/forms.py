@@ -94,6 +94,7 @@ class LayeredModel:
     _enhanced_maps: np.ndarray | None = None  # enhanced_parameter_maps, once computed
     _compiled: CompiledForms | None = None  # the forms' kernels, once per formulation
     _cell_time_steps: np.ndarray | None = None  # cell_time_steps, once computed
+    _cells_pending: bool = False  # set_ufl_cells(defer=True) recorded cells the forms lack
 
     @property
     def finite(self) -> bool:
@@ -120,12 +121,28 @@ class LayeredModel:
         cells = self.beam.cell_tags.find(layer + 1)
         return cells[cells < self.n_owned_cells].astype(np.int32)
 
-    def set_ufl_cells(self, cells_per_layer: list[np.ndarray]) -> None:
+    def set_ufl_cells(self, cells_per_layer: list[np.ndarray], defer: bool = False) -> None:
         """Integrate the UFL forms over these owned cells of each layer. The forms are built
         and compiled once per formulation (``_form_key``); a new set of cells only hands the
         compiled kernels new integration cells (a refinement event used to spend 60 ms here
-        re-deriving and looking up the same kernels)."""
+        re-deriving and looking up the same kernels). ``defer``: record the cells only; the
+        forms take them when next used (``forms_ready``): a structure refines far more often
+        than it solves statically, and its steps do not assemble these forms."""
         self.ufl_cells = [np.asarray(c, dtype=np.int32) for c in cells_per_layer]
+        self._cells_pending = defer
+        if not defer:
+            self._hand_cells_to_forms()
+
+    def forms_ready(self) -> None:
+        """Hand the forms the cells a deferred ``set_ufl_cells`` recorded; call before using
+        ``force_ufl``, ``energy_ufl``, ``force_form``, ``energy_form`` or ``enhanced``
+        directly (this class's own methods do)."""
+        if self._cells_pending:
+            self._cells_pending = False
+            self._hand_cells_to_forms()
+
+    def _hand_cells_to_forms(self) -> None:
+        """The compiled forms (compiled first if the formulation changed) over ``ufl_cells``."""
         if self._compiled is None or self._compiled.key != self._form_key():
             self._compiled = self._compile_forms()
         compiled = self._compiled
@@ -264,6 +281,7 @@ class LayeredModel:
         depends on the displacement (``PackedDisplacement``), and condense the enhanced
         thickness strain of every UFL cell from it, so that the force and the energy both see
         it."""
+        self.forms_ready()
         self.packed.update()
         if self.enhanced is not None:
             self.enhanced.condense()
@@ -272,6 +290,7 @@ class LayeredModel:
     def assemble_internal_force(self, out: np.ndarray) -> None:
         """Add this rank's share of f_int(u) (N) over the UFL cells into ``out`` (owned + ghost
         entries, no scatter), from the coefficients of the last ``update_coefficients``."""
+        self.forms_ready()
         fem.assemble_vector(
             out, self.force_form, constants=self.packed.constants[0], coeffs=self.packed.coeffs[0]
         )

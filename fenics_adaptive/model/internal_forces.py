@@ -134,7 +134,7 @@ class ElasticSolid(Contributor):
     def refined(self) -> None:
         """The kernel computes the structure's elements of now; the form, its unrefined cells."""
         self._take_elements()
-        self.model.set_ufl_cells([self.refinement.unrefined_cells()])
+        self.model.set_ufl_cells([self.refinement.unrefined_cells()], defer=True)
 
     def _take_elements(self) -> None:
         nodes, _, plies = self.elements()

@@ -22,6 +22,7 @@ from fenics_adaptive.model.loading import COMPONENTS, PrescribedMotion, Resolved
 def stiffness_form(model: LayeredModel) -> ufl.Form:
     """Tangent stiffness K_uu (bilinear form) of the model's internal force at fixed enhanced
     thickness strain; ``stiffness_matrix`` condenses the enhanced strain out of it."""
+    model.forms_ready()
     return ufl.derivative(model.force_ufl, model.u, ufl.TrialFunction(model.V))
 
 
