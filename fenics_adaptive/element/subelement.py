@@ -386,38 +386,33 @@ def _inverse3(J):
 
 
 @njit(inline="always")
+def _line_matrix(line, s, z):
+    """Matrix s (0: J, 2: G) of a vertical line (``_fill_line``) at height z, as a row-major
+    9-tuple: line[s] + z line[s + 1], whose third column has no slope."""
+    return (
+        line[s, 0, 0] + z * line[s + 1, 0, 0],
+        line[s, 0, 1] + z * line[s + 1, 0, 1],
+        line[s, 0, 2],
+        line[s, 1, 0] + z * line[s + 1, 1, 0],
+        line[s, 1, 1] + z * line[s + 1, 1, 1],
+        line[s, 1, 2],
+        line[s, 2, 0] + z * line[s + 1, 2, 0],
+        line[s, 2, 1] + z * line[s + 1, 2, 1],
+        line[s, 2, 2],
+    )
+
+
+@njit(inline="always")
 def _inverse_jacobian(line, z):
     """(det J, K) at height z of a vertical line (``_fill_line``); K = J^-1 (K[r, j] =
     dX_r/dx_j) as a row-major 9-tuple."""
-    return _inverse3(
-        (
-            line[0, 0, 0] + z * line[1, 0, 0],
-            line[0, 0, 1] + z * line[1, 0, 1],
-            line[0, 0, 2],
-            line[0, 1, 0] + z * line[1, 1, 0],
-            line[0, 1, 1] + z * line[1, 1, 1],
-            line[0, 1, 2],
-            line[0, 2, 0] + z * line[1, 2, 0],
-            line[0, 2, 1] + z * line[1, 2, 1],
-            line[0, 2, 2],
-        )
-    )
+    return _inverse3(_line_matrix(line, 0, z))
 
 
 @njit(inline="always")
 def _displacement_gradient(line, z):
     """G[i, r] = du_i/dX_r at height z of a vertical line, as a row-major 9-tuple."""
-    return (
-        line[2, 0, 0] + z * line[3, 0, 0],
-        line[2, 0, 1] + z * line[3, 0, 1],
-        line[2, 0, 2],
-        line[2, 1, 0] + z * line[3, 1, 0],
-        line[2, 1, 1] + z * line[3, 1, 1],
-        line[2, 1, 2],
-        line[2, 2, 0] + z * line[3, 2, 0],
-        line[2, 2, 1] + z * line[3, 2, 1],
-        line[2, 2, 2],
-    )
+    return _line_matrix(line, 2, z)
 
 
 @njit(inline="always")
