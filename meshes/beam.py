@@ -33,6 +33,7 @@ of ``fenics_adaptive.element.solid_shell`` relies on it, so the generator checks
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
@@ -262,9 +263,11 @@ def columnar_partitioner(nodes: np.ndarray | None, tol: float) -> Callable:
     ``nodes`` (n_nodes, 3) are the coordinates the cells' node indices refer to (Gmsh's node
     array, ``dolfinx.io.gmsh.extract_geometry``) on the rank that holds the cells, ``None``
     elsewhere. A column is the set of cells with the same in-plane centroid (x, y), to ``tol``
-    mm; columns are ordered by x, then y, and rank r gets the r-th of ``nparts`` contiguous
-    blocks of columns, the block sizes differing by at most one column. Cells are owned by
-    their rank only: no extra ghosts (like ``GhostMode.none``).
+    mm. The columns are cut into a grid of ``patch_grid(nparts)`` near-square patches, the
+    longer side of the plate in the more patches (``grid_parts``): a rank's halo grows with
+    its patch's perimeter, as the square root of its cells, where strips of the whole width
+    would keep it at the width whatever the rank count. Cells are owned by their rank only: no
+    extra ghosts (like ``GhostMode.none``).
     """
 
     def partition(comm, nparts: int, cell_types, cells) -> AdjacencyList_int32:
@@ -278,11 +281,36 @@ def columnar_partitioner(nodes: np.ndarray | None, tol: float) -> Callable:
             raise RuntimeError("columnar partitioner: cells given on a rank without the nodes")
         centroids = nodes[topology, :2].mean(axis=1)
         ix, iy = (_cluster(centroids[:, i], tol) for i in range(2))
-        _, column = np.unique(np.stack([ix, iy], axis=1), axis=0, return_inverse=True)
-        n_columns = int(column.max()) + 1
-        return AdjacencyList_int32((column.ravel() * nparts // n_columns).astype(np.int32))
+        keys, column = np.unique(np.stack([ix, iy], axis=1), axis=0, return_inverse=True)
+        return AdjacencyList_int32(grid_parts(keys, nparts)[column.ravel()])
 
     return partition
+
+
+def patch_grid(parts: int) -> tuple[int, int]:
+    """(p, q): the factorisation parts = p * q with p <= q nearest to a square."""
+    if parts < 1:
+        raise ValueError(f"parts must be >= 1, not {parts}")
+    p = max(d for d in range(1, math.isqrt(parts) + 1) if parts % d == 0)
+    return p, parts // p
+
+
+def grid_parts(columns: np.ndarray, parts: int) -> np.ndarray:
+    """The part (int32) of each column of ``columns`` (n, 2: in-plane x and y index): slabs
+    along the plate's longer side (in index units), each cut along the other side, into the
+    ``patch_grid(parts)`` patches. Every slab holds the same number of columns to within one,
+    and every patch of a slab likewise."""
+    p, q = patch_grid(parts)
+    extent = columns.max(axis=0) - columns.min(axis=0) if len(columns) else np.zeros(2)
+    along = 0 if extent[0] >= extent[1] else 1  # the slabs' direction: the longer side
+    n_slabs, n_cuts = q, p  # more slabs along the longer side
+    out = np.empty(len(columns), dtype=np.int32)
+    order = np.lexsort((columns[:, 1 - along], columns[:, along]))
+    for slab, members in enumerate(np.array_split(order, n_slabs)):
+        inner = members[np.lexsort((columns[members, along], columns[members, 1 - along]))]
+        for cut, patch in enumerate(np.array_split(inner, n_cuts)):
+            out[patch] = slab * n_cuts + cut
+    return out
 
 
 def _cluster(values: np.ndarray, tol: float) -> np.ndarray:

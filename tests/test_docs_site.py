@@ -100,6 +100,7 @@ def test_site_has_its_pages(site):
         "config",
         "outputs",
         "performance",
+        "parallel",
         "docker",
         "api/index",
         "afem/README",

@@ -102,7 +102,7 @@ def refine(structure, requests, t: float = 0.0, reasons: Reasons | None = None):
     comm = structure.comm
     before = structure.interface_state.copy()
     energy_before = structure.refinement_energy
-    extra_before = comm.allreduce(structure.extra.n_owned)
+    extra_before = structure.extra.n_owned  # this rank's: summed only if anything changed
     changed = structure.refine(requests, t)
     if isinstance(changed, RefinementEvent) or not changed:
         return changed or None
@@ -116,7 +116,7 @@ def refine(structure, requests, t: float = 0.0, reasons: Reasons | None = None):
         cells=np.flatnonzero((after != before).any(axis=1)),
         new_weak=weak.astype(np.int64),
         new_strong=strong.astype(np.int64),
-        new_extra_nodes=comm.allreduce(structure.extra.n_owned) - extra_before,
+        new_extra_nodes=comm.allreduce(structure.extra.n_owned - extra_before),
         energy_change=structure.refinement_energy - energy_before,
         potential_change=structure.last_refinement_potential,
         # a strong request on an unrefined interface makes it weak on the way

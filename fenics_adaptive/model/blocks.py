@@ -6,10 +6,11 @@ Units: N, mm, s, tonne.
 
 ``LumpedBlocks`` owns those vectors and sums the internal-force contributors into them
 (``add_internal_forces``: the contributors' shares, the border's transfer, the reverse
-scatter); the structure tells it when the extra nodes changed
-(``resize_extra``), how the masses moved (``add_mass_change``, from ``subelement_mass_change``)
-and the new border and prescriptions (``rebuild``). The totals (mass, momentum, kinetic energy)
-are computed from the blocks alone.
+exchange, both blocks in one message per neighbour: ``halo``, a ``parallel.Halo``, which the
+solver's forward exchange of the displacements uses too); the structure tells it when the
+extra nodes changed (``resize_extra``), how the masses moved (``add_mass_change``, from
+``subelement_mass_change``) and the new border and prescriptions (``rebuild``). The totals
+(mass, momentum, kinetic energy) are computed from the blocks alone.
 """
 
 from __future__ import annotations
@@ -31,6 +32,7 @@ from fenics_adaptive.model.border import (
     transfer_masses,
 )
 from fenics_adaptive.model.forces import ForceContributor
+from fenics_adaptive.parallel.halo import Halo
 
 
 @dataclass
@@ -69,7 +71,9 @@ class LumpedBlocks:
         fixed_motion: np.ndarray,
     ):
         self.comm = V.mesh.comm
+        self.base_map = V.dofmap.index_map
         self.n_base = V.dofmap.index_map.size_local + V.dofmap.index_map.num_ghosts
+        self.halo: Halo | None = None
         self.f_base = fem.Function(V, name="internal_force").x
         self.mass_base = fem.Function(V, name="mass").x
         self.mass_base.array[:] = base_mass
@@ -88,8 +92,14 @@ class LumpedBlocks:
         return [self.base_block, self.extra_block]
 
     def resize_extra(self, extra_map: common.IndexMap) -> None:
-        """New force and (assembled) mass vectors of the extra nodes after their set changed
-        (new nodes are numbered after the old owned ones, which keep their masses)."""
+        """Collective: new force and (assembled) mass vectors of the extra nodes after their
+        set changed (new nodes are numbered after the old owned ones, which keep their masses),
+        and the halo exchange of both blocks (``halo``)."""
+        if self.halo is not None:
+            self.halo.free()
+        # one exchange for both blocks: a step waits once for the displacements' ghosts and
+        # once for the forces summed on their owners, however many blocks move
+        self.halo = Halo(self.comm, [self.base_map, extra_map], [3, 3])
         old_mass = self.mass_extra
         self.f_extra = la.vector(extra_map, bs=3)
         # the force vectors' arrays, taken once (each .array of a DOLFINx vector costs 2 us)
@@ -164,7 +174,8 @@ class LumpedBlocks:
         """Collective: f_int at time t (s) of the INTERNAL ``contributors`` into both force
         vectors (N): cleared, each contributor's share added into the local entries in order,
         the constrained DOFs' forces moved to their masters (the border's transfer), the
-        shares summed on their owners (owned entries complete)."""
+        shares summed on their owners (owned entries complete; one reverse exchange for both
+        blocks)."""
         f_base, f_extra = self._f_arrays
         f_base.fill(0.0)
         f_extra.fill(0.0)
@@ -172,8 +183,7 @@ class LumpedBlocks:
             contributor.add_force(t, f_base, f_extra)
         if len(self.border):
             transfer_forces(*self._border_args, f_base, f_extra)
-        self.f_base.scatter_reverse(la.InsertMode.add)
-        self.f_extra.scatter_reverse(la.InsertMode.add)
+        self.halo.reverse(self._f_arrays)
 
     def owned_dofs(self, nodes: np.ndarray) -> list[np.ndarray]:
         """Collective: the owned DOFs (base block, extra block; block-unrolled, sorted) of the

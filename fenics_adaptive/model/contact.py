@@ -27,7 +27,11 @@ Ranks: a body's force and penalty energy are sums over the ranks' face nodes. A 
 (whose motion needs its force) and the lever's saddle (whose force the lever passes on to the
 hinge) sum them every step; a fixed or prescribed body keeps this rank's share, its drive's
 work too (both are additive over the ranks), and sums them when a history row is written: no
-collective in the steps between.
+collective in the steps between. The sum of a free body is a nonblocking reduction started
+with its force (``add_force``) and completed by the solver's next halo exchange, in the same
+wait (``pending_request``): the body moves only after the structure has (``advance``), so it
+costs the step no synchronisation of its own. Whatever reads the sum first completes it
+(``finish``).
 
 Penalty k (N/mm per node): by default the through-thickness stiffness of the laminate over one
 node's area, max C33 * A_node / h, capped so that a node on its spring stays well inside the
@@ -47,6 +51,7 @@ from fenics_adaptive.element.geometry import quad_areas
 from fenics_adaptive.errors import InputError
 from fenics_adaptive.model.forces import Contributor, ForceKind
 from fenics_adaptive.model.loading import face_nodes
+from fenics_adaptive.parallel.reductions import summed
 from fenics_adaptive.settings.kinds import ImpactorShape, RigidMotion
 from fenics_adaptive.settings.loads import Impactor, RigidBody
 
@@ -160,6 +165,8 @@ class Contact(Contributor):
         self.force = np.zeros(3)  # on the body, N: over all ranks if every_step, else this rank's
         self.energy_penalty = 0.0  # mJ: likewise
         self.totals = np.empty(4)  # force on the body, penalty energy (the step's work array)
+        self._request = MPI.REQUEST_NULL  # the reduction of ``totals`` under way, if any
+        self._taken = True  # ``totals`` of the last add_force are in force, energy, acceleration
         self.axis = -1 if body.shape == ImpactorShape.SPHERE else "xy".index(body.axis)
 
     def initial_gap(self) -> float:
@@ -213,8 +220,11 @@ class Contact(Contributor):
     def add_force(self, t: float, f_base: np.ndarray, f_extra: np.ndarray) -> None:
         """Add the contact forces (N) at the current displacement into ``f_base`` (owned base
         DOFs, flat) at the face's DOFs; also the body's force, the acceleration of a free body
-        and the work of a driven one's drive. Collective if ``every_step``. ``f_extra`` is not
-        touched (the top and bottom faces have no extra nodes)."""
+        and the work of a driven one's drive. Collective if ``every_step``: the sum over the
+        ranks is started here and completed by ``finish`` (or by whoever waits on
+        ``pending_request``). ``f_extra`` is not touched (the top and bottom faces have no extra
+        nodes)."""
+        self.finish()  # the last evaluation's, if nothing read it (a refinement evaluates twice)
         self.totals[3] = add_penalty_forces(
             self.displacement.array,
             self.nodes,
@@ -226,8 +236,27 @@ class Contact(Contributor):
             f_base,
             self.totals[:3],
         )
-        if self.every_step:
-            self.comm.Allreduce(MPI.IN_PLACE, self.totals, op=MPI.SUM)
+        self._taken = False
+        if self.every_step and self.comm.size > 1:
+            self._request = self.comm.Iallreduce(MPI.IN_PLACE, self.totals, op=MPI.SUM)
+        else:
+            self.finish()
+
+    def pending_request(self) -> MPI.Request:
+        """The reduction of the body's force under way (``MPI.REQUEST_NULL`` if none): a wait
+        on it elsewhere (the solver's halo exchange) completes it; ``finish`` then only reads
+        the sums."""
+        return self._request
+
+    def finish(self) -> None:
+        """The body's force, penalty energy and acceleration (free) or drive work (driven)
+        from the last ``add_force``, waiting for their sum over the ranks if it is still under
+        way. Idempotent."""
+        if self._request:
+            self._request.Wait()
+        if self._taken:
+            return
+        self._taken = True
         self.force[:] = self.totals[:3]
         self.energy_penalty = float(self.totals[3])
         if self.free:
@@ -243,6 +272,7 @@ class Contact(Contributor):
     def advance(self, mean_dt: float, dt: float) -> None:
         """v_{n-1/2} -> v_{n+1/2}, c_n -> c_{n+1} (a fixed body stays, a prescribed one
         follows its path)."""
+        self.finish()
         self.t += dt
         self.last_dt = dt
         if self.free:
@@ -255,15 +285,17 @@ class Contact(Contributor):
     def totals_over_ranks(self) -> tuple[np.ndarray, float, float]:
         """Collective: (force on the body (3,), N; penalty energy, mJ; the drive's work so far,
         mJ) over all ranks, at the last ``add_force``."""
+        self.finish()
         if self.every_step:  # already summed (a free body's drive work stays 0)
             return self.force, self.energy_penalty, self.drive_work
         local = np.array([*self.force, self.energy_penalty, self.drive_work])
-        total = self.comm.allreduce(local, op=MPI.SUM)
+        total = summed(self.comm, local)
         return total[:3], float(total[3]), float(total[4])
 
     def total_energy(self) -> float:
         """Kinetic energy at the full step (a free body's) plus the penalty energy (mJ): of the
         whole run if ``every_step``, else this rank's share."""
+        self.finish()
         if not self.free:
             return self.energy_penalty
         v = self.velocity + 0.5 * self.last_dt * self.acceleration
@@ -303,6 +335,7 @@ class Contact(Contributor):
         )
 
     def state(self) -> dict[str, np.ndarray]:
+        self.finish()
         return {
             "centre": self.centre.copy(),
             "velocity": self.velocity.copy(),

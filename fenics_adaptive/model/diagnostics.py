@@ -18,6 +18,7 @@ from mpi4py import MPI
 
 from fenics_adaptive.adaptivity import enrichment as enr
 from fenics_adaptive.element.geometry import quad_areas
+from fenics_adaptive.parallel.reductions import summed
 from fenics_adaptive.settings.kinds import InterfaceState
 
 if TYPE_CHECKING:
@@ -33,7 +34,7 @@ def delaminated_areas(structure: Structure) -> tuple[float, float]:
     areas = quad_areas(structure.gather(cohesive.nodes[:, :4], "X"))
     failed = cohesive.failed()
     local = np.array([areas[failed].sum(), areas[failed & ~cohesive.inserted()].sum()])
-    total, grown = structure.comm.allreduce(local, op=MPI.SUM)
+    total, grown = summed(structure.comm, local)
     return float(total), float(grown)
 
 
@@ -60,7 +61,7 @@ def damage_dissipation(structure: Structure) -> tuple[float, float]:
     damage = structure.ply_damage_state
     ply = damage.dissipated_energy() if damage is not None else 0.0
     local = np.array([structure.cohesive.dissipated_energy(), ply])
-    cohesive, ply = structure.comm.allreduce(local, op=MPI.SUM)
+    cohesive, ply = summed(structure.comm, local)
     return float(cohesive), float(ply)
 
 

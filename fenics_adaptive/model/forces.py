@@ -40,7 +40,11 @@ overrides, so an unused hook costs nothing per step): ``prepare(dt, element_step
 of a run, ``advance(mean_dt, dt)`` after each step (a contributor with degrees of freedom of its
 own), ``report(row, first)`` its columns of a history row, ``suspect()`` what of it to suspect
 when a run blows up (called on every rank: may use collectives), ``refined()`` after the
-structure was refined (rebuild what depends on its cells).
+structure was refined (rebuild what depends on its cells), ``pending_request()`` a nonblocking
+reduction its ``add_force`` started (an ``mpi4py`` request; a free rigid body's force summed
+over the ranks): the solver completes it in the wait of its next halo exchange, before
+``advance``, so that it costs no synchronisation of its own (the contributor must complete it
+itself, with a ``Wait`` that is then a no-op, before it reads the result).
 
 The order of the contributors of one kind is the order of summation, so a run's history does
 not depend on anything but the list. A linear spring of stiffness k (N/mm) to ground on some
@@ -146,6 +150,12 @@ class Contributor:
 
     def refined(self) -> None:
         """Collective: the structure was refined; rebuild what depends on its cells."""
+
+    def pending_request(self):
+        """The nonblocking MPI request the last ``add_force`` started and has not completed
+        (``mpi4py.MPI.REQUEST_NULL`` or None if none): the solver's next halo exchange waits
+        on it in the same call."""
+        return None
 
 
 def hooks(contributors, name: str) -> list:

@@ -41,6 +41,7 @@ from fenics_adaptive.model.forces import Contributor, ForceKind
 from fenics_adaptive.model.forms import LayeredModel
 from fenics_adaptive.model.ply_damage_state import PlyDamageState
 from fenics_adaptive.model.refined_cells import RefinedCells
+from fenics_adaptive.parallel.reductions import summed
 
 
 @dataclass
@@ -264,5 +265,5 @@ class InternalForces:
         """Collective: (strain energy of the solids, recoverable cohesive energy) in mJ at the
         state of their last ``add_force``, summed over ranks."""
         local = np.array([sum(c.energy() for c in self.solids), self.cohesive.energy()])
-        solid, cohesive = self.comm.allreduce(local, op=MPI.SUM)
+        solid, cohesive = summed(self.comm, local)
         return float(solid), float(cohesive)

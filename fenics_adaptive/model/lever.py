@@ -100,6 +100,7 @@ class LoadingLever(Contributor):
             self.load_share * self.load_point + self.hinge_share * hinge
         )
         self.saddle.add_force(t, f_base, f_extra)
+        self.saddle.finish()  # the hinge's force is the saddle's, in this step
         force = self.hinge_share * float(self.saddle.force[2])
         if self.started:
             self.hinge_work += 0.5 * (self.hinge_force + force) * (hinge - self.hinge_displacement)

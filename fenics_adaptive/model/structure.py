@@ -72,6 +72,7 @@ from fenics_adaptive.model.refined_cells import RefinedCells
 from fenics_adaptive.model.stable_step import stable_time_step
 from fenics_adaptive.model.tie_forces import TieForces
 from fenics_adaptive.model.topology import CellColumnTable
+from fenics_adaptive.parallel.threads import one_thread_per_rank
 from fenics_adaptive.settings.adaptivity import Interfaces, Stabilisation
 from fenics_adaptive.settings.kinds import InterfaceState
 
@@ -110,6 +111,9 @@ class Structure:
         self.stabilisation = stabilisation or Stabilisation()
         self.loads = loads
         self.comm = base.comm
+        # the ranks are the parallelism: BLAS pools of several ranks on shared cores spin
+        # against each other (a history row 15 ms instead of 1 on two ranks)
+        one_thread_per_rank(self.comm)
         self.stabilisation_state = StabilisationState(self.stabilisation, self.comm)
         V = base.V
         self.n_base = V.dofmap.index_map.size_local + V.dofmap.index_map.num_ghosts
@@ -180,6 +184,11 @@ class Structure:
         return self.lumped.blocks
 
     base_block = _forwarded("lumped.base_block", doc="The base nodes' block.")
+    halo = _forwarded(
+        "lumped.halo",
+        doc="The halo exchange of both blocks (``parallel.Halo``; rebuilt when the extra "
+        "nodes change).",
+    )
     extra_block = _forwarded("lumped.extra_block", doc="The extra nodes' block.")
     subelements = _forwarded(
         "refined_cells.subelements",

@@ -240,6 +240,13 @@ class ExplicitSolver:
         self._damping_changes = math.inf  # next time a stabilisation damping window closes
         self._damped = settings.mass_damping > 0.0
         self.blocks: list[BlockState] = []  # the work arrays: from start() or restore()
+        self._u_arrays: list[np.ndarray] = []  # each block's u, owned + ghost entries
+        # the poll's flags (stop, non-finite, inverted) summed over the ranks while the next
+        # step runs, and what this rank saw (``poll``)
+        self._poll_flags = np.zeros(3, dtype=np.int32)
+        self._poll_request = MPI.REQUEST_NULL
+        self._poll_open = False
+        self._polled_inversion: str | None = None
         self.inversion: guards.InversionGuard | None = None
         n_motions = len(structure.motions)
         self._motion_now, self._motion_next = np.zeros(n_motions), np.zeros(n_motions)
@@ -395,6 +402,7 @@ class ExplicitSolver:
             BlockState(b, self.settings.mass_damping, scaled_mass=m)
             for b, m in zip(self.structure.blocks, scaled, strict=True)
         ]
+        self._u_arrays = [state.block.u.array for state in self.blocks]
         self.inversion = guards.InversionGuard(self.structure)
         dt, stable, self.where = choose_time_step(self.structure, self.settings)
         if self.forced_step is not None:
@@ -409,7 +417,7 @@ class ExplicitSolver:
         self.set_prescribed()
         for state in self.blocks:
             state.u.put(state.block.fixed, state.u_now)
-            state.block.u.scatter_forward()
+        self.structure.halo.forward(self._u_arrays)
         self.started = True
         for observer in self.observers:
             observer.on_start(self)
@@ -448,8 +456,11 @@ class ExplicitSolver:
         if not self.started:
             raise RuntimeError("ExplicitSolver.step before start() or restore()")
         if self.finished:
+            self._settle_poll(stop=False)  # the run is complete: a stop asks for nothing
             return False
         self.advance()
+        if self._poll_open:  # the step's halo exchange completed the last poll's reduction
+            self._settle_poll()
         s = self.now
         if s.step % POLL_EVERY == 0:
             self.poll()
@@ -556,6 +567,7 @@ class ExplicitSolver:
             BlockState(b, settings.mass_damping, old)
             for b, old in zip(structure.blocks, self.blocks, strict=True)
         ]
+        self._u_arrays = [state.block.u.array for state in self.blocks]
         self.forces.resize(self.blocks)
         self.inversion.refresh()
         limit, self.where = structure.stable_time_step()
@@ -628,7 +640,9 @@ class ExplicitSolver:
                 state.reaction,
                 state.reaction_old,
             )
-            state.block.u.scatter_forward()
+        # the one wait of the step for the neighbours' displacements (both blocks at once); a
+        # reduction started at t_n (a free body's force, the poll) completes in the same call
+        self.structure.halo.forward(self._u_arrays, also=self._pending())
         self.structure.follow_border()
         self.forces.advance(mean_dt, s.dt)
         s.dt_prev = s.dt
@@ -639,24 +653,56 @@ class ExplicitSolver:
 
     def poll(self) -> None:
         """Collective, every 64 steps: progress; a stop request, an inversion or a non-finite
-        solution on any rank."""
+        solution on any rank. On one rank it acts at once. On several the flags are combined
+        by a nonblocking reduction that the next step's halo exchange completes in its own wait
+        (``_pending``), and every rank acts on them one step later, at the same step: a poll
+        costs no synchronisation of its own."""
         s = self.now
         for observer in self.observers:
             observer.on_progress(s.t)
         stop = self._stop or (self.stop_requested is not None and self.stop_requested())
         inverted = self.inversion.check(s.t)
-        if self.comm.size > 1:
-            flags = np.array([stop, self._not_finite, inverted is not None], dtype=np.int32)
-            self.comm.Allreduce(MPI.IN_PLACE, flags, op=MPI.MAX)
-            stop = bool(flags[0])
-            if flags[1]:
-                self.guards.not_finite()
-            self.guards.inverted(inverted, bool(flags[2]))
-        else:
-            self.guards.inverted(inverted, inverted is not None)
+        if self.comm.size == 1:
+            self._act_on_poll(stop, False, inverted, inverted is not None)
+            return
+        self._settle_poll()  # one still open (a caller that polls twice without a step)
+        self._poll_flags[:] = (stop, self._not_finite, inverted is not None)
+        self._poll_request = self.comm.Iallreduce(MPI.IN_PLACE, self._poll_flags, op=MPI.MAX)
+        self._poll_open, self._polled_inversion = True, inverted
+
+    def _settle_poll(self, stop: bool = True) -> None:
+        """Act on an open poll's combined flags (waiting for them if nothing completed the
+        reduction yet); ``stop``: whether a stop request still applies."""
+        if not self._poll_open:
+            return
+        if self._poll_request:
+            self._poll_request.Wait()
+        self._poll_open = False
+        flags = self._poll_flags
+        self._act_on_poll(
+            stop and bool(flags[0]), bool(flags[1]), self._polled_inversion, bool(flags[2])
+        )
+
+    def _act_on_poll(
+        self, stop: bool, not_finite: bool, inverted: str | None, inverted_anywhere: bool
+    ) -> None:
+        """Collective when any flag is set (set alike on every rank): the run stops as failed
+        (not finite, inverted: ``inverted`` is this rank's message) or with a checkpoint
+        (``Interrupted``)."""
+        if not_finite:
+            self.guards.not_finite()
+        self.guards.inverted(inverted, inverted_anywhere)
         if stop:
             self.checkpoint()
-            raise Interrupted(s.t, s.step)
+            raise Interrupted(self.now.t, self.now.step)
+
+    def _pending(self) -> list:
+        """The nonblocking reductions under way that the next halo exchange completes: the
+        contributors' (``RunForces.pending_requests``) and the poll's."""
+        pending = self.forces.pending_requests()
+        if self._poll_request:
+            pending.append(self._poll_request)
+        return pending
 
     def checkpoint(self) -> None:
         for observer in self.observers:

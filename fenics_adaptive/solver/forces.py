@@ -56,6 +56,7 @@ class RunForces:
         self.external = by_kind[ForceKind.EXTERNAL]
         self.contact = by_kind[ForceKind.CONTACT]
         self._moving = hooks(contributors, "advance")
+        self._pending = hooks(contributors, "pending_request")
 
     def prepare(self, blocks: Sequence[BlockState], dt: float, element_step: float) -> None:
         """At the start of a run: the arrays for ``blocks``, the contributors told the time step
@@ -93,6 +94,12 @@ class RunForces:
         """The CONTACT contributors' force per block at the last ``evaluate`` (N, owned
         DOFs), None without contact contributors."""
         return self._contact_force if self.contact else None
+
+    def pending_requests(self) -> list:
+        """The nonblocking reductions the contributors started at the last ``evaluate`` and
+        have not completed (a free body's force), for the solver's next halo exchange to wait
+        on in its own call."""
+        return [r for r in (pending() for pending in self._pending) if r]
 
     def advance(self, mean_dt: float, dt: float) -> None:
         """The structure moved by dt (s): the contributors with degrees of freedom of their own

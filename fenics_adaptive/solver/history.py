@@ -21,6 +21,7 @@ from fenics_adaptive.model.diagnostics import damage_dissipation, delaminated_ar
 from fenics_adaptive.model.forces import ForceContributor, ForceKind, hooks
 from fenics_adaptive.model.loading import COMPONENTS, face_dofs
 from fenics_adaptive.model.structure import Structure
+from fenics_adaptive.parallel.reductions import summed
 from fenics_adaptive.settings.solver import Probe
 from fenics_adaptive.solver.blocks import BlockState
 
@@ -217,7 +218,7 @@ class HistoryRecorder:
                 sum(c.energy() for c in self.contributors if c.kind is ForceKind.INTERNAL),
             ]
         )
-        total = self.comm.allreduce(local, op=MPI.SUM)
+        total = summed(self.comm, local)
         self.guards.inverted(inverted, total[7] > 0.0)
         if not np.all(np.isfinite(total)):
             self.guards.not_finite()

@@ -1,0 +1,11 @@
+"""Parallel machinery: the halo exchange of the explicit step (``halo.Halo``) and one thread per
+rank for the libraries that start their own (``threads.one_thread_per_rank``).
+
+The MPI collectives of the model and its solver live with what they compute; what is here is
+shared by several of them.
+"""
+
+from fenics_adaptive.parallel.halo import Halo
+from fenics_adaptive.parallel.threads import one_thread_per_rank
+
+__all__ = ["Halo", "one_thread_per_rank"]
