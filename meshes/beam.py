@@ -33,7 +33,6 @@ of ``fenics_adaptive.element.solid_shell`` relies on it, so the generator checks
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
@@ -263,10 +262,11 @@ def columnar_partitioner(nodes: np.ndarray | None, tol: float) -> Callable:
     ``nodes`` (n_nodes, 3) are the coordinates the cells' node indices refer to (Gmsh's node
     array, ``dolfinx.io.gmsh.extract_geometry``) on the rank that holds the cells, ``None``
     elsewhere. A column is the set of cells with the same in-plane centroid (x, y), to ``tol``
-    mm. The columns are cut into a grid of ``patch_grid(nparts)`` near-square patches, the
-    longer side of the plate in the more patches (``grid_parts``): a rank's halo grows with
-    its patch's perimeter, as the square root of its cells, where strips of the whole width
-    would keep it at the width whatever the rank count. Cells are owned by their rank only: no
+    mm. The columns are cut into the grid of patches with the shortest cuts
+    (``patch_grid``, ``grid_parts``): strips across a long beam, near-square patches on a
+    plate, where a rank's halo grows with its patch's perimeter, as the square root of its
+    cells (strips of a plate's whole width would keep it at the width whatever the rank
+    count). Cells are owned by their rank only: no
     extra ghosts (like ``GhostMode.none``).
     """
 
@@ -287,29 +287,32 @@ def columnar_partitioner(nodes: np.ndarray | None, tol: float) -> Callable:
     return partition
 
 
-def patch_grid(parts: int) -> tuple[int, int]:
-    """(p, q): the factorisation parts = p * q with p <= q nearest to a square."""
+def patch_grid(parts: int, nx: float = 1.0, ny: float = 1.0) -> tuple[int, int]:
+    """(a, b): ``parts`` = a * b patches, a along x and b along y, of a plate of nx x ny cells
+    (or columns): the factorisation whose cuts are shortest, (a - 1) ny + (b - 1) nx (the halo
+    of the partition), the squarer of two equal ones. A long beam gets strips, a square plate
+    near-square patches."""
     if parts < 1:
         raise ValueError(f"parts must be >= 1, not {parts}")
-    p = max(d for d in range(1, math.isqrt(parts) + 1) if parts % d == 0)
-    return p, parts // p
+    pairs = [(a, parts // a) for a in range(1, parts + 1) if parts % a == 0]
+    return min(pairs, key=lambda ab: ((ab[0] - 1) * ny + (ab[1] - 1) * nx, abs(ab[0] - ab[1])))
 
 
 def grid_parts(columns: np.ndarray, parts: int) -> np.ndarray:
-    """The part (int32) of each column of ``columns`` (n, 2: in-plane x and y index): slabs
-    along the plate's longer side (in index units), each cut along the other side, into the
-    ``patch_grid(parts)`` patches. Every slab holds the same number of columns to within one,
-    and every patch of a slab likewise."""
-    p, q = patch_grid(parts)
-    extent = columns.max(axis=0) - columns.min(axis=0) if len(columns) else np.zeros(2)
-    along = 0 if extent[0] >= extent[1] else 1  # the slabs' direction: the longer side
-    n_slabs, n_cuts = q, p  # more slabs along the longer side
+    """The part (int32) of each column of ``columns`` (n, 2: in-plane x and y index) in the
+    ``patch_grid`` of the columns' extent: a slabs along x, each cut into b patches along y.
+    Every slab holds the same number of columns to within one, and every patch of a slab
+    likewise."""
+    if len(columns) == 0:
+        return np.zeros(0, dtype=np.int32)
+    nx, ny = columns.max(axis=0) - columns.min(axis=0) + 1
+    a, b = patch_grid(parts, nx, ny)
     out = np.empty(len(columns), dtype=np.int32)
-    order = np.lexsort((columns[:, 1 - along], columns[:, along]))
-    for slab, members in enumerate(np.array_split(order, n_slabs)):
-        inner = members[np.lexsort((columns[members, along], columns[members, 1 - along]))]
-        for cut, patch in enumerate(np.array_split(inner, n_cuts)):
-            out[patch] = slab * n_cuts + cut
+    by_x = np.lexsort((columns[:, 1], columns[:, 0]))
+    for slab, members in enumerate(np.array_split(by_x, a)):
+        by_y = members[np.lexsort((columns[members, 0], columns[members, 1]))]
+        for cut, patch in enumerate(np.array_split(by_y, b)):
+            out[patch] = slab * b + cut
     return out
 
 

@@ -47,6 +47,24 @@ def difference(direction: str) -> float:
 
 
 forward, reverse = difference("forward"), difference("reverse")
+
+# a map without ghosts anywhere, and a layered mesh of two columns: on three ranks one rank
+# holds no cell and no neighbour, and takes part with empty messages
+from dolfinx.cpp.common import IndexMap  # noqa: E402
+from fenics_adaptive.meshes.beam import layered_mesh  # noqa: E402
+
+strip = layered_mesh(comm, 10.0, 5.0, 2, 1, [1.0, 1.0], [False]).mesh
+lonely = fem.functionspace(strip, ("Lagrange", 1, (3,))).dofmap.index_map
+bare = IndexMap(comm, 4)
+maps, sizes = [bare, lonely], [2, 3]
+halo.free()
+halo = Halo(comm, maps, sizes)
+values = [la.vector(m, bs=bs) for m, bs in zip(maps, sizes, strict=True)]
+for v in values:
+    v.array[:] = rng.random(len(v.array))
+forward = max(forward, difference("forward"))
+reverse = max(reverse, difference("reverse"))
+empty_rank = strip.topology.index_map(3).size_local == 0
 try:  # a second start before the first exchange finished is refused
     arrays = [v.array for v in values]
     halo.forward_start(arrays)
@@ -71,6 +89,7 @@ results = comm.gather(
         "refused": refused or comm.size == 1,
         "limited": limited,
         "threads": threads,
+        "empty_rank": bool(empty_rank),
     }
 )
 if comm.rank == 0:

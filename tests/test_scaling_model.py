@@ -56,6 +56,9 @@ def test_the_columns_are_cut_into_balanced_near_square_patches():
             box = np.ptp(mine, axis=0) + 1
             assert box.prod() <= len(mine) + box.max(), (parts, k)
     assert patch_grid(7) == (1, 7) and patch_grid(16) == (4, 4)
+    # a long beam is cut into strips (shorter cuts than patches), a plate into patches
+    assert patch_grid(4, 150, 20) == (4, 1) and patch_grid(8, 150, 20) == (8, 1)
+    assert patch_grid(8, 300, 100) == (4, 2) and patch_grid(64, 100, 100) == (8, 8)
     with pytest.raises(ValueError):
         patch_grid(0)
 

@@ -350,6 +350,7 @@ class Contact(Contributor):
         }
 
     def restore(self, state: dict) -> None:
+        self.finish()  # a reduction of before the restore completes first (every rank has one)
         self.centre[:] = state["centre"]
         self.velocity[:] = state["velocity"]
         self.initial = float(state["initial"])

@@ -18,8 +18,11 @@ value; reverse, each ghost entry is added to its owner's (in the order of the ne
 of the ghosts), and the ghost entries keep their values. ``tests/test_halo.py`` holds both to
 DOLFINx's ``scatter_forward`` / ``scatter_reverse(add)``.
 
-On one rank there is nothing to exchange and every method returns at once; on several, every
-method is collective over the communicator, whatever a rank holds.
+On one rank there is nothing to exchange and every method returns at once; on several, the
+construction and every start are collective over the communicator, whatever a rank holds (a
+rank without neighbours takes part with empty messages), and every rank must finish what it
+started. The solver does not yet put work between a start and its finish (overlap of
+communication with the element loop is issue 23's item 2).
 """
 
 from __future__ import annotations
@@ -120,7 +123,13 @@ class Halo:
     ):
         self.comm = comm
         self.n_blocks = len(index_maps)
+        # local entries per block (owned + ghost values): what the arrays must hold
+        self.sizes = [
+            bs * (m.size_local + m.num_ghosts)
+            for m, bs in zip(index_maps, block_sizes, strict=True)
+        ]
         self.active = comm.size > 1
+        self._freed = False
         self._request = MPI.REQUEST_NULL
         self._direction = ""
         if not self.active:
@@ -134,10 +143,11 @@ class Halo:
         out_counts = np.zeros(n, dtype=np.int64)
         in_counts = np.zeros(n, dtype=np.int64)
         for pattern, bs in zip(patterns, block_sizes, strict=True):
-            out_counts += [bs * len(s) for s in pattern.sent]
-            in_counts += [bs * len(r) for r in pattern.received]
-        out_displs = np.concatenate([[0], np.cumsum(out_counts)[:-1]]).astype(np.int64)
-        in_displs = np.concatenate([[0], np.cumsum(in_counts)[:-1]]).astype(np.int64)
+            out_counts += np.array([bs * len(s) for s in pattern.sent], dtype=np.int64)
+            in_counts += np.array([bs * len(r) for r in pattern.received], dtype=np.int64)
+        # (a rank with no neighbour, e.g. no cells, has empty counts and takes part all the same)
+        out_displs = np.cumsum(out_counts) - out_counts
+        in_displs = np.cumsum(in_counts) - in_counts
         out_fill, in_fill = out_displs.copy(), in_displs.copy()
         # per block: (owned DOFs, their positions in the outgoing buffer; ghost DOFs, their
         # positions in the incoming buffer) of the forward exchange
@@ -195,10 +205,20 @@ class Halo:
         return len(self._owned_buffer) if self.active else 0
 
     def _check(self, arrays: Sequence[np.ndarray]) -> None:
-        if len(arrays) != self.n_blocks:
-            raise ValueError(f"Halo of {self.n_blocks} blocks given {len(arrays)} arrays")
+        """Refuse what the compiled packing would not: a freed halo, arrays of other sizes
+        than the index maps', a second exchange before the first finished."""
+        if self._freed:
+            raise RuntimeError("Halo used after free(): build a new one for the new index maps")
+        if [len(a) for a in arrays] != self.sizes:
+            raise ValueError(
+                f"Halo of blocks of {self.sizes} entries given {[len(a) for a in arrays]}"
+            )
         if self._request:
             raise RuntimeError(f"Halo: the {self._direction} exchange under way is not finished")
+
+    def _finishing(self, direction: str) -> None:
+        if self._direction != direction or not self._request:
+            raise RuntimeError(f"Halo: no {direction} exchange under way")
 
     def forward_start(self, arrays: Sequence[np.ndarray]) -> None:
         """Collective: start sending the owned values of ``arrays`` (one per block) that other
@@ -219,6 +239,7 @@ class Halo:
         if not self.active:
             _wait(also)
             return
+        self._finishing("forward")
         MPI.Request.Waitall([self._request, *also])
         self._request = MPI.REQUEST_NULL
         for values, ghost, at in zip(arrays, self._ghost, self._ghost_at, strict=True):
@@ -248,6 +269,7 @@ class Halo:
         if not self.active:
             _wait(also)
             return
+        self._finishing("reverse")
         MPI.Request.Waitall([self._request, *also])
         self._request = MPI.REQUEST_NULL
         for values, owned, at in zip(arrays, self._owned, self._owned_at, strict=True):
@@ -259,7 +281,14 @@ class Halo:
         self.reverse_finish(arrays, also)
 
     def free(self) -> None:
-        """Collective: release the graph communicator (the halo cannot be used after)."""
-        if self.active and self._graph != MPI.COMM_NULL:
+        """Collective: release the graph communicator; the halo refuses to be used after."""
+        if self.active and not self._freed:
             self._graph.Free()
-        self.active = False
+        self._freed = True
+
+    def __del__(self):
+        # DOLFINx frees its scatterers' communicators in their destructors alike; at the
+        # interpreter's exit MPI may be gone already
+        if getattr(self, "active", False) and not self._freed and not MPI.Is_finalized():
+            self._graph.Free()
+            self._freed = True

@@ -16,7 +16,8 @@ a rank, alpha the latency of one message, V the values a rank sends and receives
 (3 per boundary node, 8 bytes each), beta the bandwidth per rank, and R reductions every k
 steps (the history rows; an allreduce takes about 2 log2 P message latencies).
 
-The partition is modelled as a grid of px x py near-square patches (``patch_grid``): the one
+The partition is modelled as the grid of px x py patches with the shortest cuts (``patch_grid``,
+near-square on a square plate): the one
 the layered meshes' own partitioner makes (``meshes.beam.columnar_partitioner``) and the one
 DOLFINx's graph partitioner approaches on a single-layer plate. ``ghost_nodes`` gives the ghost
 nodes it makes, which ``tests/test_scaling_model.py`` holds against the partitions of plates on
@@ -87,9 +88,7 @@ def ghost_nodes(nx: int, ny: int, ranks: int, layers: int = 2) -> tuple[float, f
     boundary nodes (its share of the cuts it touches)."""
     if ranks == 1:
         return 0.0, 0.0
-    px, py = patch_grid(ranks)
-    if nx > ny:  # the longer side gets the more patches (the shorter cuts)
-        px, py = py, px
+    px, py = patch_grid(ranks, nx, ny)
     if px > nx or py > ny:
         raise ValueError(f"{ranks} ranks cannot cut a {nx} x {ny} plate into patches")
     on_cuts = (px - 1) * (ny + 1) + (py - 1) * (nx + 1)  # nodes on a cut, a crossing twice
@@ -100,11 +99,12 @@ def ghost_nodes(nx: int, ny: int, ranks: int, layers: int = 2) -> tuple[float, f
     return total / ranks, 0.5 * layers * cuts
 
 
-def neighbours(ranks: int) -> int:
-    """Neighbours of an inner patch of the grid (across its sides and its corners)."""
+def neighbours(ranks: int, nx: int, ny: int) -> int:
+    """Neighbours of an inner patch of the grid of an nx x ny plate (across its sides and its
+    corners)."""
     if ranks == 1:
         return 0
-    px, py = patch_grid(ranks)
+    px, py = patch_grid(ranks, nx, ny)
     return (3 if px > 1 else 1) * (3 if py > 1 else 1) - 1
 
 
@@ -114,9 +114,7 @@ def disc_work(
     """(mean, largest) work per rank in unrefined-cell equivalents of an nx x ny plate whose
     refined cells (``refined_share`` of them, each costing ``refined_cost``) form a disc about
     its centre, cut into the patch grid of ``ranks`` with equal cells per patch."""
-    px, py = patch_grid(ranks)
-    if nx > ny:
-        px, py = py, px
+    px, py = patch_grid(ranks, nx, ny)
     x = (np.arange(nx) + 0.5) / nx - 0.5
     y = (np.arange(ny) + 0.5) / ny - 0.5
     radius2 = refined_share / math.pi  # the disc's area is the refined share of the unit plate
@@ -152,7 +150,7 @@ def step_time(
         latency = transfer = output = 0.0
     else:
         latency = constants.exchanges * (
-            constants.exchange_overhead + neighbours(ranks) * network.latency
+            constants.exchange_overhead + neighbours(ranks, nx, ny) * network.latency
         )
         transfer = constants.exchanges * 8.0 * values / network.bandwidth
         tree = 2 * math.ceil(math.log2(ranks)) * network.latency

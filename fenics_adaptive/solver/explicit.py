@@ -332,7 +332,8 @@ class ExplicitSolver:
         return s.evaluated and s.t >= self.settings.end_time - 1e-9 * s.dt
 
     def request_stop(self) -> None:
-        """Stop at the next poll (every 64 steps) with a checkpoint: ``Interrupted``."""
+        """Stop at the next poll (every 64 steps; on several ranks one step after it, when
+        every rank knows) with a checkpoint: ``Interrupted``."""
         self._stop = True
 
     # ------------------------------------------------------------------ start, state
@@ -344,6 +345,8 @@ class ExplicitSolver:
         """Collective: begin at t = 0 from ``initial_displacement`` and ``initial_velocity``
         (mm, mm/s; base DOFs, owned + ghost entries; default zero; the velocity is taken as
         v_{-1/2}), and evaluate t = 0 (forces, the first history row)."""
+        self.settle()  # nothing of an earlier run left under way
+        self._not_finite = False
         dt, stable = self._set_up()
         field_interval = self.settings.field_interval
         self.now = SolverState(
@@ -364,6 +367,8 @@ class ExplicitSolver:
         """Collective: continue from ``state()`` (or a checkpoint's solver part,
         ``checkpoint.solver_state``) taken on the same rank of the same model; the structure
         must already be at the same moment (``checkpoint.restore_structure``)."""
+        self.settle()  # nothing of an earlier run left under way
+        self._not_finite = False
         self._set_up()  # as a fresh start does (the contributors' penalties)
         self.now = SolverState.from_dict(state)
         self.stats.time_step, self.stats.stable_time_step = self.now.dt, self.now.stable
@@ -443,8 +448,11 @@ class ExplicitSolver:
         with np.errstate(over="ignore", invalid="ignore"):
             if not self.started:
                 self.start()
-            while self._step():
-                pass
+            try:
+                while self._step():
+                    pass
+            finally:  # also when a rank raises (the others raise alike: errors are shared)
+                self.settle()
         self.stats.steps = self.now.step
         self.stats.wall_time = time.perf_counter() - self._clock
         self.stats.refinements = self.now.refinements
@@ -696,6 +704,19 @@ class ExplicitSolver:
             self.checkpoint()
             raise Interrupted(self.now.t, self.now.step)
 
+    def settle(self) -> None:
+        """Complete every nonblocking reduction under way (the poll's, the contributors'),
+        without acting on the poll: a run that ends, fails or is started again leaves none
+        behind. Every rank must call it (each completes what all ranks started)."""
+        pending = self._pending()
+        if pending:
+            MPI.Request.Waitall(pending)
+        self._poll_open = False
+        for contributor in self.contributors:
+            finish = getattr(contributor, "finish", None)
+            if finish is not None:
+                finish()
+
     def _pending(self) -> list:
         """The nonblocking reductions under way that the next halo exchange completes: the
         contributors' (``RunForces.pending_requests``) and the poll's."""
@@ -705,6 +726,7 @@ class ExplicitSolver:
         return pending
 
     def checkpoint(self) -> None:
+        self._settle_poll()  # a state the poll finds failed is not written (output step)
         for observer in self.observers:
             observer.on_checkpoint(self)
 
@@ -713,6 +735,7 @@ class ExplicitSolver:
         """Collective: the history row of t_n (observers get it), after the guards on
         inversion and finiteness, and before the energy guard (the row that breaks it is in
         the history)."""
+        self._settle_poll()  # the guards' verdict first, as on one rank (output step)
         row = self.recorder.row(self.now, self.blocks, self.inversion)
         self.stats.history.append(row)
         for observer in self.observers:
