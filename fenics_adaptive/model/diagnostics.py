@@ -25,16 +25,20 @@ if TYPE_CHECKING:
     from fenics_adaptive.model.structure import Structure
 
 
+def local_delaminated_areas(structure: Structure) -> np.ndarray:
+    """(2,) mm^2, this rank's share of ``delaminated_areas`` (local: no communication)."""
+    cohesive = structure.cohesive
+    if not len(cohesive):
+        return np.zeros(2)
+    areas = quad_areas(structure.gather(cohesive.nodes[:, :4], "X"))
+    failed = cohesive.failed()
+    return np.array([areas[failed].sum(), areas[failed & ~cohesive.inserted()].sum()])
+
+
 def delaminated_areas(structure: Structure) -> tuple[float, float]:
     """Collective: the area (mm^2) of the cohesive elements whose four points have failed, and
     its part that has grown (the insert films' elements left out), over all ranks."""
-    cohesive = structure.cohesive
-    if not structure.comm.allreduce(len(cohesive), op=MPI.SUM):
-        return 0.0, 0.0
-    areas = quad_areas(structure.gather(cohesive.nodes[:, :4], "X"))
-    failed = cohesive.failed()
-    local = np.array([areas[failed].sum(), areas[failed & ~cohesive.inserted()].sum()])
-    total, grown = summed(structure.comm, local)
+    total, grown = summed(structure.comm, local_delaminated_areas(structure))
     return float(total), float(grown)
 
 
@@ -54,14 +58,18 @@ def insert_film_area(structure: Structure) -> float:
     return total - grown
 
 
+def local_damage_dissipation(structure: Structure) -> np.ndarray:
+    """(2,) mJ, this rank's share of ``damage_dissipation`` (local: no communication)."""
+    damage = structure.ply_damage_state
+    ply = damage.dissipated_energy() if damage is not None else 0.0
+    return np.array([structure.cohesive.dissipated_energy(), ply])
+
+
 def damage_dissipation(structure: Structure) -> tuple[float, float]:
     """Collective: (cohesive, ply) energy (mJ) dissipated so far, summed from the damage laws'
     own increments (``cohesive_element_force_tracked``, ``ply_damage_update``), over all
     ranks."""
-    damage = structure.ply_damage_state
-    ply = damage.dissipated_energy() if damage is not None else 0.0
-    local = np.array([structure.cohesive.dissipated_energy(), ply])
-    cohesive, ply = summed(structure.comm, local)
+    cohesive, ply = summed(structure.comm, local_damage_dissipation(structure))
     return float(cohesive), float(ply)
 
 

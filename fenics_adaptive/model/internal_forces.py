@@ -261,9 +261,12 @@ class InternalForces:
             solids = [ElasticSolid(model, refinement, cells.rule_table, nodes, elements)]
         return cls(solids, CohesiveElements(cells, nodes, model.comm), model.comm)
 
+    def local_energies(self) -> np.ndarray:
+        """(2,) mJ, this rank's share of ``energies`` (local: no communication)."""
+        return np.array([sum(c.energy() for c in self.solids), self.cohesive.energy()])
+
     def energies(self) -> tuple[float, float]:
         """Collective: (strain energy of the solids, recoverable cohesive energy) in mJ at the
         state of their last ``add_force``, summed over ranks."""
-        local = np.array([sum(c.energy() for c in self.solids), self.cohesive.energy()])
-        solid, cohesive = summed(self.comm, local)
+        solid, cohesive = summed(self.comm, self.local_energies())
         return float(solid), float(cohesive)

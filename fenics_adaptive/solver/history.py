@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, Protocol
 import numpy as np
 from mpi4py import MPI
 
-from fenics_adaptive.model.diagnostics import damage_dissipation, delaminated_areas
+from fenics_adaptive.model.diagnostics import local_damage_dissipation, local_delaminated_areas
 from fenics_adaptive.model.forces import ForceContributor, ForceKind, hooks
 from fenics_adaptive.model.loading import COMPONENTS, face_dofs
 from fenics_adaptive.model.structure import Structure
@@ -133,11 +133,11 @@ class HistoryRecorder:
         after the guards on inversion, finiteness and runaway."""
         structure = self.structure
         total = self.sums(s, blocks, inversion)
-        solid, cohesive = structure.internal_forces.energies()
+        solid, cohesive = total[10:12]
         if any(c.kind is ForceKind.INTERNAL for c in self.contributors):
             solid += total[9]  # a run's own internal forces: their energy is strain energy
-        cohesive_dissipation, ply_dissipation = damage_dissipation(structure)
-        delaminated, grown = delaminated_areas(structure)
+        cohesive_dissipation, ply_dissipation = total[12:14]
+        delaminated, grown = total[14:16]
         if s.step == 0:  # an initial velocity or displacement brings energy along
             s.initial_energy = total[3] + solid + cohesive + total[8]
             s.initial_potential = solid + cohesive
@@ -186,11 +186,14 @@ class HistoryRecorder:
     def sums(
         self, s: SolverState, blocks: Sequence[BlockState], inversion: InversionGuard
     ) -> np.ndarray:
-        """Collective: the sums over ranks of (probe displacement, reaction, applied load,
-        kinetic energy, internal, external and damping work (``BlockState.energies_at_step``:
-        the scheme's own at t_n), inverted, the energy the run's
-        contributors hold, the strain energy of its INTERNAL ones); raises (``guards``) if an
-        element inverted or a sum is not finite."""
+        """Collective, one reduction: the sums over ranks of (probe displacement, reaction,
+        applied load, kinetic energy, internal, external and damping work
+        (``BlockState.energies_at_step``: the scheme's own at t_n), inverted, the energy the
+        run's contributors hold, the strain energy of its INTERNAL ones, the structure's solid
+        and cohesive energies (``InternalForces.energies``), its cohesive and ply dissipation
+        (``diagnostics.damage_dissipation``), its delaminated and grown areas
+        (``diagnostics.delaminated_areas``)); raises (``guards``) if an element inverted or a
+        sum is not finite."""
         base = blocks[0]
         inverted = inversion.check(s.t)
         kinetic = damping = reaction = 0.0
@@ -216,6 +219,9 @@ class HistoryRecorder:
                 float(inverted is not None),
                 sum(c.energy() for c in self.contributors if c.kind is not ForceKind.INTERNAL),
                 sum(c.energy() for c in self.contributors if c.kind is ForceKind.INTERNAL),
+                *self.structure.internal_forces.local_energies(),
+                *local_damage_dissipation(self.structure),
+                *local_delaminated_areas(self.structure),
             ]
         )
         total = summed(self.comm, local)
