@@ -65,9 +65,11 @@ def test_a_step_waits_twice_on_two_ranks(tmp_path):
         assert kinds["poll"]["max"] == waits, (name, kinds["poll"])
         # a history row: one reduction of all its sums (a free body's force waits for its own
         # reduction before the row reads it)
-        assert kinds["history"]["max"] <= waits + 2, (name, kinds["history"])
+        if "history" in kinds:  # (a case may write no row in the steps counted)
+            assert kinds["history"]["max"] <= waits + 2, (name, kinds["history"])
         # the two waits are the neighbourhood exchanges (the poll's reduction, a free body's
         # force complete inside them)
         calls = kinds["plain"]["calls_per_step"]
         assert calls.get("Waitall", 0) == waits and not calls.get("Allreduce_c"), (name, calls)
+    assert sum("history" in kinds for kinds in cases.values()) >= 4
     assert set(sync_points.MORE_WAITS) <= set(cases)
