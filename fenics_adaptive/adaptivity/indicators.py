@@ -25,7 +25,6 @@ import math
 
 import numpy as np
 from dolfinx import la
-from mpi4py import MPI
 from numba import njit
 
 from fenics_adaptive.adaptivity.events import Reasons, note
@@ -48,6 +47,7 @@ from fenics_adaptive.adaptivity.ply_fields import (
 )
 from fenics_adaptive.materials.cohesive import cohesive_zone_length
 from fenics_adaptive.materials.ply_damage import S_D
+from fenics_adaptive.parallel.reductions import summed
 from fenics_adaptive.settings.adaptivity import IndicatorSettings
 from fenics_adaptive.settings.kinds import InterfaceState
 
@@ -256,7 +256,7 @@ def spread(structure, requests: list[tuple[int, int, int]], rings: int) -> list:
     interface and kind. Collective (neighbours may live on other ranks)."""
     n_interfaces = structure.interface_state.shape[1]
     for _ in range(rings):
-        if not structure.comm.allreduce(len(requests), op=MPI.SUM):
+        if not summed(structure.comm, [len(requests)])[0]:
             break
         marks = la.vector(structure.base.V.dofmap.index_map, bs=2 * n_interfaces)
         table = marks.array.reshape(-1, 2, n_interfaces)

@@ -45,7 +45,6 @@ from collections.abc import Iterable
 
 import numpy as np
 from dolfinx import fem
-from mpi4py import MPI
 
 from fenics_adaptive.adaptivity import enrichment as enr
 from fenics_adaptive.adaptivity.refinement import RefinementState
@@ -72,6 +71,7 @@ from fenics_adaptive.model.refined_cells import RefinedCells
 from fenics_adaptive.model.stable_step import stable_time_step
 from fenics_adaptive.model.tie_forces import TieForces
 from fenics_adaptive.model.topology import CellColumnTable
+from fenics_adaptive.parallel.reductions import summed
 from fenics_adaptive.parallel.threads import one_thread_per_rank
 from fenics_adaptive.settings.adaptivity import Interfaces, Stabilisation
 from fenics_adaptive.settings.kinds import InterfaceState
@@ -433,7 +433,7 @@ class Structure:
         target = self.refinement.plan(requests, self.comm)
         old_state = self.interface_state.copy()
         changed = np.flatnonzero((target != old_state).any(axis=1))
-        if not self.comm.allreduce(len(changed), op=MPI.SUM):
+        if not summed(self.comm, [len(changed)])[0]:  # (every evaluation: one MPI call)
             return False
         if self.scaled_mass is not None:
             raise adaptive_refused()
