@@ -97,7 +97,7 @@ def count_case(config_path: Path | str, warm_steps: int | None, steps: int) -> d
             kind = "plain"
         points[kind].append(counter.sync_points())
         calls[kind].update(counter.counts())
-    solver.settle()  # the free body's last reduction, before the next case
+    simulation.settle()  # the free body's last reduction, before the next case
     out = {}
     for kind in KINDS:
         n = len(points[kind])

@@ -446,8 +446,14 @@ class Simulation:
     # ------------------------------------------------------------------ advance
     def step(self) -> bool:
         """Collective: one explicit step (``start()`` first); False once the end time is
-        reached."""
+        reached. A loop that stops before then calls ``settle()``."""
         return self.solver.step()
+
+    def settle(self) -> None:
+        """Collective: complete the nonblocking reductions a step leaves under way on several
+        ranks (a free body's force, the poll: ``ExplicitSolver.settle``); ``run()`` and the
+        last ``step()`` do it themselves."""
+        self.solver.settle()
 
     def run(self) -> RunStats:
         """Collective: to ``config.solver.end_time`` (starting at t = 0 unless started);

@@ -437,7 +437,8 @@ class ExplicitSolver:
     def step(self) -> bool:
         """Collective: one central-difference step t_n -> t_{n+1} and the evaluation of
         t_{n+1} (forces, work, refinement, the outputs due); returns False (and does nothing)
-        once the end time is reached."""
+        once the end time is reached. A loop of one's own that stops earlier calls ``settle()``
+        (on several ranks a reduction may still be under way)."""
         with np.errstate(over="ignore", invalid="ignore"):
             return self._step()
 
@@ -465,6 +466,7 @@ class ExplicitSolver:
             raise RuntimeError("ExplicitSolver.step before start() or restore()")
         if self.finished:
             self._settle_poll(stop=False)  # the run is complete: a stop asks for nothing
+            self.settle()
             return False
         self.advance()
         if self._poll_open:  # the step's halo exchange completed the last poll's reduction
