@@ -37,6 +37,7 @@ CASES = (
     ("layerwise, cohesive", DATA / "tcb_layerwise.toml", 20),
     ("adaptive, indicators, contact, ply damage", DATA / "mpi_one_rank_impact.toml", 20),
     ("esl, selective mass scaling", "thin_pulled_beam", 20),
+    ("layerwise MMB, lever (saddle, hinge), rollers", DATA / "mmb_short.toml", 20),
 )
 # the cases that wait more than twice per plain step, and why (tests/test_halo.py)
 MORE_WAITS = {

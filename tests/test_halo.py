@@ -51,13 +51,14 @@ def test_a_step_waits_twice_on_two_ranks(tmp_path):
     """Every MPI call counted (a PMPI interposer): a step that writes no history row, evaluates
     no indicator and refines nothing waits at most twice (the displacements' halo, the forces'
     reverse exchange), polls included, for ESL, adaptive (refined across the ranks, border
-    constraints), layerwise with cohesive elements and a free impactor."""
+    constraints), layerwise with cohesive elements, a free impactor and the MMB's lever (its
+    hinge's displacement and its saddle's force summed inside the two exchanges)."""
     command = [sys.executable, str(ROOT / "benchmarks" / "sync_points.py"), "--ranks", "2",
                "--steps", "140", "--out", str(tmp_path)]  # fmt: skip
     done = subprocess.run(command, capture_output=True, text=True, env=ENV, timeout=2 * TIMEOUT)
     assert done.returncode == 0, done.stderr[-3000:]
     cases = json.loads((tmp_path / "sync_points.json").read_text())["cases"]
-    assert len(cases) == 6
+    assert len(cases) == 7
     for name, kinds in cases.items():
         waits = sync_points.MORE_WAITS.get(name, 2)
         assert kinds["plain"]["steps"] > 50, name

@@ -15,7 +15,7 @@ extra nodes changed (``resize_extra``), how the masses moved (``add_mass_change`
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -170,12 +170,14 @@ class LumpedBlocks:
         if len(self.border):
             record_offsets(*self._border_args, u_base, u_extra, self.offsets)
 
-    def add_internal_forces(self, t: float, contributors: Iterable[ForceContributor]) -> None:
+    def add_internal_forces(
+        self, t: float, contributors: Iterable[ForceContributor], also: Sequence = ()
+    ) -> None:
         """Collective: f_int at time t (s) of the INTERNAL ``contributors`` into both force
         vectors (N): cleared, each contributor's share added into the local entries in order,
         the constrained DOFs' forces moved to their masters (the border's transfer), the
         shares summed on their owners (owned entries complete; one reverse exchange for both
-        blocks)."""
+        blocks, whose wait completes the MPI requests ``also`` too)."""
         f_base, f_extra = self._f_arrays
         f_base.fill(0.0)
         f_extra.fill(0.0)
@@ -183,7 +185,7 @@ class LumpedBlocks:
             contributor.add_force(t, f_base, f_extra)
         if len(self.border):
             transfer_forces(*self._border_args, f_base, f_extra)
-        self.halo.reverse(self._f_arrays)
+        self.halo.reverse(self._f_arrays, also)
 
     def owned_dofs(self, nodes: np.ndarray) -> list[np.ndarray]:
         """Collective: the owned DOFs (base block, extra block; block-unrolled, sorted) of the

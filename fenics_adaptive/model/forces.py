@@ -44,7 +44,11 @@ structure was refined (rebuild what depends on its cells), ``pending_request()``
 reduction its ``add_force`` started (an ``mpi4py`` request; a free rigid body's force summed
 over the ranks): the solver completes it in the wait of its next halo exchange, before
 ``advance``, so that it costs no synchronisation of its own (the contributor must complete it
-itself, with a ``Wait`` that is then a no-op, before it reads the result).
+itself, with a ``Wait`` that is then a no-op, before it reads the result); ``moved()`` between
+the update of the owned displacements and the halo exchange (start a sum of them there), and,
+for CONTACT contributors, ``complete(t, f_base, f_extra)`` after the internal forces' reverse
+exchange (CONTACT contributors are evaluated before the internal forces, so that a sum they
+start completes in that exchange).
 
 The order of the contributors of one kind is the order of summation, so a run's history does
 not depend on anything but the list. A linear spring of stiffness k (N/mm) to ground on some
@@ -150,6 +154,16 @@ class Contributor:
 
     def refined(self) -> None:
         """Collective: the structure was refined; rebuild what depends on its cells."""
+
+    def moved(self) -> None:
+        """The owned DOFs hold u_{n+1}, their ghosts not yet (between the update and the halo
+        exchange): start a nonblocking sum of owned displacements over the ranks here
+        (``pending_request``) for ``add_force`` to read."""
+
+    def complete(self, t: float, f_base: np.ndarray, f_extra: np.ndarray) -> None:
+        """CONTACT contributors: after the internal forces' reverse exchange (whose wait
+        completed ``pending_request``), add what needs that sum (the lever's hinge force) into
+        the same arrays as ``add_force``."""
 
     def pending_request(self):
         """The nonblocking MPI request the last ``add_force`` started and has not completed

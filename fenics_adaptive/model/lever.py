@@ -87,21 +87,56 @@ class LoadingLever(Contributor):
         self.uz = np.empty(len(self.hinge_dofs))  # work arrays: the step allocates nothing
         self.f_hinge = np.empty(len(self.hinge_dofs))
         self.sums = np.empty(1)
+        # the hinge's displacement summed over the ranks, started when the structure moved
+        # (``moved``) and completed by the solver's halo exchange; None: not started for the
+        # state add_force sees (t = 0, a refinement's second evaluation, a restart)
+        self._hinge_request: MPI.Request | None = None
+        self._hinge = 0.0  # mm: the hinge's displacement of the last add_force
 
-    def add_force(self, t: float, f_base: np.ndarray, f_extra: np.ndarray) -> None:
-        """Collective: the saddle moved by the lever and its contact forces, and the hinge's
-        force, at time t (s), added to the owned base DOFs of ``f_base`` (N)."""
+    def moved(self) -> None:
+        """The owned displacements of the next state are known: start their hinge sum."""
+        self._sum_hinge()
+        self._hinge_request = (
+            self.comm.Iallreduce(MPI.IN_PLACE, self.sums, op=MPI.SUM)
+            if self.comm.size > 1
+            else MPI.REQUEST_NULL
+        )
+
+    def _sum_hinge(self) -> None:
         np.take(self.displacement.array, self.hinge_dofs, out=self.uz)
         self.sums[0] = self.uz.sum()
-        self.comm.Allreduce(MPI.IN_PLACE, self.sums, op=MPI.SUM)
-        hinge = float(self.sums[0]) / self.hinge_count
+
+    def pending_request(self):
+        """The hinge's sum while the halo exchange runs, the saddle's force's while the
+        reverse exchange runs."""
+        if self._hinge_request:
+            return self._hinge_request
+        return self.saddle.pending_request()
+
+    def add_force(self, t: float, f_base: np.ndarray, f_extra: np.ndarray) -> None:
+        """Collective: the saddle moved by the lever and its contact forces at time t (s),
+        added to the owned base DOFs of ``f_base`` (N); its force's sum over the ranks is
+        started, and the hinge's force follows in ``complete``."""
+        if self._hinge_request is None:  # no sum started for this state: sum it now
+            self._sum_hinge()
+            if self.comm.size > 1:
+                self.comm.Allreduce(MPI.IN_PLACE, self.sums, op=MPI.SUM)
+        else:
+            if self._hinge_request:  # (the halo exchange's wait completed it, as a rule)
+                self._hinge_request.Wait()
+            self._hinge_request = None
+        self._hinge = float(self.sums[0]) / self.hinge_count
         self.load_point = self.settings.load_point(t)
         self.saddle.centre[2] = self.saddle.origin[2] + (
-            self.load_share * self.load_point + self.hinge_share * hinge
+            self.load_share * self.load_point + self.hinge_share * self._hinge
         )
         self.saddle.add_force(t, f_base, f_extra)
-        self.saddle.finish()  # the hinge's force is the saddle's, in this step
-        force = self.hinge_share * float(self.saddle.force[2])
+
+    def complete(self, t: float, f_base: np.ndarray, f_extra: np.ndarray) -> None:
+        """The hinge's force (the saddle's share, summed over the ranks in the reverse
+        exchange's wait) added to the owned hinge DOFs of ``f_base`` (N), and its work."""
+        self.saddle.finish()
+        force, hinge = self.hinge_share * float(self.saddle.force[2]), self._hinge
         if self.started:
             self.hinge_work += 0.5 * (self.hinge_force + force) * (hinge - self.hinge_displacement)
         self.started = True
@@ -111,6 +146,9 @@ class LoadingLever(Contributor):
         np.put(f_base, self.hinge_dofs, self.f_hinge)
 
     def prepare(self, dt: float, element_step: float) -> None:
+        if self._hinge_request:  # (the solver settled it: no wait) a run starts afresh
+            self._hinge_request.Wait()
+        self._hinge_request = None
         self.saddle.prepare(dt, element_step)
 
     def advance(self, mean_dt: float, dt: float) -> None:
@@ -144,6 +182,9 @@ class LoadingLever(Contributor):
         }
 
     def restore(self, state: dict) -> None:
+        if self._hinge_request:  # a sum of before the restore completes first
+            self._hinge_request.Wait()
+        self._hinge_request = None
         self.saddle.restore({key[len("saddle_"):]: value for key, value in state.items()
                              if key.startswith("saddle_")})  # fmt: skip
         self.hinge_force = float(state["hinge_force"])

@@ -651,7 +651,9 @@ class ExplicitSolver:
                 state.reaction_old,
             )
         # the one wait of the step for the neighbours' displacements (both blocks at once); a
-        # reduction started at t_n (a free body's force, the poll) completes in the same call
+        # reduction under way (the poll's, a sum of owned displacements: the lever's hinge)
+        # completes in the same call
+        self.forces.moved()
         self.structure.halo.forward(self._u_arrays, also=self._pending())
         self.structure.follow_border()
         self.forces.advance(mean_dt, s.dt)

@@ -8,8 +8,9 @@ forces, tie forces) and then the run's own (an impactor, a user's), whose states
 checkpoint keeps. Each step: the INTERNAL contributors into f_int (local shares, the border's
 transfer, the reverse scatter: ``LumpedBlocks.add_internal_forces``), the face loads and the
 EXTERNAL contributors into f_ext (owned DOFs), the CONTACT contributors into arrays of their own
-beside f_ext. The arrays are allocated when the blocks change (start, refinement), never in a
-step.
+beside f_ext (computed first: the sums over the ranks they start complete in the internal
+forces' reverse exchange; their ``complete`` hooks run after it). The arrays are allocated
+when the blocks change (start, refinement), never in a step.
 """
 
 from __future__ import annotations
@@ -57,6 +58,8 @@ class RunForces:
         self.contact = by_kind[ForceKind.CONTACT]
         self._moving = hooks(contributors, "advance")
         self._pending = hooks(contributors, "pending_request")
+        self._completing = hooks(self.contact, "complete")
+        self._moved = hooks(contributors, "moved")
 
     def prepare(self, blocks: Sequence[BlockState], dt: float, element_step: float) -> None:
         """At the start of a run: the arrays for ``blocks``, the contributors told the time step
@@ -75,7 +78,14 @@ class RunForces:
         returns the contact force per block (N, owned DOFs), None without contact
         contributors."""
         base, extra = blocks
-        self.structure.lumped.add_internal_forces(t, self.internal)
+        # the contact forces first: they read the displacements only, and the sums over the
+        # ranks they start (a free body's force, the lever's saddle) complete in the internal
+        # forces' reverse exchange instead of waiting on their own
+        for forces in self._contact_force:
+            forces.fill(0.0)
+        for contributor in self.contact:
+            contributor.add_force(t, *self._contact_force)
+        self.structure.lumped.add_internal_forces(t, self.internal, self.pending_requests())
         # the face loads on both blocks (extra nodes: of refined cells on a loaded side face)
         self.structure.loads.external_force(t, self._f_ext_full, extra.f_ext)
         base.f_ext[:] = self._f_ext_full[: base.block.n_owned]
@@ -83,10 +93,8 @@ class RunForces:
             contributor.add_force(t, base.f_ext, extra.f_ext)
         if not self.contact:
             return None
-        for forces in self._contact_force:
-            forces.fill(0.0)
-        for contributor in self.contact:
-            contributor.add_force(t, *self._contact_force)
+        for complete in self._completing:
+            complete(t, *self._contact_force)
         return self._contact_force
 
     @property
@@ -100,6 +108,13 @@ class RunForces:
         have not completed (a free body's force), for the solver's next halo exchange to wait
         on in its own call."""
         return [r for r in (pending() for pending in self._pending) if r]
+
+    def moved(self) -> None:
+        """The owned DOFs hold u_{n+1}, their ghosts not yet: the contributors that need a
+        sum of owned displacements over the ranks (the lever's hinge) start it, for the halo
+        exchange to complete."""
+        for moved in self._moved:
+            moved()
 
     def advance(self, mean_dt: float, dt: float) -> None:
         """The structure moved by dt (s): the contributors with degrees of freedom of their own
