@@ -126,6 +126,21 @@ def test_a_front_kept_refined_across_the_partition_reproduces_the_serial_run(tmp
 
 
 @pytest.mark.mpi
+@pytest.mark.parametrize("ranks", [4, 8])
+def test_four_and_eight_ranks_reproduce_the_serial_history_as_the_front_crosses_them(
+    ranks, tmp_path
+):
+    """The insert film's front refines across the ranks' borders on 4 and 8 ranks (8 run
+    oversubscribed on this machine): the serial history to 1e-10, and most ranks refined."""
+    config = DATA / "mpi_front_across_ranks.toml"
+    serial, _ = run_case(config, tmp_path / "serial", 1)
+    parallel, held = run_case(config, tmp_path / "parallel", ranks)
+    assert len(held) == ranks
+    assert sum(r["extra_nodes"] > 0 for r in held) >= ranks // 2 + 1, held
+    assert_same_history(serial, parallel)
+
+
+@pytest.mark.mpi
 def test_the_mmb_lever_on_two_ranks_reproduces_the_serial_history(tmp_path):
     """The lever reduces its hinge's displacement over the ranks and moves a saddle every rank
     knows; the partition puts the roller (x = 5 mm) on one rank, the saddle (30 mm) and the
