@@ -28,10 +28,9 @@ Ranks: a body's force and penalty energy are sums over the ranks' face nodes. A 
 hinge) sum them every step; a fixed or prescribed body keeps this rank's share, its drive's
 work too (both are additive over the ranks), and sums them when a history row is written: no
 collective in the steps between. The sum of a free body is a nonblocking reduction started
-with its force (``add_force``) and completed by the solver's next halo exchange, in the same
-wait (``pending_request``): the body moves only after the structure has (``advance``), so it
-costs the step no synchronisation of its own. Whatever reads the sum first completes it
-(``finish``).
+with its force (``add_force``, before the internal forces) and completed in the wait of the
+internal forces' reverse exchange (``pending_request``), so it costs the step no
+synchronisation of its own. Whatever reads the sum first completes it (``finish``).
 
 Penalty k (N/mm per node): by default the through-thickness stiffness of the laminate over one
 node's area, max C33 * A_node / h, capped so that a node on its spring stays well inside the
@@ -244,8 +243,8 @@ class Contact(Contributor):
 
     def pending_request(self) -> MPI.Request:
         """The reduction of the body's force under way (``MPI.REQUEST_NULL`` if none): a wait
-        on it elsewhere (the solver's halo exchange) completes it; ``finish`` then only reads
-        the sums."""
+        on it elsewhere (the internal forces' reverse exchange) completes it; ``finish`` then
+        only reads the sums."""
         return self._request
 
     def finish(self) -> None:

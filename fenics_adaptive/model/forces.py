@@ -41,10 +41,11 @@ of a run, ``advance(mean_dt, dt)`` after each step (a contributor with degrees o
 own), ``report(row, first)`` its columns of a history row, ``suspect()`` what of it to suspect
 when a run blows up (called on every rank: may use collectives), ``refined()`` after the
 structure was refined (rebuild what depends on its cells), ``pending_request()`` a nonblocking
-reduction its ``add_force`` started (an ``mpi4py`` request; a free rigid body's force summed
-over the ranks): the solver completes it in the wait of its next halo exchange, before
-``advance``, so that it costs no synchronisation of its own (the contributor must complete it
-itself, with a ``Wait`` that is then a no-op, before it reads the result); ``moved()`` between
+reduction its ``add_force`` (or ``moved``) started (an ``mpi4py`` request; a free rigid body's
+force summed over the ranks): the solver completes it in the wait of the next of its two
+exchanges (the internal forces' reverse exchange, the displacements' halo exchange), so that
+it costs no synchronisation of its own (the contributor must complete it itself, with a
+``Wait`` that is then a no-op, before it reads the result); ``moved()`` between
 the update of the owned displacements and the halo exchange (start a sum of them there), and,
 for CONTACT contributors, ``complete(t, f_base, f_extra)`` after the internal forces' reverse
 exchange (CONTACT contributors are evaluated before the internal forces, so that a sum they
@@ -166,9 +167,9 @@ class Contributor:
         the same arrays as ``add_force``."""
 
     def pending_request(self):
-        """The nonblocking MPI request the last ``add_force`` started and has not completed
-        (``mpi4py.MPI.REQUEST_NULL`` or None if none): the solver's next halo exchange waits
-        on it in the same call."""
+        """The nonblocking MPI request the last ``add_force`` or ``moved`` started and has not
+        completed (``mpi4py.MPI.REQUEST_NULL`` or None if none): the solver's next exchange
+        waits on it in the same call."""
         return None
 
 

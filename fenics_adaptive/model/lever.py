@@ -102,6 +102,14 @@ class LoadingLever(Contributor):
             else MPI.REQUEST_NULL
         )
 
+    def _drop_hinge_sum(self) -> None:
+        """Forget a hinge sum started for a state that is no longer the next one (a new run,
+        a restart), completing it first (every rank started it; the solver's ``settle`` has
+        done so as a rule)."""
+        if self._hinge_request:
+            self._hinge_request.Wait()
+        self._hinge_request = None
+
     def _sum_hinge(self) -> None:
         np.take(self.displacement.array, self.hinge_dofs, out=self.uz)
         self.sums[0] = self.uz.sum()
@@ -146,9 +154,7 @@ class LoadingLever(Contributor):
         np.put(f_base, self.hinge_dofs, self.f_hinge)
 
     def prepare(self, dt: float, element_step: float) -> None:
-        if self._hinge_request:  # (the solver settled it: no wait) a run starts afresh
-            self._hinge_request.Wait()
-        self._hinge_request = None
+        self._drop_hinge_sum()  # a run starts afresh
         self.saddle.prepare(dt, element_step)
 
     def advance(self, mean_dt: float, dt: float) -> None:
@@ -182,9 +188,7 @@ class LoadingLever(Contributor):
         }
 
     def restore(self, state: dict) -> None:
-        if self._hinge_request:  # a sum of before the restore completes first
-            self._hinge_request.Wait()
-        self._hinge_request = None
+        self._drop_hinge_sum()
         self.saddle.restore({key[len("saddle_"):]: value for key, value in state.items()
                              if key.startswith("saddle_")})  # fmt: skip
         self.hinge_force = float(state["hinge_force"])

@@ -55,12 +55,6 @@ def _unpack_add(buffer, positions, values, indices):  # pragma: no cover (compil
         values[indices[j]] += buffer[positions[j]]
 
 
-def _wait(requests: Sequence[MPI.Request]) -> None:
-    """Complete ``requests`` (no MPI call when there are none)."""
-    if requests:
-        MPI.Request.Waitall(list(requests))
-
-
 def _expand(nodes: np.ndarray, bs: int) -> np.ndarray:
     """Node indices -> their DOF indices, block-unrolled (node i: bs i ... bs i + bs - 1)."""
     return (bs * nodes[:, None] + np.arange(bs)).ravel().astype(np.int64)
@@ -216,9 +210,18 @@ class Halo:
         if self._request:
             raise RuntimeError(f"Halo: the {self._direction} exchange under way is not finished")
 
-    def _finishing(self, direction: str) -> None:
+    def _complete(self, direction: str, also: Sequence[MPI.Request]) -> bool:
+        """Wait for the ``direction`` exchange under way and ``also`` in one call; False on
+        one rank (nothing exchanged: ``also`` alone completed)."""
+        if not self.active:
+            if also:
+                MPI.Request.Waitall(list(also))
+            return False
         if self._direction != direction or not self._request:
             raise RuntimeError(f"Halo: no {direction} exchange under way")
+        MPI.Request.Waitall([self._request, *also])
+        self._request = MPI.REQUEST_NULL
+        return True
 
     def forward_start(self, arrays: Sequence[np.ndarray]) -> None:
         """Collective: start sending the owned values of ``arrays`` (one per block) that other
@@ -236,12 +239,8 @@ class Halo:
     ) -> None:
         """Wait for the forward exchange (and the requests ``also``, in the same call) and put
         the owners' values into the ghost entries of ``arrays``."""
-        if not self.active:
-            _wait(also)
+        if not self._complete("forward", also):
             return
-        self._finishing("forward")
-        MPI.Request.Waitall([self._request, *also])
-        self._request = MPI.REQUEST_NULL
         for values, ghost, at in zip(arrays, self._ghost, self._ghost_at, strict=True):
             _unpack_set(self._ghost_buffer, at, values, ghost)
 
@@ -266,12 +265,8 @@ class Halo:
     ) -> None:
         """Wait for the reverse exchange (and ``also``) and add what the other ranks held as
         ghosts into the owned entries of ``arrays`` (the ghost entries keep their values)."""
-        if not self.active:
-            _wait(also)
+        if not self._complete("reverse", also):
             return
-        self._finishing("reverse")
-        MPI.Request.Waitall([self._request, *also])
-        self._request = MPI.REQUEST_NULL
         for values, owned, at in zip(arrays, self._owned, self._owned_at, strict=True):
             _unpack_add(self._owned_buffer, at, values, owned)
 

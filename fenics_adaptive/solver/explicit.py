@@ -716,10 +716,6 @@ class ExplicitSolver:
         if pending:
             MPI.Request.Waitall(pending)
         self._poll_open = False
-        for contributor in self.contributors:
-            finish = getattr(contributor, "finish", None)
-            if finish is not None:
-                finish()
 
     def _pending(self) -> list:
         """The nonblocking reductions under way that the next halo exchange completes: the

@@ -104,9 +104,8 @@ class RunForces:
         return self._contact_force if self.contact else None
 
     def pending_requests(self) -> list:
-        """The nonblocking reductions the contributors started at the last ``evaluate`` and
-        have not completed (a free body's force), for the solver's next halo exchange to wait
-        on in its own call."""
+        """The nonblocking reductions the contributors started and have not completed (a free
+        body's force, the lever's hinge), for the next exchange to wait on in its own call."""
         return [r for r in (pending() for pending in self._pending) if r]
 
     def moved(self) -> None:
