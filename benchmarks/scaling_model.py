@@ -203,12 +203,24 @@ def main() -> None:
     parser.add_argument("--latency", type=float, default=Interconnect.latency, help="s")
     parser.add_argument("--bandwidth", type=float, default=Interconnect.bandwidth, help="B/s")
     parser.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results")
+    parser.add_argument(
+        "--constants",
+        type=Path,
+        help="take the measured constants from this scaling_model.json instead of measuring "
+        "(the predictions again, e.g. after a change of the model)",
+    )
     parser.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.worker:
         return exchange_worker(args.cells, max(args.repeat, 200))
-    cells = measure_cells(args.cells, args.steps, args.repeat)
-    exchange = measure_exchange(args.cells, 400)
+    if args.constants:
+        stored = json.loads(args.constants.read_text())["constants"]
+        exchange = {"exchange_overhead": stored.pop("exchange_overhead")}
+        exchange["values"] = stored.pop("exchange_values")
+        cells = stored
+    else:
+        cells = measure_cells(args.cells, args.steps, args.repeat)
+        exchange = measure_exchange(args.cells, 400)
     constants = StepConstants(
         cell_step=cells["cell_step"],
         refined_cost=cells["refined_cost"],

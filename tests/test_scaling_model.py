@@ -95,3 +95,19 @@ def test_the_model_in_its_limits():
     assert ghost_nodes(800, 800, 16, 2)[1] == pytest.approx(
         2 * ghost_nodes(400, 400, 16, 2)[1], rel=0.01
     )
+
+
+def test_the_overlap_hides_the_displacements_exchange_up_to_the_interior_work():
+    constants = StepConstants(cell_step=1e-6, refined_cost=7.0, exchange_overhead=1e-5)
+    network = Interconnect()
+    on = step_time(constants, network, 128, 128, 16)
+    off = step_time(constants, network, 128, 128, 16, overlap=False)
+    # one of the two exchanges travels behind the work: its messages' latency and transfer
+    in_flight = 8 * network.latency + off["transfer"] / 2  # an inner patch: eight neighbours
+    assert on["hidden"] == pytest.approx(in_flight)
+    assert off["total"] - on["total"] == pytest.approx(in_flight)
+    assert on["latency"] == off["latency"]  # packing, unpacking, the calls: not hidden
+    # a network slower than the work: at most the interior cells' compute is hidden
+    slow = step_time(constants, Interconnect(latency=1.0), 128, 128, 16)
+    assert 0.9 * slow["compute"] < slow["hidden"] < slow["compute"]
+    assert step_time(constants, network, 128, 128, 1)["hidden"] == 0.0

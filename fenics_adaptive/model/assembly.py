@@ -42,16 +42,29 @@ UNREACHABLE_STRENGTH = 1e100
 @dataclass
 class SubelementSet:
     """Layered solid-shell (sub)elements computed by numba: nodes (n, 8) combined local
-    indices; each uses rule ``rule_of_element`` of ``rules``. ``order``: the elements grouped by
-    rule (``batched.lane_order``), the order the batched kernel takes them in."""
+    indices; each uses rule ``rule_of_element`` of ``rules``. ``interior`` (n,) bool: the
+    elements the solver computes while the halo exchange is under way (``NodeArrays.interior``;
+    None: all). ``order``: the order the batched kernel takes them in, the interior elements
+    first, each part grouped by rule (``batched.lane_order``); ``interior_order`` and
+    ``boundary_order`` are its two parts."""
 
     nodes: np.ndarray
     rule_of_element: np.ndarray
     rules: PackedRules
+    interior: np.ndarray | None = None
     order: np.ndarray = field(init=False, repr=False)
+    interior_order: np.ndarray = field(init=False, repr=False)
+    boundary_order: np.ndarray = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
-        self.order = batched.lane_order(self.rule_of_element)
+        rule = np.asarray(self.rule_of_element)
+        inner = np.arange(len(rule)) if self.interior is None else np.flatnonzero(self.interior)
+        outer = np.flatnonzero(~self.interior) if self.interior is not None else inner[:0]
+        self.order = np.concatenate(
+            [part[batched.lane_order(rule[part])] for part in (inner, outer)]
+        ).astype(np.int64)
+        self.interior_order = self.order[: len(inner)]
+        self.boundary_order = self.order[len(inner) :]
 
     @classmethod
     def empty(cls, rules: PackedRules) -> SubelementSet:
@@ -165,14 +178,18 @@ def add_subelement_forces(
     f_base: np.ndarray,
     f_extra: np.ndarray,
     finite: bool = False,
+    order: np.ndarray | None = None,
 ) -> float:
     """f += sum_i P_i^T f^sublam_i; returns the strain energy (mJ). Arrays (n, 3). ``finite``:
-    total Lagrangian kinematics (Green-Lagrange strain), else small strain."""
-    if len(subelements) == 0:
+    total Lagrangian kinematics (Green-Lagrange strain), else small strain. ``order``: the
+    elements to compute, in the kernel's order (``subelements.interior_order`` or
+    ``boundary_order``); None: all (``subelements.order``)."""
+    order = subelements.order if order is None else order
+    if len(order) == 0:
         return 0.0
     return batched.add_subelement_forces(
         subelements.nodes,
-        subelements.order,
+        order,
         subelements.rule_of_element,
         *subelements.rules,
         X_base,

@@ -178,14 +178,33 @@ class LumpedBlocks:
         the constrained DOFs' forces moved to their masters (the border's transfer), the
         shares summed on their owners (owned entries complete; one reverse exchange for both
         blocks, whose wait completes the MPI requests ``also`` too)."""
+        f_base, f_extra = self.cleared_internal_forces()
+        for contributor in contributors:
+            contributor.add_force(t, f_base, f_extra)
+        self.start_summing()
+        self.finish_summing(also)
+
+    def cleared_internal_forces(self) -> tuple[np.ndarray, np.ndarray]:
+        """The local (owned + ghost) flat internal-force arrays of the base and extra DOFs,
+        zeroed, for the contributors to add their shares into (then ``start_summing``)."""
         f_base, f_extra = self._f_arrays
         f_base.fill(0.0)
         f_extra.fill(0.0)
-        for contributor in contributors:
-            contributor.add_force(t, f_base, f_extra)
+        return f_base, f_extra
+
+    def start_summing(self) -> None:
+        """Collective: the constrained DOFs' forces moved to their masters (the border's
+        transfer), the ghost shares sent to their owners; the owned entries are complete after
+        ``finish_summing``."""
+        f_base, f_extra = self._f_arrays
         if len(self.border):
             transfer_forces(*self._border_args, f_base, f_extra)
-        self.halo.reverse(self._f_arrays, also)
+        self.halo.reverse_start(self._f_arrays)
+
+    def finish_summing(self, also: Sequence = ()) -> None:
+        """Wait for the shares ``start_summing`` sent (and the MPI requests ``also``, in the
+        same call) and add them on their owners."""
+        self.halo.reverse_finish(self._f_arrays, also)
 
     def owned_dofs(self, nodes: np.ndarray) -> list[np.ndarray]:
         """Collective: the owned DOFs (base block, extra block; block-unrolled, sorted) of the

@@ -49,7 +49,13 @@ it costs no synchronisation of its own (the contributor must complete it itself,
 the update of the owned displacements and the halo exchange (start a sum of them there), and,
 for CONTACT contributors, ``complete(t, f_base, f_extra)`` after the internal forces' reverse
 exchange (CONTACT contributors are evaluated before the internal forces, so that a sum they
-start completes in that exchange).
+start completes in that exchange); for INTERNAL contributors of many elements,
+``add_interior_force`` (with a ``progress`` callable) and ``add_boundary_force``, ``add_force``
+in two parts: on several ranks
+the solver computes the first while the displacements of the ghost nodes are on their way (the
+elements whose nodes are all ``ready``: ``internal_forces.NodeArrays.interior``), then lets the
+other contributors add their forces, then the second (a contributor without them is computed
+whole, after the exchange).
 
 The order of the contributors of one kind is the order of summation, so a run's history does
 not depend on anything but the list. A linear spring of stiffness k (N/mm) to ground on some
@@ -73,6 +79,7 @@ work arrays instead of the temporaries of ``f_base[dofs] -= ...``.)
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from enum import Enum
 from typing import Protocol, runtime_checkable
 
@@ -166,6 +173,20 @@ class Contributor:
         completed ``pending_request``), add what needs that sum (the lever's hinge force) into
         the same arrays as ``add_force``."""
 
+    def add_interior_force(
+        self, t: float, f_base: np.ndarray, f_extra: np.ndarray, progress: Callable[[], None]
+    ) -> None:
+        """INTERNAL contributors: the part of ``add_force`` that reads only the ``ready`` nodes
+        (``internal_forces.NodeArrays``: owned, not bound to masters), computed while the halo
+        exchange of the displacements is under way (the ghosts' displacements are those of the
+        last step); call ``progress()`` about every millisecond of work, so that MPI moves the
+        messages meanwhile (``parallel.Halo.progress``). Define ``add_boundary_force`` with
+        it."""
+
+    def add_boundary_force(self, t: float, f_base: np.ndarray, f_extra: np.ndarray) -> None:
+        """The part of ``add_force`` that ``add_interior_force`` left, after the exchange."""
+        self.add_force(t, f_base, f_extra)
+
     def pending_request(self):
         """The nonblocking MPI request the last ``add_force`` or ``moved`` started and has not
         completed (``mpi4py.MPI.REQUEST_NULL`` or None if none): the solver's next exchange
@@ -173,10 +194,13 @@ class Contributor:
         return None
 
 
+def overrides(contributor, name: str) -> bool:
+    """Whether ``contributor``'s class has its own hook ``name`` (not ``Contributor``'s)."""
+    default = getattr(Contributor, name)
+    return getattr(type(contributor), name, default) is not default
+
+
 def hooks(contributors, name: str) -> list:
     """The bound hook ``name`` of each contributor that has its own (not ``Contributor``'s
     no-op), in order: what the solver calls."""
-    default = getattr(Contributor, name)
-    return [
-        getattr(c, name) for c in contributors if getattr(type(c), name, default) is not default
-    ]
+    return [getattr(c, name) for c in contributors if overrides(c, name)]

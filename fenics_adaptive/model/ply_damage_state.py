@@ -87,28 +87,61 @@ class PlyDamageState:
             ply_X = slab_vertices(cell_X[in_cell, :4], cell_X[in_cell, 4:], w_lo, w_hi)
             self.ply_volumes[in_cell, k] = hexahedron_volumes(ply_X)
         self.elements: tuple[np.ndarray, ...] = ()  # set_elements
+        self._parts: dict[str | int, tuple[np.ndarray, ...]] = {}
+        self.interior_chunks = 0
 
     def set_elements(
-        self, nodes: np.ndarray, cells: np.ndarray, plies: np.ndarray, rule_table: RuleTable
+        self,
+        nodes: np.ndarray,
+        cells: np.ndarray,
+        plies: np.ndarray,
+        rule_table: RuleTable,
+        interior: np.ndarray | None = None,
+        chunk: int = 2048,
     ) -> None:
         """The (sub)elements the kernel computes (``Structure.elements``): nodes (n, 8) combined
-        local indices, owned cell of each, its plies [first, stop)."""
+        local indices, owned cell of each, its plies [first, stop); ``interior`` (n,) bool:
+        those ``add_forces(part="interior")`` computes (None: all), taken first, also as parts
+        0 .. ``interior_chunks`` - 1 of ``chunk`` elements each."""
+        first = slice(None) if interior is None else np.argsort(~interior, kind="stable")
         self.elements = (
-            nodes,
-            rule_table.rule_of(plies),
-            cells.astype(np.int64),
-            np.asarray(plies[:, 0]).astype(np.int64),
+            np.ascontiguousarray(nodes[first]),
+            rule_table.rule_of(plies[first]),
+            cells.astype(np.int64)[first],
+            np.asarray(plies[first, 0]).astype(np.int64),
         )
+        n = len(nodes) if interior is None else int(np.count_nonzero(interior))
+        self._parts = {
+            "all": self.elements,
+            "interior": tuple(a[:n] for a in self.elements),
+            "boundary": tuple(a[n:] for a in self.elements),
+        }
+        # the interior in chunks, parts 0, 1, ... (``internal_forces.INTERIOR_CHUNK``)
+        starts = range(0, max(n, 1), chunk)
+        self.interior_chunks = len(starts)
+        for k, start in enumerate(starts):
+            stop = min(start + chunk, n)
+            self._parts[k] = tuple(a[start:stop] for a in self.elements)
 
     def add_forces(
-        self, rules, X_base, X_extra, u_base, u_extra, f_base, f_extra, update: bool = True
+        self,
+        rules,
+        X_base,
+        X_extra,
+        u_base,
+        u_extra,
+        f_base,
+        f_extra,
+        update: bool = True,
+        part: str | int = "all",
     ) -> float:
         """Add the elements' internal forces (N) into ``f_base``, ``f_extra`` (n, 3), updating
         the damage state (``update`` False: at the damage as it is); ``rules``: the packed
-        rules (``RuleTable.packed``); X, u in mm. Returns the elements' secant strain energy
-        (mJ, this rank)."""
+        rules (``RuleTable.packed``); X, u in mm; ``part``: "all", "interior" or "boundary"
+        elements, or chunk k of the interior (``set_elements``). Returns their secant strain
+        energy (mJ, this rank)."""
         return add_damaged_subelement_forces(
-            *self.elements,
+            *self._parts[part],
             *rules,
             *self.pack,
             self.band_width,

@@ -611,6 +611,12 @@ class Structure:
             (self.base.u.x, self.v_base),
             (self.extra.vectors["u"], self.extra.vectors["v"]),
         )
+        self.node_arrays.mark_ready(
+            self.base.V.dofmap.index_map.size_local,
+            self.extra.n_owned,
+            border.dofs // 3,  # (3 combined node index + component)
+            self.comm.size > 1,
+        )
 
     def gather(self, nodes: np.ndarray, name: str) -> np.ndarray:
         """Values (*nodes.shape, 3) of ``name``: "u" (displacement, mm), "v" (velocity, mm/s)

@@ -275,6 +275,16 @@ class Halo:
         self.reverse_start(arrays)
         self.reverse_finish(arrays, also)
 
+    def progress(self) -> None:
+        """Let MPI move the messages of the exchange under way, completing nothing
+        (``MPI_Request_get_status``). Without a progress thread MPICH moves a message longer
+        than its eager limit (a few KiB between the processes of a node: a halo of some
+        hundred nodes) only inside MPI calls of both its sender and its receiver: a rank
+        that computes between ``*_start`` and ``*_finish`` calls this every millisecond or so,
+        or its neighbours wait in their finish until it arrives at its own."""
+        if self._request:
+            self._request.Get_status()
+
     def free(self) -> None:
         """Collective: release the graph communicator; the halo refuses to be used after."""
         if self.active and not self._freed:

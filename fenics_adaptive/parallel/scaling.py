@@ -8,13 +8,17 @@ On P ranks the slowest rank sets the step:
     T(P) = t_cell * max_r W_r                                     (compute)
          + s * (o + n_nb * alpha) + 8 * V / beta                  (the step's halo exchanges)
          + (R / k) * 2 * ceil(log2 P) * alpha                     (reductions of output steps)
+         - min(n_nb * alpha + 8 * V / beta, t_cell * W_interior)  (hidden by the overlap)
 
 with W_r the work of rank r in unrefined-cell equivalents (a refined cell costs ``w`` of them),
 s the exchanges a step waits for (two: ``benchmarks/sync_points.py`` counts them), o the
 per-exchange cost on a rank (packing, unpacking, the call: measured here), n_nb the neighbours of
 a rank, alpha the latency of one message, V the values a rank sends and receives per exchange
 (3 per boundary node, 8 bytes each), beta the bandwidth per rank, and R reductions every k
-steps (the history rows; an allreduce takes about 2 log2 P message latencies).
+steps (the history rows; an allreduce takes about 2 log2 P message latencies). The first
+exchange of a step (the displacements) travels while the rank computes its interior cells
+(``ExplicitSolver.overlap``): its latency and transfer are hidden up to that work
+(``benchmarks/overlap_trace.py`` shows it on two ranks); its packing and unpacking are not.
 
 The partition is modelled as the grid of px x py patches with the shortest cuts (``patch_grid``,
 near-square on a square plate): the one
@@ -136,18 +140,21 @@ def step_time(
     ranks: int,
     refined_share: float = 0.0,
     balanced: bool = False,
+    overlap: bool = True,
 ) -> dict[str, float]:
     """The model's step time (s) of an nx x ny plate on ``ranks`` ranks and its parts
-    (``compute``, ``latency``, ``transfer``, ``output``; ``total``). ``refined_share``: the
-    share of refined cells (a disc about the plate's centre); ``balanced``: the partition
-    weighted by cost (every rank the mean work) instead of equal cells per rank."""
+    (``compute``, ``latency``, ``transfer``, ``output``, less ``hidden``; ``total``).
+    ``refined_share``: the share of refined cells (a disc about the plate's centre);
+    ``balanced``: the partition weighted by cost (every rank the mean work) instead of equal
+    cells per rank; ``overlap``: the displacements' exchange travels while the interior cells
+    compute (all but the cells along the cuts)."""
     mean, largest = disc_work(nx, ny, ranks, refined_share, constants.refined_cost)
     compute = constants.cell_step * (mean if balanced else largest)
     layers = constants.node_layers + refined_share * constants.refined_layers
     _, ghosts = ghost_nodes(nx, ny, ranks, 1)
     values = 3 * 2 * ghosts * layers  # sent and received: both sides of the cuts it touches
     if ranks == 1:
-        latency = transfer = output = 0.0
+        latency = transfer = output = hidden = 0.0
     else:
         latency = constants.exchanges * (
             constants.exchange_overhead + neighbours(ranks, nx, ny) * network.latency
@@ -155,11 +162,17 @@ def step_time(
         transfer = constants.exchanges * 8.0 * values / network.bandwidth
         tree = 2 * math.ceil(math.log2(ranks)) * network.latency
         output = constants.reductions * tree / constants.output_every
-    total = compute + latency + transfer + output
+        in_flight = neighbours(ranks, nx, ny) * network.latency + 8.0 * values / network.bandwidth
+        # the interior: the rank's cells but a row along each cut it touches
+        boundary_cells = ghosts
+        interior = compute * max(1.0 - boundary_cells * ranks / (nx * ny), 0.0)
+        hidden = min(in_flight, interior) if overlap else 0.0
+    total = compute + latency + transfer + output - hidden
     return {
         "compute": compute,
         "latency": latency,
         "transfer": transfer,
         "output": output,
+        "hidden": hidden,
         "total": total,
     }

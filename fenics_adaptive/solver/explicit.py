@@ -247,6 +247,11 @@ class ExplicitSolver:
         self._poll_request = MPI.REQUEST_NULL
         self._poll_open = False
         self._polled_inversion: str | None = None
+        # compute the interior elements while the displacements' halo exchange is under way
+        # (False: wait for it first, as on one rank; to measure what the overlap hides)
+        self.overlap = True
+        self._exchange_open = False
+        self._exchange_also: list = []  # the requests the open exchange's wait completes
         self.inversion: guards.InversionGuard | None = None
         n_motions = len(structure.motions)
         self._motion_now, self._motion_next = np.zeros(n_motions), np.zeros(n_motions)
@@ -469,14 +474,20 @@ class ExplicitSolver:
             self.settle()
             return False
         self.advance()
-        if self._poll_open:  # the step's halo exchange completed the last poll's reduction
-            self._settle_poll()
         s = self.now
-        if s.step % POLL_EVERY == 0:
-            self.poll()
+        polling = s.step % POLL_EVERY == 0
         # periodic, and the last state (a restart with a later end time extends the run)
         every = self.settings.checkpoint_interval
-        if every and (s.step % every == 0 or s.t >= self.settings.end_time - 1e-9 * s.dt):
+        checkpointing = bool(every) and (
+            s.step % every == 0 or s.t >= self.settings.end_time - 1e-9 * s.dt
+        )
+        if self._poll_open or polling or checkpointing:
+            self._finish_exchange()  # they read the whole state (and the poll's flags)
+        if self._poll_open:  # the step's halo exchange completed the last poll's reduction
+            self._settle_poll()
+        if polling:
+            self.poll()
+        if checkpointing:
             self.checkpoint()
         self._evaluate()
         return True
@@ -528,7 +539,12 @@ class ExplicitSolver:
         """Collective: the forces (``forces.RunForces``), accelerations and reactions at t_n
         for the current structure."""
         s = self.now
-        contact = self.forces.evaluate(s.t, self.blocks)
+        if self._exchange_open:
+            contact = self.forces.evaluate(
+                s.t, self.blocks, self._finish_exchange, self.structure.halo.progress
+            )
+        else:
+            contact = self.forces.evaluate(s.t, self.blocks)
         mean_dt = 0.5 * (s.dt_prev + s.dt)
         for index, state in enumerate(self.blocks):
             if state.live:
@@ -650,18 +666,37 @@ class ExplicitSolver:
                 state.reaction,
                 state.reaction_old,
             )
-        # the one wait of the step for the neighbours' displacements (both blocks at once); a
-        # reduction under way (the poll's, a sum of owned displacements: the lever's hinge)
-        # completes in the same call
         self.forces.moved()
-        self.structure.halo.forward(self._u_arrays, also=self._pending())
-        self.structure.follow_border()
+        self._start_exchange()
         self.forces.advance(mean_dt, s.dt)
         s.dt_prev = s.dt
         s.t += s.dt
         s.step += 1
         s.evaluated = False
         self.set_prescribed()
+
+    def _start_exchange(self) -> None:
+        """Collective: start the step's one exchange of the neighbours' displacements (both
+        blocks at once). Its wait also completes the reductions under way (the poll's, a sum
+        of owned displacements: the lever's hinge). On several ranks it is finished by the
+        internal forces once they have computed the interior elements (``RunForces.evaluate``),
+        so that the messages travel while they compute; on one rank, or with ``overlap``
+        False, here."""
+        halo = self.structure.halo
+        halo.forward_start(self._u_arrays)
+        self._exchange_also = self._pending()
+        self._exchange_open = True
+        if not (self.overlap and halo.active):
+            self._finish_exchange()
+
+    def _finish_exchange(self) -> None:
+        """The ghosts' displacements in (waiting for them if they have not arrived), the
+        border of the refined regions on its masters; nothing if no exchange is open."""
+        if not self._exchange_open:
+            return
+        self._exchange_open = False
+        self.structure.halo.forward_finish(self._u_arrays, also=self._exchange_also)
+        self.structure.follow_border()
 
     def poll(self) -> None:
         """Collective, every 64 steps: progress; a stop request, an inversion or a non-finite
@@ -712,6 +747,7 @@ class ExplicitSolver:
         """Complete every nonblocking reduction under way (the poll's, the contributors'),
         without acting on the poll: a run that ends, fails or is started again leaves none
         behind. Every rank must call it (each completes what all ranks started)."""
+        self._finish_exchange()
         pending = self._pending()
         if pending:
             MPI.Request.Waitall(pending)

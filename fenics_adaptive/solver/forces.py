@@ -8,18 +8,22 @@ forces, tie forces) and then the run's own (an impactor, a user's), whose states
 checkpoint keeps. Each step: the INTERNAL contributors into f_int (local shares, the border's
 transfer, the reverse scatter: ``LumpedBlocks.add_internal_forces``), the face loads and the
 EXTERNAL contributors into f_ext (owned DOFs), the CONTACT contributors into arrays of their own
-beside f_ext (computed first: the sums over the ranks they start complete in the internal
-forces' reverse exchange; their ``complete`` hooks run after it). The arrays are allocated
-when the blocks change (start, refinement), never in a step.
+beside f_ext (computed before the internal forces, or the rest of them: the sums over the
+ranks they start complete in the internal forces' reverse exchange; their ``complete`` hooks
+run after it). On several ranks the internal
+forces of the interior elements are computed while the halo exchange of the displacements is
+under way, the rest after it (``evaluate``'s ``ready``), and the external forces while the
+internal forces' shares travel to their owners. The arrays are allocated when the blocks
+change (start, refinement), never in a step.
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 
 import numpy as np
 
-from fenics_adaptive.model.forces import ForceContributor, ForceKind, hooks
+from fenics_adaptive.model.forces import ForceContributor, ForceKind, hooks, overrides
 from fenics_adaptive.model.structure import Structure
 from fenics_adaptive.solver.blocks import BlockState
 
@@ -60,6 +64,14 @@ class RunForces:
         self._pending = hooks(contributors, "pending_request")
         self._completing = hooks(self.contact, "complete")
         self._moved = hooks(contributors, "moved")
+        # the internal forces in two parts around the halo exchange (those that can split),
+        # or whole
+        self._interior = hooks(self.internal, "add_interior_force")
+        self._whole = [c.add_force for c in self.internal]
+        self._boundary = [
+            c.add_boundary_force if overrides(c, "add_interior_force") else c.add_force
+            for c in self.internal
+        ]
 
     def prepare(self, blocks: Sequence[BlockState], dt: float, element_step: float) -> None:
         """At the start of a run: the arrays for ``blocks``, the contributors told the time step
@@ -73,24 +85,45 @@ class RunForces:
         contact contributors."""
         self._contact_force = [np.zeros(b.block.n_owned) for b in blocks] if self.contact else []
 
-    def evaluate(self, t: float, blocks: Sequence[BlockState]) -> list[np.ndarray] | None:
+    def evaluate(
+        self,
+        t: float,
+        blocks: Sequence[BlockState],
+        ready: Callable[[], None] | None = None,
+        progress: Callable[[], None] = lambda: None,
+    ) -> list[np.ndarray] | None:
         """Collective: at time t (s), f_int into the blocks' ``f``, f_ext into their ``f_ext``;
         returns the contact force per block (N, owned DOFs), None without contact
-        contributors."""
+        contributors. ``ready``: finishes the halo exchange of the displacements under way
+        (None: none is); the INTERNAL contributors that can compute their interior elements
+        (``add_interior_force``) before it, calling ``progress`` (it lets MPI move the
+        exchange's messages), the rest of them after."""
         base, extra = blocks
-        # the contact forces first: they read the displacements only, and the sums over the
-        # ranks they start (a free body's force, the lever's saddle) complete in the internal
-        # forces' reverse exchange instead of waiting on their own
+        lumped = self.structure.lumped
+        f_base, f_extra = lumped.cleared_internal_forces()
+        internal = self._whole
+        if ready is not None:
+            for add in self._interior:
+                add(t, f_base, f_extra, progress)
+            ready()
+            internal = self._boundary
+        # the contact forces before the rest of the internal ones: the sums over the ranks
+        # they start (a free body's force, the lever's saddle) complete in the internal forces'
+        # reverse exchange instead of waiting on their own
         for forces in self._contact_force:
             forces.fill(0.0)
         for contributor in self.contact:
             contributor.add_force(t, *self._contact_force)
-        self.structure.lumped.add_internal_forces(t, self.internal, self.pending_requests())
-        # the face loads on both blocks (extra nodes: of refined cells on a loaded side face)
+        for add in internal:
+            add(t, f_base, f_extra)
+        lumped.start_summing()
+        # the external forces while the internal forces' shares travel: the face loads on
+        # both blocks (extra nodes: of refined cells on a loaded side face), the contributors
         self.structure.loads.external_force(t, self._f_ext_full, extra.f_ext)
         base.f_ext[:] = self._f_ext_full[: base.block.n_owned]
         for contributor in self.external:
             contributor.add_force(t, base.f_ext, extra.f_ext)
+        lumped.finish_summing(self.pending_requests())
         if not self.contact:
             return None
         for complete in self._completing:
