@@ -27,6 +27,7 @@ from fenics_adaptive.io.refinement_log import RefinementLog, read_log
 from fenics_adaptive.io.run_folder import RunFolder
 from fenics_adaptive.model.diagnostics import insert_film_area
 from fenics_adaptive.model.structure import Structure
+from fenics_adaptive.parallel import balance
 from fenics_adaptive.settings.config import RunConfig, check_step_count
 from fenics_adaptive.settings.kinds import ModelKind
 from fenics_adaptive.simulation import Simulation, build_structure, indicator_defaults
@@ -99,7 +100,9 @@ def execute(
     structure = simulation.structure
     writer = CheckpointWriter(out_dir, config, structure, history, simulation.refinement, folder)
     refinement_log = _refinement_log(config, structure, out_dir, restart, resume, folder)
+    balance_report = BalanceReport(structure, say)
     observers = (history, fields, progress, writer, RefinementReport(structure, say))
+    observers += (balance_report,)
     for observer in (*observers, refinement_log):
         if observer is not None:
             simulation.add_observer(observer)
@@ -120,6 +123,7 @@ def execute(
         if interrupted:
             summary["checkpoint"] = str(out_dir / checkpoint.FOLDER)
         summary["wall_time_s"] = time.perf_counter() - start
+        summary["load_balance"] = _load_balance(balance_report)
         try:
             output.write_summary(out_dir, summary, comm, folder.record)
         finally:
@@ -131,6 +135,7 @@ def execute(
             progress.done()
         if refinement_log is not None:
             refinement_log.close()
+    summary["load_balance"] = _load_balance(balance_report)
     try:  # the lock is held until the last file is written
         finished = (stats, history, fields, kept_rows, resume, summary)
         return _finish(config, out_dir, comm, simulation, finished, say, folder.record)
@@ -352,6 +357,50 @@ class RefinementReport(Observer):
             f"extra nodes, {comm.allreduce(len(structure.cohesive))} cohesive elements; time "
             f"step {dt:.4e} s (limited by {where})"
         )
+
+
+class BalanceReport(Observer):
+    """Collective: how unequally the ranks share the step's cost (``parallel.balance``): the
+    largest rank's cost over the mean at the start, after each refinement, at its largest."""
+
+    # said in the log when the run starts this unbalanced (or a refinement makes it so)
+    WORTH_SAYING = 1.2
+
+    def __init__(self, structure: Structure, say: Callable[[str], None]):
+        self.structure, self.say = structure, say
+        self.at_start = self.now = self.largest = 1.0
+
+    def _measure(self) -> float:
+        local = balance.structure_costs(self.structure.interface_state).sum()
+        self.now = balance.imbalance(self.structure.comm, local)
+        self.largest = max(self.largest, self.now)
+        return self.now
+
+    def on_start(self, solver) -> None:
+        self.largest = 1.0
+        self.at_start = self._measure()
+        if self.at_start > self.WORTH_SAYING:
+            self.say(f"load imbalance {self.at_start:.2f} (the costliest rank over the mean)")
+
+    def on_refinement(self, event: RefinementEvent, dt: float, where: str) -> None:
+        before = self.largest
+        if self._measure() > self.WORTH_SAYING and self.now > before:
+            self.say(
+                f"t = {event.time:.4e} s: load imbalance {self.now:.2f} (the costliest rank "
+                "over the mean; the partition stays as it was cut)"
+            )
+
+
+def _load_balance(report: BalanceReport) -> dict:
+    """``summary.json``'s "load_balance"."""
+    return {
+        "imbalance_at_start": report.at_start,
+        "imbalance_at_end": report.now,
+        "imbalance_largest": report.largest,
+        "cost_model": (
+            f"1 + {balance.REFINED_INTERFACE_COST} per refined interface, in unrefined cells"
+        ),
+    }
 
 
 def _finish(

@@ -41,12 +41,14 @@ from fenics_adaptive.model.layerwise import cohesive_pairs
 from fenics_adaptive.model.lever import LoadingLever
 from fenics_adaptive.model.loading import face_dofs, resolve
 from fenics_adaptive.model.structure import Structure, cells_in_x_range
+from fenics_adaptive.parallel.balance import film_cost
 from fenics_adaptive.settings.adaptivity import Delamination
 from fenics_adaptive.settings.config import RunConfig
 from fenics_adaptive.settings.kinds import (
     InterfaceState,
     ModelKind,
     MotionKind,
+    Partition,
     Refinement,
     RigidMotion,
 )
@@ -92,6 +94,15 @@ def build_structure(
     refinement of a config."""
     layers = config.layer_laminates()
     boundaries = config.layer_boundaries
+    # on several ranks, patches of equal cost: an adaptive model's cells under an insert film
+    # start refined (``parallel.balance``)
+    cost = None
+    if (
+        comm.size > 1
+        and config.kind == ModelKind.ADAPTIVE
+        and config.mesh.partition == Partition.COST
+    ):
+        cost = film_cost(config.delaminations)
     beam = layered_mesh(
         comm,
         config.mesh.length,
@@ -100,6 +111,7 @@ def build_structure(
         config.mesh.ny,
         [laminate.thickness for laminate in layers],
         [b in config.interfaces.delaminate for b in boundaries],
+        cost,
     )
     model = build_model(
         beam,

@@ -24,7 +24,9 @@ Face groups, by name (``BeamMesh.facets(name)``):
 Parallel: a mesh with more than one layer is distributed by columns (``columnar_partitioner``):
 all cells above one in-plane cell, i.e. every cell of one column, live on the same rank, so that
 a cohesive element (a cell and the cell right above it, which share no node across a split
-boundary) is complete on one rank. A single-layer mesh uses the DOLFINx default partitioner.
+boundary) is complete on one rank. A single-layer mesh uses the DOLFINx default partitioner,
+unless its cells do not all cost the same (``cost``: an adaptive model refined from the start
+under an insert film): then it too is cut into patches, of equal cost.
 
 Every hexahedron comes out of DOLFINx with its reference zeta axis along +z (vertices 0-3 on its
 bottom face, 4-7 on its top face, in the order of the reference cell): the layered integration
@@ -121,9 +123,13 @@ def layered_mesh(
     ny: int,
     layer_thicknesses: Sequence[float],
     split: Sequence[bool] | None = None,
+    cost: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None,
 ) -> BeamMesh:
     """Layered hexahedral box: one cell per layer through the thickness. ``split[k]`` says whether
-    the boundary between layer k and k + 1 has its own nodes on each side."""
+    the boundary between layer k and k + 1 has its own nodes on each side. ``cost(x, y)``: the
+    cost per step of a cell at in-plane centroid (x, y) mm, when the cells do not all cost the
+    same (an adaptive model's cells refined from the start); on several ranks the mesh is
+    then cut into patches of equal cost (``columnar_partitioner``), also with one layer."""
     for name, value in (("length", length), ("width", width)):
         if not value > 0:
             raise ValueError(f"mesh.{name}: must be > 0 mm (got {value})")
@@ -153,10 +159,10 @@ def layered_mesh(
         with shared_errors(comm):
             if comm.rank == 0:
                 _build_layers(length, width, nx, ny, thicknesses, split, layer_z)
-                if len(thicknesses) > 1:
+                if len(thicknesses) > 1 or cost is not None:
                     nodes = dolfinx.io.gmsh.extract_geometry(gmsh.model)
-        if len(thicknesses) > 1:
-            partitioner = columnar_partitioner(nodes, 1e-6 * min(length / nx, width / ny))
+        if len(thicknesses) > 1 or cost is not None:
+            partitioner = columnar_partitioner(nodes, 1e-6 * min(length / nx, width / ny), cost)
         mesh_data = dolfinx.io.gmsh.model_to_mesh(
             gmsh.model, comm, 0, gdim=3, partitioner=partitioner
         )
@@ -256,7 +262,11 @@ def _build_layers(length, width, nx, ny, thicknesses, split, layer_z) -> None:
             model.mesh.setNode(int(tag), [xyz[0], xyz[1], z], [])
 
 
-def columnar_partitioner(nodes: np.ndarray | None, tol: float) -> Callable:
+def columnar_partitioner(
+    nodes: np.ndarray | None,
+    tol: float,
+    cost: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None,
+) -> Callable:
     """A DOLFINx cell partitioner that keeps every column of cells on one rank.
 
     ``nodes`` (n_nodes, 3) are the coordinates the cells' node indices refer to (Gmsh's node
@@ -266,7 +276,9 @@ def columnar_partitioner(nodes: np.ndarray | None, tol: float) -> Callable:
     (``patch_grid``, ``grid_parts``): strips across a long beam, near-square patches on a
     plate, where a rank's halo grows with its patch's perimeter, as the square root of its
     cells (strips of a plate's whole width would keep it at the width whatever the rank
-    count). Cells are owned by their rank only: no
+    count). ``cost(x, y)``: what a cell at in-plane centroid (x, y) mm costs per step (in
+    unrefined cells, > 0; a column costs the sum of its cells'): the patches then hold equal
+    cost instead of equal columns (``grid_parts``). Cells are owned by their rank only: no
     extra ghosts (like ``GhostMode.none``).
     """
 
@@ -282,7 +294,12 @@ def columnar_partitioner(nodes: np.ndarray | None, tol: float) -> Callable:
         centroids = nodes[topology, :2].mean(axis=1)
         ix, iy = (_cluster(centroids[:, i], tol) for i in range(2))
         keys, column = np.unique(np.stack([ix, iy], axis=1), axis=0, return_inverse=True)
-        return AdjacencyList_int32(grid_parts(keys, nparts)[column.ravel()])
+        column = column.ravel()
+        weights = None
+        if cost is not None:
+            cell_cost = np.asarray(cost(centroids[:, 0], centroids[:, 1]), dtype=np.float64)
+            weights = np.bincount(column, weights=cell_cost, minlength=len(keys))
+        return AdjacencyList_int32(grid_parts(keys, nparts, weights)[column])
 
     return partition
 
@@ -298,22 +315,48 @@ def patch_grid(parts: int, nx: float = 1.0, ny: float = 1.0) -> tuple[int, int]:
     return min(pairs, key=lambda ab: ((ab[0] - 1) * ny + (ab[1] - 1) * nx, abs(ab[0] - ab[1])))
 
 
-def grid_parts(columns: np.ndarray, parts: int) -> np.ndarray:
+def grid_parts(columns: np.ndarray, parts: int, weights: np.ndarray | None = None) -> np.ndarray:
     """The part (int32) of each column of ``columns`` (n, 2: in-plane x and y index) in the
     ``patch_grid`` of the columns' extent: a slabs along x, each cut into b patches along y.
     Every slab holds the same number of columns to within one, and every patch of a slab
-    likewise."""
+    likewise; with ``weights`` (n,) > 0 (a column's cost) the same weight instead, each cut
+    within half a column's weight of its target."""
     if len(columns) == 0:
         return np.zeros(0, dtype=np.int32)
+    if weights is not None:
+        weights = np.asarray(weights, dtype=np.float64)
+        if weights.shape != (len(columns),) or not np.all(weights > 0):
+            raise ValueError("grid_parts: one weight > 0 per column")
     nx, ny = columns.max(axis=0) - columns.min(axis=0) + 1
     a, b = patch_grid(parts, nx, ny)
     out = np.empty(len(columns), dtype=np.int32)
     by_x = np.lexsort((columns[:, 1], columns[:, 0]))
-    for slab, members in enumerate(np.array_split(by_x, a)):
+    for slab, members in enumerate(_split(by_x, a, weights)):
         by_y = members[np.lexsort((columns[members, 0], columns[members, 1]))]
-        for cut, patch in enumerate(np.array_split(by_y, b)):
+        for cut, patch in enumerate(_split(by_y, b, weights)):
             out[patch] = slab * b + cut
     return out
+
+
+def _split(ordered: np.ndarray, parts: int, weights: np.ndarray | None) -> list[np.ndarray]:
+    """``ordered`` (indices) in ``parts`` consecutive runs of equal length, or, with
+    ``weights``, of equal weight: run k ends where the cumulative weight first passes
+    (k + 1) / parts of the total (every run keeps at least one index where there are enough)."""
+    if weights is None:
+        return np.array_split(ordered, parts)
+    cumulative = np.cumsum(weights[ordered])
+    targets = cumulative[-1] * np.arange(1, parts) / parts
+    # the cut nearest each target, in order, one index apart at least
+    cuts = np.searchsorted(cumulative, targets, side="left")
+    nearer = (cuts > 0) & (
+        np.abs(cumulative[np.maximum(cuts - 1, 0)] - targets) < np.abs(cumulative[cuts] - targets)
+    )
+    cuts = np.where(nearer, cuts, cuts + 1)
+    n = len(ordered)
+    for k in range(len(cuts)):  # strictly increasing, within (0, n)
+        low = cuts[k - 1] + 1 if k else 1
+        cuts[k] = min(max(cuts[k], low), max(n - (len(cuts) - k), low))
+    return np.split(ordered, cuts)
 
 
 def _cluster(values: np.ndarray, tol: float) -> np.ndarray:

@@ -366,3 +366,99 @@ def test_sigterm_ends_a_hung_collective_after_the_watchdog_timeout():
     assert lines, stderr
     for line in lines:
         assert line.endswith("no progress for 3 s after SIGTERM; aborting the MPI job"), line
+
+
+@pytest.mark.mpi
+def test_the_overlap_computes_every_element_once_and_changes_no_force(tmp_path):
+    """Two ranks, overlap on and off (``ExplicitSolver.overlap``): the interior elements (all
+    nodes owned, none on a refined region's border) and the rest are a partition of the
+    elements, and since both ways add the forces in the same order the displacements are bit
+    for bit the same: a front refining across the ranks (border, cohesive elements) and an
+    impact with contact and ply damage (the damaged kernel's split)."""
+    result = run_script(
+        f"""
+        import json
+        import numpy as np
+        from mpi4py import MPI
+        from fenics_adaptive.settings.config import load_config
+        from fenics_adaptive.simulation import Simulation
+
+        def run(name, overlap, steps=250):
+            simulation = Simulation(load_config("{DATA}/" + name + ".toml"), comm=MPI.COMM_WORLD)
+            simulation.start()
+            simulation.solver.overlap = overlap
+            for _ in range(steps):
+                simulation.step()
+            simulation.settle()
+            structure = simulation.structure
+            solid = structure.internal_forces.solids[0]
+            assert solid._generation == structure.node_arrays.generation  # split up to date
+            if hasattr(solid, "solids"):
+                n = len(solid.solids)
+                interior, boundary = solid.solids.interior_order, solid.solids.boundary_order
+                nodes = solid.solids.nodes
+            else:
+                n = len(solid.damage.elements[0])
+                k = len(solid.damage._parts["interior"][0])
+                interior, boundary = np.arange(k), np.arange(k, n)
+                nodes = solid.damage.elements[0]
+            both = np.concatenate([interior, boundary])
+            assert np.array_equal(np.sort(both), np.arange(n)), name
+            n_base = structure.n_base
+            owned_base = structure.base.V.dofmap.index_map.size_local
+            constrained = structure.border.dofs // 3
+            used = nodes[interior]
+            is_base = used < n_base
+            assert (used[is_base] < owned_base).all(), name
+            assert (used[~is_base] - n_base < structure.extra.n_owned).all(), name
+            assert not np.isin(used, constrained).any(), name
+            u = [b.u.array[: b.n_owned].copy() for b in structure.blocks]
+            # the energy of the last interior part: computed (> 0) with the overlap only
+            assert (solid._interior_energy > 0) == overlap, (name, overlap)
+            return u, len(interior), len(boundary)
+
+        for name in ("mpi_front_across_ranks", "mpi_one_rank_impact"):
+            on, interior, boundary = run(name, True)
+            off, _, _ = run(name, False)
+            same = all(np.array_equal(a, b) for a, b in zip(on, off))
+            counts = MPI.COMM_WORLD.gather((interior, boundary))
+            if MPI.COMM_WORLD.rank == 0:
+                print(json.dumps([name, same, counts]))
+        """
+    )
+    assert result.returncode == 0, result.stderr
+    lines = result.stdout.splitlines()
+    assert len(lines) == 2, result.stdout
+    for line in lines:
+        _, same, counts = json.loads(line)  # counts: [interior, boundary] per rank
+        assert same, line
+        assert all(i > 0 for i, _ in counts), line  # both ranks compute something early
+        assert sum(b for _, b in counts) > 0, line  # and something after the exchange
+
+
+@pytest.mark.mpi
+def test_a_partition_of_equal_cost_balances_an_insert_film_and_keeps_the_history(tmp_path):
+    """The quick DCB's film (x = 25 - 45 mm of 45 mm) starts refined: a cell under it costs
+    3.3 unrefined ones (``parallel.balance``). Cut into equal cells (the film's cells on one
+    rank) two ranks' costs differ by half; cut into equal cost (``[mesh] partition = "cost"``,
+    the default) the cut moves under the film and the costs agree to about a cell's; the
+    history is the serial one either way."""
+    text = (DATA / "mpi_front_across_ranks.toml").read_text()
+    text = text.replace("end_time = 1.6e-3", "end_time = 4e-4")
+    assert 'partition = "cells"' in text and "end_time = 4e-4" in text
+    runs = {}
+    for partition, ranks in (("cells", 1), ("cost", 2), ("cells", 2)):
+        config = tmp_path / f"{partition}{ranks}.toml"
+        config.write_text(text.replace('partition = "cells"', f'partition = "{partition}"'))
+        out = tmp_path / f"{partition}{ranks}"
+        history, held = run_case(config, out, ranks)
+        balance = json.loads((out / "summary.json").read_text())["load_balance"]
+        runs[partition, ranks] = history, held, balance
+    serial, _, alone = runs["cells", 1]
+    assert alone["imbalance_at_start"] == 1.0
+    history, held, balance = runs["cost", 2]
+    high = max(held, key=lambda r: r["x_min"])
+    assert 25.0 < high["x_min"] < 40.0  # the cut under the film
+    assert balance["imbalance_at_start"] < 1.0 + 3.3 / 45.0  # within one cell's cost
+    assert runs["cells", 2][2]["imbalance_at_start"] > 1.4
+    assert_same_history(serial, history)

@@ -125,8 +125,16 @@ def runner_summary_keys() -> set[str]:
                     name = _string(target.slice)
                     assert name is not None, f"line {node.lineno}: summary[<not a literal>]"
                     keys.add(name)
-                    if isinstance(node.value, ast.Dict):
-                        add(node.value, name + ".")
+                    value = node.value
+                    if (
+                        isinstance(value, ast.Call)
+                        and isinstance(value.func, ast.Name)
+                        and any(f.name == value.func.id for f in functions)
+                    ):
+                        # summary["x"] = _helper(...): the dict literal that helper returns
+                        value = returned(value.func.id)
+                    if isinstance(value, ast.Dict):
+                        add(value, name + ".")
         elif isinstance(node, ast.AugAssign) and _is_summary(node.target):
             add(node.value)
         elif (

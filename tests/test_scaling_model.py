@@ -111,3 +111,28 @@ def test_the_overlap_hides_the_displacements_exchange_up_to_the_interior_work():
     slow = step_time(constants, Interconnect(latency=1.0), 128, 128, 16)
     assert 0.9 * slow["compute"] < slow["hidden"] < slow["compute"]
     assert step_time(constants, network, 128, 128, 1)["hidden"] == 0.0
+
+
+def test_weighted_patches_hold_equal_cost_to_within_a_column():
+    """A plate of 40 x 12 columns whose left quarter costs 3.3 each (refined at one
+    interface from the start: ``parallel.balance.cell_costs``): every patch of the grid gets
+    the same cost to within two of the costliest columns per level of cuts (slabs, then
+    patches), the unweighted grid the same columns and unequal costs."""
+    from fenics_adaptive.parallel.balance import cell_costs
+
+    columns = np.array([(i, j) for i in range(40) for j in range(12)])
+    weights = cell_costs(np.where(columns[:, 0] < 10, 1, 0))
+    assert weights.max() == pytest.approx(3.3)
+    for parts in (2, 3, 4, 6, 8):
+        part = grid_parts(columns, parts, weights)
+        cost = np.bincount(part, weights=weights, minlength=parts)
+        a, b = patch_grid(parts, 40, 12)
+        levels = (a > 1) + (b > 1)  # a part's two cuts: each off by up to half a column
+        assert np.ptp(cost) <= 2 * levels * weights.max() + 1e-9, (parts, cost)
+        equal = grid_parts(columns, parts)
+        assert np.ptp(np.bincount(equal, minlength=parts)) <= 1
+        assert np.ptp(np.bincount(equal, weights=weights)) > 10 * weights.max()
+    with pytest.raises(ValueError):
+        grid_parts(columns, 2, np.zeros(len(columns)))
+    with pytest.raises(ValueError):
+        grid_parts(columns, 2, weights[:-1])

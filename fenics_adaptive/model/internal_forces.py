@@ -84,6 +84,8 @@ class NodeArrays:
             ready[n_owned_base:n_base] = False
             ready[n_base + n_owned_extra :] = False
             ready[np.asarray(constrained, dtype=np.int64)] = False
+        if self.ready is not None and np.array_equal(ready, self.ready):
+            return  # (the contributors' splits stand)
         self.ready = ready
         self.generation += 1
 

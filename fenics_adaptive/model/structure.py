@@ -156,6 +156,8 @@ class Structure:
         if ply_damage:
             self._setup_ply_damage()
         self.node_arrays = NodeArrays.of(self.X_base, base.u.x, self.extra)
+        # no extra nodes yet, no border
+        self._mark_ready(np.zeros(0, dtype=np.int64))
         self.internal_forces = InternalForces.of(
             base,
             self.refinement,
@@ -484,10 +486,10 @@ class Structure:
         )
         self._rebuild_maps()
         self.node_arrays.refresh(self.extra)
+        free_b = self.border.free_b
+        self._rebuild_blocks()  # (the new border: which nodes are ready, for the contributors)
         for refined in hooks(self.contributors, "refined"):
             refined()
-        free_b = self.border.free_b
-        self._rebuild_blocks()
         # the face loads onto the subelements' faces, extra nodes included, with the new border
         self.loads.refine(
             np.hstack([self.bottom_local, self.top_local]),
@@ -611,10 +613,15 @@ class Structure:
             (self.base.u.x, self.v_base),
             (self.extra.vectors["u"], self.extra.vectors["v"]),
         )
+        self._mark_ready(border.dofs // 3)  # (3 combined node index + component)
+
+    def _mark_ready(self, constrained: np.ndarray) -> None:
+        """Which nodes' displacements a step knows before the halo exchange: the owned nodes
+        but the ``constrained`` ones (combined local indices), on several ranks."""
         self.node_arrays.mark_ready(
             self.base.V.dofmap.index_map.size_local,
             self.extra.n_owned,
-            border.dofs // 3,  # (3 combined node index + component)
+            constrained,
             self.comm.size > 1,
         )
 

@@ -22,7 +22,8 @@ Sections (see demos/*.toml for complete examples and ``config_schema`` for every
                  (default true); check_units (default true);
                  max_memory (GB, default 16)
   [mesh]         length, width (mm), nx, ny (cells in-plane); layers = [plies per mesh layer]
-                 for a layerwise model (default: one layer per ply)
+                 for a layerwise model (default: one layer per ply); partition = "cost"
+                 (default) | "cells" (how MPI ranks share the cells)
   [materials.NAME]  E1, E2, G12, nu12, nu23, rho, optional G23; [materials.NAME.failure]
   [laminate]     material + ply_thickness + angles (bottom to top), or plies = [{material,
                  angle, thickness}, ...]
@@ -74,6 +75,7 @@ from fenics_adaptive.settings.kinds import (
     Kinematics,
     ModelKind,
     MotionKind,
+    Partition,
     Profile,
     Refinement,
     RigidMotion,
@@ -115,6 +117,7 @@ class MeshConfig:
     nx: int
     ny: int
     layers: tuple[int, ...]  # plies per mesh layer, bottom to top
+    partition: Partition = Partition.COST  # on several ranks: patches of equal cost or cells
 
 
 @dataclass(frozen=True)
@@ -986,7 +989,7 @@ def _mesh(table: _Table, kind: ModelKind, laminate: Laminate) -> MeshConfig:
         if table.has("layers"):
             raise InputError(table.key("layers"), "only a layerwise model has mesh layers")
         layers = (laminate.n_plies,)
-    return MeshConfig(length, width, nx, ny, tuple(layers))
+    return MeshConfig(length, width, nx, ny, tuple(layers), table.choice("partition"))
 
 
 def _check_geometry(mesh: MeshConfig, laminate: Laminate) -> None:

@@ -89,6 +89,14 @@ class MotionKind(StrEnum):
     VELOCITY = "velocity"
 
 
+class Partition(StrEnum):
+    """``[mesh] partition``: how MPI ranks share the cells: patches of equal cost (a cell
+    refined from the start costs more: ``parallel.balance``) or of equal cells."""
+
+    COST = "cost"
+    CELLS = "cells"
+
+
 class Profile(StrEnum):
     """``profile`` of a time ramp: C1 smoothstep or straight line."""
 

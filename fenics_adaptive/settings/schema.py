@@ -36,6 +36,7 @@ from fenics_adaptive.settings.kinds import (
     MassScaling,
     MixedModeLaw,
     ModelKind,
+    Partition,
     Profile,
     Refinement,
     RigidMotion,
@@ -354,6 +355,15 @@ SECTIONS: tuple[Section, ...] = (
                 "layerwise only: plies per mesh layer, bottom to top (default one per ply)",
                 default=OPTIONAL,
                 minimum=1,
+            ),
+            Key(
+                "partition",
+                "choice",
+                'on several MPI ranks, patches of equal "cost" (an adaptive model\'s cells '
+                "under an insert film, refined from the start, count as several unrefined "
+                'ones) or of equal "cells"',
+                default=str(Partition.COST),
+                choices=tuple(Partition),
             ),
         ),
         required=True,
