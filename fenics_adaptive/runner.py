@@ -368,22 +368,25 @@ class BalanceReport(Observer):
 
     def __init__(self, structure: Structure, say: Callable[[str], None]):
         self.structure, self.say = structure, say
-        self.at_start = self.now = self.largest = 1.0
+        # None until measured (a run that fails before its first step)
+        self.at_start: float | None = None
+        self.now: float | None = None
+        self.largest: float | None = None
 
     def _measure(self) -> float:
         local = balance.structure_costs(self.structure.interface_state).sum()
         self.now = balance.imbalance(self.structure.comm, local)
-        self.largest = max(self.largest, self.now)
+        self.largest = max(self.largest or 0.0, self.now)
         return self.now
 
     def on_start(self, solver) -> None:
-        self.largest = 1.0
+        self.largest = None
         self.at_start = self._measure()
         if self.at_start > self.WORTH_SAYING:
             self.say(f"load imbalance {self.at_start:.2f} (the costliest rank over the mean)")
 
     def on_refinement(self, event: RefinementEvent, dt: float, where: str) -> None:
-        before = self.largest
+        before = self.largest or 0.0
         if self._measure() > self.WORTH_SAYING and self.now > before:
             self.say(
                 f"t = {event.time:.4e} s: load imbalance {self.now:.2f} (the costliest rank "

@@ -340,9 +340,10 @@ def grid_parts(columns: np.ndarray, parts: int, weights: np.ndarray | None = Non
 
 def _split(ordered: np.ndarray, parts: int, weights: np.ndarray | None) -> list[np.ndarray]:
     """``ordered`` (indices) in ``parts`` consecutive runs of equal length, or, with
-    ``weights``, of equal weight: run k ends where the cumulative weight first passes
-    (k + 1) / parts of the total (every run keeps at least one index where there are enough)."""
-    if weights is None:
+    ``weights``, of equal weight: run k ends at the cut nearest to where the cumulative weight
+    reaches (k + 1) / parts of the total (every run keeps at least one index where there are
+    enough; with none, all runs are empty)."""
+    if weights is None or len(ordered) == 0:
         return np.array_split(ordered, parts)
     cumulative = np.cumsum(weights[ordered])
     targets = cumulative[-1] * np.arange(1, parts) / parts

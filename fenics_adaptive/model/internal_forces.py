@@ -89,13 +89,12 @@ class NodeArrays:
         self.ready = ready
         self.generation += 1
 
-    def interior(self, element_nodes: np.ndarray) -> np.ndarray | None:
+    def interior(self, element_nodes: np.ndarray) -> np.ndarray:
         """(n,) bool: which elements of ``element_nodes`` (n, k combined local indices) have
-        ready nodes only; None while ``ready`` is not known (all: no split)."""
-        if self.ready is None:
-            return None
-        if len(element_nodes) == 0:
-            return np.zeros(0, dtype=bool)
+        ready nodes only; none while ``ready`` is not known (the safe side: all computed after
+        the exchange)."""
+        if self.ready is None or len(element_nodes) == 0:
+            return np.zeros(len(element_nodes), dtype=bool)
         return self.ready[element_nodes].all(axis=1)
 
     def refresh(self, extra: ExtraNodes) -> None:

@@ -21,8 +21,9 @@ DOLFINx's ``scatter_forward`` / ``scatter_reverse(add)``.
 On one rank there is nothing to exchange and every method returns at once; on several, the
 construction and every start are collective over the communicator, whatever a rank holds (a
 rank without neighbours takes part with empty messages), and every rank must finish what it
-started. The solver does not yet put work between a start and its finish (overlap of
-communication with the element loop is issue 23's item 2).
+started. The solver computes its interior elements between the start and the finish of the
+displacements' exchange, calling ``progress`` between chunks of them, and its external loads
+between those of the forces' (``solver.forces.RunForces.evaluate``).
 """
 
 from __future__ import annotations

@@ -6,7 +6,7 @@ ESL and adaptive models, one per sublaminate in layerwise ones).
 On P ranks the slowest rank sets the step:
 
     T(P) = t_cell * max_r W_r                                     (compute)
-         + s * (o + n_nb * alpha) + 8 * V / beta                  (the step's halo exchanges)
+         + s * (o + n_nb * alpha + 8 * V / beta)                  (the step's halo exchanges)
          + (R / k) * 2 * ceil(log2 P) * alpha                     (reductions of output steps)
          - min(n_nb * alpha + 8 * V / beta, t_cell * W_interior)  (hidden by the overlap)
 

@@ -117,13 +117,16 @@ class RunForces:
         for add in internal:
             add(t, f_base, f_extra)
         lumped.start_summing()
-        # the external forces while the internal forces' shares travel: the face loads on
-        # both blocks (extra nodes: of refined cells on a loaded side face), the contributors
-        self.structure.loads.external_force(t, self._f_ext_full, extra.f_ext)
-        base.f_ext[:] = self._f_ext_full[: base.block.n_owned]
-        for contributor in self.external:
-            contributor.add_force(t, base.f_ext, extra.f_ext)
-        lumped.finish_summing(self.pending_requests())
+        try:
+            # the external forces while the internal forces' shares travel: the face loads
+            # on both blocks (extra nodes: of refined cells on a loaded side face), the
+            # contributors
+            self.structure.loads.external_force(t, self._f_ext_full, extra.f_ext)
+            base.f_ext[:] = self._f_ext_full[: base.block.n_owned]
+            for contributor in self.external:
+                contributor.add_force(t, base.f_ext, extra.f_ext)
+        finally:  # (an exchange left open would refuse the next one)
+            lumped.finish_summing(self.pending_requests())
         if not self.contact:
             return None
         for complete in self._completing:
