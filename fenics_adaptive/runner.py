@@ -361,7 +361,9 @@ class RefinementReport(Observer):
 
 class BalanceReport(Observer):
     """Collective: how unequally the ranks share the step's cost (``parallel.balance``): the
-    largest rank's cost over the mean at the start, after each refinement, at its largest."""
+    largest rank's cost over the mean at the start (at the first history row: after the
+    refinement the indicators ask for at t = 0), after each later refinement, at its
+    largest."""
 
     # said in the log when the run starts this unbalanced (or a refinement makes it so)
     WORTH_SAYING = 1.2
@@ -380,12 +382,18 @@ class BalanceReport(Observer):
         return self.now
 
     def on_start(self, solver) -> None:
-        self.largest = None
+        self.at_start = self.now = self.largest = None
+
+    def on_history(self, row) -> None:
+        if self.at_start is not None:
+            return
         self.at_start = self._measure()
         if self.at_start > self.WORTH_SAYING:
             self.say(f"load imbalance {self.at_start:.2f} (the costliest rank over the mean)")
 
     def on_refinement(self, event: RefinementEvent, dt: float, where: str) -> None:
+        if self.at_start is None:  # at t = 0: the first history row measures after it
+            return
         before = self.largest or 0.0
         if self._measure() > self.WORTH_SAYING and self.now > before:
             self.say(

@@ -28,6 +28,7 @@ from fenics_adaptive.adaptivity.indicators import (
     front_distances,
     front_requests,
     indicator_requests,
+    laminate_front_distances,
     spread,
 )
 from fenics_adaptive.adaptivity.refinement import Request
@@ -102,7 +103,15 @@ def build_structure(
         and config.kind == ModelKind.ADAPTIVE
         and config.mesh.partition == Partition.COST
     ):
-        cost = film_cost(config.delaminations)
+        front = None
+        if config.indicators is not None and config.cohesive is not None:
+            front = laminate_front_distances(
+                config.laminate,
+                config.interfaces.delaminate,
+                config.cohesive,
+                config.indicators.front_distance,
+            )
+        cost = film_cost(config.delaminations, front)
     beam = layered_mesh(
         comm,
         config.mesh.length,

@@ -438,11 +438,12 @@ def test_the_overlap_computes_every_element_once_and_changes_no_force(tmp_path):
 
 @pytest.mark.mpi
 def test_a_partition_of_equal_cost_balances_an_insert_film_and_keeps_the_history(tmp_path):
-    """The quick DCB's film (x = 25 - 45 mm of 45 mm) starts refined: a cell under it costs
-    3.3 unrefined ones (``parallel.balance``). Cut into equal cells (the film's cells on one
-    rank) two ranks' costs differ by half; cut into equal cost (``[mesh] partition = "cost"``,
-    the default) the cut moves under the film and the costs agree to about a cell's; the
-    history is the serial one either way."""
+    """The quick DCB's film (x = 25 - 45 mm of 45 mm) starts refined, and the front indicator
+    refines a band ahead of it at t = 0: such a cell costs 3.3 unrefined ones
+    (``parallel.balance``). Cut into equal cells the two ranks' costs differ by a quarter; cut
+    into equal cost (``[mesh] partition = "cost"``, the default: the film and the band
+    weighted) the cut moves under the film and the costs agree to about a cell's; the history
+    is the serial one either way."""
     text = (DATA / "mpi_front_across_ranks.toml").read_text()
     text = text.replace("end_time = 1.6e-3", "end_time = 4e-4")
     assert 'partition = "cells"' in text and "end_time = 4e-4" in text
@@ -460,5 +461,5 @@ def test_a_partition_of_equal_cost_balances_an_insert_film_and_keeps_the_history
     high = max(held, key=lambda r: r["x_min"])
     assert 25.0 < high["x_min"] < 40.0  # the cut under the film
     assert balance["imbalance_at_start"] < 1.0 + 3.3 / 45.0  # within one cell's cost
-    assert runs["cells", 2][2]["imbalance_at_start"] > 1.4
+    assert runs["cells", 2][2]["imbalance_at_start"] > 1.2
     assert_same_history(serial, history)

@@ -161,13 +161,24 @@ def front_distances(structure, law, distance: float | None = None) -> np.ndarray
     arm: a beam on an elastic foundation, a film on a substrate) is refined as well, so that the
     border constraint, which holds the interface to the unrefined neighbour's kinematics, acts
     on neither."""
-    plies = structure.laminate.plies
+    return laminate_front_distances(
+        structure.laminate, structure.interfaces.delaminate, law, distance
+    )
+
+
+def laminate_front_distances(
+    laminate, delaminate, law, distance: float | None = None
+) -> np.ndarray:
+    """``front_distances`` of a ``laminate`` whose interfaces ``delaminate`` (1-based) may
+    delaminate, before any structure is built (the partition's weights:
+    ``parallel.balance.film_cost``)."""
+    plies = laminate.plies
     out = np.zeros(len(plies) - 1)
-    delaminate = tuple(structure.interfaces.delaminate)
+    delaminate = tuple(delaminate)
     if distance is not None:
         out[[i - 1 for i in delaminate]] = distance
         return out
-    sublaminate = sublaminate_thicknesses(structure.laminate, delaminate)
+    sublaminate = sublaminate_thicknesses(laminate, delaminate)
     for i in delaminate:
         modulus = max(plies[i - 1].material.E2, plies[i].material.E2)
         out[i - 1] = cohesive_zone_length(law, modulus) + 2.0 * sublaminate[i - 1]

@@ -34,10 +34,14 @@ def cell_costs(refined_interfaces: np.ndarray) -> np.ndarray:
     return 1.0 + REFINED_INTERFACE_COST * np.asarray(refined_interfaces, dtype=np.float64)
 
 
-def film_cost(films: Sequence) -> Callable[[np.ndarray, np.ndarray], np.ndarray] | None:
+def film_cost(
+    films: Sequence, front: np.ndarray | None = None
+) -> Callable[[np.ndarray, np.ndarray], np.ndarray] | None:
     """``cost(x, y)`` (mm) of the cells of an adaptive model under the insert films ``films``
     (``settings.adaptivity.Delamination``: refined strongly at their interfaces from the
-    start), None without films (every cell costs the same)."""
+    start), and within ``front[i - 1]`` mm of a film at interface i (the band the front
+    indicator refines ahead of it at t = 0: ``indicators.front_distances``; a box about the
+    film); None without films (every cell costs the same)."""
     films = list(films)
     if not films:
         return None
@@ -46,11 +50,18 @@ def film_cost(films: Sequence) -> Callable[[np.ndarray, np.ndarray], np.ndarray]
         interfaces = sorted({film.interface for film in films})
         refined = np.zeros(len(x))
         for interface in interfaces:
-            under = np.zeros(len(x), dtype=bool)
+            reach = float(front[interface - 1]) if front is not None else 0.0
+            near = np.zeros(len(x), dtype=bool)
             for film in films:
                 if film.interface == interface:
-                    under |= np.asarray(film.region.holds(x, y), dtype=bool)
-            refined += under
+                    r = film.region
+                    near |= (
+                        (x >= r.x_min - reach)
+                        & (x <= r.x_max + reach)
+                        & (y >= r.y_min - reach)
+                        & (y <= r.y_max + reach)
+                    )
+            refined += near
         return cell_costs(refined)
 
     return cost
