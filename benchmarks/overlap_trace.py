@@ -25,7 +25,8 @@ Usage (it launches itself under mpiexec):
     .venv/bin/python benchmarks/overlap_trace.py [--ranks 2] [--cells 200000] [--steps 200]
 
 writes ``overlap_trace.json`` and ``overlap_trace.md`` into ``--out`` (default
-``benchmarks/results``) and the time line ``docs/images/overlap_trace.png``.
+``benchmarks/results``) and the time line to ``--figure`` (default
+``docs/images/overlap_trace.png``).
 """
 
 from __future__ import annotations
@@ -135,7 +136,7 @@ def phase_times(spans: np.ndarray, others: list[np.ndarray]) -> dict[str, np.nda
     return out
 
 
-def worker(cells: int, steps: int, shapes: list[str], out: Path) -> None:
+def worker(cells: int, steps: int, shapes: list[str], out: Path, figure: Path) -> None:
     import mpi4py.MPI as MPI
 
     from fenics_adaptive.settings.config import parse_config
@@ -158,10 +159,10 @@ def worker(cells: int, steps: int, shapes: list[str], out: Path) -> None:
             if comm.rank == 0:
                 results[(shape, overlap)] = (n_cells, ghosts, everyone)
     if comm.rank == 0:
-        report(results, comm.size, out, steps)
+        report(results, comm.size, out, steps, figure)
 
 
-def report(results: dict, ranks: int, out: Path, per_run: int) -> None:
+def report(results: dict, ranks: int, out: Path, per_run: int, figure: Path) -> None:
     """The tables (median over steps of each rank; the worst rank) and the time line."""
     rows = []
     for (shape, overlap), (n_cells, ghosts, everyone) in results.items():
@@ -216,7 +217,7 @@ def report(results: dict, ranks: int, out: Path, per_run: int) -> None:
     text = "\n".join(lines)
     (out / "overlap_trace.md").write_text(text + "\n")
     print(text, flush=True)
-    plot(results, ROOT / "docs" / "images" / "overlap_trace.png", per_run)
+    plot(results, figure, per_run)
 
 
 def plot(results: dict, path: Path, per_run: int, shown: int = 3) -> None:
@@ -285,14 +286,18 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=200)
     parser.add_argument("--shapes", default="beam,plate")
     parser.add_argument("--out", type=Path, default=HERE / "results")
+    parser.add_argument(
+        "--figure", type=Path, default=ROOT / "docs" / "images" / "overlap_trace.png"
+    )
     parser.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.worker:
-        worker(args.cells, args.steps, args.shapes.split(","), args.out)
+        worker(args.cells, args.steps, args.shapes.split(","), args.out, args.figure)
         return
     command = [str(Path(sys.executable).parent / "mpiexec"), "-n", str(args.ranks)]
     command += [sys.executable, __file__, "--worker", "--cells", str(args.cells)]
     command += ["--steps", str(args.steps), "--shapes", args.shapes, "--out", str(args.out)]
+    command += ["--figure", str(args.figure)]
     subprocess.run(command, check=True)
 
 
