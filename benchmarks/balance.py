@@ -39,12 +39,12 @@ sys.path.insert(0, str(ROOT))
 from fenics_adaptive.demos.fracture_tests import SPECIMENS  # noqa: E402
 from fenics_adaptive.meshes.beam import grid_parts  # noqa: E402
 
-from fenics_adaptive.adaptivity.indicators import laminate_front_distances  # noqa: E402
 from fenics_adaptive.analysis.studies import variant  # noqa: E402
 from fenics_adaptive.io.refinement_log import FILE_NAME, read_log  # noqa: E402
-from fenics_adaptive.parallel.balance import cell_costs, film_cost  # noqa: E402
+from fenics_adaptive.parallel.balance import cell_costs  # noqa: E402
 from fenics_adaptive.runner import execute  # noqa: E402
 from fenics_adaptive.settings.config import parse_config  # noqa: E402
+from fenics_adaptive.simulation import starting_cost  # noqa: E402
 
 RANKS = (2, 4, 8)
 
@@ -69,15 +69,7 @@ def imbalance_history(config, rows: list[tuple], ranks: int, weighted: bool) -> 
     ix, iy = np.meshgrid(np.arange(mesh.nx), np.arange(mesh.ny), indexing="ij")
     columns = np.stack([ix.ravel(), iy.ravel()], axis=1)
     weights = None
-    front = None
-    if config.indicators is not None and config.cohesive is not None:
-        front = laminate_front_distances(
-            config.laminate,
-            config.interfaces.delaminate,
-            config.cohesive,
-            config.indicators.front_distance,
-        )
-    cost = film_cost(config.delaminations, front) if weighted else None
+    cost = starting_cost(config) if weighted else None
     if cost is not None:
         weights = cost((columns[:, 0] + 0.5) * dx, (columns[:, 1] + 0.5) * dy)
     part = grid_parts(columns, ranks, weights)

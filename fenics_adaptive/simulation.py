@@ -95,23 +95,10 @@ def build_structure(
     refinement of a config."""
     layers = config.layer_laminates()
     boundaries = config.layer_boundaries
-    # on several ranks, patches of equal cost: an adaptive model's cells under an insert film
-    # start refined (``parallel.balance``)
+    # on several ranks, patches of equal cost (``parallel.balance``)
     cost = None
-    if (
-        comm.size > 1
-        and config.kind == ModelKind.ADAPTIVE
-        and config.mesh.partition == Partition.COST
-    ):
-        front = None
-        if config.indicators is not None and config.cohesive is not None:
-            front = laminate_front_distances(
-                config.laminate,
-                config.interfaces.delaminate,
-                config.cohesive,
-                config.indicators.front_distance,
-            )
-        cost = film_cost(config.delaminations, front)
+    if comm.size > 1 and config.mesh.partition == Partition.COST:
+        cost = starting_cost(config)
     beam = layered_mesh(
         comm,
         config.mesh.length,
@@ -171,6 +158,24 @@ def build_structure(
             structure.refine(initial_refinement(structure, config))
         insert_films(structure, config.delaminations)
     return structure
+
+
+def starting_cost(config: RunConfig) -> Callable[[np.ndarray, np.ndarray], np.ndarray] | None:
+    """``cost(x, y)`` (mm) per step of the cells of a config as its run starts, in unrefined
+    cells (``parallel.balance.film_cost``): an adaptive model's cells under an insert film and,
+    with ``[indicators]``, within the front distance of it (refined at t = 0); None when every
+    cell costs the same."""
+    if config.kind != ModelKind.ADAPTIVE:
+        return None
+    front = None
+    if config.indicators is not None and config.cohesive is not None:
+        front = laminate_front_distances(
+            config.laminate,
+            config.interfaces.delaminate,
+            config.cohesive,
+            config.indicators.front_distance,
+        )
+    return film_cost(config.delaminations, front)
 
 
 def initial_refinement(structure: Structure, config: RunConfig) -> list[Request]:

@@ -35,6 +35,18 @@ from fenics_adaptive.element.subelement import (
 from fenics_adaptive.materials.cohesive import H_DISSIPATED, HISTORY, cohesive_element_force_tracked
 from fenics_adaptive.settings.materials import P_N, P_S
 
+# elements per kernel call of the interior part of the internal forces: about a millisecond of
+# work between two ``progress`` calls (0.5 us per ESL cell, a few us per refined cell's
+# subelement; ``internal_forces``)
+INTERIOR_CHUNK = 2048
+
+
+def chunk_bounds(n: int, size: int = INTERIOR_CHUNK) -> list[tuple[int, int]]:
+    """[start, stop) of the consecutive chunks of ``size`` of n elements (at least one, maybe
+    empty)."""
+    return [(start, min(start + size, n)) for start in range(0, max(n, 1), size)]
+
+
 # MPa: a strength no traction reaches (finite: the onset opening N/K stays a number)
 UNREACHABLE_STRENGTH = 1e100
 

@@ -36,7 +36,7 @@ from mpi4py import MPI
 from fenics_adaptive.adaptivity.enrichment import ExtraNodes
 from fenics_adaptive.adaptivity.refinement import RefinementState
 from fenics_adaptive.element.rules import RuleTable
-from fenics_adaptive.model.assembly import SubelementSet, add_subelement_forces
+from fenics_adaptive.model.assembly import SubelementSet, add_subelement_forces, chunk_bounds
 from fenics_adaptive.model.forces import Contributor, ForceKind
 from fenics_adaptive.model.forms import LayeredModel
 from fenics_adaptive.model.ply_damage_state import PlyDamageState
@@ -117,16 +117,6 @@ class NodeArrays:
         )
 
 
-# elements per kernel call of the interior part: about a millisecond of work between two
-# ``progress`` calls (0.5 us per ESL cell, a few us per refined cell's subelement)
-INTERIOR_CHUNK = 2048
-
-
-def chunks(elements: np.ndarray, size: int = INTERIOR_CHUNK) -> list[np.ndarray]:
-    """``elements`` in consecutive views of ``size`` (at least one, maybe empty)."""
-    return [elements[i : i + size] for i in range(0, max(len(elements), 1), size)]
-
-
 class ElasticSolid(Contributor):
     """Every solid (sub)element of the structure through the batched elastic kernel
     (``element.batched``): unrefined cells whole (all plies, or an LW layer's), refined cells by
@@ -178,7 +168,7 @@ class ElasticSolid(Contributor):
         self, t: float, f_base: np.ndarray, f_extra: np.ndarray, progress: Callable[[], None]
     ) -> None:
         """``add_force`` of the interior elements only (``NodeArrays.interior``), in chunks
-        of ``INTERIOR_CHUNK`` with a ``progress()`` after each."""
+        of ``assembly.INTERIOR_CHUNK`` with a ``progress()`` after each."""
         if self._generation != self.nodes.generation:  # the ready nodes changed
             self._take_elements()
         energy = 0.0
@@ -215,7 +205,8 @@ class ElasticSolid(Contributor):
             self.rule_table.packed,
             self.nodes.interior(nodes),
         )
-        self._interior_chunks = chunks(self.solids.interior_order)
+        order = self.solids.interior_order
+        self._interior_chunks = [order[a:b] for a, b in chunk_bounds(len(order))]
 
 
 class DamagedSolid(Contributor):
@@ -254,7 +245,7 @@ class DamagedSolid(Contributor):
         self, t: float, f_base: np.ndarray, f_extra: np.ndarray, progress: Callable[[], None]
     ) -> None:
         """``add_force`` of the interior elements only (``NodeArrays.interior``), in chunks
-        of ``INTERIOR_CHUNK`` with a ``progress()`` after each."""
+        of ``assembly.INTERIOR_CHUNK`` with a ``progress()`` after each."""
         if self._generation != self.nodes.generation:  # the ready nodes changed
             self.refined()
         energy = 0.0
@@ -292,9 +283,7 @@ class DamagedSolid(Contributor):
         """The kernel computes the structure's elements of now."""
         nodes, cells, plies = self.elements()
         self._generation = self.nodes.generation
-        self.damage.set_elements(
-            nodes, cells, plies, self.rule_table, self.nodes.interior(nodes), INTERIOR_CHUNK
-        )
+        self.damage.set_elements(nodes, cells, plies, self.rule_table, self.nodes.interior(nodes))
 
 
 class CohesiveElements(Contributor):

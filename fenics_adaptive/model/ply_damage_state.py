@@ -30,6 +30,7 @@ from fenics_adaptive.materials.ply_damage import (
     new_state,
     pack_ply_damage,
 )
+from fenics_adaptive.model.assembly import chunk_bounds
 
 
 class PlyDamageState:
@@ -97,12 +98,11 @@ class PlyDamageState:
         plies: np.ndarray,
         rule_table: RuleTable,
         interior: np.ndarray | None = None,
-        chunk: int = 2048,
     ) -> None:
         """The (sub)elements the kernel computes (``Structure.elements``): nodes (n, 8) combined
         local indices, owned cell of each, its plies [first, stop); ``interior`` (n,) bool:
         those ``add_forces(part="interior")`` computes (None: all), taken first, also as parts
-        0 .. ``interior_chunks`` - 1 of ``chunk`` elements each."""
+        0 .. ``interior_chunks`` - 1 (``assembly.chunk_bounds``)."""
         first = slice(None) if interior is None else np.argsort(~interior, kind="stable")
         self.elements = (
             np.ascontiguousarray(nodes[first]),
@@ -116,11 +116,9 @@ class PlyDamageState:
             "interior": tuple(a[:n] for a in self.elements),
             "boundary": tuple(a[n:] for a in self.elements),
         }
-        # the interior in chunks, parts 0, 1, ... (``internal_forces.INTERIOR_CHUNK``)
-        starts = range(0, max(n, 1), chunk)
-        self.interior_chunks = len(starts)
-        for k, start in enumerate(starts):
-            stop = min(start + chunk, n)
+        bounds = chunk_bounds(n)  # the interior in chunks: parts 0, 1, ...
+        self.interior_chunks = len(bounds)
+        for k, (start, stop) in enumerate(bounds):
             self._parts[k] = tuple(a[start:stop] for a in self.elements)
 
     def add_forces(
