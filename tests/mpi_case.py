@@ -1,6 +1,8 @@
 """Run a config on this MPI job (as ``fenics-adaptive run`` does) and print, from rank 0, one JSON
 line with what each rank held: the x range of its cells, its extra nodes, cohesive elements,
-border constraints, the largest ply damage and the largest contact force on its nodes.
+border constraints, the largest ply damage and the largest contact force on its nodes; with a
+scaled mass, the chains that hold another rank's node and how well the response to a late
+force holds M_s z = w across the ranks.
 tests/test_mpi.py runs it under mpiexec to check that an event happened on one rank only.
 
 Usage: python tests/mpi_case.py CONFIG.toml OUT_DIR
@@ -42,11 +44,32 @@ def columns_with_ghosts(structure) -> int:
     return int(np.add.reduceat(ghost, mass.chain_offsets[:-1]).astype(bool).sum())
 
 
+def late_response_errors(structure) -> tuple[float, float]:
+    """Collective: how far the scaled mass's response z to a force shape w (one that loads
+    every column, the partition's border's too: w_z = 1 + x) is from M_s z = w on the free
+    owned DOFs (relative to w), and its reaction shares from (M_s z)_p (relative to the
+    largest); (0, 0) without a scaled mass. M_s z comes from ``multiply``, which reads the
+    ghosts' z by a forward scatter: a path independent of the shares' summation."""
+    mass = structure.scaled_mass
+    if mass is None:
+        return 0.0, 0.0
+    n = mass.n_owned_dofs
+    shape = np.zeros(n)
+    shape[2::3] = 1.0 + structure.X_base[: n // 3, 0]
+    z, shares = mass.responses(shape[None, :])
+    Mz = mass.multiply(z[0], np.empty(n))
+    free = ~mass.prescribed[:n]
+    force = float(np.abs(Mz[free] - shape[free]).max(initial=0.0) / shape.max())
+    reaction = float(np.abs(shares[0] - Mz[mass.fixed]).max(initial=0.0) / np.abs(Mz).max())
+    return force, reaction
+
+
 def main() -> None:
     comm = MPI.COMM_WORLD
     config = load_config(sys.argv[1])
     _, structure = execute(config, sys.argv[2], comm, show_progress=False, log=None)
     x = structure.cell_vertices()[:, :, 0].mean(axis=1)
+    response_force, response_reaction = late_response_errors(structure)
     held = {
         "x_min": float(x.min()),
         "x_max": float(x.max()),
@@ -58,6 +81,8 @@ def main() -> None:
         else 0.0,
         "contact_force": peak_contact[0],
         "columns_with_ghosts": columns_with_ghosts(structure),
+        "late_response_force": response_force,
+        "late_response_reaction": response_reaction,
     }
     ranks = comm.gather(held)
     if comm.rank == 0:

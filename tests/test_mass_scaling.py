@@ -134,6 +134,39 @@ def test_solve_gives_the_free_accelerations_and_the_reactions_of_the_scaled_mass
     assert np.abs(Ma[fixed] - lumped[fixed] * a_fixed).max() > 1e-3 * np.abs(r).max()
 
 
+@pytest.mark.parametrize("path", ["banded", "dense"])
+def test_a_late_force_adds_its_size_times_the_response_to_its_shape(path, monkeypatch):
+    """A force added after the forces' exchange (the MMB lever's hinge) of size s and shape w:
+    the accelerations and reactions of r + s w equal those of r plus s times ``responses(w)``,
+    and the response holds the prescribed DOFs (the scaled mass is linear)."""
+    if path != "banded":
+        monkeypatch.setattr(ms, "BANDED_TOLERANCE", -1.0)
+    model = esl_model(THIN, 10.0, WIDTH, 4, 1, ply_thickness=0.05)
+    pulled = PrescribedMotion("x1&top", "z", "displacement", 0.1, Amplitude.constant())
+    structure, mass = scaled(model, [*clamp("x0"), pulled])
+    fixed = structure.base_block.fixed
+    lumped = structure.base_block.mass
+    n = len(lumped)
+    rng = np.random.default_rng(7)
+    r, w, size = rng.standard_normal(n), np.zeros(n), 3.7
+    w[2::3] = rng.uniform(0.5, 1.5, n // 3)  # every column's z, the held ones' too
+    given = rng.standard_normal(len(fixed))
+    whole, split = r + size * w, r.copy()
+    reactions = []
+    for acc in (whole, split):
+        acc[fixed] = given
+        reaction = lumped[fixed] * given - (r + size * w)[fixed]
+        mass.solve(acc, reaction)
+        reactions.append(reaction)
+    accelerations, shares = mass.responses(w[None, :])
+    assert np.all(accelerations[0][fixed] == 0.0) and np.abs(shares[0]).max() > 0.0
+    scale = np.abs(whole).max()
+    np.testing.assert_allclose(split + size * accelerations[0], whole, rtol=0, atol=1e-12 * scale)
+    np.testing.assert_allclose(
+        reactions[1] + size * shares[0], reactions[0], rtol=0, atol=1e-12 * np.abs(r).max()
+    )
+
+
 def test_each_element_reaches_its_target_with_the_least_shear_scaling():
     model, motions = thin_cantilever(nx=4, ply_thickness=0.05, shear_correction=False)
     structure = Structure(model, loading.resolve(model, motions, []))

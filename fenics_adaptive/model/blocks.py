@@ -74,6 +74,8 @@ class LumpedBlocks:
         self.base_map = V.dofmap.index_map
         self.n_base = V.dofmap.index_map.size_local + V.dofmap.index_map.num_ghosts
         self.halo: Halo | None = None
+        # the forces' reverse exchange that also sums a base-layout array (``carry_base``)
+        self._carrying: Halo | None = None
         self.f_base = fem.Function(V, name="internal_force").x
         self.mass_base = fem.Function(V, name="mass").x
         self.mass_base.array[:] = base_mass
@@ -100,6 +102,9 @@ class LumpedBlocks:
         # one exchange for both blocks: a step waits once for the displacements' ghosts and
         # once for the forces summed on their owners, however many blocks move
         self.halo = Halo(self.comm, [self.base_map, extra_map], [3, 3])
+        self._extra_map = extra_map
+        if self._carrying is not None:
+            self.carry_base()
         old_mass = self.mass_extra
         self.f_extra = la.vector(extra_map, bs=3)
         # the force vectors' arrays, taken once (each .array of a DOLFINx vector costs 2 us)
@@ -192,19 +197,35 @@ class LumpedBlocks:
         f_extra.fill(0.0)
         return f_base, f_extra
 
-    def start_summing(self) -> None:
+    def carry_base(self) -> None:
+        """Collective: from now on the forces' reverse exchange can carry one more array of
+        base DOFs, summed on the owners with the forces in the same messages (``carried`` of
+        ``start_summing``: a selectively scaled mass's shares of the accelerations)."""
+        if self._carrying is not None:
+            self._carrying.free()
+        self._carrying = Halo(self.comm, [self.base_map, self._extra_map, self.base_map], [3, 3, 3])
+
+    def start_summing(self, carried: np.ndarray | None = None) -> None:
         """Collective: the constrained DOFs' forces moved to their masters (the border's
         transfer), the ghost shares sent to their owners; the owned entries are complete after
-        ``finish_summing``."""
+        ``finish_summing``. ``carried``: an array of all local base DOFs whose ghost entries
+        travel with them (after ``carry_base``), summed on the owners alike."""
         f_base, f_extra = self._f_arrays
         if len(self.border):
             transfer_forces(*self._border_args, f_base, f_extra)
-        self.halo.reverse_start(self._f_arrays)
+        if carried is None:
+            self.halo.reverse_start(self._f_arrays)
+        else:
+            self._carrying.reverse_start((f_base, f_extra, carried))
 
-    def finish_summing(self, also: Sequence = ()) -> None:
+    def finish_summing(self, also: Sequence = (), carried: np.ndarray | None = None) -> None:
         """Wait for the shares ``start_summing`` sent (and the MPI requests ``also``, in the
-        same call) and add them on their owners."""
-        self.halo.reverse_finish(self._f_arrays, also)
+        same call) and add them on their owners (``carried``: the array given to
+        ``start_summing``)."""
+        if carried is None:
+            self.halo.reverse_finish(self._f_arrays, also)
+        else:
+            self._carrying.reverse_finish((*self._f_arrays, carried), also)
 
     def owned_dofs(self, nodes: np.ndarray) -> list[np.ndarray]:
         """Collective: the owned DOFs (base block, extra block; block-unrolled, sorted) of the

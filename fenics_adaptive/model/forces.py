@@ -171,7 +171,20 @@ class Contributor:
     def complete(self, t: float, f_base: np.ndarray, f_extra: np.ndarray) -> None:
         """CONTACT contributors: after the internal forces' reverse exchange (whose wait
         completed ``pending_request``), add what needs that sum (the lever's hinge force) into
-        the same arrays as ``add_force``."""
+        the same arrays as ``add_force``. Define ``late_force_shape`` with it."""
+
+    # the size of the force the last ``complete`` added (N per unit of ``late_force_shape``)
+    late_force_size: float = 0.0
+
+    def late_force_shape(self, n_owned: int) -> np.ndarray:
+        """A contributor with ``complete``: the fixed shape w of the force it adds there
+        (owned base DOFs, ``n_owned`` of them); each ``complete`` adds ``late_force_size`` x
+        w. A selectively scaled mass takes that force's accelerations as its size times the
+        response to w (``mass_scaling.SelectiveMass.responses``): a force of another shape
+        would need an exchange of its own."""
+        raise NotImplementedError(
+            f"{type(self).__name__} adds a force in complete() but gives no late_force_shape"
+        )
 
     def add_interior_force(
         self, t: float, f_base: np.ndarray, f_extra: np.ndarray, progress: Callable[[], None]

@@ -149,9 +149,16 @@ class LoadingLever(Contributor):
             self.hinge_work += 0.5 * (self.hinge_force + force) * (hinge - self.hinge_displacement)
         self.started = True
         self.hinge_force, self.hinge_displacement = force, hinge
+        self.late_force_size = force
         np.take(f_base, self.hinge_dofs, out=self.f_hinge)  # distinct DOFs: add in place
         self.f_hinge += force / self.hinge_count
         np.put(f_base, self.hinge_dofs, self.f_hinge)
+
+    def late_force_shape(self, n_owned: int) -> np.ndarray:
+        """The hinge force's shape: 1 / (hinge nodes) on each owned hinge node's z DOF."""
+        shape = np.zeros(n_owned)
+        shape[self.hinge_dofs] = 1.0 / self.hinge_count
+        return shape
 
     def prepare(self, dt: float, element_step: float) -> None:
         self._drop_hinge_sum()  # a run starts afresh

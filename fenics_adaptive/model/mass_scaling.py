@@ -39,8 +39,14 @@ component). Each chain keeps the inverse of the free part of its matrix (a presc
 acceleration is given: the others solve M_ff a_f = r_f - M_fp a_p), computed once. The edge
 blocks B are summed over the ranks as the lumped masses are (an edge's elements may lie on
 several ranks), and a chain may hold ghost nodes (DOLFINx may give an edge's two nodes
-different owners): each step forward-scatters the residual once, and every rank solves the
-chains that hold one of its owned nodes.
+different owners). The residual is never exchanged for it: a = M_s^-1 r is linear in r, so
+every rank solves each chain it holds with its own share of the residual (the internal forces
+of its cells, before they are summed; its owned external forces; the given accelerations of
+its owned prescribed DOFs) and the shares of the accelerations travel to the owners in the
+forces' reverse exchange, which a step makes anyway (``partial``, ``finish``): a step waits
+twice, as with lumped masses. A force known only after that exchange (the MMB lever's hinge)
+has a fixed shape: its accelerations are its size times the response to that shape
+(``responses``), computed at set-up.
 
 Stable step: lambda_max(M_s^-1 K) <= max_e lambda_max(M_s,e^-1 K_e) (the assembled masses and
 stiffnesses are sums of the element ones; Rayleigh quotients), so the largest element
@@ -242,7 +248,14 @@ def _chain_dofs(chain_nodes, start, q, dofs):
 
 
 @njit(cache=True, inline="always")
-def _solve_banded(
+def _given(w, prescribed, n_owned_dofs, dof):
+    """The acceleration a prescribed DOF contributes on this rank: its given value where this
+    rank owns it, 0 where it is a ghost (its owner contributes it)."""
+    return w[dof] if prescribed[dof] and dof < n_owned_dofs else 0.0
+
+
+@njit(cache=True, inline="always")
+def _partial_banded(
     chain_nodes,
     start,
     q,
@@ -250,20 +263,17 @@ def _solve_banded(
     factor_inverse_d,
     band_diagonal,
     band_coupling,
-    lumped,
     prescribed,
     w,
     n_owned_dofs,
-    acc,
-    fixed_slot,
-    reaction,
+    out,
     z,
 ):
-    """One chain whose components do not couple, per component: the right-hand side r at free
-    DOFs less the couplings to prescribed neighbours (their accelerations given in ``w``), the
-    LDL^T factors of the tridiagonal matrix (forward z_i = b_i - l_i z_i-1, backward
-    a_i = z_i / d_i - l_i+1 a_i+1), ``acc`` (owned DOFs) and the reactions' scaled share
-    D_p a_p + O a_neighbours - m_p a_p. ``z``: scratch (2k,)."""
+    """``_partial_chains`` for one chain whose components do not couple, per component: the
+    right-hand side less the couplings to prescribed neighbours, the LDL^T factors of the
+    tridiagonal matrix (forward z_i = b_i - l_i z_i-1, backward a_i = z_i / d_i - l_i+1 a_i+1;
+    a prescribed DOF's row is the identity, so it keeps its given value), then
+    D_p a_p + O a_neighbours at the prescribed DOFs. ``z``: scratch (2k,)."""
     k = q // 3
     at = 3 * start
     for d in range(3):
@@ -271,12 +281,16 @@ def _solve_banded(
         for i in range(k):
             slot = at + 3 * i + d
             dof = 3 * chain_nodes[start + i] + d
-            b = w[dof]
-            if not prescribed[dof]:
-                if i > 0 and prescribed[3 * chain_nodes[start + i - 1] + d]:
-                    b -= band_coupling[slot - 3] * w[3 * chain_nodes[start + i - 1] + d]
-                if i < k - 1 and prescribed[3 * chain_nodes[start + i + 1] + d]:
-                    b -= band_coupling[slot] * w[3 * chain_nodes[start + i + 1] + d]
+            if prescribed[dof]:
+                b = _given(w, prescribed, n_owned_dofs, dof)
+            else:
+                b = w[dof]
+                if i > 0:
+                    below = 3 * chain_nodes[start + i - 1] + d
+                    b -= band_coupling[slot - 3] * _given(w, prescribed, n_owned_dofs, below)
+                if i < k - 1:
+                    above = 3 * chain_nodes[start + i + 1] + d
+                    b -= band_coupling[slot] * _given(w, prescribed, n_owned_dofs, above)
             previous = b - factor_l[slot] * previous
             z[i] = previous
         a = 0.0
@@ -287,27 +301,25 @@ def _solve_banded(
             z[k + i] = a
         for i in range(k):
             dof = 3 * chain_nodes[start + i] + d
-            if dof >= n_owned_dofs:
+            if not prescribed[dof]:
+                out[dof] = z[k + i]
                 continue
-            acc[dof] = z[k + i]
-            if fixed_slot[dof] >= 0:
-                slot = at + 3 * i + d
-                added = (band_diagonal[slot] - lumped[slot]) * z[k + i]
-                if i > 0:
-                    added += band_coupling[slot - 3] * z[k + i - 1]
-                if i < k - 1:
-                    added += band_coupling[slot] * z[k + i + 1]
-                reaction[fixed_slot[dof]] += added
+            slot = at + 3 * i + d
+            row = band_diagonal[slot] * z[k + i]
+            if i > 0:
+                row += band_coupling[slot - 3] * z[k + i - 1]
+            if i < k - 1:
+                row += band_coupling[slot] * z[k + i + 1]
+            out[dof] = row
 
 
 @njit(cache=True, **KERNEL_OPTIONS)
-def _solve_chains(
+def _partial_chains(
     chain_offsets,
     chain_nodes,
     matrix_offsets,
     matrix,
     inverse,
-    lumped,
     held,
     banded,
     factor_l,
@@ -317,23 +329,24 @@ def _solve_chains(
     prescribed,
     w,
     n_owned_dofs,
-    acc,
-    fixed_slot,
-    reaction,
+    out,
     dofs,
     scratch,
 ):
-    """Accelerations of every chain from ``w`` (all local DOFs: the residual r = f_ext - f_int
-    at free DOFs, the acceleration at prescribed ones): a_f = G (r - M a_p), into ``acc``
-    (owned DOFs); the reaction m a_p - r_p of each owned prescribed DOF gains what the scaled
-    mass adds, (M_s a)_p - m_p a_p (``lumped``: m per chain DOF). ``held``: the chain has a
-    prescribed DOF (the others take a = G r alone); ``banded``: its components do not couple
-    (its tridiagonal factors ``factor_l``, ``factor_inverse_d`` solve it)."""
+    """This rank's share of the accelerations of every chain, linear in what it holds: ``w``
+    (all local DOFs) holds this rank's share r_q of the residual r = f_ext - f_int at free
+    DOFs and the given acceleration a_p at the prescribed DOFs it owns; a_q = G (r_q - M a_p,q)
+    (a_p,q: the given accelerations of this rank's own prescribed DOFs, 0 at the others) into
+    ``out`` at every local free DOF, and the row (M a_q)_p at every local prescribed DOF. The
+    ranks' ``out`` summed on the owners (a reverse exchange) is the acceleration a = M^-1 r
+    with the prescribed DOFs at their values, and (M_s a)_p (``finish``). ``held``: the chain
+    has a prescribed DOF (the others take a = G r alone); ``banded``: its components do not
+    couple (its tridiagonal factors ``factor_l``, ``factor_inverse_d`` solve it)."""
     for c in range(len(chain_offsets) - 1):
         start = chain_offsets[c]
         q = 3 * (chain_offsets[c + 1] - start)
         if banded[c]:
-            _solve_banded(
+            _partial_banded(
                 chain_nodes,
                 start,
                 q,
@@ -341,13 +354,10 @@ def _solve_chains(
                 factor_inverse_d,
                 band_diagonal,
                 band_coupling,
-                lumped,
                 prescribed,
                 w,
                 n_owned_dofs,
-                acc,
-                fixed_slot,
-                reaction,
+                out,
                 scratch,
             )
             continue
@@ -356,9 +366,9 @@ def _solve_chains(
         b, a = scratch[:q], scratch[q : 2 * q]
         for i in range(q):
             b[i] = w[dofs[i]]
-        if held[c]:  # b = r - M a_p, with a_p where b holds it
+        if held[c]:  # b = r - M a_p, with this rank's a_p
             for i in range(q):
-                a[i] = b[i] if prescribed[dofs[i]] else 0.0
+                a[i] = _given(w, prescribed, n_owned_dofs, dofs[i]) if prescribed[dofs[i]] else 0.0
             for i in range(q):
                 if prescribed[dofs[i]]:
                     b[i] = 0.0
@@ -374,14 +384,26 @@ def _solve_chains(
             a[i] = total
         for i in range(q):
             dof = dofs[i]
-            if dof >= n_owned_dofs:
-                continue
-            acc[dof] = a[i]
-            if held[c] and fixed_slot[dof] >= 0:
-                added = -lumped[3 * start + i] * a[i]
+            if held[c] and prescribed[dof]:
+                row = 0.0
                 for j in range(q):
-                    added += matrix[at + i * q + j] * a[j]
-                reaction[fixed_slot[dof]] += added
+                    row += matrix[at + i * q + j] * a[j]
+                out[dof] = row
+            else:
+                out[dof] = a[i]
+
+
+@njit(cache=True)
+def _finish(out, prescribed, fixed, lumped, acc, reaction):
+    """The owned accelerations from the summed shares ``out`` (free DOFs; ``acc`` keeps the
+    given ones), and each reaction (the lumped m_p a_p - r_p) plus the scaled mass's share,
+    (M_s a)_p - m_p a_p (``lumped``: m per owned DOF)."""
+    for i in range(len(acc)):
+        if not prescribed[i]:
+            acc[i] = out[i]
+    for k in range(len(fixed)):
+        p = fixed[k]
+        reaction[k] += out[p] - lumped[p] * acc[p]
 
 
 @njit(cache=True, **KERNEL_OPTIONS)
@@ -409,8 +431,8 @@ class SelectiveMass:
     by ``selective_mass``. The solver's base block uses ``solve`` (accelerations and reactions)
     and ``multiply`` (M_s v, for the kinetic energy).
 
-    ``chain_offsets``, ``chain_nodes``: CSR of the chains holding an owned node (local base
-    nodes, bottom to top); ``matrix``: their 3k x 3k matrices (tonne), packed row by row;
+    ``chain_offsets``, ``chain_nodes``: CSR of the chains (local base nodes, bottom to top;
+    every local node in one); ``matrix``: their 3k x 3k matrices (tonne), packed row by row;
     ``lumped``: the lumped mass of every chain DOF; ``prescribed`` (all local DOFs), ``fixed``
     (the base block's prescribed owned DOFs, in the order of its reactions). Also kept:
     ``adds_mass`` (any element's factor above zero, on any rank), ``target_step`` (s),
@@ -458,8 +480,14 @@ class SelectiveMass:
             self._invert(np.flatnonzero(sizes == q), int(q))
         if self.banded.all():  # no chain reads a dense inverse: do not keep one
             self.inverse = np.zeros(0)
-        self.fixed_slot = np.full(self.n_owned_dofs, -1, dtype=np.int64)
-        self.fixed_slot[fixed] = np.arange(len(fixed))
+        self.fixed = np.asarray(fixed, dtype=np.int64)
+        # the lumped mass of every local DOF (each lies in exactly one chain)
+        self.dof_lumped = np.zeros(len(self.prescribed))
+        for q in np.unique(sizes):
+            chains = np.flatnonzero(sizes == q)
+            table = self._chain_dof_table(chains, int(q) // 3)
+            first = 3 * self.chain_offsets[chains][:, None] + np.arange(q)
+            self.dof_lumped[table] = self.lumped[first]
         self._w = la.vector(index_map, bs=3)
         largest = int(sizes.max(initial=3))
         self._scratch = np.zeros(2 * largest)
@@ -538,21 +566,19 @@ class SelectiveMass:
         nodes = self.chain_nodes[self.chain_offsets[chains][:, None] + np.arange(k)]
         return (3 * nodes[:, :, None] + np.arange(3)).reshape(len(chains), 3 * k)
 
-    def solve(self, acc: np.ndarray, reaction: np.ndarray) -> None:
-        """Collective: ``acc`` (owned DOFs) holds r = f_ext - f_int (N) at free DOFs and the
-        given accelerations at prescribed ones; overwritten with the accelerations of the scaled
-        mass (mm/s^2), and the reactions (N, one per prescribed owned DOF: the lumped
-        m a - r) get the scaled mass's share."""
-        w = self._w
-        w.array[: self.n_owned_dofs] = acc
-        w.scatter_forward()
-        _solve_chains(
+    def partial(self, w: np.ndarray, out: np.ndarray) -> None:
+        """This rank's share of the accelerations, before any exchange (``_partial_chains``):
+        ``w`` (all local DOFs) holds this rank's share of the residual r = f_ext - f_int (N) at
+        free DOFs and the given accelerations (mm/s^2) at the prescribed DOFs it owns; ``out``
+        (all local DOFs) gets the share, to be summed on the owners (a reverse exchange) and
+        passed to ``finish``. The scaled mass is linear: the shares of the ranks sum to the
+        whole, so the residual needs no exchange of its own."""
+        _partial_chains(
             self.chain_offsets,
             self.chain_nodes,
             self.matrix_offsets,
             self.matrix,
             self.inverse,
-            self.lumped,
             self.held,
             self.banded,
             self.factor_l,
@@ -560,14 +586,49 @@ class SelectiveMass:
             self.band_diagonal,
             self.band_coupling,
             self.prescribed,
-            w.array,
+            w,
             self.n_owned_dofs,
-            acc,
-            self.fixed_slot,
-            reaction,
+            out,
             self._dofs,
             self._scratch,
         )
+
+    def finish(self, out: np.ndarray, acc: np.ndarray, reaction: np.ndarray) -> None:
+        """From the shares ``out`` summed on their owners (owned entries): the accelerations of
+        the free owned DOFs into ``acc`` (mm/s^2; its prescribed DOFs keep their given
+        values), and the scaled mass's share (M_s a)_p - m_p a_p added to each reaction (N,
+        one per prescribed owned DOF: the lumped m a - r before)."""
+        _finish(out, self.prescribed, self.fixed, self.dof_lumped, acc, reaction)
+
+    def solve(self, acc: np.ndarray, reaction: np.ndarray) -> None:
+        """Collective: ``acc`` (owned DOFs) holds r = f_ext - f_int (N) at free DOFs and the
+        given accelerations at prescribed ones; overwritten with the accelerations of the scaled
+        mass (mm/s^2), and the reactions (N, one per prescribed owned DOF: the lumped
+        m a - r) get the scaled mass's share. ``partial``, summed by DOLFINx's reverse
+        scatter, then ``finish``: the solver's step instead sums the shares in its forces'
+        exchange."""
+        w = self._w
+        w.array[: self.n_owned_dofs] = acc
+        w.array[self.n_owned_dofs :] = 0.0  # the owners hold the whole residual
+        out = np.zeros_like(w.array)
+        self.partial(w.array, out)
+        w.array[:] = out
+        w.scatter_reverse(la.InsertMode.add)
+        self.finish(w.array, acc, reaction)
+
+    def responses(self, forces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Collective: the accelerations (n, owned DOFs; mm/s^2 per N) a force of each row of
+        ``forces`` (n, owned DOFs, N) alone gives, with the prescribed DOFs held (a = 0 there),
+        and the share (M_s a)_p each adds to the reactions (n, prescribed owned DOFs, N). For
+        a force that is known only after the forces' exchange but always has one shape (the MMB
+        lever's hinge: its size times a fixed vector), its accelerations are its size times
+        these (the scaled mass is linear)."""
+        n, k = len(forces), len(self.fixed)
+        accelerations, reactions = np.zeros((n, self.n_owned_dofs)), np.zeros((n, k))
+        for row in range(n):
+            accelerations[row] = np.where(self.prescribed[: self.n_owned_dofs], 0.0, forces[row])
+            self.solve(accelerations[row], reactions[row])
+        return accelerations, reactions
 
     def multiply(self, x: np.ndarray, out: np.ndarray) -> np.ndarray:
         """Collective: M_s x into ``out`` (owned DOFs; tonne x the unit of ``x``); ``x``: owned
@@ -711,13 +772,12 @@ def _chain_matrices(
     structure: Structure, bottom: np.ndarray, top: np.ndarray, edges: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The chains of base nodes joined by the edges (``bottom`` -> ``top``, (n, 4) local nodes,
-    edge blocks ``edges`` (n, 4, 3, 3)) that hold an owned node, as CSR (offsets, local nodes
+    edge blocks ``edges`` (n, 4, 3, 3)), every local node in one, as CSR (offsets, local nodes
     bottom to top); their 3k x 3k matrices packed row by row: the lumped masses on the
     diagonal, each edge's block (summed over the ranks) as a spring between its two nodes; and
     the lumped mass of each chain DOF."""
     index_map = structure.mass_base.index_map
     n_local = index_map.size_local + index_map.num_ghosts
-    n_owned = index_map.size_local
     bottom, top, edges = bottom.ravel(), top.ravel(), edges.reshape(-1, 3, 3)
     above = np.full(n_local, -1, dtype=np.int64)
     above[bottom] = top
@@ -763,9 +823,9 @@ def _chain_matrices(
         if not np.any(up >= 0):
             break
         levels.append(up)
+    # every chain of local nodes: a rank solves its share of each chain it holds a force on,
+    # ghosts included (``SelectiveMass.partial``)
     table = np.stack(levels, axis=1)  # (chains, levels), -1 past a chain's top
-    keep = ((table >= 0) & (table < n_owned)).any(axis=1)
-    table = table[keep]
     sizes = (table >= 0).sum(axis=1)
     chain_nodes = table[table >= 0]  # row by row: each chain bottom to top
     broken = (has_above & (above < 0)) | (has_below & (below < 0))

@@ -64,18 +64,40 @@ def block_work(f_old, f, f_ext_old, f_ext, du, fixed, reaction_old, reaction):
     return 0.5 * internal, 0.5 * external
 
 
+@njit(cache=True, inline="always")
+def _prescribed_acceleration(u_next, u_now, dt, mean_dt, v):
+    """The acceleration that takes a prescribed DOF from u_now to u_next over the next step,
+    ((u_next - u_now) / dt - v) / h: the one rule."""
+    a = (u_next - u_now) / dt
+    a -= v
+    a /= mean_dt
+    return a
+
+
+@njit(cache=True)
+def given_accelerations(fixed, u_next, u_now, dt, mean_dt, v, acc):
+    """Each prescribed DOF's acceleration (``_prescribed_acceleration``) into ``acc``."""
+    for k in range(len(fixed)):
+        i = fixed[k]
+        acc[i] = _prescribed_acceleration(u_next[k], u_now[k], dt, mean_dt, v[i])
+
+
+@njit(cache=True)
+def add_scaled(target, x, size):
+    """target += size x, in place (no temporary)."""
+    for i in range(len(target)):
+        target[i] += size * x[i]
+
+
 @njit(cache=True)
 def prescribed_accelerations(
     fixed, u_next, u_now, dt, mean_dt, v, acc, m, f, f_ext, contact, reaction
 ):
-    """On each prescribed DOF the acceleration that takes it to u(t_{n+1}),
-    a = ((u_next - u_now) / dt - v) / h, into ``acc``, and its reaction
-    m a + f_int - f_ext - f_contact (``contact`` empty: none)."""
+    """On each prescribed DOF the acceleration that takes it to u(t_{n+1}) into ``acc``, and
+    its reaction m a + f_int - f_ext - f_contact (``contact`` empty: none)."""
     for k in range(len(fixed)):
         i = fixed[k]
-        a = (u_next[k] - u_now[k]) / dt
-        a -= v[i]
-        a /= mean_dt
+        a = _prescribed_acceleration(u_next[k], u_now[k], dt, mean_dt, v[i])
         acc[i] = a
         r = m[i] * a
         r += f[i]
@@ -127,6 +149,16 @@ class BlockState:
         self.u_now, self.u_next = np.zeros(k), np.zeros(k)
         self.reaction, self.reaction_old = np.zeros(k), np.zeros(k)
         self.no_contact = np.zeros(0)
+        if scaled_mass is not None:
+            # all local DOFs: this rank's share of the residual and of the accelerations, the
+            # latter summed on the owners in the forces' exchange (``share_accelerations``)
+            self.f_all = block.f.array
+            self.residual_share = np.zeros(len(self.f_all))
+            self.shares = np.zeros(len(self.f_all))
+        # forces added after that exchange (the MMB lever's hinge): the contributors, and the
+        # accelerations and reaction shares of their shapes (``late_forces``)
+        self.late: list = []
+        self.late_accelerations, self.late_reactions = np.zeros((0, n)), np.zeros((0, k))
         if old is not None:  # the block grew: carry the old DOFs' history over
             n_old = len(old.du)
             for name in ("du", "f_old", "f_ext_old"):
@@ -136,21 +168,56 @@ class BlockState:
             )
             self.reaction_old[new_at] = old.reaction_old[old_at]
 
+    def late_forces(self, contributors: list) -> None:
+        """Collective (a scaled mass): the CONTACT ``contributors`` that add a force after the
+        forces' exchange (``complete``), with the accelerations and reaction shares of their
+        forces' shapes (``SelectiveMass.responses``), for ``accelerate`` to add."""
+        n = self.block.n_owned
+        shapes = np.array([c.late_force_shape(n) for c in contributors]).reshape(-1, n)
+        self.late = list(contributors)
+        self.late_accelerations, self.late_reactions = self.scaled_mass.responses(shapes)
+
+    def share_accelerations(
+        self, contact_force: np.ndarray | None, dt: float, mean_dt: float
+    ) -> np.ndarray:
+        """A scaled mass, before the forces' exchange: this rank's share of the accelerations
+        (``SelectiveMass.partial``) from its share of the residual, f_ext + f_contact - f_int
+        (``f_int``: this rank's part of every local DOF, not yet summed), and the given
+        accelerations of its prescribed DOFs; returns the array (all local DOFs) for the
+        exchange to sum on the owners. Arguments as ``accelerate``'s."""
+        n = self.block.n_owned
+        np.negative(self.f_all, out=self.residual_share)
+        owned = self.residual_share[:n]
+        owned += self.f_ext
+        if contact_force is not None:
+            owned += contact_force
+        if len(self.block.fixed):
+            given_accelerations(
+                self.block.fixed, self.u_next, self.u_now, dt, mean_dt, self.v, owned
+            )
+        self.scaled_mass.partial(self.residual_share, self.shares)
+        return self.shares
+
     def accelerate(self, contact_force: np.ndarray | None, dt: float, mean_dt: float) -> None:
         """a = M^-1 (f_ext + f_contact - f_int) (``contact_force``: the CONTACT contributors'
         force on this block, N, if any; M: the lumped or the scaled mass); on the prescribed
         DOFs the acceleration that takes them exactly to u(t_{n+1}) and the reaction force it
-        needs. ``dt``: dt_{n+1/2} (s); ``mean_dt``: (dt_{n-1/2} + dt_{n+1/2}) / 2 (s).
-        Collective with a scaled mass."""
-        np.subtract(self.f_ext, self.f, out=self.acc)
-        if contact_force is not None:
-            self.acc += contact_force
+        needs. ``dt``: dt_{n+1/2} (s); ``mean_dt``: (dt_{n-1/2} + dt_{n+1/2}) / 2 (s). With a
+        scaled mass, after the forces' exchange summed the ``share_accelerations`` of the
+        ranks, plus those of the forces added after it (``late_forces``)."""
         if self.scaled_mass is None:
+            np.subtract(self.f_ext, self.f, out=self.acc)
+            if contact_force is not None:
+                self.acc += contact_force
             self.acc *= self.inv_m
         if len(self.block.fixed):
             self._prescribed_accelerations(contact_force, dt, mean_dt)
         if self.scaled_mass is not None:
-            self.scaled_mass.solve(self.acc, self.reaction)
+            self.scaled_mass.finish(self.shares, self.acc, self.reaction)
+            for row, contributor in enumerate(self.late):
+                size = contributor.late_force_size
+                add_scaled(self.acc, self.late_accelerations[row], size)
+                add_scaled(self.reaction, self.late_reactions[row], size)
 
     def _prescribed_accelerations(
         self, contact_force: np.ndarray | None, dt: float, mean_dt: float

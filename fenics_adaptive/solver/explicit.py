@@ -419,6 +419,10 @@ class ExplicitSolver:
             dt = self.forced_step
         self.stats = RunStats(time_step=dt, stable_time_step=stable, critical=self.where)
         self.forces.prepare(self.blocks, dt, stable / self.settings.safety_factor)
+        base = self.blocks[0]
+        if base.scaled_mass is not None:  # its acceleration shares travel with the forces
+            self.structure.lumped.carry_base()
+            base.late_forces(self.forces.late)
         return dt, stable
 
     def _begin(self) -> None:
@@ -539,13 +543,20 @@ class ExplicitSolver:
         """Collective: the forces (``forces.RunForces``), accelerations and reactions at t_n
         for the current structure."""
         s = self.now
+        mean_dt = 0.5 * (s.dt_prev + s.dt)
+        base = self.blocks[0]
+        carry = None
+        if base.scaled_mass is not None:
+
+            def carry(contact: list[np.ndarray] | None) -> np.ndarray:
+                return base.share_accelerations(contact[0] if contact else None, s.dt, mean_dt)
+
         if self._exchange_open:
             contact = self.forces.evaluate(
-                s.t, self.blocks, self._finish_exchange, self.structure.halo.progress
+                s.t, self.blocks, self._finish_exchange, self.structure.halo.progress, carry
             )
         else:
-            contact = self.forces.evaluate(s.t, self.blocks)
-        mean_dt = 0.5 * (s.dt_prev + s.dt)
+            contact = self.forces.evaluate(s.t, self.blocks, carry=carry)
         for index, state in enumerate(self.blocks):
             if state.live:
                 state.accelerate(contact[index] if contact else None, s.dt, mean_dt)

@@ -63,6 +63,8 @@ class RunForces:
         self._moving = hooks(contributors, "advance")
         self._pending = hooks(contributors, "pending_request")
         self._completing = hooks(self.contact, "complete")
+        # the contributors that add a force after the forces' exchange
+        self.late = [c for c in self.contact if overrides(c, "complete")]
         self._moved = hooks(contributors, "moved")
         # the internal forces in two parts around the halo exchange (those that can split),
         # or whole
@@ -91,13 +93,17 @@ class RunForces:
         blocks: Sequence[BlockState],
         ready: Callable[[], None] | None = None,
         progress: Callable[[], None] = lambda: None,
+        carry: Callable[[list[np.ndarray] | None], np.ndarray] | None = None,
     ) -> list[np.ndarray] | None:
         """Collective: at time t (s), f_int into the blocks' ``f``, f_ext into their ``f_ext``;
         returns the contact force per block (N, owned DOFs), None without contact
         contributors. ``ready``: finishes the halo exchange of the displacements under way
         (None: none is); the INTERNAL contributors that can compute their interior elements
         (``add_interior_force``) before it, calling ``progress`` (it lets MPI move the
-        exchange's messages), the rest of them after."""
+        exchange's messages), the rest of them after. ``carry(contact force)``: called once
+        every force this rank computes before the exchange is in (the external ones too,
+        then), returns an array of base DOFs to sum on the owners in the forces' exchange (a
+        scaled mass's shares of the accelerations: ``solver.blocks.BlockState``)."""
         base, extra = blocks
         lumped = self.structure.lumped
         f_base, f_extra = lumped.cleared_internal_forces()
@@ -116,22 +122,30 @@ class RunForces:
             contributor.add_force(t, *self._contact_force)
         for add in internal:
             add(t, f_base, f_extra)
-        lumped.start_summing()
-        try:
-            # the external forces while the internal forces' shares travel: the face loads
-            # on both blocks (extra nodes: of refined cells on a loaded side face), the
-            # contributors
-            self.structure.loads.external_force(t, self._f_ext_full, extra.f_ext)
-            base.f_ext[:] = self._f_ext_full[: base.block.n_owned]
-            for contributor in self.external:
-                contributor.add_force(t, base.f_ext, extra.f_ext)
-        finally:  # (an exchange left open would refuse the next one)
-            lumped.finish_summing(self.pending_requests())
+        if carry is not None:  # everything first, then the one exchange
+            self._external_forces(t, base, extra)
+            carried = carry(self._contact_force or None)
+            lumped.start_summing(carried)
+            lumped.finish_summing(self.pending_requests(), carried)
+        else:
+            lumped.start_summing()
+            try:  # the external forces while the internal forces' shares travel
+                self._external_forces(t, base, extra)
+            finally:  # (an exchange left open would refuse the next one)
+                lumped.finish_summing(self.pending_requests())
         if not self.contact:
             return None
         for complete in self._completing:
             complete(t, *self._contact_force)
         return self._contact_force
+
+    def _external_forces(self, t: float, base: BlockState, extra: BlockState) -> None:
+        """f_ext at time t (s) into both blocks: the face loads (extra nodes: of refined cells
+        on a loaded side face), then the EXTERNAL contributors."""
+        self.structure.loads.external_force(t, self._f_ext_full, extra.f_ext)
+        base.f_ext[:] = self._f_ext_full[: base.block.n_owned]
+        for contributor in self.external:
+            contributor.add_force(t, base.f_ext, extra.f_ext)
 
     @property
     def contact_force(self) -> list[np.ndarray] | None:
