@@ -313,10 +313,7 @@ def _open_outputs(
     comm, record = simulation.structure.comm, folder.record
     record(out_dir / "history.partial.csv", out_dir / "history.csv")
     with shared_errors(comm):  # rank 0 opens the file
-        bodies = [
-            f"{name}_{what}" for name in config.loading_bodies for what in ("force", "displacement")
-        ]
-        history = output.HistoryWriter(out_dir, comm, kept_rows, bodies)
+        history = output.HistoryWriter(out_dir, comm, kept_rows, config.body_columns)
     fields = None
     if config.solver.field_interval:
         with shared_errors(comm):  # rank 0 makes the folder; its error reaches every rank

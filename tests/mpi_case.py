@@ -36,7 +36,7 @@ contact_module.Contact.add_force = recording_add_force
 
 def columns_with_ghosts(structure) -> int:
     """The chains of a selectively scaled mass that hold a node another rank owns (their
-    accelerations need the forward-scattered residual); 0 without a scaled mass."""
+    ranks solve them with their shares of the residual); 0 without a scaled mass."""
     mass = structure.scaled_mass
     if mass is None:
         return 0

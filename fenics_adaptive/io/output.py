@@ -81,9 +81,11 @@ _NAME_OF = {**{name: name for name in COLUMNS}, **dict(zip(HEADER, COLUMNS, stri
 
 
 def body_unit(column: str) -> str:
-    """The unit of a rigid body's history column: ``<name>_force`` N, ``<name>_displacement``
-    mm."""
-    return "N" if column.endswith("_force") else "mm"
+    """The unit of a rigid body's history column: ``<name>_force`` N,
+    ``<name>_friction_energy`` mJ, ``<name>_displacement`` mm."""
+    if column.endswith("_force"):
+        return "N"
+    return "mJ" if column.endswith("_energy") else "mm"
 
 
 def history_header(bodies: Sequence[str] = ()) -> list[str]:
@@ -98,7 +100,7 @@ def column_name(header_cell: str) -> str:
     as it is."""
     if header_cell in _NAME_OF:
         return _NAME_OF[header_cell]
-    for ending, suffix in (("_force", "_N"), ("_displacement", "_mm")):
+    for ending, suffix in (("_force", "_N"), ("_displacement", "_mm"), ("_energy", "_mJ")):
         if header_cell.endswith(ending + suffix):
             return header_cell.removesuffix(suffix)
     return header_cell

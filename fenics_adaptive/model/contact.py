@@ -1,5 +1,5 @@
-"""Rigid bodies in frictionless penalty contact with the top or bottom face: an impactor, the
-rollers and noses of a bending or fracture test (``settings.loads.RigidBody``).
+"""Rigid bodies in penalty contact with the top or bottom face, with Coulomb friction if asked:
+an impactor, the rollers and noses of a bending or fracture test (``settings.loads.RigidBody``).
 
 A body is a sphere of radius R about its centre c, or a cylinder of radius R whose axis runs
 along x or y through c. Each node of its face (base nodes: refinement never moves the top and
@@ -7,8 +7,19 @@ bottom faces) at x = X + u gets the penalty force
 
     g = dist(x, body) - R,   f = k <-g> n,   n = unit vector from the centre (axis) to x,
 
-and the body gets -sum f. The contact is frictionless and conservative: the penalty springs
+and the body gets -sum f. Without friction the contact is conservative: the penalty springs
 store 1/2 k g^2.
+
+Friction (``friction`` = mu > 0; ``add_friction_forces``): Coulomb's law with a regularised
+stick, as penalty codes do (LS-DYNA's contacts, Abaqus/Explicit's penalty friction): a node in
+contact carries a tangential force t that grows with its slide relative to the body through a
+tangential spring of the normal penalty k (stick, an elastic slip of at most mu f_n / k) until
+|t| = mu f_n (slip). The body moves in translation only: its surface slides with its centre. The
+energy friction dissipates is the work of the tangential forces on the slide, trapezoidal as
+the solver's work, less the change of the energy in the tangential springs; it is booked in the
+history (``<name>_friction_energy``) and taken off ``impact_work``, the work the contact does on
+the structure, so that the run's energy balance still closes. Friction makes the contact path
+dependent: the static solve leaves it out (``static_runner``).
 
 How the body moves: FIXED stays at its centre; PRESCRIBED follows its path c(t); FREE is a mass
 M in translation integrated by the same central-difference scheme as the structure (velocity
@@ -55,6 +66,17 @@ from fenics_adaptive.settings.kinds import ImpactorShape, RigidMotion
 from fenics_adaptive.settings.loads import Impactor, RigidBody
 
 
+@njit(cache=True, inline="always")
+def _offset(u, k, X, i, centre, axis):
+    """(dx, dy, dz, distance) from the body's centre (a sphere, ``axis`` -1) or axis (a
+    cylinder along x, 0, or y, 1) to the node at X[i] + u[k : k + 3]: the one geometry of the
+    contact, for its normal and its friction alike."""
+    dx = 0.0 if axis == 0 else X[i, 0] + u[k] - centre[0]
+    dy = 0.0 if axis == 1 else X[i, 1] + u[k + 1] - centre[1]
+    dz = X[i, 2] + u[k + 2] - centre[2]
+    return dx, dy, dz, np.sqrt(dx * dx + dy * dy + dz * dz)
+
+
 @njit(cache=True)
 def add_penalty_forces(u, nodes, X, centre, radius, axis, penalty, f, total):
     """Add the contact forces on the face nodes ``nodes`` (reference positions X (n, 3), mm;
@@ -65,10 +87,7 @@ def add_penalty_forces(u, nodes, X, centre, radius, axis, penalty, f, total):
     energy = 0.0
     for i in range(nodes.shape[0]):
         k = 3 * nodes[i]
-        dx = 0.0 if axis == 0 else X[i, 0] + u[k] - centre[0]
-        dy = 0.0 if axis == 1 else X[i, 1] + u[k + 1] - centre[1]
-        dz = X[i, 2] + u[k + 2] - centre[2]
-        distance = np.sqrt(dx * dx + dy * dy + dz * dz)
+        dx, dy, dz, distance = _offset(u, k, X, i, centre, axis)
         gap = distance - radius
         if gap >= 0.0 or distance == 0.0:
             continue
@@ -81,6 +100,72 @@ def add_penalty_forces(u, nodes, X, centre, radius, axis, penalty, f, total):
         total[2] -= magnitude * dz
         energy += 0.5 * penalty * gap * gap
     return energy
+
+
+@njit(cache=True)
+def add_friction_forces(
+    u, nodes, X, centre, moved, radius, axis, penalty, friction, previous, traction, f, total
+):
+    """Add Coulomb friction with a regularised stick (``friction``: the coefficient mu) on the
+    face nodes ``nodes`` into the flat f (N) and its reaction into the body's ``total`` (3,).
+    Each node in contact carries a tangential force t (``traction`` (n, 3), N: its state),
+    held by a tangential spring of the normal ``penalty`` (N/mm) until it reaches mu f_n:
+
+        t_trial = t_old (turned into the tangent plane, its size kept) - penalty * dv_t,
+        t = t_trial                           if |t_trial| <= mu f_n (stick),
+        t = mu f_n t_trial / |t_trial|        otherwise (slip),
+
+    dv_t the tangential part of the node's displacement relative to the body since the last
+    call (``previous`` (n, 3): the nodes' positions then, mm, updated here; ``moved`` (3,):
+    the body's displacement since then, mm). A node out of contact carries none. Returns (the
+    energy in the tangential springs, mJ; the energy friction dissipated since the last call,
+    mJ: the work of the tangential forces on the relative motion, trapezoidal as the solver's,
+    less the springs' change), so that the energy balance closes."""
+    springs = 0.0
+    dissipated = 0.0
+    for i in range(nodes.shape[0]):
+        k = 3 * nodes[i]
+        dx, dy, dz, distance = _offset(u, k, X, i, centre, axis)
+        gap = distance - radius
+        # the node's slide relative to the body since the last call (scalars: no allocation)
+        x, y, z = X[i, 0] + u[k], X[i, 1] + u[k + 1], X[i, 2] + u[k + 2]
+        sx = x - previous[i, 0] - moved[0]
+        sy = y - previous[i, 1] - moved[1]
+        sz = z - previous[i, 2] - moved[2]
+        previous[i, 0], previous[i, 1], previous[i, 2] = x, y, z
+        ox, oy, oz = traction[i, 0], traction[i, 1], traction[i, 2]
+        tx, ty, tz = 0.0, 0.0, 0.0
+        if gap < 0.0 and distance > 0.0:
+            nx, ny, nz = dx / distance, dy / distance, dz / distance
+            # the old force turned into the current tangent plane, its size kept
+            on = ox * nx + oy * ny + oz * nz
+            cx, cy, cz = ox - on * nx, oy - on * ny, oz - on * nz
+            carried = np.sqrt(cx * cx + cy * cy + cz * cz)
+            if carried > 0.0:
+                keep = np.sqrt(ox * ox + oy * oy + oz * oz) / carried
+                cx, cy, cz = cx * keep, cy * keep, cz * keep
+            sn = sx * nx + sy * ny + sz * nz
+            tx = cx - penalty * (sx - sn * nx)
+            ty = cy - penalty * (sy - sn * ny)
+            tz = cz - penalty * (sz - sn * nz)
+            limit = friction * (-penalty * gap)
+            size = np.sqrt(tx * tx + ty * ty + tz * tz)
+            if size > limit:
+                scale = limit / size
+                tx, ty, tz = tx * scale, ty * scale, tz * scale
+        traction[i, 0], traction[i, 1], traction[i, 2] = tx, ty, tz
+        f[k] += tx
+        f[k + 1] += ty
+        f[k + 2] += tz
+        total[0] -= tx
+        total[1] -= ty
+        total[2] -= tz
+        stored = 0.5 * (tx * tx + ty * ty + tz * tz) / penalty
+        before = 0.5 * (ox * ox + oy * oy + oz * oz) / penalty
+        work = 0.5 * ((ox + tx) * sx + (oy + ty) * sy + (oz + tz) * sz)
+        springs += stored
+        dissipated += -work - (stored - before)
+    return springs, dissipated
 
 
 def _as_body(body: RigidBody | Impactor) -> RigidBody:
@@ -163,7 +248,20 @@ class Contact(Contributor):
         self.every_step = self.free
         self.force = np.zeros(3)  # on the body, N: over all ranks if every_step, else this rank's
         self.energy_penalty = 0.0  # mJ: likewise
-        self.totals = np.empty(4)  # force on the body, penalty energy (the step's work array)
+        # force on the body, penalty energy (normal and tangential springs), friction's
+        # dissipation so far (the step's work array, summed over the ranks as one)
+        self.totals = np.zeros(5)
+        # Coulomb friction (``add_friction_forces``): the coefficient, each face node's
+        # tangential force (N) and position at the last evaluation (mm), the body's centre
+        # then, and the energy friction dissipated on this rank so far (mJ)
+        self.friction = body.friction
+        self.traction = np.zeros((len(self.nodes), 3))
+        self.previous = np.zeros((len(self.nodes), 3))
+        self.friction_centre = self.centre.copy()
+        self.slid = np.zeros(3)  # mm: the body's move since the last evaluation
+        self.friction_started = False
+        self.friction_local = 0.0
+        self.friction_energy = 0.0  # mJ: over all ranks if every_step, else this rank's
         self._request = MPI.REQUEST_NULL  # the reduction of ``totals`` under way, if any
         self._taken = True  # ``totals`` of the last add_force are in force, energy, acceleration
         self.axis = -1 if body.shape == ImpactorShape.SPHERE else "xy".index(body.axis)
@@ -235,11 +333,42 @@ class Contact(Contributor):
             f_base,
             self.totals[:3],
         )
+        if self.friction > 0.0:
+            self._add_friction(f_base)
+        self.totals[4] = self.friction_local
         self._taken = False
         if self.every_step and self.comm.size > 1:
             self._request = self.comm.Iallreduce(MPI.IN_PLACE, self.totals, op=MPI.SUM)
         else:
             self.finish()
+
+    def _add_friction(self, f_base: np.ndarray) -> None:
+        """The friction forces at the current state into ``f_base`` and the body's force;
+        their springs' energy into the penalty energy, their dissipation into this rank's."""
+        if not self.friction_started:  # the first evaluation: nothing has slid yet
+            u = self.displacement.array.reshape(-1, 3)[self.nodes]
+            np.add(self.X, u, out=self.previous)
+            self.friction_centre[:] = self.centre
+            self.friction_started = True
+        np.subtract(self.centre, self.friction_centre, out=self.slid)
+        springs, dissipated = add_friction_forces(
+            self.displacement.array,
+            self.nodes,
+            self.X,
+            self.centre,
+            self.slid,
+            self.body.radius,
+            self.axis,
+            self.penalty,
+            self.friction,
+            self.previous,
+            self.traction,
+            f_base,
+            self.totals[:3],
+        )
+        self.friction_centre[:] = self.centre
+        self.totals[3] += springs
+        self.friction_local += dissipated
 
     def pending_request(self) -> MPI.Request:
         """The reduction of the body's force under way (``MPI.REQUEST_NULL`` if none): a wait
@@ -258,6 +387,7 @@ class Contact(Contributor):
         self._taken = True
         self.force[:] = self.totals[:3]
         self.energy_penalty = float(self.totals[3])
+        self.friction_energy = float(self.totals[4])
         if self.free:
             np.divide(self.force, self.body.mass, out=self.acceleration)
         else:  # the drive holds the body against the structure's force: it applies -force
@@ -281,15 +411,16 @@ class Contact(Contributor):
             np.multiply(self.path, self.body.path_scale(self.t), out=self.centre)
             self.centre += self.origin
 
-    def totals_over_ranks(self) -> tuple[np.ndarray, float, float]:
+    def totals_over_ranks(self) -> tuple[np.ndarray, float, float, float]:
         """Collective: (force on the body (3,), N; penalty energy, mJ; the drive's work so far,
-        mJ) over all ranks, at the last ``add_force``."""
+        mJ; the energy friction dissipated so far, mJ) over all ranks, at the last
+        ``add_force``."""
         self.finish()
         if self.every_step:  # already summed (a free body's drive work stays 0)
-            return self.force, self.energy_penalty, self.drive_work
-        local = np.array([*self.force, self.energy_penalty, self.drive_work])
+            return self.force, self.energy_penalty, self.drive_work, self.friction_energy
+        local = np.array([*self.force, self.energy_penalty, self.drive_work, self.friction_energy])
         total = summed(self.comm, local)
-        return total[:3], float(total[3]), float(total[4])
+        return total[:3], float(total[3]), float(total[4]), float(total[5])
 
     def total_energy(self) -> float:
         """Kinetic energy at the full step (a free body's) plus the penalty energy (mJ): of the
@@ -310,9 +441,10 @@ class Contact(Contributor):
     def report(self, row, first: bool) -> None:
         """Collective: the body's force on the structure's opposite (N, z: the force the
         structure applies to it), its z displacement (mm) and the energy it gave since t = 0
-        (mJ, added to ``impact_work``: the work of the contact forces on it) into a history
-        row; ``first``: the row at t = 0."""
-        force, penalty, drive_work = self.totals_over_ranks()
+        (mJ, added to ``impact_work``: the work of the contact forces on the structure, net
+        of what friction dissipated, which has its column ``<name>_friction_energy``) into a
+        history row; ``first``: the row at t = 0."""
+        force, penalty, drive_work, friction = self.totals_over_ranks()
         if first:
             self.initial = self.total_energy()
             self.initial_penalty = penalty
@@ -323,10 +455,12 @@ class Contact(Contributor):
         else:
             row.bodies[f"{self.body.name}_force"] = float(force[2])
             row.bodies[f"{self.body.name}_displacement"] = displacement
+        if self.friction > 0.0:
+            row.bodies[f"{self.body.name}_friction_energy"] = friction
         if self.free:
-            row.impact_work += self.initial - self.total_energy()
+            row.impact_work += self.initial - self.total_energy() - friction
         else:
-            row.impact_work += drive_work - (penalty - self.initial_penalty)
+            row.impact_work += drive_work - (penalty - self.initial_penalty) - friction
 
     def suspect(self) -> str:
         return (
@@ -346,6 +480,11 @@ class Contact(Contributor):
             "drive_work": np.array(self.drive_work),
             "previous_centre": self.previous_centre.copy(),
             "previous_force": self.previous_force.copy(),
+            "traction": self.traction.copy(),
+            "previous": self.previous.copy(),
+            "friction_centre": self.friction_centre.copy(),
+            "friction_started": np.array(self.friction_started),
+            "friction_local": np.array(self.friction_local),
         }
 
     def restore(self, state: dict) -> None:
@@ -361,3 +500,9 @@ class Contact(Contributor):
             self.drive_work = float(state["drive_work"])
             self.previous_centre[:] = state["previous_centre"]
             self.previous_force[:] = state["previous_force"]
+        if "traction" in state:  # checkpoints before friction had none (frictionless)
+            self.traction[:] = state["traction"]
+            self.previous[:] = state["previous"]
+            self.friction_centre[:] = state["friction_centre"]
+            self.friction_started = bool(state["friction_started"])
+            self.friction_local = float(state["friction_local"])

@@ -40,7 +40,8 @@ Sections (see demos/*.toml for complete examples and ``config_schema`` for every
                  component
   [impactor]     shape ("sphere" | "cylinder", axis along y), radius (mm), mass (tonne),
                  position = [x, y, z] (mm), velocity = [vx, vy, vz] (mm/s), optional penalty
-                 (N/mm per node); a rigid body hitting the top face (``contact``)
+                 (N/mm per node), friction (Coulomb coefficient, default 0); a rigid body
+                 hitting the top face (``contact``)
   [interfaces], [[refinement]], [cohesive], [[delamination]] (insert films), [[matrix_strength]],
                  [indicators], [stabilisation]
 Time curve (for prescribed/load): rise_time + profile ("smooth" or "linear"): 0 -> 1 over
@@ -178,6 +179,20 @@ class RunConfig:
         [[rigid]] bodies, then the lever's load point and hinge."""
         names = [body.name for body in self.rigid_bodies]
         return [*names, "lever", "hinge"] if self.lever is not None else names
+
+    @property
+    def body_columns(self) -> list[str]:
+        """The history's rigid-body columns in order: ``<name>_force`` and
+        ``<name>_displacement`` of each ``loading_bodies`` name, then
+        ``<name>_friction_energy`` of each body with friction (the [impactor]'s too)."""
+        columns = [
+            f"{name}_{what}" for name in self.loading_bodies for what in ("force", "displacement")
+        ]
+        bodies = [
+            *([self.impactor.body()] if self.impactor is not None else []),
+            *self.rigid_bodies,
+        ]
+        return columns + [f"{b.name}_friction_energy" for b in bodies if b.friction > 0.0]
 
     @property
     def layer_boundaries(self) -> list[int]:
@@ -1303,6 +1318,7 @@ def _impactor(root: _Root) -> Impactor | None:
         position=table.numbers("position"),
         velocity=table.numbers("velocity"),
         penalty=table.number("penalty"),
+        friction=table.number("friction"),
     )
 
 
@@ -1355,6 +1371,7 @@ def _rigid_bodies(root: _Root) -> tuple[RigidBody, ...]:
                 displacement=table.numbers("displacement"),
                 amplitude=amplitude,
                 penalty=table.number("penalty"),
+                friction=table.number("friction"),
             )
         )
     return tuple(bodies)

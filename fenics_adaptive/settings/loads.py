@@ -194,8 +194,9 @@ def clamp(face: str) -> list[PrescribedMotion]:
 class RigidBody:
     """A rigid loading body ([[rigid]], or the [impactor]): a sphere of ``radius`` (mm) about
     its centre, or a cylinder of ``radius`` whose axis runs along ``axis`` ("x" or "y")
-    through the centre, in frictionless penalty contact with the nodes of ``face`` ("top" or
-    "bottom"). ``position`` (mm): the centre at t = 0. ``motion``:
+    through the centre, in penalty contact with the nodes of ``face`` ("top" or "bottom"),
+    with Coulomb ``friction`` (the coefficient; 0: frictionless). ``position`` (mm): the
+    centre at t = 0. ``motion``:
 
     - FIXED: held there (a support);
     - PRESCRIBED: moved by ``displacement`` (mm, vector) x amplitude(t), or by ``velocity``
@@ -219,10 +220,13 @@ class RigidBody:
     displacement: tuple[float, float, float] | None = None
     amplitude: Amplitude = field(default_factory=lambda: Amplitude.constant(1.0))
     penalty: float | None = None
+    friction: float = 0.0
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "shape", ImpactorShape(self.shape))  # frozen: set once, here
         object.__setattr__(self, "motion", RigidMotion(self.motion))
+        if not (self.friction >= 0.0 and math.isfinite(self.friction)):
+            raise ValueError(f"a friction coefficient is finite and >= 0 (got {self.friction})")
         if self.face not in ("top", "bottom") or self.axis not in ("x", "y"):
             raise ValueError("a rigid body touches the top or bottom face; its axis is x or y")
 
@@ -284,6 +288,7 @@ class Impactor:
     position: tuple[float, float, float]  # mm: centre of the sphere, a point of the axis
     velocity: tuple[float, float, float]  # mm/s at t = 0
     penalty: float | None = None  # N/mm per node; None: from the laminate (``model.contact``)
+    friction: float = 0.0  # Coulomb coefficient (0: frictionless)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "shape", ImpactorShape(self.shape))  # frozen: set once, here
@@ -301,4 +306,5 @@ class Impactor:
             self.mass,
             self.velocity,
             penalty=self.penalty,
+            friction=self.friction,
         )

@@ -964,7 +964,7 @@ SECTIONS: tuple[Section, ...] = (
     ),
     Section(
         "impactor",
-        "a rigid body hitting the top face (frictionless penalty contact)",
+        "a rigid body hitting the top face (penalty contact, Coulomb friction if asked)",
         (
             Key(
                 "shape",
@@ -1004,12 +1004,23 @@ SECTIONS: tuple[Section, ...] = (
                 0.0,
                 open_min=True,
             ),
+            Key(
+                "friction",
+                "float",
+                "Coulomb friction coefficient with the face (regularised stick: a tangential "
+                "spring of the penalty's stiffness); its dissipation is the history column "
+                "<name>_friction_energy",
+                "",
+                0.0,
+                0.0,
+                10.0,
+            ),
         ),
     ),
     Section(
         "rigid",
-        "a rigid loading body (roller, nose, support, impactor) in frictionless penalty contact"
-        " with the top or bottom face",
+        "a rigid loading body (roller, nose, support, impactor) in penalty contact with the top"
+        " or bottom face, Coulomb friction if asked",
         (
             Key("name", "string", "its history columns <name>_force, <name>_displacement"),
             Key(
@@ -1070,6 +1081,17 @@ SECTIONS: tuple[Section, ...] = (
                 OPTIONAL,
                 0.0,
                 open_min=True,
+            ),
+            Key(
+                "friction",
+                "float",
+                "Coulomb friction coefficient with the face (regularised stick: a tangential "
+                "spring of the penalty's stiffness); its dissipation is the history column "
+                "<name>_friction_energy",
+                "",
+                0.0,
+                0.0,
+                10.0,
             ),
         ),
         array=True,
