@@ -21,9 +21,11 @@ if TYPE_CHECKING:
     from fenics_adaptive.model.structure import Structure
 
 
-def stable_time_step(structure: Structure) -> tuple[float, str]:
+def stable_time_step(structure: Structure, current: bool = False) -> tuple[float, str]:
     """(min of L_e / c over unrefined cells and subelements, and of the cohesive pair limit;
-    where it is attained), reduced over ranks. With a selectively scaled mass
+    where it is attained), reduced over ranks. ``current``: L_e of the deformed cells and
+    subelements (at X + u, for finite kinematics: a cell crushed to half its thickness steps at
+    half the step), else of the reference ones. With a selectively scaled mass
     (``structure.scaled_mass``) the solid part is its element eigenvalue bound instead
     (``mass_scaling.SelectiveMass.stable_time_step``); the cohesive pairs keep their lumped
     masses (see ``mass_scaling``'s docstring: why not the scaled ones). The caller applies the
@@ -32,13 +34,20 @@ def stable_time_step(structure: Structure) -> tuple[float, str]:
     if scaled is not None:
         return _scaled_time_step(structure, scaled)
     candidates = []
-    ratios = structure.base.cell_time_steps().copy()
+    if current:
+        vertices = structure.base.V.dofmap.list[: structure.base.n_owned_cells]
+        deformed = structure.cell_vertices() + structure.gather(vertices, "u")
+        ratios = characteristic_lengths(deformed) / structure.base.cell_wave_speeds()
+    else:
+        ratios = structure.base.cell_time_steps().copy()
     ratios[structure.refinement.refined_cells()] = np.inf
     if len(ratios):
         cell = int(np.argmin(ratios))
         candidates.append((float(ratios[cell]), f"cell {structure.original_cell[cell]}"))
     if len(structure.subelements):
         X = structure.gather(structure.subelements.nodes, "X")
+        if current:
+            X += structure.gather(structure.subelements.nodes, "u")
         sub_ratios = characteristic_lengths(X) / structure.subelement_speeds
         s = int(np.argmin(sub_ratios))
         cell = structure.subelement_cells[s]

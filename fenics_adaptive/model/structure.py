@@ -274,11 +274,11 @@ class Structure:
         """Collective: linear momentum (3,) tonne mm/s."""
         return self.lumped.momentum()
 
-    def stable_time_step(self) -> tuple[float, str]:
+    def stable_time_step(self, current: bool = False) -> tuple[float, str]:
         """Collective: (the stable step (s) of the central-difference scheme, where it is
-        attained), reduced over ranks (``time_step.stable_time_step``). The caller applies the
-        safety factor."""
-        return stable_time_step(self)
+        attained), reduced over ranks (``model.stable_step.stable_time_step``; ``current``: of
+        the deformed cells). The caller applies the safety factor."""
+        return stable_time_step(self, current)
 
     def _setup_ply_damage(self) -> None:
         """Matrix damage per (cell, ply): every cell leaves the UFL form for the damage-aware

@@ -485,7 +485,10 @@ class ExplicitSolver:
         checkpointing = bool(every) and (
             s.step % every == 0 or s.t >= self.settings.end_time - 1e-9 * s.dt
         )
-        if self._poll_open or polling or checkpointing:
+        # under finite kinematics the step follows the deformed cells, checked where a
+        # history row is due (that step may wait more than twice anyway)
+        resizing = self.structure.base.finite and s.t >= s.next_output - 1e-9 * s.dt
+        if self._poll_open or polling or checkpointing or resizing:
             self._finish_exchange()  # they read the whole state (and the poll's flags)
         if self._poll_open:  # the step's halo exchange completed the last poll's reduction
             self._settle_poll()
@@ -493,8 +496,31 @@ class ExplicitSolver:
             self.poll()
         if checkpointing:
             self.checkpoint()
+        if resizing:
+            self.follow_deformed_step()
         self._evaluate()
         return True
+
+    def follow_deformed_step(self) -> None:
+        """Collective, between steps (the ghosts' displacements received): the stable step of
+        the deformed cells (``Structure.stable_time_step(current=True)``: a cell that a crush
+        made thinner steps shorter). The step falls to it when it is shorter, never rises
+        (the contacts' penalties were capped for the step they started with); a forced step
+        it falls below stops the run (``Diverged``), as after a refinement."""
+        s = self.now
+        limit, where = self.structure.stable_time_step(current=True)
+        stable = self.settings.safety_factor * limit
+        s.stable, self.where = stable, where
+        self.stats.stable_time_step, self.stats.critical = stable, where
+        if s.dt <= stable * (1.0 + 1e-12):
+            return
+        if self.forced:
+            raise Diverged(
+                f"t = {s.t:.6g} s: the deformed cells' stable step is {stable:.4g} s ({where}),"
+                f" below the forced step {s.dt:.4g} s"
+            )
+        s.dt = stable
+        self.set_prescribed()  # the prescribed DOFs' targets at the new t + dt
 
     def _evaluate(self) -> None:
         """Everything at t_n: forces and accelerations, the work of the step just made, a
