@@ -304,6 +304,9 @@ class CohesiveElements(Contributor):
 
     def add_force(self, t: float, f_base: np.ndarray, f_extra: np.ndarray) -> None:
         """Subtract the cohesive forces (N) from the local base and extra DOFs."""
+        if not len(self.cells.cohesive):  # (an ESL model before it refines: a call saved)
+            self._energy = 0.0
+            return
         self._energy = self.cells.add_cohesive_forces(*self.nodes.kernel_arguments(f_base, f_extra))
 
     def energy(self) -> float:

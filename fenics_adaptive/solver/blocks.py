@@ -83,6 +83,18 @@ def given_accelerations(fixed, u_next, u_now, dt, mean_dt, v, acc):
 
 
 @njit(cache=True)
+def lumped_accelerations(f_ext, f, contact, inv_m, acc):
+    """acc = (f_ext - f + contact) / m in one pass (``contact`` empty: none; ``inv_m``: 1 / m,
+    0 where a DOF has no mass of its own)."""
+    if len(contact):
+        for i in range(len(acc)):
+            acc[i] = (f_ext[i] - f[i] + contact[i]) * inv_m[i]
+    else:
+        for i in range(len(acc)):
+            acc[i] = (f_ext[i] - f[i]) * inv_m[i]
+
+
+@njit(cache=True)
 def add_scaled(target, x, size):
     """target += size x, in place (no temporary)."""
     for i in range(len(target)):
@@ -206,10 +218,8 @@ class BlockState:
         scaled mass, after the forces' exchange summed the ``share_accelerations`` of the
         ranks, plus those of the forces added after it (``late_forces``)."""
         if self.scaled_mass is None:
-            np.subtract(self.f_ext, self.f, out=self.acc)
-            if contact_force is not None:
-                self.acc += contact_force
-            self.acc *= self.inv_m
+            contact = self.no_contact if contact_force is None else contact_force
+            lumped_accelerations(self.f_ext, self.f, contact, self.inv_m, self.acc)
         if len(self.block.fixed):
             self._prescribed_accelerations(contact_force, dt, mean_dt)
         if self.scaled_mass is not None:

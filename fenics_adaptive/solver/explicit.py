@@ -76,6 +76,7 @@ from fenics_adaptive.model.forces import ForceContributor
 from fenics_adaptive.model.loading import on_top_or_bottom
 from fenics_adaptive.model.mass_scaling import adaptive_refused, selective_mass
 from fenics_adaptive.model.structure import Structure
+from fenics_adaptive.settings.kinds import MotionKind
 from fenics_adaptive.settings.solver import Probe, SolverSettings
 from fenics_adaptive.solver import guards
 from fenics_adaptive.solver.blocks import BLOCK_ARRAYS, BlockState, block_work, move_block
@@ -184,6 +185,33 @@ def prepare_mass(structure: Structure, settings: SolverSettings, refines: bool) 
         structure.scaled_mass = selective_mass(structure, wanted)
 
 
+def _motion_groups(motions) -> list[tuple[Callable[[float], float], list[int], list[float]]]:
+    """The motions that change, grouped by their time function (the amplitude, or its
+    integral for a velocity): (function, motion indices, values), so that a step evaluates
+    each function once however many motions share it (value x function(t), as
+    ``PrescribedMotion.displacement``)."""
+    groups: dict = {}
+    for k, motion in enumerate(motions):
+        if motion.constant:
+            continue
+        velocity = motion.kind == MotionKind.VELOCITY
+        _, indices, values = groups.setdefault(
+            (motion.amplitude, velocity),
+            (motion.amplitude.integral if velocity else motion.amplitude, [], []),
+        )
+        indices.append(k)
+        values.append(motion.value)
+    return list(groups.values())
+
+
+def _move(groups, t: float, out: np.ndarray) -> None:
+    """Each changing motion's displacement at time t (s) into ``out`` (mm, by motion)."""
+    for function, indices, values in groups:
+        scale = function(t)
+        for k, value in zip(indices, values, strict=True):
+            out[k] = value * scale
+
+
 # what a refiner is: called before every step, it refines the structure (collectively) or not
 Refiner = Callable[[float, Structure], RefinementEvent | None]
 
@@ -252,11 +280,12 @@ class ExplicitSolver:
         self.overlap = True
         self._exchange_open = False
         self._exchange_also: list = []  # the requests the open exchange's wait completes
+        self._finite = structure.base.finite  # the step follows the deformed cells
         self.inversion: guards.InversionGuard | None = None
         n_motions = len(structure.motions)
         self._motion_now, self._motion_next = np.zeros(n_motions), np.zeros(n_motions)
         # the motions that change: the others (clamps) hold their one value in both arrays
-        self._moving = [k for k, m in enumerate(structure.motions) if not m.constant]
+        self._moving = _motion_groups(structure.motions)
         for k, motion in enumerate(structure.motions):
             self._motion_now[k] = self._motion_next[k] = motion.displacement(0.0)
         self._next_time = math.nan  # s, where _motion_next was evaluated
@@ -487,7 +516,7 @@ class ExplicitSolver:
         )
         # under finite kinematics the step follows the deformed cells, checked where a
         # history row is due (that step may wait more than twice anyway)
-        resizing = self.structure.base.finite and s.t >= s.next_output - 1e-9 * s.dt
+        resizing = self._finite and s.t >= s.next_output - 1e-9 * s.dt
         if self._poll_open or polling or checkpointing or resizing:
             self._finish_exchange()  # they read the whole state (and the poll's flags)
         if self._poll_open:  # the step's halo exchange completed the last poll's reduction
@@ -551,15 +580,12 @@ class ExplicitSolver:
     def set_prescribed(self) -> None:
         """The prescribed DOFs' values at t_n and t_n + dt into every block."""
         s = self.now
-        motions = self.structure.motions
         if self._next_time == s.t:  # the last call's t + dt is this t, bit for bit
             np.copyto(self._motion_now, self._motion_next)
         else:
-            for k in self._moving:
-                self._motion_now[k] = motions[k].displacement(s.t)
+            _move(self._moving, s.t, self._motion_now)
         self._next_time = s.t + s.dt
-        for k in self._moving:
-            self._motion_next[k] = motions[k].displacement(self._next_time)
+        _move(self._moving, self._next_time, self._motion_next)
         for state in self.blocks:
             if len(state.u_now):
                 self._motion_now.take(state.block.fixed_motion, out=state.u_now)
@@ -720,6 +746,9 @@ class ExplicitSolver:
         so that the messages travel while they compute; on one rank, or with ``overlap``
         False, here."""
         halo = self.structure.halo
+        if not halo.active:  # one rank: nothing travels, no reduction is under way
+            self.structure.follow_border()
+            return
         halo.forward_start(self._u_arrays)
         self._exchange_also = self._pending()
         self._exchange_open = True

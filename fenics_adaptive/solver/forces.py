@@ -142,8 +142,13 @@ class RunForces:
     def _external_forces(self, t: float, base: BlockState, extra: BlockState) -> None:
         """f_ext at time t (s) into both blocks: the face loads (extra nodes: of refined cells
         on a loaded side face), then the EXTERNAL contributors."""
-        self.structure.loads.external_force(t, self._f_ext_full, extra.f_ext)
-        base.f_ext[:] = self._f_ext_full[: base.block.n_owned]
+        loads = self.structure.loads
+        if loads.load_vectors:
+            loads.external_force(t, self._f_ext_full, extra.f_ext)
+            base.f_ext[:] = self._f_ext_full[: base.block.n_owned]
+        else:  # no face loads: the contributors add to zero
+            base.f_ext.fill(0.0)
+            extra.f_ext.fill(0.0)
         for contributor in self.external:
             contributor.add_force(t, base.f_ext, extra.f_ext)
 
