@@ -449,6 +449,8 @@ def _finish(
                     "peak_force_N": max((r.bodies[f"{name}_force"] for r in rows), key=abs),
                     "final_force_N": rows[-1].bodies[f"{name}_force"],
                     "final_displacement_mm": rows[-1].bodies[f"{name}_displacement"],
+                    # what its friction dissipated over the run (mJ; 0 without friction)
+                    "friction_energy_mJ": rows[-1].bodies.get(f"{name}_friction_energy", 0.0),
                 }
                 for name in config.loading_bodies
             },

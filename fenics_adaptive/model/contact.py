@@ -26,13 +26,15 @@ M in translation integrated by the same central-difference scheme as the structu
 at half steps). The energy a body gives the structure (``impact_work``) is, for a free body,
 its kinetic plus penalty energy at t = 0 minus now; for a driven one, the work its drive did,
 sum of 1/2 (F_n + F_n+1) . (c_n+1 - c_n) with F = -(force of the structure on it), minus the
-change of the penalty energy. Either way it is the work of the contact forces on the
-structure, so the energy balance of a run closes to the scheme's O(dt^2) error.
+change of the penalty energy; with friction, less what friction dissipated. Either way it is
+the work of the contact forces on the structure, so the energy balance of a run closes to the
+scheme's O(dt^2) error.
 
 As a force contributor (``model.forces``, kind CONTACT) a body adds its forces on its face's
 DOFs, moves itself (``advance``), reports into the history (the [impactor]: ``contact_force``,
 ``impactor_displacement``; a [[rigid]] body: ``<name>_force`` and ``<name>_displacement``, z
-components; every body adds to ``impact_work``) and keeps its state for checkpoints.
+components; a body with friction ``<name>_friction_energy``; every body adds to
+``impact_work``) and keeps its state for checkpoints.
 
 Ranks: a body's force and penalty energy are sums over the ranks' face nodes. A free body
 (whose motion needs its force) and the lever's saddle (whose force the lever passes on to the

@@ -428,8 +428,9 @@ def _multiply_chains(
 # ------------------------------------------------------------------ the scaled mass
 class SelectiveMass:
     """The column-wise scaled mass of a structure's base nodes (see the module docstring), built
-    by ``selective_mass``. The solver's base block uses ``solve`` (accelerations and reactions)
-    and ``multiply`` (M_s v, for the kinetic energy).
+    by ``selective_mass``. The solver's base block uses ``partial`` and ``finish`` around the
+    forces' exchange (accelerations and reactions), ``responses`` for a force known only after
+    it, and ``multiply`` (M_s v, for the kinetic energy); ``solve`` does all at once.
 
     ``chain_offsets``, ``chain_nodes``: CSR of the chains (local base nodes, bottom to top;
     every local node in one); ``matrix``: their 3k x 3k matrices (tonne), packed row by row;

@@ -54,8 +54,10 @@ def stable_time_step(structure: Structure, current: bool = False) -> tuple[float
         candidates.append(
             (float(sub_ratios[s]), f"subelement of cell {structure.original_cell[cell]}")
         )
-    # collective (vectors and scatters): on every rank, with or without cohesive elements
-    candidates.append(cohesive_time_step(structure))
+    # collective (vectors and scatters): on every rank, with or without cohesive elements;
+    # it depends on the refinement alone (reference areas, masses), so a structure keeps it
+    # until the next refinement (the deformed cells' step is asked for at every history row)
+    candidates.append(structure.cohesive_step())
     return structure.comm.allreduce(min(candidates), op=MPI.MIN)
 
 

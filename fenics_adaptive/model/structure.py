@@ -68,7 +68,7 @@ from fenics_adaptive.model.loading import (
 from fenics_adaptive.model.mass_scaling import SelectiveMass, adaptive_refused
 from fenics_adaptive.model.ply_damage_state import PlyDamageState
 from fenics_adaptive.model.refined_cells import RefinedCells
-from fenics_adaptive.model.stable_step import stable_time_step
+from fenics_adaptive.model.stable_step import cohesive_time_step, stable_time_step
 from fenics_adaptive.model.tie_forces import TieForces
 from fenics_adaptive.model.topology import CellColumnTable
 from fenics_adaptive.parallel.reductions import summed
@@ -174,6 +174,8 @@ class Structure:
         # the selectively scaled mass of the base nodes, if a run asks for it (set by the
         # solver: ``model.mass_scaling.selective_mass``); None: the lumped masses alone
         self.scaled_mass: SelectiveMass | None = None
+        # (node arrays' generation, cohesive pairs' stable step and where): ``cohesive_step``
+        self._cohesive_step: tuple[int, tuple[float, str]] | None = None
         self.lumped = LumpedBlocks(
             V, base.mass, self.extra.index_map, loads.fixed, loads.fixed_motion
         )
@@ -273,6 +275,14 @@ class Structure:
     def momentum(self) -> np.ndarray:
         """Collective: linear momentum (3,) tonne mm/s."""
         return self.lumped.momentum()
+
+    def cohesive_step(self) -> tuple[float, str]:
+        """Collective: ``stable_step.cohesive_time_step`` of the structure as it is refined now,
+        computed once per refinement (the node arrays' generation)."""
+        generation = self.node_arrays.generation
+        if self._cohesive_step is None or self._cohesive_step[0] != generation:
+            self._cohesive_step = (generation, cohesive_time_step(self))
+        return self._cohesive_step[1]
 
     def stable_time_step(self, current: bool = False) -> tuple[float, str]:
         """Collective: (the stable step (s) of the central-difference scheme, where it is

@@ -1022,7 +1022,12 @@ SECTIONS: tuple[Section, ...] = (
         "a rigid loading body (roller, nose, support, impactor) in penalty contact with the top"
         " or bottom face, Coulomb friction if asked",
         (
-            Key("name", "string", "its history columns <name>_force, <name>_displacement"),
+            Key(
+                "name",
+                "string",
+                "its history columns <name>_force, <name>_displacement (and with friction "
+                "<name>_friction_energy)",
+            ),
             Key(
                 "shape",
                 "choice",

@@ -185,7 +185,9 @@ class BlockState:
         forces' exchange (``complete``), with the accelerations and reaction shares of their
         forces' shapes (``SelectiveMass.responses``), for ``accelerate`` to add."""
         n = self.block.n_owned
-        shapes = np.array([c.late_force_shape(n) for c in contributors]).reshape(-1, n)
+        shapes = np.zeros((len(contributors), n))  # (a rank may own no DOF)
+        for row, contributor in enumerate(contributors):
+            shapes[row] = contributor.late_force_shape(n)
         self.late = list(contributors)
         self.late_accelerations, self.late_reactions = self.scaled_mass.responses(shapes)
 
@@ -233,7 +235,7 @@ class BlockState:
         self, contact_force: np.ndarray | None, dt: float, mean_dt: float
     ) -> None:
         """The prescribed DOFs' accelerations into ``acc`` and their reactions m a + f_int -
-        f_ext - f_contact (lumped m; a scaled mass adds its share in ``SelectiveMass.solve``)."""
+        f_ext - f_contact (lumped m; a scaled mass adds its share in ``SelectiveMass.finish``)."""
         prescribed_accelerations(
             self.block.fixed,
             self.u_next,

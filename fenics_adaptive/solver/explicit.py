@@ -118,6 +118,10 @@ class SolverState:
     largest_energy: float = 0.0  # mJ, the largest energy of the run so far (energy guard)
     # mJ: energy_balance at t = 0 (an initial velocity brings it): the guard judges the change
     initial_balance: float = 0.0
+    # mJ: what the step's changes to follow the deformed cells changed the scheme's kinetic
+    # measure by (it depends on the next step), with the sign that keeps the balance
+    # (``ExplicitSolver.follow_deformed_step``), on rank 0
+    kinetic_offset: float = 0.0
     refinements: int = 0  # refinement events so far
     # the forces, work, refinement and outputs at t_n are done (a state taken between two
     # ``step()`` calls); False for one taken right after the motion to t_n (checkpoints)
@@ -280,7 +284,9 @@ class ExplicitSolver:
         self.overlap = True
         self._exchange_open = False
         self._exchange_also: list = []  # the requests the open exchange's wait completes
-        self._finite = structure.base.finite  # the step follows the deformed cells
+        # the step follows the deformed cells (finite kinematics, lumped masses: a scaled
+        # mass's element bound is of the reference geometry; set in ``_set_up``)
+        self._follows_deformation = False
         self.inversion: guards.InversionGuard | None = None
         n_motions = len(structure.motions)
         self._motion_now, self._motion_next = np.zeros(n_motions), np.zeros(n_motions)
@@ -449,6 +455,7 @@ class ExplicitSolver:
         self.stats = RunStats(time_step=dt, stable_time_step=stable, critical=self.where)
         self.forces.prepare(self.blocks, dt, stable / self.settings.safety_factor)
         base = self.blocks[0]
+        self._follows_deformation = self.structure.base.finite and base.scaled_mass is None
         if base.scaled_mass is not None:  # its acceleration shares travel with the forces
             self.structure.lumped.carry_base()
             base.late_forces(self.forces.late)
@@ -514,10 +521,7 @@ class ExplicitSolver:
         checkpointing = bool(every) and (
             s.step % every == 0 or s.t >= self.settings.end_time - 1e-9 * s.dt
         )
-        # under finite kinematics the step follows the deformed cells, checked where a
-        # history row is due (that step may wait more than twice anyway)
-        resizing = self._finite and s.t >= s.next_output - 1e-9 * s.dt
-        if self._poll_open or polling or checkpointing or resizing:
+        if self._poll_open or polling or checkpointing:
             self._finish_exchange()  # they read the whole state (and the poll's flags)
         if self._poll_open:  # the step's halo exchange completed the last poll's reduction
             self._settle_poll()
@@ -525,19 +529,22 @@ class ExplicitSolver:
             self.poll()
         if checkpointing:
             self.checkpoint()
-        if resizing:
-            self.follow_deformed_step()
         self._evaluate()
         return True
 
     def follow_deformed_step(self) -> None:
-        """Collective, between steps (the ghosts' displacements received): the stable step of
-        the deformed cells (``Structure.stable_time_step(current=True)``: a cell that a crush
-        made thinner steps shorter). The step falls to it when it is shorter, never rises
-        (the contacts' penalties were capped for the step they started with); a forced step
-        it falls below stops the run (``Diverged``), as after a refinement."""
+        """Collective, at t_n evaluated (forces and accelerations with the step as it was): the
+        stable step of the deformed cells (``Structure.stable_time_step(current=True)``: a cell
+        that a crush made thinner steps shorter). The step falls to it when it is shorter,
+        never rises (the contacts' penalties were capped for the step they started with); a
+        forced step it falls below stops the run (``Diverged``), as after a refinement; a
+        limit that is not a positive number (an inverted cell) is left to the guards. The
+        scheme's kinetic measure at t_n depends on the next step: its jump is booked
+        (``SolverState.kinetic_offset``), so that the energy balance still closes."""
         s = self.now
         limit, where = self.structure.stable_time_step(current=True)
+        if not 0.0 < limit < math.inf:
+            return
         stable = self.settings.safety_factor * limit
         s.stable, self.where = stable, where
         self.stats.stable_time_step, self.stats.critical = stable, where
@@ -548,8 +555,13 @@ class ExplicitSolver:
                 f"t = {s.t:.6g} s: the deformed cells' stable step is {stable:.4g} s ({where}),"
                 f" below the forced step {s.dt:.4g} s"
             )
+        before = self._energy_at_step()
         s.dt = stable
         self.set_prescribed()  # the prescribed DOFs' targets at the new t + dt
+        self._accelerate(self.forces.contact_force)  # the same forces, the new step
+        after = self._energy_at_step()
+        if self.comm.rank == 0:  # one value over all ranks, booked once
+            s.kinetic_offset += before - after
 
     def _evaluate(self) -> None:
         """Everything at t_n: forces and accelerations, the work of the step just made, a
@@ -564,6 +576,8 @@ class ExplicitSolver:
             event = self.refiner(s.t, self.structure)
             if event:
                 self.react_to_refinement(event)
+        if self._follows_deformation and s.t >= s.next_output - 1e-9 * s.dt:
+            self.follow_deformed_step()  # where a history row is due (it waits anyway)
         if s.t >= self._damping_changes:  # a stabilisation window closed: the update from t_n
             self.refresh_damping()
         if s.t >= s.next_output - 1e-9 * s.dt or s.t >= self.settings.end_time - 1e-9 * s.dt:
@@ -595,20 +609,28 @@ class ExplicitSolver:
         """Collective: the forces (``forces.RunForces``), accelerations and reactions at t_n
         for the current structure."""
         s = self.now
-        mean_dt = 0.5 * (s.dt_prev + s.dt)
-        base = self.blocks[0]
-        carry = None
-        if base.scaled_mass is not None:
-
-            def carry(contact: list[np.ndarray] | None) -> np.ndarray:
-                return base.share_accelerations(contact[0] if contact else None, s.dt, mean_dt)
-
+        # a scaled mass: its shares of the accelerations travel with the forces
+        carry = self._share_accelerations if self.blocks[0].scaled_mass is not None else None
         if self._exchange_open:
             contact = self.forces.evaluate(
                 s.t, self.blocks, self._finish_exchange, self.structure.halo.progress, carry
             )
         else:
             contact = self.forces.evaluate(s.t, self.blocks, carry=carry)
+        self._accelerate(contact)
+
+    def _share_accelerations(self, contact: list[np.ndarray] | None) -> np.ndarray:
+        """The base block's shares of the accelerations (a scaled mass, before the forces'
+        exchange: ``BlockState.share_accelerations``)."""
+        s = self.now
+        mean_dt = 0.5 * (s.dt_prev + s.dt)
+        return self.blocks[0].share_accelerations(contact[0] if contact else None, s.dt, mean_dt)
+
+    def _accelerate(self, contact: list[np.ndarray] | None) -> None:
+        """The accelerations and reactions of every block at t_n from its forces as they are
+        (``contact``: the CONTACT contributors' force per block, or None)."""
+        s = self.now
+        mean_dt = 0.5 * (s.dt_prev + s.dt)
         for index, state in enumerate(self.blocks):
             if state.live:
                 state.accelerate(contact[index] if contact else None, s.dt, mean_dt)
@@ -659,7 +681,7 @@ class ExplicitSolver:
         self._u_arrays = [state.block.u.array for state in self.blocks]
         self.forces.resize(self.blocks)
         self.inversion.refresh()
-        limit, self.where = structure.stable_time_step()
+        limit, self.where = structure.stable_time_step(current=self._follows_deformation)
         s.stable = settings.safety_factor * limit
         self.stats.stable_time_step, self.stats.critical = s.stable, self.where
         if not self.forced:
@@ -743,8 +765,8 @@ class ExplicitSolver:
         blocks at once). Its wait also completes the reductions under way (the poll's, a sum
         of owned displacements: the lever's hinge). On several ranks it is finished by the
         internal forces once they have computed the interior elements (``RunForces.evaluate``),
-        so that the messages travel while they compute; on one rank, or with ``overlap``
-        False, here."""
+        so that the messages travel while they compute; with ``overlap`` False, here. On one
+        rank nothing travels and no reduction is under way: only the border follows."""
         halo = self.structure.halo
         if not halo.active:  # one rank: nothing travels, no reduction is under way
             self.structure.follow_border()

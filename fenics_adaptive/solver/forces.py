@@ -13,8 +13,9 @@ ranks they start complete in the internal forces' reverse exchange; their ``comp
 run after it). On several ranks the internal
 forces of the interior elements are computed while the halo exchange of the displacements is
 under way, the rest after it (``evaluate``'s ``ready``), and the external forces while the
-internal forces' shares travel to their owners. The arrays are allocated when the blocks
-change (start, refinement), never in a step.
+internal forces' shares travel to their owners (before they leave, with a selectively scaled
+mass: its shares of the accelerations travel with them, ``evaluate``'s ``carry``). The arrays
+are allocated when the blocks change (start, refinement), never in a step.
 """
 
 from __future__ import annotations
@@ -125,7 +126,7 @@ class RunForces:
         if carry is not None:  # everything first, then the one exchange
             self._external_forces(t, base, extra)
             carried = carry(self._contact_force or None)
-            lumped.start_summing(carried)
+            lumped.start_summing(carried)  # (nothing that can raise runs before its finish)
             lumped.finish_summing(self.pending_requests(), carried)
         else:
             lumped.start_summing()

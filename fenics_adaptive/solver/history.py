@@ -48,7 +48,9 @@ class HistoryRow:
     time_step: float  # s
     contact_force: float = 0.0  # N, z component of the force the structure applies to the impactor
     impactor_displacement: float = 0.0  # mm, z displacement of the impactor
-    impact_work: float = 0.0  # mJ, energy the impactor gave up (kinetic + penalty, from t = 0)
+    # mJ, the work of the rigid bodies' contact forces on the structure since t = 0 (net of
+    # what their friction dissipated)
+    impact_work: float = 0.0
     cohesive_dissipation: float = 0.0  # mJ, summed from the cohesive law's damage increments
     ply_dissipation: float = 0.0  # mJ, summed from the ply damage law's increments
     # mJ: kinetic + strain + stored cohesive + cohesive and ply dissipation + damping - external
@@ -56,7 +58,8 @@ class HistoryRow:
     state_energy_balance: float = 0.0
     crack_growth_area: float = 0.0  # mm^2, failed cohesive elements outside the insert films
     # per [[rigid]] body: "<name>_force" (N, z, the force the structure applies to it) and
-    # "<name>_displacement" (mm, z, of its centre since t = 0)
+    # "<name>_displacement" (mm, z, of its centre since t = 0); with friction
+    # "<name>_friction_energy" (mJ, dissipated since t = 0)
     bodies: dict[str, float] = field(default_factory=dict)
 
     @property
@@ -212,7 +215,7 @@ class HistoryRecorder:
                 # (the extra block's f_ext also holds the tie forces, which are no load)
                 base.f_ext[self.load_dofs].sum()
                 + self.structure.loads.extra_resultant(s.t)[self.component],
-                kinetic,
+                kinetic + s.kinetic_offset,
                 s.work_int,
                 s.work_ext,
                 s.work_damp + damping,
