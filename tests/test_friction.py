@@ -157,3 +157,24 @@ def test_the_config_takes_a_friction_coefficient_and_refuses_a_negative_one():
     bad["rigid"][0]["friction"] = -0.1
     with pytest.raises(Exception, match="friction"):
         parse_config(bad)
+
+
+def test_a_free_impactor_that_rubs_the_plate_keeps_the_energy_balance(tmp_path):
+    """An [impactor] (a free body, its force summed over the ranks every step) striking
+    obliquely with friction: what friction dissipates is booked, and the balance moves by no
+    more than the frictionless run's (the contact's own O(dt^2)); the impact work and the
+    dissipation differ from the frictionless run's."""
+    runs = {}
+    for mu in (0.0, 0.3):
+        data = tomllib.loads((DATA / "mpi_one_rank_impact.toml").read_text())
+        data["impactor"].update(velocity=[3000.0, 0.0, -6000.0], friction=mu)
+        data["output"].pop("fields_interval", None)
+        run_quietly(data, tmp_path / str(mu))
+        runs[mu] = read_history(tmp_path / str(mu) / "history.csv")
+    kinetic = 0.5 * 2.0e-6 * (3000.0**2 + 6000.0**2)  # mJ, the impactor's at t = 0
+    rubbed, plain = runs[0.3], runs[0.0]
+    assert rubbed["impactor_friction_energy"][-1] > 0.01 * kinetic
+    assert "impactor_friction_energy" not in plain
+    drift = {mu: np.ptp(h["energy_balance"]) for mu, h in runs.items()}
+    assert drift[0.3] < 1e-5 * kinetic and drift[0.3] < 1.5 * drift[0.0] + 1e-9 * kinetic
+    assert rubbed["impact_work"][-1] != plain["impact_work"][-1]
