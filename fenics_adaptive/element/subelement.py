@@ -340,6 +340,11 @@ def _monomials(values, out):
 
 # Compiler options of ``element_force_kernel`` and of every kernel that calls it. The point
 # kernels are inlined at numba's IR level, where the caller's flags are the ones that apply, and
+# Higham's polar iteration converges quadratically: a few steps from any F of positive
+# determinant; a bound keeps a degenerate element from looping
+POLAR_ITERATIONS = 50
+
+
 # inlining is what turns ``finite`` into a constant (one loop per kinematics, each vectorised).
 # Fast-math subset without "nnan"/"ninf": a degenerate element still gives inf/nan, not garbage.
 KERNEL_OPTIONS = {"error_model": "numpy", "fastmath": {"contract", "reassoc", "nsz", "arcp"}}
@@ -1444,6 +1449,77 @@ def _element_force_damaged(
     )
 
 
+@njit(cache=True, inline="always")
+def _centroids(X, u):
+    """(X_c, x_c) of an element's 8 vertices, before and after its motion, as 3-tuples."""
+    X0 = X1 = X2 = x0 = x1 = x2 = 0.0
+    for a in range(8):
+        X0 += 0.125 * X[a, 0]
+        X1 += 0.125 * X[a, 1]
+        X2 += 0.125 * X[a, 2]
+        x0 += 0.125 * (X[a, 0] + u[a, 0])
+        x1 += 0.125 * (X[a, 1] + u[a, 1])
+        x2 += 0.125 * (X[a, 2] + u[a, 2])
+    return (X0, X1, X2), (x0, x1, x2)
+
+
+@njit(cache=True)
+def element_rotation(X, u, R):
+    """The rotation R (3, 3) of an element with vertices X (8, 3) and displacements u (8, 3),
+    in place: the orthogonal factor of the polar decomposition of the affine fit of its
+    motion, F = (sum dx dX^T) (sum dX dX^T)^-1 (dX, dx: the vertices about their centroid,
+    before and after), by Higham's iteration R <- (R + R^-T) / 2 (quadratic; the fit is
+    independent of the vertex order, and a rigid rotation Q of the deformed element gives
+    Q R). ``R`` is the only storage used: no allocation per element."""
+    Xc, xc = _centroids(X, u)
+    R[:, :] = 0.0  # first A = sum dx dX^T, then F = A B^-1
+    b00 = b01 = b02 = b11 = b12 = b22 = 0.0
+    for a in range(8):
+        dX0, dX1, dX2 = X[a, 0] - Xc[0], X[a, 1] - Xc[1], X[a, 2] - Xc[2]
+        b00 += dX0 * dX0
+        b01 += dX0 * dX1
+        b02 += dX0 * dX2
+        b11 += dX1 * dX1
+        b12 += dX1 * dX2
+        b22 += dX2 * dX2
+        for i in range(3):
+            dx = X[a, i] + u[a, i] - xc[i]
+            R[i, 0] += dx * dX0
+            R[i, 1] += dx * dX1
+            R[i, 2] += dx * dX2
+    _, K = _inverse3((b00, b01, b02, b01, b11, b12, b02, b12, b22))
+    for i in range(3):
+        r0, r1, r2 = R[i, 0], R[i, 1], R[i, 2]
+        R[i, 0] = r0 * K[0] + r1 * K[3] + r2 * K[6]
+        R[i, 1] = r0 * K[1] + r1 * K[4] + r2 * K[7]
+        R[i, 2] = r0 * K[2] + r1 * K[5] + r2 * K[8]
+    for _ in range(POLAR_ITERATIONS):
+        _, K = _inverse3(
+            (R[0, 0], R[0, 1], R[0, 2], R[1, 0], R[1, 1], R[1, 2], R[2, 0], R[2, 1], R[2, 2])
+        )
+        change = 0.0
+        for i in range(3):
+            for j in range(3):
+                new = 0.5 * (R[i, j] + K[3 * j + i])  # (R^-T)_ij = (R^-1)_ji
+                change = max(change, abs(new - R[i, j]))
+                R[i, j] = new
+        if change <= 1e-15:
+            break
+
+
+@njit(cache=True)
+def to_rotated_frame(X, u, R, u_local):
+    """u_local = R^T (x - x_c) - (X - X_c) (8, 3): the element's displacement in its
+    co-rotated frame, its rigid rotation and translation taken out (no allocation)."""
+    Xc, xc = _centroids(X, u)
+    for a in range(8):
+        d0 = X[a, 0] + u[a, 0] - xc[0]
+        d1 = X[a, 1] + u[a, 1] - xc[1]
+        d2 = X[a, 2] + u[a, 2] - xc[2]
+        for i in range(3):
+            u_local[a, i] = R[0, i] * d0 + R[1, i] * d1 + R[2, i] * d2 - (X[a, i] - Xc[i])
+
+
 def solid_shell_force_damaged(
     X: np.ndarray,
     u: np.ndarray,
@@ -1461,6 +1537,7 @@ def solid_shell_force_damaged(
     band_width: np.ndarray,
     state: np.ndarray,
     f_out: np.ndarray,
+    corotational: bool = False,
 ) -> float:
     """Internal force (N) of one layered solid-shell (sub)element with matrix damage into
     ``f_out`` (8, 3), overwritten, updating the damage ``state`` (n_plies, N_STATE) in place;
@@ -1471,7 +1548,8 @@ def solid_shell_force_damaged(
     crack band width l_c (mm) of each ply (n_plies,) and the plies' states:
     ``solid_shell_force_damaged(X, u, *rule, *ply_damage, band_width, state, f_out)``. For a
     subelement spanning laminate plies first:stop of cell row r, pass
-    ``band_width[r, first:stop]`` and ``state[r, first:stop]`` (views: updated in place). The
+    ``band_width[r, first:stop]`` and ``state[r, first:stop]`` (views: updated in place).
+    ``corotational``: in the element's co-rotated frame (``add_damaged_subelement_forces``). The
     batched kernel with one element (one compiled kernel fewer)."""
     rule = PackedRule(
         zeta, weights, terms, ply_of_point, position_of_point, positions, stiffness, enhanced_mode
@@ -1497,6 +1575,7 @@ def solid_shell_force_damaged(
         f,
         none,
         True,
+        bool(corotational),
     )
     f_out[:] = f
     return energy
@@ -1529,14 +1608,26 @@ def add_damaged_subelement_forces(
     f_base,
     f_extra,
     update,
+    corotational,
 ):
     """f += sum_e P_e^T f_e over damage-aware (sub)elements, updating their damage (not with
     ``update`` False: the energy of a state at its damage so far); returns the total secant
     strain energy (mJ). Call as ``add_damaged_subelement_forces(nodes,
     rule_of_element, state_row, first_ply, *rules, *ply_damage, band_width, damage_state,
-    X_base, X_extra, u_base, u_extra, f_base, f_extra, update)``, ``nodes`` int32 and
-    ``update`` a bool every time: each other argument type compiles the kernel again (about a
-    minute).
+    X_base, X_extra, u_base, u_extra, f_base, f_extra, update, corotational)``, ``nodes``
+    int32, ``update`` and ``corotational`` bools every time: each other argument type compiles
+    the kernel again (about a minute).
+
+    ``corotational`` (finite kinematics): each element is computed in its co-rotated frame,
+    the rotation R of the polar decomposition of the affine fit of its motion
+    (``element_rotation``): the small-strain kernel and the damage law see u_local = R^T (x -
+    x_c) - (X - X_c) and the force is R f_local (Belytschko's co-rotational approach, as
+    explicit codes treat their damaged shells; chosen over a Green-Lagrange form of the damage
+    law because the law, its enhanced-strain condensation and its exact dissipation stay the
+    small-strain ones, and a rigid rotation leaves u_local, hence the damage and what it
+    dissipates, unchanged). The strains within the element must stay small; the spin of the
+    frame is not differentiated (the force is not exactly the gradient of the energy: the
+    balance from the states departs from the one from the work by that, second order).
 
     ``element_nodes`` (ne, 8): combined local node indices (i < n_base = len(X_base): base node
     i, else extra node i - n_base), as in ``assembly``; element e uses rule
@@ -1564,11 +1655,18 @@ def add_damaged_subelement_forces(
     X = np.empty((8, 3))
     u = np.empty((8, 3))
     f = np.empty((8, 3))
+    R = np.eye(3)
+    u_global = np.empty((8, 3))
+    f_local = np.empty((8, 3))
     energy = 0.0
     for e in range(element_nodes.shape[0]):
         nodes = element_nodes[e]
         gather_nodes(nodes, n_base, X_base, X_extra, X)
         gather_nodes(nodes, n_base, u_base, u_extra, u)
+        if corotational:
+            u_global[:] = u
+            element_rotation(X, u_global, R)
+            to_rotated_frame(X, u_global, R, u)
         r = rule_of_element[e]
         start = rule_offsets[r]
         stop = rule_offsets[r + 1]
@@ -1605,6 +1703,13 @@ def add_damaged_subelement_forces(
             f,
             update,
         )
+        if corotational:  # the force back in the global frame: R f_local
+            f_local[:] = f
+            for a in range(8):
+                for i in range(3):
+                    f[a, i] = (
+                        R[i, 0] * f_local[a, 0] + R[i, 1] * f_local[a, 1] + R[i, 2] * f_local[a, 2]
+                    )
         scatter_add_nodes(nodes, n_base, f, 1.0, f_base, f_extra)
     return energy
 

@@ -210,8 +210,9 @@ class ElasticSolid(Contributor):
 
 
 class DamagedSolid(Contributor):
-    """Every solid (sub)element through the damage-aware kernel, updating the ply damage
-    (small strain only): unrefined cells whole, refined cells by subelement.
+    """Every solid (sub)element through the damage-aware kernel, updating the ply damage:
+    unrefined cells whole, refined cells by subelement; with the model's finite kinematics
+    each in its co-rotated frame (``subelement.add_damaged_subelement_forces``).
 
     ``damage``: the ply damage state (its elements and parameters); ``rule_table``: the packed
     rules; ``nodes``: the node arrays; ``elements()``: the structure's solid elements now
@@ -226,8 +227,10 @@ class DamagedSolid(Contributor):
         rule_table: RuleTable,
         nodes: NodeArrays,
         elements: Callable[[], tuple[np.ndarray, np.ndarray, np.ndarray]],
+        model: LayeredModel | None = None,
     ):
         self.damage = damage
+        self.model = model  # its kinematics, read per call (None: small strain)
         self.rule_table = rule_table
         self.nodes = nodes
         self.elements = elements
@@ -264,6 +267,7 @@ class DamagedSolid(Contributor):
             *self.nodes.kernel_arguments(f_base, f_extra),
             update=self.update_damage,
             part=part,
+            corotational=self.model is not None and self.model.finite,
         )
 
     def energy(self) -> float:
@@ -349,7 +353,7 @@ class InternalForces:
         """The contributors of a structure: every solid element through the damaged kernel with
         ply ``damage``, else (None) through the elastic one; the cohesive elements in both."""
         if damage is not None:
-            solids = [DamagedSolid(damage, cells.rule_table, nodes, elements)]
+            solids = [DamagedSolid(damage, cells.rule_table, nodes, elements, model)]
         else:
             solids = [ElasticSolid(model, refinement, cells.rule_table, nodes, elements)]
         return cls(solids, CohesiveElements(cells, nodes, model.comm), model.comm)

@@ -132,12 +132,14 @@ class PlyDamageState:
         f_extra,
         update: bool = True,
         part: str | int = "all",
+        corotational: bool = False,
     ) -> float:
         """Add the elements' internal forces (N) into ``f_base``, ``f_extra`` (n, 3), updating
         the damage state (``update`` False: at the damage as it is); ``rules``: the packed
         rules (``RuleTable.packed``); X, u in mm; ``part``: "all", "interior" or "boundary"
-        elements, or chunk k of the interior (``set_elements``). Returns their secant strain
-        energy (mJ, this rank)."""
+        elements, or chunk k of the interior (``set_elements``); ``corotational``: each element
+        in its co-rotated frame (finite kinematics). Returns their secant strain energy (mJ,
+        this rank)."""
         return add_damaged_subelement_forces(
             *self._parts[part],
             *rules,
@@ -151,6 +153,7 @@ class PlyDamageState:
             f_base,
             f_extra,
             update,
+            corotational,
         )
 
     def scale_matrix_strength(self, cells: np.ndarray, plies: Iterable[int], factor: float) -> None:

@@ -104,8 +104,6 @@ class Structure:
         ply_damage: bool = False,
     ):
         self.base = base
-        if ply_damage and base.finite:
-            raise ValueError("the ply damage kernel is small-strain only: use kinematics 'small'")
         self.failures = failures or {}
         self.ply_damage = ply_damage
         self.stabilisation = stabilisation or Stabilisation()

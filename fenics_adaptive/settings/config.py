@@ -18,8 +18,8 @@ Sections (see demos/*.toml for complete examples and ``config_schema`` for every
   [model]        kind = "esl" | "adaptive" | "layerwise"; thickness_integration =
                  "preintegrated" (default) | "plies"; points_per_ply (1 or 2, default 2);
                  kinematics = "small" (default) | "finite" (total Lagrangian: large rotations;
-                 no ply_damage); ply_damage; shear_correction (default true); enhanced_strain
-                 (default true); check_units (default true);
+                 damaged cells co-rotate); ply_damage; shear_correction (default true);
+                 enhanced_strain (default true); check_units (default true);
                  max_memory (GB, default 16)
   [mesh]         length, width (mm), nx, ny (cells in-plane); layers = [plies per mesh layer]
                  for a layerwise model (default: one layer per ply); partition = "cost"
@@ -650,14 +650,6 @@ def _model(table: _Table) -> _Model:
         enhanced_strain=table.boolean("enhanced_strain"),
         thickness_integration=table.choice("thickness_integration"),
     )
-    if model.kinematics == Kinematics.FINITE and model.ply_damage:
-        # the ply damage kernel samples small strains; mixing it with finite kinematics would
-        # silently damage rotating plies
-        raise InputError(
-            table.key("kinematics"),
-            '"finite" cannot be combined with model.ply_damage = true (the ply damage model is '
-            "small-strain only)",
-        )
     return model
 
 

@@ -312,7 +312,8 @@ SECTIONS: tuple[Section, ...] = (
             Key(
                 "kinematics",
                 "choice",
-                "small strain, or finite (total Lagrangian, large rotations; not with ply_damage)",
+                "small strain, or finite (total Lagrangian, large rotations; with ply_damage the"
+                " damaged cells co-rotate)",
                 default="small",
                 choices=tuple(Kinematics),
             ),
