@@ -253,14 +253,15 @@ def _elastic_part(contributor, elements: SubelementSet, node_args: tuple) -> Non
 
 
 def _damaged_part(contributor, part: slice, node_args: tuple) -> None:
-    """The damaged solids' kernel on the elements ``part`` only, at the damage as it is."""
-    damage = contributor.damage
-    everything = damage.elements
-    damage.elements = tuple(array[part] for array in everything)
-    try:
-        damage.add_forces(contributor.rule_table.packed, *node_args, update=False)
-    finally:
-        damage.elements = everything
+    """The damaged solids' kernel on the elements ``part`` only, at the damage as it is (with
+    the model's kinematics: co-rotated frames under finite ones)."""
+    contributor.damage.add_forces(
+        contributor.rule_table.packed,
+        *node_args,
+        update=False,
+        part=part,
+        corotational=contributor.model is not None and contributor.model.finite,
+    )
 
 
 def profile_rows(

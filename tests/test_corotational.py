@@ -74,6 +74,40 @@ def test_a_rigidly_turned_element_damages_and_dissipates_alike(mode):
         np.testing.assert_allclose(g, f @ Q.T, rtol=0, atol=1e-10 * np.abs(f).max())
 
 
+def test_an_element_failed_unturned_keeps_its_damage_as_it_turns_90_degrees():
+    """Failed in transverse tension, then turned at fixed strain in 1-degree steps: the damage
+    and what it dissipated stay (1e-12), the force turns with the element."""
+    laminate = random_laminate(np.random.default_rng(3), 4)
+    packed = pd.pack_ply_damage(laminate.plies, FAILURES)
+    rule = se.pack_rule(laminate.ply_fractions, np.array(laminate.ply_stiffnesses()), 2)
+    X = se.CORNERS * [1.0, 1.0, laminate.thickness]
+    f, state = strained_element(MODES["transverse tension"], np.eye(3))
+    failed = state.copy()
+    x = X + X @ (0.08 * MODES["transverse tension"]).T  # the last strain of strained_element
+    g = np.zeros((8, 3))
+    for degrees in range(1, 91):
+        Q = rotation(1, float(degrees))
+        se.solid_shell_force_damaged(
+            X, x @ Q.T - X, *rule, *packed, np.full(4, 0.5), state, g, corotational=True
+        )
+    np.testing.assert_allclose(state, failed, rtol=0, atol=1e-12 * np.abs(failed).max())
+    np.testing.assert_allclose(g, f @ Q.T, rtol=0, atol=1e-10 * np.abs(f).max())
+
+
+def test_an_inverted_element_gets_no_frame():
+    """An element turned inside out (its fit's determinant below zero) or flattened gets a NaN
+    frame, and so NaN forces for the guards to stop the run, not a reflection's."""
+    X = se.CORNERS * [1.0, 1.0, 0.5]
+    R = np.zeros((3, 3))
+    for thickness in (-0.5, 0.0):  # the top face pushed through the bottom one, or onto it
+        u = np.zeros((8, 3))
+        u[4:, 2] = thickness - 0.5
+        se.element_rotation(X, u, R)
+        assert np.all(np.isnan(R))
+    se.element_rotation(X, X @ (rotation(2, 30.0) - np.eye(3)).T, R)
+    np.testing.assert_allclose(R, rotation(2, 30.0), rtol=0, atol=1e-15)
+
+
 def test_the_small_strain_kernel_damages_a_rotation_the_corotated_one_does_not():
     """A rigid 90-degree turn alone (no strain): small strains read it as strains of order 1."""
     _, corotated = strained_element(np.zeros((3, 3)), rotation(0, 90.0))
@@ -127,3 +161,29 @@ def test_a_struck_plate_with_ply_damage_under_finite_kinematics(tmp_path):
     h = read_history(tmp_path / "finite" / "history.csv")
     assert h["ply_dissipation"][-1] > 0.01 * h["impact_work"][-1]
     assert np.ptp(h["energy_balance"]) < 1e-4 * max(h["impact_work"])
+
+
+def test_the_indicators_see_the_same_ply_stresses_after_a_rigid_turn():
+    """The indicators' ply stresses (``ply_fields.indicator_stresses``: ply failure, the
+    interlaminar estimate) under finite kinematics are those of the damage law's co-rotated
+    frame: a strained, refined strip turned by 75 degrees gives them unchanged (1e-9 of the
+    largest), where the small-strain reading of the same motion is off by the turn."""
+    from test_finite_rotation import STRAIN, refined_strip, set_motion
+    from test_finite_rotation import rotation as axis_rotation
+
+    from fenics_adaptive.adaptivity.interlaminar import interlaminar_stresses
+    from fenics_adaptive.adaptivity.ply_fields import ply_stresses
+
+    structure = refined_strip()
+    R = axis_rotation((0.3, -1.0, 2.0), 75.0)
+    set_motion(structure, lambda X: X @ STRAIN.T)
+    stresses, estimate = ply_stresses(structure), interlaminar_stresses(structure)
+    scale = np.abs(stresses).max()
+    assert scale > 0.0 and np.abs(estimate).max() > 0.0
+    set_motion(structure, lambda X: (X + X @ STRAIN.T) @ R.T - X)
+    np.testing.assert_allclose(ply_stresses(structure), stresses, rtol=0, atol=1e-9 * scale)
+    np.testing.assert_allclose(
+        interlaminar_stresses(structure), estimate, rtol=0, atol=1e-9 * np.abs(estimate).max()
+    )
+    structure.base.set_kinematics("small")
+    assert np.abs(ply_stresses(structure) - stresses).max() > 10.0 * scale

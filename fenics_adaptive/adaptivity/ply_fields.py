@@ -19,7 +19,7 @@ import numpy as np
 from numba import njit
 
 from fenics_adaptive.element.solid_shell import NORMAL  # a monoclinic ply couples these
-from fenics_adaptive.element.subelement import gather_nodes
+from fenics_adaptive.element.subelement import element_rotation, gather_nodes, to_rotated_frame
 from fenics_adaptive.materials.laminate import rotation_about_z
 from fenics_adaptive.materials.ply_damage import S_FT, S_MC, hashin_indices
 
@@ -59,11 +59,16 @@ def _ply_center_strains(
     root,
     to_stress,
     out,
+    centre_maps,
+    corotational,
 ):
     """Small strain (Voigt, engineering shears) at the in-plane centre of every ply of every
     element, at the ply's mid-thickness, into out[cell, ply]; with the element's enhanced
     thickness strain alpha_center[e] g(zeta) / |det J| (``alpha_center``: its parameter at the
-    in-plane centre). ``to_stress``: the ply's stress D C_k (D strain) instead (``stiffness``
+    in-plane centre). ``corotational`` (finite kinematics): in the element's co-rotated frame,
+    as the damaged kernel computes it (``subelement.element_rotation``): the displacement
+    there, and its enhanced parameter from it (``centre_maps``, written into
+    ``alpha_center``). ``to_stress``: the ply's stress D C_k (D strain) instead (``stiffness``
     (n_plies, 6, 6), monoclinic; D the element's shear scale, ``root`` (n_elements, 2) its
     sqrt k_xz, sqrt k_yz: ``ply_stresses``).
 
@@ -82,10 +87,21 @@ def _ply_center_strains(
     grad = np.empty((3, 3))
     ends = np.empty((2, 3, 3))
     strain = np.empty(6)
+    R = np.eye(3)
+    u_global = np.empty((8, 3))
     enhanced = 0.0  # alpha / |det J| of the element (a prism) or of the ply
     for e in range(nodes.shape[0]):
         gather_nodes(nodes[e], n_base, X_base, X_extra, X)
         gather_nodes(nodes[e], n_base, u_base, u_extra, u)
+        if corotational:
+            u_global[:] = u
+            element_rotation(X, u_global, R)
+            to_rotated_frame(X, u_global, R, u)
+            total = 0.0
+            for a in range(8):
+                for i in range(3):
+                    total += centre_maps[e, a, i] * u[a, i]
+            alpha_center[e] = total
         parts[:] = 0.0
         for a in range(8):
             s_xi = 1.0 if a & 1 else -1.0
@@ -266,7 +282,11 @@ def _ply_field(structure, to_stress: bool, out: np.ndarray) -> np.ndarray:
     data = element_data(structure)
     u_base = structure.base.u.x.array.reshape(-1, 3)
     u_extra = structure.extra.vectors["u"].array.reshape(-1, 3)
-    _centre_parameters(data.centre_maps, data.nodes, structure.n_base, u_base, u_extra, data.alpha)
+    corotational = structure.base.finite  # the damaged kernel's frame (and objective)
+    if not corotational:
+        _centre_parameters(
+            data.centre_maps, data.nodes, structure.n_base, u_base, u_extra, data.alpha
+        )
     _ply_center_strains(
         structure.X_base,
         structure.extra.vectors["X"].array.reshape(-1, 3),
@@ -281,13 +301,16 @@ def _ply_field(structure, to_stress: bool, out: np.ndarray) -> np.ndarray:
         data.shear_roots,
         to_stress,
         out,
+        data.centre_maps,
+        corotational,
     )
     return out
 
 
 def ply_strains(structure) -> np.ndarray:
     """(n_owned_cells, n_plies, 6) strain at each ply's mid-point (in-plane centre of its cell),
-    shell frame, from whichever element (cell or subelement) holds the ply."""
+    shell frame (under finite kinematics the element's co-rotated one, as the ply damage
+    law sees it), from whichever element (cell or subelement) holds the ply."""
     shape = (structure.base.n_owned_cells, structure.laminate.n_plies, 6)
     return _ply_field(structure, False, np.zeros(shape))
 

@@ -340,14 +340,14 @@ def _monomials(values, out):
 
 # Compiler options of ``element_force_kernel`` and of every kernel that calls it. The point
 # kernels are inlined at numba's IR level, where the caller's flags are the ones that apply, and
-# Higham's polar iteration converges quadratically: a few steps from any F of positive
-# determinant; a bound keeps a degenerate element from looping
-POLAR_ITERATIONS = 50
-
-
 # inlining is what turns ``finite`` into a constant (one loop per kinematics, each vectorised).
 # Fast-math subset without "nnan"/"ninf": a degenerate element still gives inf/nan, not garbage.
 KERNEL_OPTIONS = {"error_model": "numpy", "fastmath": {"contract", "reassoc", "nsz", "arcp"}}
+# Higham's polar iteration, scaled by |det R|^(-1/3): about eight steps from any conditioning;
+# an element whose fit does not converge, or turns itself inside out, gets a NaN frame (the
+# not-finite guard then stops the run) rather than a reflection or a wrong rotation
+POLAR_ITERATIONS = 30
+POLAR_TOLERANCE = 1.0e-14
 
 
 @njit(inline="always")
@@ -642,7 +642,8 @@ def _element_force_kinematics(
     overwritten; returns the strain energy. Work arrays: ``work`` (2, 8, 3), ``line``
     (4, 3, 3). ``finite``: Green-Lagrange strain and second Piola-Kirchhoff stress instead of
     small strain (not combined with matrix cracks: the caller, the damaged kernel, is
-    small-strain only); a constant here, see ``element_force_kernel``.
+    small-strain, in a co-rotated frame under finite kinematics); a constant here, see
+    ``element_force_kernel``.
 
     The points come in runs sharing a vertical line, and with it the energy term (the rule's
     order, ``pack_rule``); each run is one loop without branches on the point, which the
@@ -1463,14 +1464,16 @@ def _centroids(X, u):
     return (X0, X1, X2), (x0, x1, x2)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def element_rotation(X, u, R):
     """The rotation R (3, 3) of an element with vertices X (8, 3) and displacements u (8, 3),
     in place: the orthogonal factor of the polar decomposition of the affine fit of its
     motion, F = (sum dx dX^T) (sum dX dX^T)^-1 (dX, dx: the vertices about their centroid,
-    before and after), by Higham's iteration R <- (R + R^-T) / 2 (quadratic; the fit is
-    independent of the vertex order, and a rigid rotation Q of the deformed element gives
-    Q R). ``R`` is the only storage used: no allocation per element."""
+    before and after), by Higham's scaled iteration R <- (g R + R^-T / g) / 2, g = |det
+    R|^(-1/3) (the fit is independent of the vertex order, and a rigid rotation Q of the
+    deformed element gives Q R). NaN throughout where the fit is not a rotation's (det F <= 0:
+    an element turned inside out or flattened) or the iteration does not converge. ``R`` is
+    the only storage used: no allocation per element."""
     Xc, xc = _centroids(X, u)
     R[:, :] = 0.0  # first A = sum dx dX^T, then F = A B^-1
     b00 = b01 = b02 = b11 = b12 = b22 = 0.0
@@ -1493,18 +1496,25 @@ def element_rotation(X, u, R):
         R[i, 0] = r0 * K[0] + r1 * K[3] + r2 * K[6]
         R[i, 1] = r0 * K[1] + r1 * K[4] + r2 * K[7]
         R[i, 2] = r0 * K[2] + r1 * K[5] + r2 * K[8]
+    converged = False
     for _ in range(POLAR_ITERATIONS):
-        _, K = _inverse3(
+        det, K = _inverse3(
             (R[0, 0], R[0, 1], R[0, 2], R[1, 0], R[1, 1], R[1, 2], R[2, 0], R[2, 1], R[2, 2])
         )
+        if not det > 0.0:  # inside out, flat, or NaN already
+            break
+        g = det ** (-1.0 / 3.0)
         change = 0.0
         for i in range(3):
             for j in range(3):
-                new = 0.5 * (R[i, j] + K[3 * j + i])  # (R^-T)_ij = (R^-1)_ji
+                new = 0.5 * (g * R[i, j] + K[3 * j + i] / g)  # (R^-T)_ij = (R^-1)_ji
                 change = max(change, abs(new - R[i, j]))
                 R[i, j] = new
-        if change <= 1e-15:
+        if change <= POLAR_TOLERANCE:
+            converged = True
             break
+    if not converged:
+        R[:, :] = np.nan
 
 
 @njit(cache=True)

@@ -131,17 +131,21 @@ class PlyDamageState:
         f_base,
         f_extra,
         update: bool = True,
-        part: str | int = "all",
+        part: str | int | slice = "all",
         corotational: bool = False,
     ) -> float:
         """Add the elements' internal forces (N) into ``f_base``, ``f_extra`` (n, 3), updating
         the damage state (``update`` False: at the damage as it is); ``rules``: the packed
         rules (``RuleTable.packed``); X, u in mm; ``part``: "all", "interior" or "boundary"
-        elements, or chunk k of the interior (``set_elements``); ``corotational``: each element
+        elements, chunk k of the interior (``set_elements``), or a slice of all of them (for
+        profiling: it copies them); ``corotational``: each element
         in its co-rotated frame (finite kinematics). Returns their secant strain energy (mJ,
         this rank)."""
+        elements = (
+            tuple(a[part] for a in self.elements) if isinstance(part, slice) else self._parts[part]
+        )
         return add_damaged_subelement_forces(
-            *self._parts[part],
+            *elements,
             *rules,
             *self.pack,
             self.band_width,
