@@ -232,6 +232,30 @@ _TIME_CURVE = (
     ),
 )
 
+# a rigid body's contact with its face: the [impactor]'s and every [[rigid]] body's
+_CONTACT = (
+    Key(
+        "penalty",
+        "float",
+        "contact stiffness per node (default: through-thickness stiffness of a node's column, "
+        "capped for stability)",
+        "N/mm",
+        OPTIONAL,
+        0.0,
+        open_min=True,
+    ),
+    Key(
+        "friction",
+        "float",
+        "Coulomb friction coefficient with the face (regularised stick: a tangential spring of "
+        "the penalty's stiffness); its dissipation is the history column <name>_friction_energy",
+        "",
+        0.0,
+        0.0,
+        10.0,
+    ),
+)
+
 
 def _scalar_motion(subject: str) -> tuple[Key, Key]:
     """A prescribed motion of one component: ``displacement`` (mm) or ``velocity`` (mm/s)
@@ -995,27 +1019,7 @@ SECTIONS: tuple[Section, ...] = (
                 MAX_SPEED,
                 length=3,
             ),
-            Key(
-                "penalty",
-                "float",
-                "contact stiffness per node (default: through-thickness "
-                "stiffness of a node's column, capped for stability)",
-                "N/mm",
-                OPTIONAL,
-                0.0,
-                open_min=True,
-            ),
-            Key(
-                "friction",
-                "float",
-                "Coulomb friction coefficient with the face (regularised stick: a tangential "
-                "spring of the penalty's stiffness); its dissipation is the history column "
-                "<name>_friction_energy",
-                "",
-                0.0,
-                0.0,
-                10.0,
-            ),
+            *_CONTACT,
         ),
     ),
     Section(
@@ -1078,27 +1082,7 @@ SECTIONS: tuple[Section, ...] = (
                 length=3,
             ),
             *_TIME_CURVE,
-            Key(
-                "penalty",
-                "float",
-                "contact stiffness per node (default: through-thickness stiffness of a node's"
-                " column, capped for stability)",
-                "N/mm",
-                OPTIONAL,
-                0.0,
-                open_min=True,
-            ),
-            Key(
-                "friction",
-                "float",
-                "Coulomb friction coefficient with the face (regularised stick: a tangential "
-                "spring of the penalty's stiffness); its dissipation is the history column "
-                "<name>_friction_energy",
-                "",
-                0.0,
-                0.0,
-                10.0,
-            ),
+            *_CONTACT,
         ),
         array=True,
     ),
