@@ -80,12 +80,14 @@ HEADER = [f"{name}_{UNIT_SUFFIX[COLUMN_UNITS[name]]}" for name in COLUMNS]
 _NAME_OF = {**{name: name for name in COLUMNS}, **dict(zip(HEADER, COLUMNS, strict=True))}
 
 
+# a rigid body's history columns by their ending: ``<name>_force``, ``<name>_friction_energy``,
+# ``<name>_displacement``, and their units (what ``body_unit`` gives and ``column_name`` reads)
+BODY_UNITS = (("_force", "N"), ("_energy", "mJ"), ("_displacement", "mm"))
+
+
 def body_unit(column: str) -> str:
-    """The unit of a rigid body's history column: ``<name>_force`` N,
-    ``<name>_friction_energy`` mJ, ``<name>_displacement`` mm."""
-    if column.endswith("_force"):
-        return "N"
-    return "mJ" if column.endswith("_energy") else "mm"
+    """The unit of a rigid body's history column (``BODY_UNITS``; mm for any other)."""
+    return next((unit for ending, unit in BODY_UNITS if column.endswith(ending)), "mm")
 
 
 def history_header(bodies: Sequence[str] = ()) -> list[str]:
@@ -100,7 +102,8 @@ def column_name(header_cell: str) -> str:
     as it is."""
     if header_cell in _NAME_OF:
         return _NAME_OF[header_cell]
-    for ending, suffix in (("_force", "_N"), ("_displacement", "_mm"), ("_energy", "_mJ")):
+    for ending, unit in BODY_UNITS:
+        suffix = f"_{UNIT_SUFFIX[unit]}"
         if header_cell.endswith(ending + suffix):
             return header_cell.removesuffix(suffix)
     return header_cell
