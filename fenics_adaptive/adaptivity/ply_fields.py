@@ -54,21 +54,20 @@ def _ply_center_strains(
     cells,
     plies,
     fractions,
-    alpha_center,
+    centre_maps,
     stiffness,
     root,
     to_stress,
     out,
-    centre_maps,
     corotational,
 ):
     """Small strain (Voigt, engineering shears) at the in-plane centre of every ply of every
     element, at the ply's mid-thickness, into out[cell, ply]; with the element's enhanced
-    thickness strain alpha_center[e] g(zeta) / |det J| (``alpha_center``: its parameter at the
-    in-plane centre). ``corotational`` (finite kinematics): in the element's co-rotated frame,
-    as the damaged kernel computes it (``subelement.element_rotation``): the displacement
-    there, and its enhanced parameter from it (``centre_maps``, written into
-    ``alpha_center``). ``to_stress``: the ply's stress D C_k (D strain) instead (``stiffness``
+    thickness strain alpha g(zeta) / |det J|, alpha its parameter at the in-plane centre, the
+    map ``centre_maps[e]`` (``ElementData.centre_maps``) of its nodes' displacements.
+    ``corotational`` (finite kinematics): in the element's co-rotated frame, as the damaged
+    kernel computes it (``subelement.element_rotation``): the displacement there, and alpha
+    from it. ``to_stress``: the ply's stress D C_k (D strain) instead (``stiffness``
     (n_plies, 6, 6), monoclinic; D the element's shear scale, ``root`` (n_elements, 2) its
     sqrt k_xz, sqrt k_yz: ``ply_stresses``).
 
@@ -92,16 +91,16 @@ def _ply_center_strains(
     enhanced = 0.0  # alpha / |det J| of the element (a prism) or of the ply
     for e in range(nodes.shape[0]):
         gather_nodes(nodes[e], n_base, X_base, X_extra, X)
-        gather_nodes(nodes[e], n_base, u_base, u_extra, u)
         if corotational:
-            u_global[:] = u
+            gather_nodes(nodes[e], n_base, u_base, u_extra, u_global)
             element_rotation(X, u_global, R)
             to_rotated_frame(X, u_global, R, u)
-            total = 0.0
-            for a in range(8):
-                for i in range(3):
-                    total += centre_maps[e, a, i] * u[a, i]
-            alpha_center[e] = total
+        else:
+            gather_nodes(nodes[e], n_base, u_base, u_extra, u)
+        alpha = 0.0
+        for a in range(8):
+            for i in range(3):
+                alpha += centre_maps[e, a, i] * u[a, i]
         parts[:] = 0.0
         for a in range(8):
             s_xi = 1.0 if a & 1 else -1.0
@@ -127,7 +126,7 @@ def _ply_center_strains(
                 J[i, 0] = parts[0, i, 0]
                 J[i, 1] = parts[0, i, 2]
                 J[i, 2] = parts[0, i, 4]
-            enhanced = alpha_center[e] / abs(_inverse_3x3(J, Jinv))
+            enhanced = alpha / abs(_inverse_3x3(J, Jinv))
             for f in range(2):  # grad u on the bottom (0) and top (1) face
                 for i in range(3):
                     g0, g1, g2 = parts[1, i, f], parts[1, i, 2 + f], parts[1, i, 4]
@@ -148,7 +147,7 @@ def _ply_center_strains(
                     G[i, 0] = (1.0 - zeta) * parts[1, i, 0] + zeta * parts[1, i, 1]
                     G[i, 1] = (1.0 - zeta) * parts[1, i, 2] + zeta * parts[1, i, 3]
                     G[i, 2] = parts[1, i, 4]
-                enhanced = alpha_center[e] / abs(_inverse_3x3(J, Jinv))
+                enhanced = alpha / abs(_inverse_3x3(J, Jinv))
                 for i in range(3):
                     for r in range(3):
                         grad[i, r] = (
@@ -175,20 +174,6 @@ def _ply_center_strains(
             else:
                 for i in range(6):
                     out[c, k, i] = strain[i]
-
-
-@njit(cache=True)
-def _centre_parameters(maps, nodes, n_base, u_base, u_extra, out):
-    """out[e] = sum over element e's nodes a and components i of maps[e, a, i] u[a, i]: its
-    enhanced parameter at the in-plane centre (``ElementData.centre_maps``)."""
-    for e in range(nodes.shape[0]):
-        total = 0.0
-        for a in range(8):
-            node = nodes[e, a]
-            for i in range(3):
-                value = u_base[node, i] if node < n_base else u_extra[node - n_base, i]
-                total += maps[e, a, i] * value
-        out[e] = total
 
 
 @njit(cache=True)
@@ -221,7 +206,6 @@ class ElementData:
     centre_maps: np.ndarray  # (n_elements, 8, 3) mm^3 / mm
     shear_roots: np.ndarray  # (n_elements, 2) sqrt k_xz, sqrt k_yz of each element
     stiffness: np.ndarray  # (n_plies, 6, 6) MPa, shell frame
-    alpha: np.ndarray  # (n_elements,) scratch for the centre parameters
     cohesive_rows: np.ndarray  # (m, 3) cell, interface, damage row (``Structure.damage_rows``)
     fractions: np.ndarray  # (n_plies + 1,) the ply boundaries' height in the laminate, 0 to 1
     stresses: np.ndarray  # (n_owned_cells, n_plies, 6) the indicators' ply stresses, zero at first
@@ -254,7 +238,6 @@ class ElementData:
             centre_maps,
             np.ascontiguousarray(root),
             stiffness,
-            np.zeros(len(nodes)),
             np.array(
                 [(c, i, row) for (c, i), row in structure.damage_rows.items()], dtype=np.int64
             ).reshape(-1, 3),
@@ -282,11 +265,6 @@ def _ply_field(structure, to_stress: bool, out: np.ndarray) -> np.ndarray:
     data = element_data(structure)
     u_base = structure.base.u.x.array.reshape(-1, 3)
     u_extra = structure.extra.vectors["u"].array.reshape(-1, 3)
-    corotational = structure.base.finite  # the damaged kernel's frame (and objective)
-    if not corotational:
-        _centre_parameters(
-            data.centre_maps, data.nodes, structure.n_base, u_base, u_extra, data.alpha
-        )
     _ply_center_strains(
         structure.X_base,
         structure.extra.vectors["X"].array.reshape(-1, 3),
@@ -296,13 +274,12 @@ def _ply_field(structure, to_stress: bool, out: np.ndarray) -> np.ndarray:
         data.cells,
         data.plies,
         data.fractions,
-        data.alpha,
+        data.centre_maps,
         data.stiffness,
         data.shear_roots,
         to_stress,
         out,
-        data.centre_maps,
-        corotational,
+        structure.base.finite,  # the damaged kernel's co-rotated frame (and objective)
     )
     return out
 

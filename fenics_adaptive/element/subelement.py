@@ -1672,11 +1672,12 @@ def add_damaged_subelement_forces(
     for e in range(element_nodes.shape[0]):
         nodes = element_nodes[e]
         gather_nodes(nodes, n_base, X_base, X_extra, X)
-        gather_nodes(nodes, n_base, u_base, u_extra, u)
         if corotational:
-            u_global[:] = u
+            gather_nodes(nodes, n_base, u_base, u_extra, u_global)
             element_rotation(X, u_global, R)
             to_rotated_frame(X, u_global, R, u)
+        else:
+            gather_nodes(nodes, n_base, u_base, u_extra, u)
         r = rule_of_element[e]
         start = rule_offsets[r]
         stop = rule_offsets[r + 1]
