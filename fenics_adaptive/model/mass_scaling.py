@@ -434,7 +434,7 @@ class SelectiveMass:
 
     ``chain_offsets``, ``chain_nodes``: CSR of the chains (local base nodes, bottom to top;
     every local node in one); ``matrix``: their 3k x 3k matrices (tonne), packed row by row;
-    ``lumped``: the lumped mass of every chain DOF; ``prescribed`` (all local DOFs), ``fixed``
+    ``lumped``: the lumped mass of every local DOF; ``prescribed`` (all local DOFs), ``fixed``
     (the base block's prescribed owned DOFs, in the order of its reactions). Also kept:
     ``adds_mass`` (any element's factor above zero, on any rank), ``target_step`` (s),
     ``element_eigenvalues`` (1/s^2, each element's largest, scaled),
@@ -467,6 +467,7 @@ class SelectiveMass:
         self.chain_nodes = chain_nodes
         self.matrix = matrix
         self.lumped = lumped
+        n_chain_dofs = 3 * len(chain_nodes)  # every local DOF, chain by chain
         sizes = 3 * np.diff(chain_offsets)
         self.matrix_offsets = np.concatenate([[0], np.cumsum(sizes**2)]).astype(np.int64)
         self.prescribed = np.asarray(prescribed, dtype=np.bool_)
@@ -475,20 +476,13 @@ class SelectiveMass:
         # chains whose components do not couple (edges along a coordinate axis) solve each
         # component's tridiagonal matrix by its LDL^T factors: per chain DOF, l and 1 / d
         self.banded = np.zeros(len(sizes), dtype=np.bool_)
-        self.factor_l, self.factor_inverse_d = np.zeros(len(lumped)), np.zeros(len(lumped))
-        self.band_diagonal, self.band_coupling = np.zeros(len(lumped)), np.zeros(len(lumped))
+        self.factor_l, self.factor_inverse_d = np.zeros(n_chain_dofs), np.zeros(n_chain_dofs)
+        self.band_diagonal, self.band_coupling = np.zeros(n_chain_dofs), np.zeros(n_chain_dofs)
         for q in np.unique(sizes):
             self._invert(np.flatnonzero(sizes == q), int(q))
         if self.banded.all():  # no chain reads a dense inverse: do not keep one
             self.inverse = np.zeros(0)
         self.fixed = np.asarray(fixed, dtype=np.int64)
-        # the lumped mass of every local DOF (each lies in exactly one chain)
-        self.dof_lumped = np.zeros(len(self.prescribed))
-        for q in np.unique(sizes):
-            chains = np.flatnonzero(sizes == q)
-            table = self._chain_dof_table(chains, int(q) // 3)
-            first = 3 * self.chain_offsets[chains][:, None] + np.arange(q)
-            self.dof_lumped[table] = self.lumped[first]
         self._w = la.vector(index_map, bs=3)
         largest = int(sizes.max(initial=3))
         self._scratch = np.zeros(2 * largest)
@@ -599,7 +593,7 @@ class SelectiveMass:
         the free owned DOFs into ``acc`` (mm/s^2; its prescribed DOFs keep their given
         values), and the scaled mass's share (M_s a)_p - m_p a_p added to each reaction (N,
         one per prescribed owned DOF: the lumped m a - r before)."""
-        _finish(out, self.prescribed, self.fixed, self.dof_lumped, acc, reaction)
+        _finish(out, self.prescribed, self.fixed, self.lumped, acc, reaction)
 
     def solve(self, acc: np.ndarray, reaction: np.ndarray) -> None:
         """Collective: ``acc`` (owned DOFs) holds r = f_ext - f_int (N) at free DOFs and the
@@ -776,7 +770,7 @@ def _chain_matrices(
     edge blocks ``edges`` (n, 4, 3, 3)), every local node in one, as CSR (offsets, local nodes
     bottom to top); their 3k x 3k matrices packed row by row: the lumped masses on the
     diagonal, each edge's block (summed over the ranks) as a spring between its two nodes; and
-    the lumped mass of each chain DOF."""
+    the lumped mass of each local DOF."""
     index_map = structure.mass_base.index_map
     n_local = index_map.size_local + index_map.num_ghosts
     bottom, top, edges = bottom.ravel(), top.ravel(), edges.reshape(-1, 3, 3)
@@ -845,7 +839,6 @@ def _chain_matrices(
     chain = np.repeat(np.arange(len(sizes)), sizes)
     slot = np.arange(len(chain_nodes)) - chain_offsets[chain]
     qq, first = q[chain], matrix_offsets[chain]  # per chain node
-    lumped = np.repeat(node_mass[chain_nodes], 3)
     for d in range(3):
         row = 3 * slot + d
         matrix[first + row * qq + row] = node_mass[chain_nodes]
@@ -857,4 +850,4 @@ def _chain_matrices(
         for ri, ci in pairs:
             for r, c, sign in ((low, low, 1), (high, high, 1), (low, high, -1), (high, low, -1)):
                 matrix[first[inner] + (r + ri) * qq[inner] + c + ci] += sign * b
-    return chain_offsets, chain_nodes.astype(np.int64), matrix, lumped
+    return chain_offsets, chain_nodes.astype(np.int64), matrix, np.repeat(node_mass, 3)
