@@ -63,8 +63,7 @@ class RunForces:
         self.contact = by_kind[ForceKind.CONTACT]
         self._moving = hooks(contributors, "advance")
         self._pending = hooks(contributors, "pending_request")
-        self._completing = hooks(self.contact, "complete")
-        # the contributors that add a force after the forces' exchange
+        # the contributors that add a force after the forces' exchange (``complete``)
         self.late = [c for c in self.contact if overrides(c, "complete")]
         self._moved = hooks(contributors, "moved")
         # the internal forces in two parts around the halo exchange (those that can split),
@@ -136,8 +135,8 @@ class RunForces:
                 lumped.finish_summing(self.pending_requests())
         if not self.contact:
             return None
-        for complete in self._completing:
-            complete(t, *self._contact_force)
+        for contributor in self.late:
+            contributor.complete(t, *self._contact_force)
         return self._contact_force
 
     def _external_forces(self, t: float, base: BlockState, extra: BlockState) -> None:
