@@ -33,7 +33,14 @@ from fenics_adaptive.adaptivity.indicators import (
 )
 from fenics_adaptive.adaptivity.refinement import Request
 from fenics_adaptive.errors import InputError, shared_errors
-from fenics_adaptive.meshes.beam import layered_mesh
+from fenics_adaptive.meshes.beam import BeamMesh, layered_mesh
+from fenics_adaptive.meshes.shell import (
+    axial_direction,
+    constant_direction,
+    hoop_direction,
+    shell_mesh,
+)
+from fenics_adaptive.meshes.surface import shell_surface
 from fenics_adaptive.model.assembly import CohesiveSet
 from fenics_adaptive.model.contact import Contact
 from fenics_adaptive.model.forces import ForceContributor
@@ -47,6 +54,8 @@ from fenics_adaptive.settings.adaptivity import Delamination
 from fenics_adaptive.settings.config import RunConfig
 from fenics_adaptive.settings.kinds import (
     InterfaceState,
+    MaterialAxis,
+    MeshKind,
     ModelKind,
     MotionKind,
     Partition,
@@ -99,12 +108,9 @@ def build_structure(
     cost = None
     if comm.size > 1 and config.mesh.partition == Partition.COST:
         cost = starting_cost(config)
-    beam = layered_mesh(
+    beam = build_mesh(
+        config,
         comm,
-        config.mesh.length,
-        config.mesh.width,
-        config.mesh.nx,
-        config.mesh.ny,
         [laminate.thickness for laminate in layers],
         [b in config.interfaces.delaminate for b in boundaries],
         cost,
@@ -158,6 +164,54 @@ def build_structure(
             structure.refine(initial_refinement(structure, config))
         insert_films(structure, config.delaminations)
     return structure
+
+
+def build_mesh(
+    config: RunConfig,
+    comm: MPI.Comm,
+    thicknesses: list[float],
+    split: list[bool],
+    cost: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None,
+) -> BeamMesh:
+    """The mesh of a config's [mesh]: the structured plate (``meshes.beam.layered_mesh``; on
+    several ranks in patches of equal ``cost``), or a shell's surface extruded through the
+    layers ``thicknesses`` (mm, bottom to top; ``split``: their boundaries with own nodes on
+    each side; ``meshes.shell``). Collective."""
+    mesh = config.mesh
+    if mesh.shell is None:
+        return layered_mesh(
+            comm, mesh.length, mesh.width, mesh.nx, mesh.ny, thicknesses, split, cost
+        )
+    shape = mesh.shell
+    surface = None
+    with shared_errors(comm):  # Gmsh works on rank 0
+        if comm.rank == 0:
+            try:
+                surface = shell_surface(shape.kind, dict(shape.sizes), shape.file, shape.surface)
+            except ValueError as error:
+                key, _, problem = str(error).partition(": ")
+                raise InputError(key if key.startswith("mesh.") else "mesh", problem) from error
+    x_axis = np.array([1.0, 0.0, 0.0])
+    if shape.direction is not None:
+        direction = constant_direction(shape.direction)
+    elif shape.orientation == MaterialAxis.HOOP:
+        direction = hoop_direction(x_axis)
+    else:  # along the axis of a tube, panel or hat; global x projected for the others
+        direction = axial_direction(x_axis)
+    outward = None
+    if shape.kind in (MeshKind.TUBE, MeshKind.PANEL):
+        outward = lambda p: p * np.array([0.0, 1.0, 1.0])  # noqa: E731  away from the axis
+    elif shape.kind in (MeshKind.HAT, MeshKind.PLATE_WITH_HOLE):
+        outward = axial_direction([0.0, 0.0, 1.0])
+    elif shape.normal is not None:
+        outward = constant_direction(shape.normal)
+    with shared_errors(comm):
+        try:
+            return shell_mesh(
+                comm, surface, thicknesses, split, str(shape.reference), direction, outward
+            )
+        except ValueError as error:
+            raise InputError("mesh", str(error).removeprefix("mesh: ")) from error
 
 
 def starting_cost(config: RunConfig) -> Callable[[np.ndarray, np.ndarray], np.ndarray] | None:

@@ -459,6 +459,26 @@ def every_config() -> list[tuple[str, dict]]:
         del lever["lever"][key]
     lever["lever"].update(displacement=-5.0, curve=[[0.0, 0.0], [1e-2, 1.0]])
     configs.append(("lever by displacement", lever))
+    shells = {
+        "panel": {"kind": "panel", "radius": 30.0, "length": 20.0, "angle": 60.0, "start": 0.0,
+                  "n_around": 4, "n_along": 2, "reference": "bottom", "orientation": "hoop"},
+        "hat": {"kind": "hat", "length": 40.0, "width": 20.0, "height": 10.0, "flange": 5.0,
+                "size": 5.0, "n_along": 4, "direction": [1.0, 0.0, 0.0]},
+        "plate_with_hole": {"kind": "plate_with_hole", "length": 40.0, "width": 20.0,
+                            "hole_radius": 4.0, "size": 4.0},
+        "file": {"kind": "file", "file": str(root / "tests" / "data" / "shell_strip.geo"),
+                 "surface": "skin", "normal": [0.0, 0.0, 1.0]},
+    }  # fmt: skip
+    for kind, mesh in shells.items():
+        shell = copy.deepcopy(base())
+        shell["mesh"] = mesh
+        side = "left" if kind == "file" else "x0"
+        shell["clamp"] = [{"face": side}]
+        for table in ("prescribed", "load"):
+            shell.pop(table, None)
+        shell["output"] = {"interval": shell["solver"]["end_time"], "displacement_face": "top",
+                           "reaction_face": side, "component": "z"}  # fmt: skip
+        configs.append((f"shell {kind}", shell))
     return configs
 
 

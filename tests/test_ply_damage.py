@@ -493,6 +493,7 @@ def test_batched_kernel_shares_one_state_per_cell_and_laminate_ply():
         f_extra,
         True,
         False,
+        np.zeros((0, 3, 3)),
     )
     g_base, g_extra = np.zeros((n_base, 3)), np.zeros((n_extra, 3))
     total = 0.0

@@ -50,6 +50,9 @@ class FaceGeometry:
     @classmethod
     def of(cls, structure) -> FaceGeometry:
         X = structure.X_base[structure.bottom_local]  # (n, 4, 3)
+        frames = structure.base.element_frames(np.arange(len(X)))
+        if len(frames):  # a curved shell: the derivatives along each cell's own axes 1, 2
+            X = np.einsum("cij,caj->cai", frames, X)
         d_xi = np.array([-0.5, 0.5, -0.5, 0.5])
         d_eta = np.array([-0.5, -0.5, 0.5, 0.5])
         J = np.stack(
@@ -293,6 +296,9 @@ def interlaminar_stresses(
     on_faces = structure.loads.cell_face_tractions(t, len(stresses))
     if face_force is not None:
         on_faces += face_tractions(structure, face_force)
+    frames = structure.base.element_frames(np.arange(len(on_faces)))
+    if len(frames) and len(on_faces):  # a curved shell: in each cell's frame, as its stresses
+        on_faces = np.einsum("cij,csj->csi", frames, on_faces)
     _fit_to_faces(on_faces, stresses, thickness, estimate)
     return estimate
 

@@ -19,7 +19,12 @@ import numpy as np
 from numba import njit
 
 from fenics_adaptive.element.solid_shell import NORMAL  # a monoclinic ply couples these
-from fenics_adaptive.element.subelement import element_rotation, gather_nodes, to_rotated_frame
+from fenics_adaptive.element.subelement import (
+    element_rotation,
+    gather_nodes,
+    to_rotated_frame,
+    turn_rows,
+)
 from fenics_adaptive.materials.laminate import rotation_about_z
 from fenics_adaptive.materials.ply_damage import S_FT, S_MC, hashin_indices
 
@@ -60,6 +65,7 @@ def _ply_center_strains(
     to_stress,
     out,
     corotational,
+    frames,
 ):
     """Small strain (Voigt, engineering shears) at the in-plane centre of every ply of every
     element, at the ply's mid-thickness, into out[cell, ply]; with the element's enhanced
@@ -67,7 +73,9 @@ def _ply_center_strains(
     map ``centre_maps[e]`` (``ElementData.centre_maps``) of its nodes' displacements.
     ``corotational`` (finite kinematics): in the element's co-rotated frame, as the damaged
     kernel computes it (``subelement.element_rotation``): the displacement there, and alpha
-    from it. ``to_stress``: the ply's stress D C_k (D strain) instead (``stiffness``
+    from it. ``frames`` (n_elements, 3, 3): on a curved shell, each element's frame, in which
+    its strain is taken (``subelement.add_damaged_subelement_forces``); (0, 3, 3): the global
+    frame. ``to_stress``: the ply's stress D C_k (D strain) instead (``stiffness``
     (n_plies, 6, 6), monoclinic; D the element's shear scale, ``root`` (n_elements, 2) its
     sqrt k_xz, sqrt k_yz: ``ply_stresses``).
 
@@ -97,6 +105,9 @@ def _ply_center_strains(
             to_rotated_frame(X, u_global, R, u)
         else:
             gather_nodes(nodes[e], n_base, u_base, u_extra, u)
+        if frames.shape[0] > 0:
+            turn_rows(frames[e], X, False)
+            turn_rows(frames[e], u, False)
         alpha = 0.0
         for a in range(8):
             for i in range(3):
@@ -209,6 +220,7 @@ class ElementData:
     cohesive_rows: np.ndarray  # (m, 3) cell, interface, damage row (``Structure.damage_rows``)
     fractions: np.ndarray  # (n_plies + 1,) the ply boundaries' height in the laminate, 0 to 1
     stresses: np.ndarray  # (n_owned_cells, n_plies, 6) the indicators' ply stresses, zero at first
+    frames: np.ndarray  # (n_elements, 3, 3) on a curved shell, (0, 3, 3) flat (``element_frames``)
 
     @classmethod
     def of(cls, structure, previous: ElementData | None = None) -> ElementData:
@@ -225,7 +237,11 @@ class ElementData:
             at = np.minimum(np.searchsorted(previous.keys, keys, sorter=order), len(order) - 1)
             todo = previous.keys[order[at]] != keys
             centre_maps[~todo] = previous.centre_maps[order[at[~todo]]]
-        maps = table.enhanced_parameter_maps(structure.gather(nodes[todo], "X"), plies[todo])
+        frames = structure.base.element_frames(cells)
+        X = structure.gather(nodes[todo], "X")
+        if len(frames):  # the maps of the displacement in each element's frame
+            X = np.einsum("eij,eaj->eai", frames[todo], X)
+        maps = table.enhanced_parameter_maps(X, plies[todo])
         centre_maps[todo] = maps.mean(axis=1)
         root = np.sqrt(table.shear_factors(plies))  # (n_elements, 2)
         stiffness = np.array(structure.laminate.ply_stiffnesses()).reshape(n_plies, 6, 6)
@@ -243,6 +259,7 @@ class ElementData:
             ).reshape(-1, 3),
             np.asarray(structure.laminate.ply_fractions, dtype=float),
             np.zeros((structure.base.n_owned_cells, n_plies, 6)),
+            frames,
         )
 
 
@@ -280,6 +297,7 @@ def _ply_field(structure, to_stress: bool, out: np.ndarray) -> np.ndarray:
         to_stress,
         out,
         structure.base.finite,  # the damaged kernel's co-rotated frame (and objective)
+        data.frames,
     )
     return out
 

@@ -217,7 +217,7 @@ def element_forces(structure: Structure, mask: np.ndarray) -> np.ndarray:
             "depend on the damage state of every (cell, ply), which undamaged element forces "
             "cannot reproduce"
         )
-    nodes, _, plies = structure.elements()
+    nodes, cells, plies = structure.elements()
     n_extra = structure.extra.n_local
     f_base = np.zeros((structure.n_base, 3))
     f_extra = np.zeros((n_extra, 3))
@@ -227,7 +227,10 @@ def element_forces(structure: Structure, mask: np.ndarray) -> np.ndarray:
         # force; small strain on a finite-kinematics structure)
         table = structure.rule_table
         elements = SubelementSet(
-            np.ascontiguousarray(nodes[mask]), table.rule_of(plies[mask]), table.packed
+            np.ascontiguousarray(nodes[mask]),
+            table.rule_of(plies[mask]),
+            table.packed,
+            frames=structure.base.element_frames(cells[mask]),
         )
         add_subelement_forces(
             elements,

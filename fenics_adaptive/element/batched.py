@@ -93,34 +93,64 @@ def _butterfly(values, transposed, nw):
 
 
 @njit(cache=True)
-def _gather_monomials(element_nodes, order, first, nw, n_base, base, extra, out):
+def _gather_monomials(element_nodes, order, first, nw, n_base, base, extra, frames, out):
     """Monomial coefficients (``_butterfly``) of the vertex values of elements
     ``order[first:first + nw]``, lane by lane, from ``base`` / ``extra`` (n, 3) by combined local
-    node index (``subelement.gather_nodes``)."""
+    node index (``subelement.gather_nodes``); with ``frames`` (one 3 x 3 per element, rows its
+    frame's axes; none: the global frame) the components in the element's frame, F v."""
+    rotate = frames.shape[0] > 0
     for w in range(nw):
-        nodes = element_nodes[order[first + w]]
+        e = order[first + w]
+        nodes = element_nodes[e]
         for a in range(8):
             node = nodes[a]
-            for i in range(3):
-                if node < n_base:
-                    out[(a * 3 + i) * LANES + w] = base[node, i]
-                else:
-                    out[(a * 3 + i) * LANES + w] = extra[node - n_base, i]
+            if node < n_base:
+                v0, v1, v2 = base[node, 0], base[node, 1], base[node, 2]
+            else:
+                k = node - n_base
+                v0, v1, v2 = extra[k, 0], extra[k, 1], extra[k, 2]
+            if rotate:
+                F = frames[e]
+                v0, v1, v2 = (
+                    F[0, 0] * v0 + F[0, 1] * v1 + F[0, 2] * v2,
+                    F[1, 0] * v0 + F[1, 1] * v1 + F[1, 2] * v2,
+                    F[2, 0] * v0 + F[2, 1] * v1 + F[2, 2] * v2,
+                )
+            out[(a * 3) * LANES + w] = v0
+            out[(a * 3 + 1) * LANES + w] = v1
+            out[(a * 3 + 2) * LANES + w] = v2
     _butterfly(out, False, nw)
 
 
 @njit(cache=True)
-def _scatter_forces(element_nodes, order, first, nw, n_base, forces, base, extra):
-    """Add the vertex forces of the lanes to ``base`` / ``extra`` (n, 3)."""
+def _scatter_forces(element_nodes, order, first, nw, n_base, forces, frames, base, extra):
+    """Add the vertex forces of the lanes to ``base`` / ``extra`` (n, 3); with ``frames``
+    (``_gather_monomials``) the forces are in the elements' frames: F^T f added."""
+    rotate = frames.shape[0] > 0
     for w in range(nw):
-        nodes = element_nodes[order[first + w]]
+        e = order[first + w]
+        nodes = element_nodes[e]
         for a in range(8):
             node = nodes[a]
-            for i in range(3):
-                if node < n_base:
-                    base[node, i] += forces[(a * 3 + i) * LANES + w]
-                else:
-                    extra[node - n_base, i] += forces[(a * 3 + i) * LANES + w]
+            f0 = forces[(a * 3) * LANES + w]
+            f1 = forces[(a * 3 + 1) * LANES + w]
+            f2 = forces[(a * 3 + 2) * LANES + w]
+            if rotate:
+                F = frames[e]
+                f0, f1, f2 = (
+                    F[0, 0] * f0 + F[1, 0] * f1 + F[2, 0] * f2,
+                    F[0, 1] * f0 + F[1, 1] * f1 + F[2, 1] * f2,
+                    F[0, 2] * f0 + F[1, 2] * f1 + F[2, 2] * f2,
+                )
+            if node < n_base:
+                base[node, 0] += f0
+                base[node, 1] += f1
+                base[node, 2] += f2
+            else:
+                k = node - n_base
+                extra[k, 0] += f0
+                extra[k, 1] += f1
+                extra[k, 2] += f2
 
 
 @njit(cache=True, **KERNEL_OPTIONS)
@@ -308,11 +338,14 @@ def add_subelement_forces(
     f_base,
     f_extra,
     finite,
+    frames,
 ):
     """Add the elastic internal forces (N) of the elements ``element_nodes`` (n, 8) (combined
     local node indices, ``subelement.gather_nodes``) into ``f_base`` / ``f_extra`` (n, 3) from
     the reference positions ``X_*`` and displacements ``u_*`` (mm); returns their strain energy
-    (mJ). Element e uses rule ``rule_of_element[e]`` of the packed rules that follow
+    (mJ). ``frames`` (n, 3, 3): each element's frame (a curved shell's cells,
+    ``element.geometry.cell_frames``), in which its strains are taken; (0, 3, 3): the global
+    frame. Element e uses rule ``rule_of_element[e]`` of the packed rules that follow
     (``subelement.PackedRules``); ``order`` is ``lane_order(rule_of_element)``. ``finite``: total
     Lagrangian kinematics (a bool every time)."""
     n_base = X_base.shape[0]
@@ -329,8 +362,8 @@ def add_subelement_forces(
         nw = 1
         while nw < LANES and first + nw < n and rule_of_element[order[first + nw]] == rule:
             nw += 1
-        _gather_monomials(element_nodes, order, first, nw, n_base, X_base, X_extra, bx)
-        _gather_monomials(element_nodes, order, first, nw, n_base, u_base, u_extra, bu)
+        _gather_monomials(element_nodes, order, first, nw, n_base, X_base, X_extra, frames, bx)
+        _gather_monomials(element_nodes, order, first, nw, n_base, u_base, u_extra, frames, bu)
         forces[:] = 0.0
         acc[_E * LANES :] = 0.0
         p = rule_offsets[rule]
@@ -370,7 +403,7 @@ def add_subelement_forces(
             _add_line_moments(acc, forces, xi, eta, nw)
             p = end
         _vertex_forces(forces, nw)
-        _scatter_forces(element_nodes, order, first, nw, n_base, forces, f_base, f_extra)
+        _scatter_forces(element_nodes, order, first, nw, n_base, forces, frames, f_base, f_extra)
         for w in range(nw):
             energy += acc[_E * LANES + w]
         first += nw

@@ -9,6 +9,7 @@ opposite); a hexahedron's bottom face is vertices 0-3, its top face 4-7.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 
 import numpy as np
@@ -77,3 +78,36 @@ def quad_traction_integrals(
             t = traction(np.einsum("k,...kj->...j", N, X), normal)
             out += 0.25 * (area[:, None] * t)[:, None, :] * N[None, :, None]
     return out
+
+
+# Abaqus' rule for a shell's default local 1-direction: global x projected on the surface,
+# unless x is within 0.1 degree of the normal, then global z projected
+_NORMAL_TO_DIRECTION = math.sin(math.radians(0.1))
+
+
+def cell_frames(X: np.ndarray, direction: np.ndarray) -> np.ndarray:
+    """(n, 3, 3) orthonormal frames of hexahedra with vertices X (n, 8, 3), rows (e1, e2, e3):
+    e3 the unit normal of the cell's mid-surface at its centre (d x / d xi x d x / d eta),
+    e1 ``direction`` (n, 3) projected on the plane normal to e3 (where it lies within 0.1
+    degree of e3: global z projected, or global x if that too), e2 = e3 x e1. A flat cell of
+    the meshes of ``meshes.beam`` with ``direction`` along x has the identity."""
+    X = np.asarray(X, dtype=np.float64)
+    along_xi = (X[:, 1::2] - X[:, 0::2]).mean(axis=1)
+    along_eta = (X[:, [2, 3, 6, 7]] - X[:, [0, 1, 4, 5]]).mean(axis=1)
+    e3 = np.cross(along_xi, along_eta)
+    e3 /= np.linalg.norm(e3, axis=1)[:, None]
+    d = np.broadcast_to(np.asarray(direction, dtype=np.float64), e3.shape)
+    e1 = _projected(d, e3)
+    for fallback in ([0.0, 0.0, 1.0], [1.0, 0.0, 0.0]):
+        bad = np.linalg.norm(e1, axis=1) <= _NORMAL_TO_DIRECTION
+        if not np.any(bad):
+            break
+        e1[bad] = _projected(np.broadcast_to(fallback, (int(bad.sum()), 3)), e3[bad])
+    e1 /= np.linalg.norm(e1, axis=1)[:, None]
+    return np.stack([e1, np.cross(e3, e1), e3], axis=1)
+
+
+def _projected(d: np.ndarray, normal: np.ndarray) -> np.ndarray:
+    """Unit ``d`` (n, 3) with its component along the unit ``normal`` (n, 3) removed."""
+    d = d / np.linalg.norm(d, axis=1)[:, None]
+    return d - np.einsum("ni,ni->n", d, normal)[:, None] * normal

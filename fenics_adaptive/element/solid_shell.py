@@ -391,27 +391,45 @@ def check_monoclinic(C: np.ndarray) -> None:
         raise ValueError("ply stiffness couples transverse shear to in-plane strains")
 
 
-def voigt_small_strain(u: ufl.core.expr.Expr) -> ufl.core.expr.Expr:
-    """Small (linearised) strain in Voigt order (xx, yy, zz, yz, xz, xy), engineering shears."""
-    e = ufl.sym(ufl.grad(u))
+def displacement_gradient(
+    u: ufl.core.expr.Expr, frame: ufl.core.expr.Expr | None = None
+) -> ufl.core.expr.Expr:
+    """H = Grad u, in the global frame, or in the cell's ``frame`` (rows e1, e2, e3: the
+    components R H R^T, a curved shell's cell frame, ``element.geometry.cell_frames``)."""
+    H = ufl.grad(u)
+    return H if frame is None else frame * H * frame.T
+
+
+def voigt_small_strain(
+    u: ufl.core.expr.Expr, frame: ufl.core.expr.Expr | None = None
+) -> ufl.core.expr.Expr:
+    """Small (linearised) strain in Voigt order (xx, yy, zz, yz, xz, xy), engineering shears,
+    in the global frame or the cell's ``frame`` (``displacement_gradient``)."""
+    e = ufl.sym(displacement_gradient(u, frame))
     return ufl.as_vector([e[0, 0], e[1, 1], e[2, 2], 2 * e[1, 2], 2 * e[0, 2], 2 * e[0, 1]])
 
 
-def voigt_green_lagrange(u: ufl.core.expr.Expr) -> ufl.core.expr.Expr:
+def voigt_green_lagrange(
+    u: ufl.core.expr.Expr, frame: ufl.core.expr.Expr | None = None
+) -> ufl.core.expr.Expr:
     """Green-Lagrange strain E = 1/2 (H + H^T + H^T H), H = Grad u, in Voigt order with
-    engineering shears (2 E_ij). Written from H rather than as 1/2 (F^T F - I): the latter loses
+    engineering shears (2 E_ij), in the global frame or the cell's ``frame`` (E transforms
+    as H does, R E R^T). Written from H rather than as 1/2 (F^T F - I): the latter loses
     the small strains of a stiff laminate to cancellation against I."""
-    H = ufl.grad(u)
+    H = displacement_gradient(u, frame)
     E = 0.5 * (H + H.T + H.T * H)
     return ufl.as_vector([E[0, 0], E[1, 1], E[2, 2], 2 * E[1, 2], 2 * E[0, 2], 2 * E[0, 1]])
 
 
-def voigt_strain(u: ufl.core.expr.Expr, kinematics: str = "small") -> ufl.core.expr.Expr:
-    """The strain measure of ``kinematics`` ("small" or "finite"), Voigt order."""
+def voigt_strain(
+    u: ufl.core.expr.Expr, kinematics: str = "small", frame: ufl.core.expr.Expr | None = None
+) -> ufl.core.expr.Expr:
+    """The strain measure of ``kinematics`` ("small" or "finite"), Voigt order, in the global
+    frame or the cell's ``frame``."""
     if kinematics == Kinematics.SMALL:
-        return voigt_small_strain(u)
+        return voigt_small_strain(u, frame)
     if kinematics == Kinematics.FINITE:
-        return voigt_green_lagrange(u)
+        return voigt_green_lagrange(u, frame)
     raise ValueError(f"kinematics must be one of {', '.join(KINEMATICS)} (got {kinematics!r})")
 
 
@@ -457,6 +475,7 @@ def strain_energy_form(
     selective: bool = True,
     kinematics: str = "small",
     enhanced: ufl.Coefficient | None = None,
+    frame: ufl.Coefficient | None = None,
 ) -> ufl.Form:
     """Strain energy (N mm) of the layered solid-shell with the selective (ANS) rule over
     ``cells`` (default: all owned cells), as a UFL form in the displacement ``u``. The internal
@@ -466,12 +485,13 @@ def strain_energy_form(
     the Green-Lagrange strain E; see the module docstring). ``enhanced``: a scalar Q1 field
     alpha(xi, eta) g(zeta) per cell (``enhanced_nodal_map``), whose value / |det J| is added
     to the thickness strain (the enhanced assumed strain; its parameters are condensed by the
-    caller); None: the compatible strain alone."""
+    caller); None: the compatible strain alone. ``frame``: a curved shell's cell frames (a DG0
+    3 x 3 function, rows e1, e2, e3), in which the strain is taken; None: the global frame."""
     mesh = u.function_space.mesh
     kernels = kernels if kernels is not None else SeparateKernels(mesh)
     cells = cells if cells is not None else owned_cells(mesh)
     energy = 0
-    eps = voigt_strain(u, kinematics)
+    eps = voigt_strain(u, kinematics, frame)
     e_zz = eps[2]
     if enhanced is not None:
         e_zz = e_zz + enhanced / abs(ufl.JacobianDeterminant(mesh))

@@ -1518,6 +1518,18 @@ def element_rotation(X, u, R):
 
 
 @njit(cache=True)
+def turn_rows(F, v, transposed):
+    """v[a] <- F v[a] (or F^T v[a] with ``transposed``) for each row a of v (8, 3), in place."""
+    for a in range(v.shape[0]):
+        v0, v1, v2 = v[a, 0], v[a, 1], v[a, 2]
+        for i in range(3):
+            if transposed:
+                v[a, i] = F[0, i] * v0 + F[1, i] * v1 + F[2, i] * v2
+            else:
+                v[a, i] = F[i, 0] * v0 + F[i, 1] * v1 + F[i, 2] * v2
+
+
+@njit(cache=True)
 def to_rotated_frame(X, u, R, u_local):
     """u_local = R^T (x - x_c) - (X - X_c) (8, 3): the element's displacement in its
     co-rotated frame, its rigid rotation and translation taken out (no allocation)."""
@@ -1586,6 +1598,7 @@ def solid_shell_force_damaged(
         none,
         True,
         bool(corotational),
+        np.zeros((0, 3, 3)),
     )
     f_out[:] = f
     return energy
@@ -1619,14 +1632,18 @@ def add_damaged_subelement_forces(
     f_extra,
     update,
     corotational,
+    frames,
 ):
     """f += sum_e P_e^T f_e over damage-aware (sub)elements, updating their damage (not with
     ``update`` False: the energy of a state at its damage so far); returns the total secant
     strain energy (mJ). Call as ``add_damaged_subelement_forces(nodes,
     rule_of_element, state_row, first_ply, *rules, *ply_damage, band_width, damage_state,
-    X_base, X_extra, u_base, u_extra, f_base, f_extra, update, corotational)``, ``nodes``
-    int32, ``update`` and ``corotational`` bools every time: each other argument type compiles
-    the kernel again (about a minute).
+    X_base, X_extra, u_base, u_extra, f_base, f_extra, update, corotational, frames)``,
+    ``nodes`` int32, ``update`` and ``corotational`` bools every time: each other argument type
+    compiles the kernel again (about a minute). ``frames`` (ne, 3, 3): each element's frame on a
+    curved shell (rows its axes, ``element.geometry.cell_frames``): the element is computed
+    with its coordinates and displacement in it, F X and F u (after the co-rotation), and its
+    force turned back, F^T f; (0, 3, 3): the global frame.
 
     ``corotational`` (finite kinematics): each element is computed in its co-rotated frame,
     the rotation R of the polar decomposition of the affine fit of its motion
@@ -1678,6 +1695,9 @@ def add_damaged_subelement_forces(
             to_rotated_frame(X, u_global, R, u)
         else:
             gather_nodes(nodes, n_base, u_base, u_extra, u)
+        if frames.shape[0] > 0:
+            turn_rows(frames[e], X, False)
+            turn_rows(frames[e], u, False)
         r = rule_of_element[e]
         start = rule_offsets[r]
         stop = rule_offsets[r + 1]
@@ -1714,6 +1734,8 @@ def add_damaged_subelement_forces(
             f,
             update,
         )
+        if frames.shape[0] > 0:  # out of the cell's frame: F^T f
+            turn_rows(frames[e], f, True)
         if corotational:  # the force back in the global frame: R f_local
             f_local[:] = f
             for a in range(8):

@@ -360,6 +360,15 @@ class _VtuSeries:
                 )
 
 
+def cell_frames_or_global(structure, cells: np.ndarray) -> np.ndarray:
+    """(n, 3, 3) material frames (rows: axis 1, axis 2, normal) of the owned ``cells``: a curved
+    shell's own (``LayeredModel.cell_frames``), else the global x, y, z."""
+    frames = structure.base.cell_frames()
+    if frames is None:
+        return np.broadcast_to(np.eye(3), (len(cells), 3, 3)).copy()
+    return frames[np.asarray(cells, dtype=np.int64)]
+
+
 def _combined_nodes(structure) -> tuple[np.ndarray, np.ndarray]:
     """Reference positions and displacements (n_base + n_extra, 3) of all local nodes."""
     s = structure
@@ -421,10 +430,15 @@ class ElementWriter(SeriesWriter):
         kept = _in_box(X, nodes, self.selection.box)
         nodes, owners, plies = nodes[kept], owners[kept], plies[kept]
         used, cells = _compact(nodes[:, _VTK_HEX])
+        frames = cell_frames_or_global(s, owners)
         cell_data = {
             "first_ply": (plies[:, 0] + 1).astype(np.int32),
             "last_ply": plies[:, 1].astype(np.int32),
             "rank": np.full(len(nodes), s.comm.rank, dtype=np.int32),
+            # the material frame before the ply angle: axis 1, axis 2, the normal
+            "axis_1": frames[:, 0],
+            "axis_2": frames[:, 1],
+            "normal": frames[:, 2],
         }
         # when each refinable interface of the element's cell refined (s), NaN while it has
         # not: the refinement log's times as fields
@@ -532,9 +546,14 @@ class PlyWriter(SeriesWriter):
         owner = cells[element]
         damage = s.damage_state[:, :, S_D] if s.ply_damage else None
         stress = self._ply_stresses(s, plies, damage)[owner, ply]
+        angle = np.array([p.angle for p in plies], dtype=float)[ply]
+        frames = cell_frames_or_global(s, owner)
+        radians = np.radians(angle)[:, None]
         cell_data = {
             "ply": (ply + 1).astype(np.int32),
-            "angle": np.array([p.angle for p in plies], dtype=float)[ply],
+            "angle": angle,
+            # the fibres: the ply angle turned from axis 1 about the normal
+            "fibre": np.cos(radians) * frames[:, 0] + np.sin(radians) * frames[:, 1],
             **{name: stress[:, i] for i, name in enumerate(STRESS_NAMES)},
         }
         if s.ply_damage:

@@ -51,6 +51,10 @@ def chunk_bounds(n: int, size: int = INTERIOR_CHUNK) -> list[tuple[int, int]]:
 UNREACHABLE_STRENGTH = 1e100
 
 
+# the frames of elements in the global frame: none (the kernels then rotate nothing)
+NO_FRAMES = np.zeros((0, 3, 3))
+
+
 @dataclass
 class SubelementSet:
     """Layered solid-shell (sub)elements computed by numba: nodes (n, 8) combined local
@@ -58,12 +62,15 @@ class SubelementSet:
     elements the solver computes while the halo exchange is under way (``NodeArrays.interior``;
     None: all). ``order``: the order the batched kernel takes them in, the interior elements
     first, each part grouped by rule (``batched.lane_order``); ``interior_order`` and
-    ``boundary_order`` are its two parts."""
+    ``boundary_order`` are its two parts. ``frames`` (n, 3, 3): each element's frame on a curved
+    shell (its cell's, ``element.geometry.cell_frames``); (0, 3, 3), the default: the global
+    frame."""
 
     nodes: np.ndarray
     rule_of_element: np.ndarray
     rules: PackedRules
     interior: np.ndarray | None = None
+    frames: np.ndarray = field(default_factory=lambda: NO_FRAMES)
     order: np.ndarray = field(init=False, repr=False)
     interior_order: np.ndarray = field(init=False, repr=False)
     boundary_order: np.ndarray = field(init=False, repr=False)
@@ -211,6 +218,7 @@ def add_subelement_forces(
         f_base,
         f_extra,
         bool(finite),
+        subelements.frames,
     )
 
 

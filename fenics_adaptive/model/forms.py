@@ -33,6 +33,7 @@ from fenics_adaptive.element.subelement import (
 from fenics_adaptive.element.timestep import characteristic_lengths
 from fenics_adaptive.materials.laminate import Laminate, element_shear_factors
 from fenics_adaptive.meshes.beam import BeamMesh
+from fenics_adaptive.meshes.shell import ShellMesh
 from fenics_adaptive.settings.kinds import Kinematics
 
 # FFCx kernels compiled for this CPU with reassociation allowed: lets the compiler vectorise the
@@ -63,6 +64,7 @@ class CompiledForms:
     subdomains: list[tuple[int, np.ndarray]]
     layer_of_subdomain: list[tuple[int, int]]
     field: fem.Function | None
+    frame: fem.Function | None = None  # the cells' frames on a curved shell (DG0, 3 x 3)
 
 
 @dataclass
@@ -95,6 +97,7 @@ class LayeredModel:
     _compiled: CompiledForms | None = None  # the forms' kernels, once per formulation
     _cell_time_steps: np.ndarray | None = None  # cell_time_steps, once computed
     _cells_pending: bool = False  # set_ufl_cells(defer=True) recorded cells the forms lack
+    _frames: np.ndarray | None = None  # cell_frames, once computed
 
     @property
     def finite(self) -> bool:
@@ -151,20 +154,23 @@ class LayeredModel:
             compiled.subdomains[k] = (subdomain_id, self.ufl_cells[layer])
         subdomains = {fem.IntegralType.cell: list(compiled.subdomains)}
         coefficients = {self.u: self.u}
-        if compiled.field is not None:
-            coefficients[compiled.field] = compiled.field
+        for extra in (compiled.field, compiled.frame):
+            if extra is not None:
+                coefficients[extra] = extra
         self.force_form, self.energy_form = (
             fem.create_form(form, spaces, self.mesh, subdomains, coefficients, {})
             for form, spaces in ((compiled.force, [self.V]), (compiled.energy, []))
         )
         field = compiled.field
-        self.packed = PackedDisplacement([self.force_form, self.energy_form], self.u, self.V, field)
+        self.packed = PackedDisplacement(
+            [self.force_form, self.energy_form], self.u, self.V, field, compiled.frame
+        )
         self.enhanced = None
         if field is not None:
             cells = np.concatenate(self.ufl_cells) if self.ufl_cells else np.zeros(0, np.int32)
             maps = None if self.finite else self.enhanced_parameter_maps()[cells]
             self.enhanced = CondensedThicknessStrain(
-                self.energy_ufl, field, self.u, self.V, cells, maps
+                self.energy_ufl, field, self.u, self.V, cells, maps, compiled.frame
             )
 
     def _form_key(self) -> tuple:
@@ -187,6 +193,7 @@ class LayeredModel:
         field = None
         if self.enhanced_strain:
             field = fem.Function(fem.functionspace(self.mesh, ("DG", 1)), name="enhanced_zz")
+        frame = self.frame_function()
         energy = 0
         layer_of_subdomain = []
         factors = self.shear_factors()
@@ -196,7 +203,7 @@ class LayeredModel:
             groups = solid_shell.energy_groups(laminate, self.points_per_ply, k, self.preintegrate)
             first = len(kernels.subdomains)
             energy += solid_shell.strain_energy_form(
-                self.u, groups, kernels, cells, self.selective, self.kinematics, field
+                self.u, groups, kernels, cells, self.selective, self.kinematics, field, frame
             )
             layer_of_subdomain += [(i, layer) for i, _ in kernels.subdomains[first:]]
         self.energy_ufl = energy
@@ -208,7 +215,52 @@ class LayeredModel:
             subdomains=kernels.subdomains,
             layer_of_subdomain=layer_of_subdomain,
             field=field,
+            frame=frame,
         )
+
+    @property
+    def curved(self) -> bool:
+        """Whether the cells carry frames of their own (a shell mesh, ``meshes.shell``): the
+        strain is then taken in each cell's frame (``cell_frames``); on the flat meshes of
+        ``meshes.beam`` the frame is global (x, y, z) and nothing is rotated."""
+        return isinstance(self.beam, ShellMesh)
+
+    def cell_frames(self) -> np.ndarray | None:
+        """(n_cells, 3, 3) frame of every local cell (owned, then ghosts), rows the material 1-,
+        2- and 3- (normal) directions (``meshes.shell.ShellMesh.cell_frames``), from the
+        reference geometry (computed once); None on a flat mesh (the global frame)."""
+        if not self.curved:
+            return None
+        if self._frames is None:
+            mesh = self.mesh
+            self._frames = self.beam.cell_frames(mesh.geometry.x[mesh.geometry.dofmaps[0]])
+        return self._frames
+
+    def element_frames(self, cells: np.ndarray) -> np.ndarray:
+        """(n, 3, 3) frames of (sub)elements of the local ``cells`` for the numba kernels: their
+        cells' (``cell_frames``), or (0, 3, 3) on a flat mesh (nothing to rotate)."""
+        frames = self.cell_frames()
+        if frames is None:
+            return np.zeros((0, 3, 3))
+        return np.ascontiguousarray(frames[np.asarray(cells, dtype=np.int64)])
+
+    @property
+    def frame(self) -> fem.Function | None:
+        """The cells' frames the compiled forms read (``frame_function``), or None."""
+        self.forms_ready()
+        return self._compiled.frame
+
+    def frame_function(self) -> fem.Function | None:
+        """The cells' frames as the UFL forms read them: a DG0 3 x 3 function (None on a flat
+        mesh)."""
+        frames = self.cell_frames()
+        if frames is None:
+            return None
+        space = fem.functionspace(self.mesh, ("DG", 0, (3, 3)))
+        frame = fem.Function(space, name="frame")
+        dofs = space.dofmap.list[: len(frames), 0]
+        frame.x.array.reshape(-1, 9)[dofs] = frames.reshape(-1, 9)
+        return frame
 
     def reference_geometry_changed(self) -> None:
         """Call after moving the mesh's reference nodes (``mesh.geometry.x``): the small-strain
@@ -217,6 +269,7 @@ class LayeredModel:
         moves them."""
         self._enhanced_maps = None
         self._cell_time_steps = None
+        self._frames = None
         self.set_ufl_cells(self.ufl_cells)
 
     def enhanced_parameter_maps(self) -> np.ndarray:
@@ -227,6 +280,7 @@ class LayeredModel:
         if self._enhanced_maps is None:
             maps = np.zeros((self.n_owned_cells, 4, 8, 3))
             X = cell_vertex_coordinates(self.mesh)
+            frames = self.cell_frames()
             for k, laminate in enumerate(self.layer_laminates):
                 rule = pack_rule(
                     laminate.ply_fractions,
@@ -239,12 +293,17 @@ class LayeredModel:
                     raise RuntimeError("the rule's first four lines are not the enhanced lines")
                 cells = self.layer_cells(k)
                 layer_maps = np.zeros((len(cells), 4, 8, 3))
+                X_cells = X[cells]
+                if frames is not None:  # in the cells' frames: x' = R x
+                    X_cells = np.einsum("cij,caj->cai", frames[cells], X_cells)
                 enhanced_parameter_maps(
-                    np.ascontiguousarray(X[cells]),
+                    np.ascontiguousarray(X_cells),
                     np.zeros(len(cells), dtype=np.int64),
                     *concatenate_rules([rule]),
                     layer_maps,
                 )
+                if frames is not None:  # alpha = m' . (R u) = (R^T m') . u
+                    layer_maps = np.einsum("ckaj,cji->ckai", layer_maps, frames[cells])
                 maps[cells] = layer_maps
             self._enhanced_maps = maps
         return self._enhanced_maps
@@ -447,7 +506,8 @@ def _gather_field(field, field_dofs, out, offset):
 class PackedDisplacement:
     """The constants and the packed coefficients of the model's forms (force, energy), kept
     between steps: the displacement u and, with the enhanced thickness strain, its per-cell
-    ``field`` (a scalar DG Q1 function).
+    ``field`` (a scalar DG Q1 function), and on a curved shell the cells' ``frame`` (a DG0
+    3 x 3 function that never changes: packed once).
 
     DOLFINx packs every coefficient of every integral on each assembly call. The forms have
     several integrals over the same cells (one kernel per custom quadrature rule, see
@@ -458,10 +518,11 @@ class PackedDisplacement:
     ``forms[i]``'s assembly takes.
 
     The layout is DOLFINx's: per cell, the coefficients in the form's order, each in its cell
-    dofmap order (u: the 8 nodes, 3 components each; the field: its 8 cell values).
-    ``tests/test_model.py`` checks it against ``fem.pack_coefficients``; this class does not
-    call that at set-up, because it packs every integral at once (100 MiB for a 40 000-cell
-    ESL plate, 400 MiB for its layerwise model) and the freed memory stays with the process."""
+    dofmap order, block-unrolled (u: the 8 nodes, 3 components each; the field: its 8 cell
+    values; the frame: its 9 entries). ``tests/test_model.py`` checks it against
+    ``fem.pack_coefficients``; this class does not call that at set-up, because it packs every
+    integral at once (100 MiB for a 40 000-cell ESL plate, 400 MiB for its layerwise model)
+    and the freed memory stays with the process."""
 
     def __init__(
         self,
@@ -469,43 +530,52 @@ class PackedDisplacement:
         u: fem.Function,
         V: fem.FunctionSpace,
         field: fem.Function | None = None,
+        frame: fem.Function | None = None,
     ):
         if V.dofmap.index_map_bs != 3 or V.dofmap.list.shape[1] != 8:
             raise ValueError("PackedDisplacement: expected a 3-component P1 space on hexahedra")
         self.u = u.x.array
         self.field = None if field is None else field.x.array
-        dofmap = V.dofmap.list
-        known = [u] if field is None else [u, field]
+        known = [u, field, frame]
         cell = fem.IntegralType.cell
-        # per set of cells: u's cell dofs, the packed array, the field's cell dofs (or None)
-        groups: dict[tuple, tuple[np.ndarray, np.ndarray, np.ndarray | None]] = {}
+        # per set of cells and layout: u's cell dofs, the packed array, the field's unrolled
+        # cell dofs and offset (or None)
+        groups: dict[tuple, tuple[np.ndarray, np.ndarray, tuple | None]] = {}
         self.constants: list[np.ndarray] = []
         self.coeffs: list[dict] = []
         for form in forms:
             cpp = form._cpp_object
             order = []
             for c in cpp.coefficients:
-                match = [i for i, f in enumerate(known) if np.shares_memory(c.x.array, f.x.array)]
+                match = [
+                    i
+                    for i, f in enumerate(known)
+                    if f is not None and np.shares_memory(c.x.array, f.x.array)
+                ]
                 if not match:
                     raise ValueError("PackedDisplacement: a form reads an unknown coefficient")
                 order.append(match[0])
             if order[0] != 0 or len(order) != len(set(order)):
                 raise ValueError("PackedDisplacement: u must be a form's first coefficient")
-            width = 24 + 8 * (len(order) - 1)
+            widths = [24] + [_unrolled_width(known[k]) for k in order[1:]]
+            offsets = np.concatenate([[0], np.cumsum(widths)]).astype(int)
             if set(cpp.integral_types) != {cell}:
                 raise ValueError("PackedDisplacement: expected cell integrals only")
             coeffs = {}
             for i in range(cpp.num_integrals(cell, 0)):  # the keys DOLFINx's packing uses
                 cells = np.asarray(cpp.domains(cell, i))
-                signature = (cells.tobytes(), width)
+                signature = (cells.tobytes(), tuple(order))
                 if signature not in groups:
-                    cell_dofs = np.ascontiguousarray(dofmap[cells], dtype=np.int64)
-                    field_dofs = None
-                    if width > 24:
-                        field_dofs = np.ascontiguousarray(
-                            field.function_space.dofmap.list[cells], dtype=np.int64
-                        )
-                    groups[signature] = (cell_dofs, np.zeros((len(cells), width)), field_dofs)
+                    cell_dofs = np.ascontiguousarray(V.dofmap.list[cells], dtype=np.int64)
+                    packed = np.zeros((len(cells), offsets[-1]))
+                    field_slot = None
+                    for position, k in enumerate(order[1:], start=1):
+                        dofs = _unrolled_dofs(known[k], cells)
+                        if k == 1:
+                            field_slot = (dofs, int(offsets[position]))
+                        else:  # the frame: fixed, packed here once
+                            _gather_field(known[k].x.array, dofs, packed, int(offsets[position]))
+                    groups[signature] = (cell_dofs, packed, field_slot)
                 coeffs[(cell, i)] = groups[signature][1]
             self.constants.append(fem.pack_constants(form))
             self.coeffs.append(coeffs)
@@ -518,10 +588,28 @@ class PackedDisplacement:
             _gather_cell_values(self.u, cell_dofs, packed)
 
     def set_field(self) -> None:
-        """Pack the field's current values (after u's, in the forms that read it)."""
-        for _, packed, field_dofs in self.groups:
-            if field_dofs is not None:
-                _gather_field(self.field, field_dofs, packed, 24)
+        """Pack the field's current values (in the forms that read it)."""
+        for _, packed, field_slot in self.groups:
+            if field_slot is not None:
+                _gather_field(self.field, field_slot[0], packed, field_slot[1])
+
+
+def _unrolled_width(function: fem.Function) -> int:
+    """Values per cell of a coefficient as FFCx reads it (dofs per cell x block size)."""
+    dofmap = function.function_space.dofmap
+    return dofmap.list.shape[1] * dofmap.index_map_bs
+
+
+def _unrolled_dofs(function: fem.Function, cells: np.ndarray) -> np.ndarray:
+    """(len(cells), width) the entries of ``function.x.array`` each cell reads, in order."""
+    dofmap = function.function_space.dofmap
+    bs = dofmap.index_map_bs
+    blocks = dofmap.list[cells].astype(np.int64)
+    return np.ascontiguousarray(
+        (bs * blocks[:, :, None] + np.arange(bs)[None, None, :]).reshape(
+            len(cells), blocks.shape[1] * bs
+        )
+    )
 
 
 @njit(cache=True)
@@ -584,6 +672,7 @@ class CondensedThicknessStrain:
         V: fem.FunctionSpace,
         cells: np.ndarray,
         linear_maps: np.ndarray | None = None,
+        frame: fem.Function | None = None,
     ):
         A = field.function_space
         self.field = field
@@ -609,7 +698,7 @@ class CondensedThicknessStrain:
         )
         self.h = hessian.array[self.cell_dofs] @ self.T  # (n, 4)
         self.residual = np.zeros(A.dofmap.index_map.size_local + A.dofmap.index_map.num_ghosts)
-        self.packed = PackedDisplacement([self.residual_form], u, V)
+        self.packed = PackedDisplacement([self.residual_form], u, V, frame=frame)
 
     def condense(self) -> None:
         """alpha of every cell from the current displacement, and the field's values from it."""

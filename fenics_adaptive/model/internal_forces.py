@@ -197,13 +197,14 @@ class ElasticSolid(Contributor):
         self.model.set_ufl_cells([self.refinement.unrefined_cells()], defer=True)
 
     def _take_elements(self) -> None:
-        nodes, _, plies = self.elements()
+        nodes, cells, plies = self.elements()
         self._generation = self.nodes.generation
         self.solids = SubelementSet(
             nodes,
             self.rule_table.rule_of(plies),
             self.rule_table.packed,
             self.nodes.interior(nodes),
+            self.model.element_frames(cells),
         )
         order = self.solids.interior_order
         self._interior_chunks = [order[a:b] for a, b in chunk_bounds(len(order))]

@@ -694,6 +694,12 @@ def selective_mass(structure: Structure, target_step: float | None = None) -> Se
         comm.allreduce(structure.extra.index_map.size_local, op=MPI.SUM) > 0
     ):
         raise adaptive_refused()
+    if structure.base.curved:
+        raise InputError(
+            "solver.mass_scaling",
+            '"selective" is not yet available on curved shells (its element problems are '
+            'taken in the global frame): use mass_scaling = "none" there',
+        )
     nodes, cells, plies = structure.elements()
     nodes = nodes.astype(np.int64)
     X = structure.gather(nodes, "X")

@@ -41,7 +41,9 @@ class PlyDamageState:
     span); ``cell_X`` (n_cells, 8, 3) mm: the owned cells' reference vertices; ``cell_plies``
     (n_cells, 2): the plies [first, stop) of each cell. Collective (the band widths are checked
     against the widest over all ranks). Raises InputError where a cell is too wide for a ply's
-    crack band."""
+    crack band. ``frames`` (n_cells, 3, 3): the cells' frames on a curved shell (the kernel
+    computes each element in its cell's, ``LayeredModel.element_frames``); (0, 3, 3) or None:
+    the global frame."""
 
     def __init__(
         self,
@@ -51,6 +53,7 @@ class PlyDamageState:
         cell_X: np.ndarray,
         cell_plies: np.ndarray,
         comm: MPI.Comm,
+        frames: np.ndarray | None = None,
     ):
         if rule_table.preintegrate:
             raise ValueError("ply damage needs rules ply by ply (RuleTable(preintegrate=False))")
@@ -58,6 +61,9 @@ class PlyDamageState:
         self.laminate = laminate
         self.failures = failures
         self.comm = comm
+        self.frames = np.zeros((0, 3, 3)) if frames is None else np.asarray(frames)
+        if len(self.frames):  # the band widths across the fibres in each cell's frame
+            cell_X = np.einsum("cij,caj->cai", self.frames, cell_X)
         self.pack = concatenate_ply_damage(
             [pack_ply_damage(plies[a:b], failures) for a, b in rule_table.spans]
         )
@@ -104,22 +110,30 @@ class PlyDamageState:
         those ``add_forces(part="interior")`` computes (None: all), taken first, also as parts
         0 .. ``interior_chunks`` - 1 (``assembly.chunk_bounds``)."""
         first = slice(None) if interior is None else np.argsort(~interior, kind="stable")
+        cells = cells.astype(np.int64)[first]
         self.elements = (
             np.ascontiguousarray(nodes[first]),
             rule_table.rule_of(plies[first]),
-            cells.astype(np.int64)[first],
+            cells,
             np.asarray(plies[first, 0]).astype(np.int64),
+            # each element's frame (its cell's), or none: the kernel then rotates nothing
+            np.ascontiguousarray(self.frames[cells]) if len(self.frames) else self.frames,
         )
         n = len(nodes) if interior is None else int(np.count_nonzero(interior))
         self._parts = {
             "all": self.elements,
-            "interior": tuple(a[:n] for a in self.elements),
-            "boundary": tuple(a[n:] for a in self.elements),
+            "interior": self._part(slice(None, n)),
+            "boundary": self._part(slice(n, None)),
         }
         bounds = chunk_bounds(n)  # the interior in chunks: parts 0, 1, ...
         self.interior_chunks = len(bounds)
         for k, (start, stop) in enumerate(bounds):
-            self._parts[k] = tuple(a[start:stop] for a in self.elements)
+            self._parts[k] = self._part(slice(start, stop))
+
+    def _part(self, part: slice) -> tuple[np.ndarray, ...]:
+        """The element arrays of ``part`` of the elements (the frames: none stay none)."""
+        *arrays, frames = self.elements
+        return (*(a[part] for a in arrays), frames[part] if len(frames) else frames)
 
     def add_forces(
         self,
@@ -141,11 +155,9 @@ class PlyDamageState:
         profiling: it copies them); ``corotational``: each element
         in its co-rotated frame (finite kinematics). Returns their secant strain energy (mJ,
         this rank)."""
-        elements = (
-            tuple(a[part] for a in self.elements) if isinstance(part, slice) else self._parts[part]
-        )
+        elements = self._part(part) if isinstance(part, slice) else self._parts[part]
         return add_damaged_subelement_forces(
-            *elements,
+            *elements[:4],
             *rules,
             *self.pack,
             self.band_width,
@@ -158,6 +170,7 @@ class PlyDamageState:
             f_extra,
             update,
             corotational,
+            elements[4],
         )
 
     def scale_matrix_strength(self, cells: np.ndarray, plies: Iterable[int], factor: float) -> None:

@@ -299,6 +299,7 @@ class Structure:
             self.cell_vertices(),
             self.cell_plies,
             self.comm,
+            self.base.element_frames(np.arange(self.base.n_owned_cells)),
         )
         self.base.set_ufl_cells([np.zeros(0, np.int32)] * len(self.base.layer_laminates))
 
@@ -552,7 +553,11 @@ class Structure:
             # subelements start with the strain the element had, so the strain energy does not
             # jump. Not in v: on the straight line the lumped masses keep the momentum exactly
             X, u = gathered["X"], gathered["u"]
-            alpha = self.rule_table.enhanced_parameters(X, u, np.stack([below, above], axis=1))
+            frames = self.base.element_frames(cells)
+            turned = (
+                [np.einsum("eij,eaj->eai", frames, a) for a in (X, u)] if len(frames) else (X, u)
+            )
+            alpha = self.rule_table.enhanced_parameters(*turned, np.stack([below, above], axis=1))
             values["u"] += enhanced_displacement(X, alpha, w)
         self.refinement.mark_weak(cells, interface, t)
         self.extra.activate(

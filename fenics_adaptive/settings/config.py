@@ -74,6 +74,7 @@ from fenics_adaptive.settings.kinds import (
     ImpactorShape,
     IndicatorKind,
     Kinematics,
+    MeshKind,
     ModelKind,
     MotionKind,
     Partition,
@@ -105,20 +106,31 @@ from fenics_adaptive.settings.schema import (
     implausible,
     section,
 )
+from fenics_adaptive.settings.shells import KIND_KEYS, ShellShape, refuse_other_keys, shell_shape
 from fenics_adaptive.settings.solver import FieldSelection, Probe, SolverSettings
 
-BASE_FACES = ("x0", "x1", "y0", "y1", "bottom", "top")
 SIDE_FACES = ("x0", "x1", "y0", "y1")
 
 
 @dataclass(frozen=True)
 class MeshConfig:
-    length: float
+    length: float  # a plate's; 0 for a shell (its sizes are in ``shell``)
     width: float
     nx: int
     ny: int
     layers: tuple[int, ...]  # plies per mesh layer, bottom to top
     partition: Partition = Partition.COST  # on several ranks: patches of equal cost or cells
+    shell: ShellShape | None = None  # a curved (or unstructured) shell's [mesh]; None: a plate
+
+    @property
+    def kind(self) -> MeshKind:
+        return MeshKind.PLATE if self.shell is None else self.shell.kind
+
+    @property
+    def structured(self) -> bool:
+        """The flat plate of nx x ny cells, whose node sets the config can check exactly (a
+        shell's faces are checked when its mesh is built: ``model.loading.resolve``)."""
+        return self.shell is None
 
 
 @dataclass(frozen=True)
@@ -210,13 +222,16 @@ class RunConfig:
 
     @property
     def face_names(self) -> list[str]:
-        return face_names(len(self.mesh.layers))
+        return face_names(len(self.mesh.layers), self.mesh.shell)
 
 
-def face_names(n_layers: int) -> list[str]:
-    names = list(BASE_FACES)
+def face_names(n_layers: int, shell: ShellShape | None = None) -> list[str]:
+    """The face groups of a mesh of ``n_layers`` layers: a plate's sides x0, x1, y0, y1, or a
+    shell's edges, then bottom and top, and each of them per layer."""
+    sides = SIDE_FACES if shell is None else shell.edges
+    names = [*sides, "bottom", "top"]
     for k in range(n_layers):
-        names += [f"{face}_layer{k}" for face in (*SIDE_FACES, "bottom", "top")]
+        names += [f"{face}_layer{k}" for face in (*sides, "bottom", "top")]
     return names
 
 
@@ -577,10 +592,11 @@ def parse_config(data: dict, source: str = "<memory>", seen: set[str] | None = N
     model = _model(root.table("model"))
     materials, failures = _materials(root)
     laminate = _laminate(root.table("laminate"), materials)
-    mesh = _mesh(root.table("mesh"), model.kind, laminate)
+    mesh = _mesh(root.table("mesh"), model.kind, laminate, source)
     _check_model_size(model, mesh, laminate)
-    _check_geometry(mesh, laminate)
-    faces = face_names(len(mesh.layers))
+    if mesh.structured:
+        _check_geometry(mesh, laminate)
+    faces = face_names(len(mesh.layers), mesh.shell)
     interfaces, refinements, cohesive = _interfaces(root, model.kind, laminate, mesh)
     split = _split_boundaries(model.kind, mesh, interfaces)
     stabilisation = _stabilisation(root, model.kind)
@@ -667,7 +683,7 @@ def _check_model_size(model: _Model, mesh: MeshConfig, laminate: Laminate) -> No
     memory = estimated_memory(size)
     if memory > model.max_memory * 1e9:
         raise InputError(
-            "mesh.nx" if mesh.nx >= mesh.ny else "mesh.ny",
+            ("mesh.nx" if mesh.nx >= mesh.ny else "mesh.ny") if mesh.structured else "mesh.kind",
             f"the model would have {size.cells:.4g} cells of {laminate.n_plies} plies in "
             f"{size.cell_layers} cell layer(s), an estimated {memory / 1e9:.3g} GB, above "
             f"model.max_memory = {model.max_memory:g} GB (raise it to run this model)",
@@ -749,7 +765,8 @@ def _motions_and_loads(
     one DOF twice, the symmetry interfaces' u_z = 0 included), then the [[load]] faces."""
     motions = _motions(root, faces, mesh, split)
     symmetry = _symmetry_motions(kind, mesh, interfaces)
-    _check_motions_agree([*motions, *symmetry], mesh, split)
+    if mesh.structured:  # a shell's: when its mesh is built (``model.loading.resolve``)
+        _check_motions_agree([*motions, *symmetry], mesh, split)
     loads = _loads(root, faces)
     if not motions:
         raise InputError("clamp", "the model needs at least one [[clamp]] or [[prescribed]] face")
@@ -974,13 +991,22 @@ def _laminate(table: _Table, materials: dict[str, PlyMaterial]) -> Laminate:
     return Laminate(tuple(plies))
 
 
-def _mesh(table: _Table, kind: ModelKind, laminate: Laminate) -> MeshConfig:
-    """[mesh]: the plate (mm), its cells in-plane, and the plies of each mesh layer (one layer
-    of all plies unless the model is layerwise)."""
-    length = table.number("length")
-    width = table.number("width")
-    nx = table.integer("nx")
-    ny = table.integer("ny")
+def _mesh(table: _Table, kind: ModelKind, laminate: Laminate, source: str) -> MeshConfig:
+    """[mesh]: the plate (mm) and its cells in-plane, or a shell (``settings.shells``), and
+    the plies of each mesh layer (one layer of all plies unless the model is layerwise)."""
+    mesh_kind = table.choice("kind")
+    refuse_other_keys(table, mesh_kind)
+    shell = None
+    if mesh_kind == MeshKind.PLATE:
+        for name in KIND_KEYS[MeshKind.PLATE][0]:
+            if not table.has(name):
+                raise InputError(table.key(name), 'missing (kind = "plate" needs it)')
+        length, width = table.number("length"), table.number("width")
+        nx, ny = table.integer("nx"), table.integer("ny")
+    else:
+        shell = shell_shape(table, mesh_kind, source)
+        length = width = 0.0
+        nx = ny = 0
     if kind == ModelKind.LAYERWISE:
         layers = table.integers("layers", unique=False)
         if layers is None:
@@ -996,7 +1022,7 @@ def _mesh(table: _Table, kind: ModelKind, laminate: Laminate) -> MeshConfig:
         if table.has("layers"):
             raise InputError(table.key("layers"), "only a layerwise model has mesh layers")
         layers = (laminate.n_plies,)
-    return MeshConfig(length, width, nx, ny, tuple(layers), table.choice("partition"))
+    return MeshConfig(length, width, nx, ny, tuple(layers), table.choice("partition"), shell)
 
 
 def _check_geometry(mesh: MeshConfig, laminate: Laminate) -> None:
@@ -1040,6 +1066,9 @@ def _x_range(table: _Table, mesh: MeshConfig, name: str = "x") -> tuple[float, f
     if table.has(name):
         if name == "x" and (table.has("x_min") or table.has("x_max")):
             raise InputError(table.key(name), "give either x, or x_min and x_max")
+        if not mesh.structured:  # any x: the nodes within round-off of it
+            x = table.number(name)
+            return (x, x)
         x = table.number(name, 0.0, mesh.length)
         cells = x / mesh.length * mesh.nx
         if abs(cells - round(cells)) > 1e-6:
@@ -1053,8 +1082,9 @@ def _x_range(table: _Table, mesh: MeshConfig, name: str = "x") -> tuple[float, f
     for end in ("x_min", "x_max"):
         if not table.has(end):
             raise InputError(table.key(end), "missing (a pad needs both x_min and x_max)")
-    table.number("x_min", 0.0, mesh.length)
-    table.number("x_max", 0.0, mesh.length)
+    if mesh.structured:
+        table.number("x_min", 0.0, mesh.length)
+        table.number("x_max", 0.0, mesh.length)
     return table.range("x_min", "x_max")
 
 
@@ -1063,6 +1093,8 @@ def _check_holds_centroids(
 ) -> None:
     """A range of cell centroids along ``axis`` ("x" or "y") must hold at least one (else it
     would do nothing)."""
+    if not mesh.structured:  # a shell's cells are known when its mesh is built
+        return
     size, count = (mesh.length, mesh.nx) if axis == "x" else (mesh.width, mesh.ny)
     h = size / count
     first = math.ceil(max(low, 0.0) / h - 0.5 - 1e-9)  # first centroid (i + 1/2) h >= low
@@ -1142,6 +1174,8 @@ def _nodes_box(
 
 
 def _check_has_nodes(key: str, face: str, x_range, mesh: MeshConfig, split) -> None:
+    if not mesh.structured:  # a shell's faces are checked when its mesh is built
+        return
     if _nodes_box(face, x_range, mesh, split) is None:
         where = f" with x in [{x_range[0]:g}, {x_range[1]:g}] mm" if x_range is not None else ""
         raise InputError(
@@ -1514,8 +1548,12 @@ def model_size(mesh: MeshConfig, laminate: Laminate, split: int = 0) -> ModelSiz
     """Cells, nodes, plies and cell layers of the mesh ``simulation.build_structure`` makes
     (``split``: layer boundaries with their own nodes on each side)."""
     layers = len(mesh.layers)
-    cells = mesh.nx * mesh.ny * layers
-    nodes = (mesh.nx + 1) * (mesh.ny + 1) * (layers + 1 + split)
+    if mesh.structured:
+        cells = mesh.nx * mesh.ny * layers
+        nodes = (mesh.nx + 1) * (mesh.ny + 1) * (layers + 1 + split)
+    else:  # about a node per quadrilateral and level (a closed surface: exactly)
+        cells = mesh.shell.quads * layers
+        nodes = mesh.shell.quads * (layers + 1 + split)
     return ModelSize(cells, nodes, laminate.n_plies, layers)
 
 

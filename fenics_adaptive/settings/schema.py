@@ -34,12 +34,15 @@ from fenics_adaptive.settings.kinds import (
     ImpactorShape,
     Kinematics,
     MassScaling,
+    MaterialAxis,
+    MeshKind,
     MixedModeLaw,
     ModelKind,
     Partition,
     Profile,
     Refinement,
     RigidMotion,
+    SurfaceReference,
     ThicknessIntegration,
 )
 
@@ -368,12 +371,107 @@ SECTIONS: tuple[Section, ...] = (
     ),
     Section(
         "mesh",
-        "the plate or beam and its cells",
+        "the plate or beam, or the shell, and its cells",
         (
-            _length("length", "length along x"),
-            _length("width", "width along y"),
-            Key("nx", "int", "cells along x", default=REQUIRED, minimum=1),
-            Key("ny", "int", "cells along y", default=REQUIRED, minimum=1),
+            Key(
+                "kind",
+                "choice",
+                'the flat "plate" (or beam) of structured cells; a shell Gmsh generates '
+                '("tube", "panel", "hat", "plate_with_hole"); or a quadrilateral surface from '
+                'a "file"; a shell is extruded along its normal (each kind\'s keys below)',
+                default=str(MeshKind.PLATE),
+                choices=tuple(MeshKind),
+            ),
+            _length(
+                "length",
+                "plate, plate_with_hole: length along x; tube, panel, hat: length along the axis x",
+                OPTIONAL,
+            ),
+            _length("width", "plate, plate_with_hole: width along y; hat: crown width", OPTIONAL),
+            Key("nx", "int", "plate: cells along x", default=OPTIONAL, minimum=1),
+            Key("ny", "int", "plate: cells along y", default=OPTIONAL, minimum=1),
+            _length("radius", "tube, panel: radius of the surface about the x axis", OPTIONAL),
+            Key(
+                "angle",
+                "float",
+                "panel: the angle it spans about the x axis",
+                "degrees",
+                OPTIONAL,
+                0.0,
+                360.0,
+                open_min=True,
+                open_max=True,
+            ),
+            Key(
+                "start",
+                "float",
+                "panel: where its span starts, from +z towards +y (default: -angle / 2, "
+                "symmetric about the crown)",
+                "degrees",
+                OPTIONAL,
+                -360.0,
+                360.0,
+            ),
+            Key(
+                "n_around", "int", "tube, panel: cells around the axis", default=OPTIONAL, minimum=1
+            ),
+            Key(
+                "n_along",
+                "int",
+                "tube, panel, hat: cells along the axis",
+                default=OPTIONAL,
+                minimum=1,
+            ),
+            _length("height", "hat: height of the crown above the flanges", OPTIONAL),
+            _length("flange", "hat: width of each flange", OPTIONAL),
+            _length("hole_radius", "plate_with_hole: radius of the centred hole", OPTIONAL),
+            _length(
+                "size", "hat, plate_with_hole: cell size in the profile or the plate", OPTIONAL
+            ),
+            Key(
+                "file",
+                "string",
+                "file: a Gmsh .msh or .geo of quadrilaterals (relative to the config file); its "
+                "physical curves name the side faces",
+                default=OPTIONAL,
+            ),
+            Key(
+                "surface",
+                "string",
+                "file: the physical surface to take (default: every surface)",
+                default=OPTIONAL,
+            ),
+            Key(
+                "reference",
+                "choice",
+                "shells: the laminate surface the given surface is",
+                default=str(SurfaceReference.MIDDLE),
+                choices=tuple(SurfaceReference),
+            ),
+            Key(
+                "direction",
+                "floats",
+                "shells: the material 1-direction before the ply angle, projected on the "
+                "surface (default: global x, or z where x is normal to it, as Abaqus)",
+                default=OPTIONAL,
+                length=3,
+            ),
+            Key(
+                "orientation",
+                "choice",
+                "tube, panel, hat: the material 1-direction along the axis or around it "
+                "(instead of direction; default axial)",
+                default=OPTIONAL,
+                choices=tuple(MaterialAxis),
+            ),
+            Key(
+                "normal",
+                "floats",
+                "file: the side the shell's normals point to (on average over each connected "
+                "piece; default: the first quadrilateral's)",
+                default=OPTIONAL,
+                length=3,
+            ),
             Key(
                 "layers",
                 "ints",

@@ -39,7 +39,7 @@ def stiffness_matrix(model: LayeredModel) -> PETSc.Mat:
         return K
     if enhanced.linear_maps is not None:  # the assembled condensation knows h
         enhanced = CondensedThicknessStrain(
-            model.energy_ufl, enhanced.field, model.u, model.V, enhanced.cells
+            model.energy_ufl, enhanced.field, model.u, model.V, enhanced.cells, frame=model.frame
         )
     A = enhanced.field.function_space
     K_ua = fem_petsc.assemble_matrix(
