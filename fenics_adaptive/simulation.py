@@ -39,6 +39,7 @@ from fenics_adaptive.meshes.shell import (
     constant_direction,
     hoop_direction,
     shell_mesh,
+    toward,
 )
 from fenics_adaptive.meshes.surface import shell_surface
 from fenics_adaptive.model.assembly import CohesiveSet
@@ -154,6 +155,8 @@ def build_structure(
         config.failures,
         config.ply_damage,
     )
+    if not config.mesh.structured:  # a plate's regions were checked with its config
+        check_regions_hold_cells(structure, config)
     for region in config.matrix_strength:
         cells = cells_in_x_range(structure, region.x_min, region.x_max)
         structure.scale_matrix_strength(cells, region.plies, region.factor)
@@ -164,6 +167,31 @@ def build_structure(
             structure.refine(initial_refinement(structure, config))
         insert_films(structure, config.delaminations)
     return structure
+
+
+def check_regions_hold_cells(structure: Structure, config: RunConfig) -> None:
+    """Collective: every region of the config that picks cells by their centroid (an insert
+    film, a manual refinement, a matrix strength) holds at least one cell of the mesh, else
+    it would do nothing: InputError naming its table. The config checks a plate's itself."""
+    centres = structure.cell_vertices().mean(axis=1)
+    x, y = (centres[:, 0], centres[:, 1]) if len(centres) else (np.zeros(0), np.zeros(0))
+    regions = [
+        (f"delamination[{k}]", film.region.holds(x, y))
+        for k, film in enumerate(config.delaminations)
+    ]
+    regions += [
+        (f"{name}[{k}]", (x >= entry.x_min) & (x <= entry.x_max))
+        for name, entries in (("refinement", config.refinements),
+                              ("matrix_strength", config.matrix_strength))
+        for k, entry in enumerate(entries)
+    ]  # fmt: skip
+    counts = structure.comm.allreduce(
+        np.array([int(np.count_nonzero(inside)) for _, inside in regions], dtype=np.int64),
+        op=MPI.SUM,
+    )
+    for (key, _), count in zip(regions, counts, strict=True):
+        if count == 0:
+            raise InputError(key, "its region holds no cell centroid of the mesh (x, y in mm)")
 
 
 def build_mesh(
@@ -202,16 +230,10 @@ def build_mesh(
     if shape.kind in (MeshKind.TUBE, MeshKind.PANEL):
         outward = lambda p: p * np.array([0.0, 1.0, 1.0])  # noqa: E731  away from the axis
     elif shape.kind in (MeshKind.HAT, MeshKind.PLATE_WITH_HOLE):
-        outward = axial_direction([0.0, 0.0, 1.0])
+        outward = toward([0.0, 0.0, 1.0])
     elif shape.normal is not None:
-        outward = constant_direction(shape.normal)
-    with shared_errors(comm):
-        try:
-            return shell_mesh(
-                comm, surface, thicknesses, split, str(shape.reference), direction, outward
-            )
-        except ValueError as error:
-            raise InputError("mesh", str(error).removeprefix("mesh: ")) from error
+        outward = toward(shape.normal)
+    return shell_mesh(comm, surface, thicknesses, split, str(shape.reference), direction, outward)
 
 
 def starting_cost(config: RunConfig) -> Callable[[np.ndarray, np.ndarray], np.ndarray] | None:

@@ -37,6 +37,7 @@ the sides are named after the surface's edges: ``x0`` (all layers), ``x0_layer{k
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
@@ -48,33 +49,46 @@ from fenics_adaptive.meshes.beam import BeamMesh, _layer_surface_tags
 from fenics_adaptive.meshes.surface import SurfaceMesh
 from mpi4py import MPI
 
-from fenics_adaptive.element.geometry import cell_frames
-from fenics_adaptive.errors import shared_errors
+from fenics_adaptive.element.geometry import cell_frames, cell_normals, frames_about
+from fenics_adaptive.errors import InputError, shared_errors
 
 REFERENCES = ("bottom", "middle", "top")
+# the names a side face (an edge group) may have, and those the laminate's faces take
+_SIDE_NAME = re.compile(r"[A-Za-z][A-Za-z0-9_]*")
+_RESERVED = re.compile(r"(bottom|top)(_layer\d+)?|.*_layer\d+")
 # the hexahedron's side facet (DOLFINx reference numbering) over each edge of its quadrilateral
 # (edge j runs from quad node j to j + 1; the hexahedron's bottom is quad nodes 0, 1, 3, 2)
 _EDGE_FACET = np.array([1, 3, 4, 2], dtype=np.int64)
 
 
-def axial_direction(axis: np.ndarray) -> Callable[[np.ndarray], np.ndarray]:
+# A material direction: (points (n, 3), unit normals (n, 3)) -> directions (n, 3), projected on
+# the surface afterwards (``element.geometry.frames_about``)
+Direction = Callable[[np.ndarray, np.ndarray], np.ndarray]
+
+
+def axial_direction(axis: Sequence[float]) -> Direction:
     """The material direction along ``axis`` everywhere (a tube's axial direction)."""
     axis = np.asarray(axis, dtype=np.float64) / np.linalg.norm(axis)
-    return lambda points: np.broadcast_to(axis, np.shape(points)).copy()
+    return lambda points, normals: np.broadcast_to(axis, np.shape(points)).copy()
 
 
-def hoop_direction(axis: np.ndarray) -> Callable[[np.ndarray], np.ndarray]:
-    """The material direction around ``axis`` (through the origin): axis x the radial
-    direction, a tube's hoop direction."""
+def hoop_direction(axis: Sequence[float]) -> Direction:
+    """The material direction around ``axis``: axis x the surface normal (a tube's hoop
+    direction; around the profile of a hat or a panel swept along the axis, flanges too)."""
     axis = np.asarray(axis, dtype=np.float64) / np.linalg.norm(axis)
-
-    def direction(points: np.ndarray) -> np.ndarray:
-        return np.cross(axis, np.asarray(points, dtype=np.float64))
-
-    return direction
+    return lambda points, normals: np.cross(axis, normals)
 
 
-def constant_direction(vector: Sequence[float]) -> Callable[[np.ndarray], np.ndarray]:
+def toward(vector: Sequence[float]) -> Callable[[np.ndarray], np.ndarray]:
+    """The same side everywhere, as ``orient``'s ``outward`` takes it: points (n, 3) ->
+    ``vector`` at each."""
+    vector = np.asarray(vector, dtype=np.float64)
+    if vector.shape != (3,) or not np.all(np.isfinite(vector)) or not np.any(vector):
+        raise ValueError(f"mesh.normal: a non-zero vector of 3 numbers (got {vector})")
+    return lambda points: np.broadcast_to(vector, np.shape(points)).copy()
+
+
+def constant_direction(vector: Sequence[float]) -> Direction:
     """A material direction that is the same vector everywhere (projected on the surface by
     ``cell_frames``)."""
     vector = np.asarray(vector, dtype=np.float64)
@@ -90,13 +104,13 @@ class ShellMesh(BeamMesh):
     ``length`` and ``width`` the two longest extents of its bounding box (mm).
     ``direction``: the material 1-direction as a function of position."""
 
-    direction: Callable[[np.ndarray], np.ndarray] = field(default=None)
+    direction: Direction = field(default=None)
     misalignment: float = 0.0  # largest angle (degrees) between a cell's xi and its 1-direction
 
     def cell_frames(self, X: np.ndarray) -> np.ndarray:
         """(n, 3, 3) frames of cells with vertices X (n, 8, 3): rows the material 1-, 2- and
         3- (normal) directions (``element.geometry.cell_frames``)."""
-        return cell_frames(X, self.direction(X.mean(axis=1)))
+        return cell_frames(X, self.direction(X.mean(axis=1), cell_normals(X)))
 
 
 def orient(surface: SurfaceMesh, outward: Callable[[np.ndarray], np.ndarray] | None = None):
@@ -158,15 +172,16 @@ def orient(surface: SurfaceMesh, outward: Callable[[np.ndarray], np.ndarray] | N
     return SurfaceMesh(surface.nodes, quads, surface.edges, surface.axis, surface.normals)
 
 
-def align(surface: SurfaceMesh, direction: Callable[[np.ndarray], np.ndarray]):
+def align(surface: SurfaceMesh, direction: Direction) -> tuple[SurfaceMesh, float]:
     """(surface, largest misalignment in degrees): each quadrilateral's nodes turned
-    cyclically so that its first edge is the one pointing most along ``direction``."""
+    cyclically so that its first edge is the one pointing most along its material axis 1
+    (``direction`` projected on it by the frames' own rule, ``frames_about``)."""
     X = surface.nodes[surface.quads]  # (m, 4, 3)
-    d = direction(X.mean(axis=1))
-    d = d / np.linalg.norm(d, axis=1)[:, None]
+    normals = surface.quad_normals()
+    axis = frames_about(normals, direction(X.mean(axis=1), normals))[:, 0]
     edges = np.roll(X, -1, axis=1) - X
     edges /= np.linalg.norm(edges, axis=2)[:, :, None]
-    cosines = np.einsum("mji,mi->mj", edges, d)
+    cosines = np.einsum("mji,mi->mj", edges, axis)
     first = np.argmax(cosines, axis=1)
     turned = np.take_along_axis(surface.quads, (first[:, None] + np.arange(4)) % 4, axis=1)
     worst = float(np.degrees(np.arccos(np.clip(cosines.max(axis=1).min(), -1.0, 1.0))))
@@ -207,7 +222,7 @@ def shell_mesh(
     layer_thicknesses: Sequence[float],
     split: Sequence[bool] | None = None,
     reference: str = "middle",
-    direction: Callable[[np.ndarray], np.ndarray] | None = None,
+    direction: Direction | None = None,
     outward: Callable[[np.ndarray], np.ndarray] | None = None,
 ) -> ShellMesh:
     """The solid shell of ``surface`` (given on rank 0; None elsewhere): one hexahedron per
@@ -236,15 +251,19 @@ def shell_mesh(
     names: list[str] = []
     misalignment = 0.0
     size = np.zeros(2)
-    with shared_errors(comm):
+    with shared_errors(comm):  # Gmsh's surface is on rank 0; its error reaches every rank
         if comm.rank == 0:
             if surface is None:
                 raise ValueError("shell_mesh: the surface must be given on rank 0")
-            surface = orient(surface, outward)
-            surface, misalignment = align(surface, direction)
-            x, cells = _extrude(surface, layer_z - shift, split)
-            _check_cells(x[cells], n_layers)
-            names, edge_of_side = _side_groups(surface)
+            try:
+                surface = orient(surface, outward)
+                surface, misalignment = align(surface, direction)
+                x, cells = _extrude(surface, layer_z - shift, split)
+                _check_cells(x[cells], n_layers)
+                names, edge_of_side = _side_groups(surface)
+            except ValueError as error:  # the user's geometry: an input error on every rank
+                key, _, problem = str(error).partition(": ")
+                raise InputError(key, problem) from error
             extents = np.sort(np.ptp(surface.nodes, axis=0))[::-1]
             size = extents[:2]
     names = comm.bcast(names, root=0)
@@ -361,9 +380,22 @@ def _neighbour(corner: int, axis: int, high: int) -> int:
     return (corner & ~(1 << axis)) | (high << axis)
 
 
+def check_side_names(names: Sequence[str]) -> None:
+    """Raise ValueError for an edge group name a side face cannot take: bottom, top and the
+    names with _layer<k> are the laminate's own faces, and a name is letters, digits and _
+    (a face of a config, joined to others by &)."""
+    for name in names:
+        if not _SIDE_NAME.fullmatch(name) or _RESERVED.fullmatch(name):
+            raise ValueError(
+                f"mesh: an edge group may not be called {name!r}: bottom, top and the names "
+                "with _layer<k> are the laminate's own faces; use letters, digits and _"
+            )
+
+
 def _side_groups(surface: SurfaceMesh) -> tuple[list[str], np.ndarray]:
     """(group names, (m, 4) group index of each quadrilateral edge or -1)."""
     names = sorted(surface.edges)
+    check_side_names(names)
     n = len(surface.nodes) + 1
     lookup: dict[int, int] = {}
     for g, name in enumerate(names):

@@ -98,6 +98,7 @@ def test_site_has_its_pages(site):
         "index",
         "gallery",
         "config",
+        "shells",
         "outputs",
         "performance",
         "parallel",

@@ -474,3 +474,37 @@ def test_a_partition_of_equal_cost_balances_an_insert_film_and_keeps_the_history
     assert balance["imbalance_at_start"] < 1.0 + 3.3 / 45.0  # within one cell's cost
     assert runs["cells", 2][2]["imbalance_at_start"] > 1.2
     assert_same_history(serial, history)
+
+
+@pytest.mark.mpi
+def test_a_tube_crushed_sideways_on_two_ranks_reproduces_the_serial_history(tmp_path):
+    """A curved shell across the partition: a [0/90]2s tube pressed by a rigid cylinder across
+    it, the indicators refining under it (the cells' frames, the interface stress recovered
+    with the wall's curvature, contact on the outer face, extra nodes and cohesive elements on
+    both ranks)."""
+    data = {
+        "model": {"kind": "adaptive"},
+        "mesh": {"kind": "tube", "radius": 10.0, "length": 30.0, "n_around": 16, "n_along": 12},
+        "materials": {"im7": {"E1": 171420.0, "E2": 9080.0, "G12": 5290.0, "nu12": 0.32,
+                              "nu23": 0.5, "rho": 1.59e-9}},
+        "laminate": {"material": "im7", "ply_thickness": 0.25,
+                     "angles": [0, 90, 0, 90, 90, 0, 90, 0]},
+        "interfaces": {"delaminate": [2, 6]},
+        "cohesive": {"K_n": 1.0e5, "K_s": 1.0e5, "N": 30.0, "S": 45.0, "GIc": 0.28,
+                     "GIIc": 0.79, "law": "bk", "exponent": 2.1},
+        "indicators": {},
+        "clamp": [{"face": "x0"}, {"face": "x1"}],
+        "rigid": [{"name": "pole", "shape": "cylinder", "axis": "y", "radius": 4.0,
+                   "position": [15.0, 0.0, 15.05], "face": "top", "motion": "prescribed",
+                   "velocity": [0.0, 0.0, -5000.0], "rise_time": 2.0e-5, "profile": "smooth"}],
+        "solver": {"end_time": 1.5e-4},
+        "output": {"interval": 5.0e-6, "displacement_face": "top", "reaction_face": "x0",
+                   "component": "z"},
+    }  # fmt: skip
+    config = tmp_path / "tube.toml"
+    config.write_text(toml_text(data))
+    serial, (whole,) = run_case(config, tmp_path / "serial", 1)
+    parallel, ranks = run_case(config, tmp_path / "parallel", 2)
+    assert whole["cohesive"] > 0 and max(serial["pole_force"]) > 100.0
+    assert sum(r["cohesive"] > 0 for r in ranks) == 2, ranks  # refined on both ranks
+    assert_same_history(serial, parallel)

@@ -23,7 +23,7 @@ import numpy as np
 import pytest
 from fenics_adaptive.meshes import shell, surface
 from fenics_adaptive.meshes.beam import layered_mesh
-from helpers import PROTOTYPE_PLY, run_quietly
+from helpers import DATA, PROTOTYPE_PLY, run_quietly
 
 from fenics_adaptive.errors import InputError
 from fenics_adaptive.materials.laminate import Laminate, PlyMaterial
@@ -151,7 +151,7 @@ def test_a_flat_shell_is_the_plate_and_a_rotated_one_turns_its_answer():
         None,
         "bottom",
         shell.constant_direction(Q @ [1.0, 0.0, 0.0]),
-        shell.constant_direction(Q @ [0.0, 0.0, 1.0]),
+        shell.toward(Q @ [0.0, 0.0, 1.0]),
     )
     x_turned, u_turned = _tip_displacement(turned, Q @ [0.0, 0.0, -1.0])
     tip_turned = np.abs((x_turned @ Q)[:, 0] - 20.0) < 1e-9
@@ -391,3 +391,58 @@ def test_config_mesh_kinds_and_their_refusals(tmp_path):
     no_file["mesh"]["file"] = str(triangles)
     with pytest.raises(InputError, match="triangles"):
         parse_config(no_file)
+
+
+def test_hoop_runs_around_the_profile_and_cells_turn_to_the_projected_direction():
+    """A hat's hoop direction is around its profile on the crown, the webs and the flanges
+    alike (axis x the normal); a surface to which the default direction (x) is normal takes
+    global z projected, and its cells' xi turns to it too (the frames' one rule)."""
+    data = _tube_config()
+    data["mesh"] = {"kind": "hat", "length": 20.0, "width": 10.0, "height": 6.0, "flange": 4.0,
+                    "size": 2.0, "n_along": 4, "orientation": "hoop"}  # fmt: skip
+    structure = build_structure(parse_config(data), MPI.COMM_SELF)
+    frames = structure.base.cell_frames()[: structure.base.n_owned_cells]
+    np.testing.assert_allclose(frames[:, 0, 0], 0.0, atol=1e-12)  # axis 1 across x
+    np.testing.assert_allclose(np.abs(frames[:, 2, 0]), 0.0, atol=1e-12)  # normals across x
+    turn = np.array([[0.0, 0.0, 1.0], [0.0, 1.0, 0.0], [-1.0, 0.0, 0.0]])  # z onto x
+    wall = shell.shell_mesh(MPI.COMM_WORLD, _flat_surface(4.0, 2.0, 4, 2, turn), [1.0])
+    from fenics_adaptive.model.forms import cell_vertex_coordinates
+
+    X = cell_vertex_coordinates(wall.mesh)
+    e1 = wall.cell_frames(X)[:, 0]
+    np.testing.assert_allclose(np.abs(e1[:, 2]), 1.0, atol=1e-12)  # global z projected
+    xi = X[:, 1] - X[:, 0]
+    np.testing.assert_allclose(
+        np.einsum("ci,ci->c", xi / np.linalg.norm(xi, axis=1)[:, None], e1), 1.0, atol=1e-12
+    )
+
+
+def test_shell_inputs_refused_where_they_would_do_nothing_or_harm(tmp_path):
+    symmetric = _cohesive(_tube_config("layerwise"), None)
+    symmetric["mesh"]["layers"] = [2, 2]
+    symmetric["interfaces"] = {"symmetry": [2]}
+    with pytest.raises(InputError, match=r"interfaces\.symmetry: .*shell"):
+        parse_config(symmetric)
+    film = _cohesive(_tube_config("adaptive"), None)
+    film["delamination"] = [{"interface": 2, "x_min": 100.0, "x_max": 120.0}]
+    with pytest.raises(InputError, match=r"delamination\[0\]: its region holds no cell"):
+        build_structure(parse_config(film), MPI.COMM_SELF)
+    reserved = tmp_path / "reserved.geo"
+    reserved.write_text((DATA / "shell_strip.geo").read_text().replace('"right"', '"top"'))
+    data = _tube_config()
+    data["mesh"] = {"kind": "file", "file": str(reserved)}
+    data["clamp"] = [{"face": "left"}]
+    data["prescribed"] = []
+    data["output"]["displacement_face"] = "left"
+    with pytest.raises(InputError, match="may not be called 'top'"):
+        parse_config(data)
+    too_few = _tube_config(n_around=2)
+    with pytest.raises(InputError, match="at least 3 cells around"):
+        parse_config(too_few)
+    # a surface the extrusion cannot serve: an input error naming the quadrilateral
+    band = surface.SurfaceMesh(
+        [[x, 0.0, z] for x in range(4) for z in (0.0, 1.0)],
+        [[0, 2, 3, 1], [2, 4, 5, 3], [4, 6, 7, 5], [6, 1, 0, 7]],
+    )
+    with pytest.raises(InputError, match="cannot be oriented"):
+        shell.shell_mesh(MPI.COMM_WORLD, band, [1.0])

@@ -45,6 +45,9 @@ class FaceGeometry:
     owned_on_face: list[np.ndarray]
     traction: la.Vector
     centroids: np.ndarray  # (n_owned_cells, 3) mm
+    # (n_owned_cells, 3) curvatures (1/mm) kappa_xx, kappa_yy, kappa_xy of a curved shell's
+    # cells in their frames (``cell_curvatures``); None on a flat mesh
+    curvatures: np.ndarray | None = None
     sums: dict[int, la.Vector] = field(default_factory=dict)
 
     @classmethod
@@ -78,7 +81,10 @@ class FaceGeometry:
             on_face = np.unique(nodes.ravel())
             owned.append(on_face[on_face < n_owned])
         centroids = structure.cell_vertices().mean(axis=1)
-        return cls(d_dx, d_dy, areas, owned, la.vector(index_map, bs=3), centroids)
+        curvatures = None
+        if len(frames):
+            curvatures = cell_curvatures(structure.cell_vertices(), frames, d_dx, d_dy)
+        return cls(d_dx, d_dy, areas, owned, la.vector(index_map, bs=3), centroids, curvatures)
 
     def sums_vector(self, structure, width: int) -> la.Vector:
         """A zeroed work vector of block size ``width`` on the base nodes."""
@@ -180,10 +186,13 @@ def _shear_profile(corners, table, d_dx, d_dy, t, out, shear):
 
 
 @njit(cache=True)
-def _peel_profile(corners, table, d_dx, d_dy, t, out):
+def _peel_profile(corners, table, d_dx, d_dy, t, out, curvatures, in_plane, curved):
     """The peel stress at the ply boundaries, out[c, :, 0], from the column averages of the
     shears ``table`` (n_nodes, 2 (n_plies + 1) + 1): d sigma_zz / dz = -(d tau_xz / dx +
-    d tau_yz / dy) integrated from the bottom face (trapezoidal in each ply)."""
+    d tau_yz / dy) integrated from the bottom face (trapezoidal in each ply); on a ``curved``
+    shell plus the in-plane stresses ``in_plane`` (n_cells, 3 n_plies) acting on the
+    curvatures (n_cells, 3: kappa_xx, kappa_yy, kappa_xy, 1/mm), kappa_ab sigma_ab: a hoop
+    stress on a tube's wall pulls its plies apart or presses them together."""
     n_plies = t.shape[0]
     for c in range(corners.shape[0]):
         out[c, 0, 0] = 0.0
@@ -193,6 +202,12 @@ def _peel_profile(corners, table, d_dx, d_dy, t, out):
             above, _ = _centre_gradient(corners, table, d_dx, d_dy, c, 2 * (k + 1))
             above += _centre_gradient(corners, table, d_dx, d_dy, c, 2 * (k + 1) + 1)[1]
             out[c, k + 1, 0] = out[c, k, 0] - 0.5 * (above + below) * t[k]
+            if curved:
+                out[c, k + 1, 0] += t[k] * (
+                    curvatures[c, 0] * in_plane[c, 3 * k]
+                    + curvatures[c, 1] * in_plane[c, 3 * k + 1]
+                    + 2.0 * curvatures[c, 2] * in_plane[c, 3 * k + 2]
+                )
             below = above
 
 
@@ -226,8 +241,28 @@ def recovered_interface_stresses(structure, stresses: np.ndarray | None = None) 
     shear = np.empty((n_cells, 2 * (n_plies + 1)))
     _shear_profile(corners, table, geometry.d_dx, geometry.d_dy, t, out, shear)
     table = _column_averages(structure, shear)
-    _peel_profile(corners, table, geometry.d_dx, geometry.d_dy, t, out)
+    curved = geometry.curvatures is not None
+    curvatures = geometry.curvatures if curved else np.zeros((0, 3))
+    _peel_profile(
+        corners, table, geometry.d_dx, geometry.d_dy, t, out, curvatures, in_plane, curved
+    )
     return out
+
+
+def cell_curvatures(
+    X: np.ndarray, frames: np.ndarray, d_dx: np.ndarray, d_dy: np.ndarray
+) -> np.ndarray:
+    """(n, 3) the curvatures kappa_xx, kappa_yy, kappa_xy (1/mm) of cells with vertices X (n,
+    8, 3) in their frames (n, 3, 3): kappa_ab = e_a . d n / d x_b at the centre, n the unit
+    vertical edges (a curved shell's edges run along its normals), differentiated with the
+    bottom face's in-plane gradient operator (``d_dx``, ``d_dy`` (n, 4), in the frame);
+    positive where the surface bends away from its normal (a tube with outward normals:
+    1 / R around it)."""
+    edges = X[:, 4:] - X[:, :4]
+    normals = np.einsum("cij,caj->cai", frames, edges / np.linalg.norm(edges, axis=2)[..., None])
+    dn_dx = np.einsum("ca,cai->ci", d_dx, normals)
+    dn_dy = np.einsum("ca,cai->ci", d_dy, normals)
+    return np.column_stack([dn_dx[:, 0], dn_dy[:, 1], 0.5 * (dn_dx[:, 1] + dn_dy[:, 0])])
 
 
 @njit(cache=True)

@@ -85,17 +85,23 @@ def quad_traction_integrals(
 _NORMAL_TO_DIRECTION = math.sin(math.radians(0.1))
 
 
-def cell_frames(X: np.ndarray, direction: np.ndarray) -> np.ndarray:
-    """(n, 3, 3) orthonormal frames of hexahedra with vertices X (n, 8, 3), rows (e1, e2, e3):
-    e3 the unit normal of the cell's mid-surface at its centre (d x / d xi x d x / d eta),
-    e1 ``direction`` (n, 3) projected on the plane normal to e3 (where it lies within 0.1
-    degree of e3: global z projected, or global x if that too), e2 = e3 x e1. A flat cell of
-    the meshes of ``meshes.beam`` with ``direction`` along x has the identity."""
+def cell_normals(X: np.ndarray) -> np.ndarray:
+    """(n, 3) unit normals of the mid-surfaces of hexahedra X (n, 8, 3) at their centres,
+    d x / d xi x d x / d eta."""
     X = np.asarray(X, dtype=np.float64)
     along_xi = (X[:, 1::2] - X[:, 0::2]).mean(axis=1)
     along_eta = (X[:, [2, 3, 6, 7]] - X[:, [0, 1, 4, 5]]).mean(axis=1)
     e3 = np.cross(along_xi, along_eta)
-    e3 /= np.linalg.norm(e3, axis=1)[:, None]
+    return e3 / np.linalg.norm(e3, axis=1)[:, None]
+
+
+def frames_about(normals: np.ndarray, direction: np.ndarray) -> np.ndarray:
+    """(n, 3, 3) orthonormal frames, rows (e1, e2, e3): e3 the unit ``normals`` (n, 3), e1
+    ``direction`` (n, 3) projected on the plane normal to e3 (where it lies within 0.1 degree
+    of e3: global z projected, or global x if that too, as Abaqus' default shell directions),
+    e2 = e3 x e1. The one rule of a curved shell's material frames (``cell_frames``, and the
+    cells' turning in ``meshes.shell.align``)."""
+    e3 = np.asarray(normals, dtype=np.float64)
     d = np.broadcast_to(np.asarray(direction, dtype=np.float64), e3.shape)
     e1 = _projected(d, e3)
     for fallback in ([0.0, 0.0, 1.0], [1.0, 0.0, 0.0]):
@@ -107,7 +113,17 @@ def cell_frames(X: np.ndarray, direction: np.ndarray) -> np.ndarray:
     return np.stack([e1, np.cross(e3, e1), e3], axis=1)
 
 
+def cell_frames(X: np.ndarray, direction: np.ndarray) -> np.ndarray:
+    """(n, 3, 3) frames of hexahedra with vertices X (n, 8, 3), rows (e1, e2, e3): e3 the
+    normal of the cell's mid-surface at its centre (``cell_normals``), e1 ``direction`` (n,
+    3) projected on the surface (``frames_about``). A flat cell of the meshes of
+    ``meshes.beam`` with ``direction`` along x has the identity."""
+    return frames_about(cell_normals(X), direction)
+
+
 def _projected(d: np.ndarray, normal: np.ndarray) -> np.ndarray:
-    """Unit ``d`` (n, 3) with its component along the unit ``normal`` (n, 3) removed."""
-    d = d / np.linalg.norm(d, axis=1)[:, None]
+    """``d`` (n, 3) normalised (where not zero) with its component along the unit ``normal``
+    (n, 3) removed."""
+    length = np.linalg.norm(d, axis=1)[:, None]
+    d = d / np.where(length > 0.0, length, 1.0)
     return d - np.einsum("ni,ni->n", d, normal)[:, None] * normal

@@ -62,7 +62,7 @@ from numba import njit
 from fenics_adaptive.element.geometry import quad_areas
 from fenics_adaptive.errors import InputError
 from fenics_adaptive.model.forces import Contributor, ForceKind
-from fenics_adaptive.model.loading import face_nodes
+from fenics_adaptive.model.loading import face_facets, face_nodes
 from fenics_adaptive.parallel.reductions import summed
 from fenics_adaptive.settings.kinds import ImpactorShape, RigidMotion
 from fenics_adaptive.settings.loads import Impactor, RigidBody
@@ -194,11 +194,12 @@ class Contact(Contributor):
         nodes = face_nodes(base, body.face)  # collective
         owned = nodes[nodes < base.V.dofmap.index_map.size_local]
         X = structure.X_base[owned]
-        corners = structure.X_base[structure.bottom_local]
-        # the mean cell area over all ranks: one penalty for the whole face, as in serial
-        local = np.array([quad_areas(corners).sum(), len(corners)])
-        total, n_cells = structure.comm.allreduce(local, op=MPI.SUM)
-        area = total / n_cells
+        # the mean area of the face's facets over all ranks: one penalty for the whole face,
+        # as in serial (of the face it touches: a curved shell's layers differ in area)
+        _, _, facets = face_facets(base, body.face)
+        local = np.array([quad_areas(facets).sum(), len(facets)])
+        total, n_facets = structure.comm.allreduce(local, op=MPI.SUM)
+        area = total / n_facets
         C33 = max(p.material.stiffness()[2, 2] for p in structure.laminate.plies)
         mass = structure.mass_base.array[3 * owned]
         h = structure.laminate.thickness

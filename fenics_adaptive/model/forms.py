@@ -270,6 +270,8 @@ class LayeredModel:
         self._enhanced_maps = None
         self._cell_time_steps = None
         self._frames = None
+        if self.curved:  # the forms' frame function holds the frames of the old geometry
+            self._compiled = None
         self.set_ufl_cells(self.ufl_cells)
 
     def enhanced_parameter_maps(self) -> np.ndarray:

@@ -299,11 +299,6 @@ def resolve(
     fixed_motion = np.array([owner[int(d)] for d in fixed], dtype=np.int32)
 
     vectors, tractions, facet_lists, cell_tractions = [], [], [], []
-    tdim = model.mesh.topology.dim
-    model.mesh.topology.create_connectivity(tdim, tdim - 1)
-    n_facets = len(HEX_FACETS)
-    cell_facets = model.mesh.topology.connectivity(tdim, tdim - 1).array.reshape(-1, n_facets)
-    cell_facets = cell_facets[: model.n_owned_cells]
     cell_nodes = model.V.dofmap.list[: model.n_owned_cells]
     X_nodes = model.V.tabulate_dof_coordinates()
     index_map = model.V.dofmap.index_map
@@ -313,8 +308,7 @@ def resolve(
                 load.key or "load", f"{load.face!r}: a load acts on one face, not on a&b"
             )
         # the (owned cell, local facet) pairs on the face with their centroid in the region
-        cells, local = np.nonzero(np.isin(cell_facets, model.beam.facets(load.face)))
-        X = X_nodes[cell_nodes[cells[:, None], HEX_FACETS[local]]]  # (k, 4, 3)
+        cells, local, X = face_facets(model, load.face)
         centre = X.mean(axis=1)
         inside = load.region.holds(centre[:, 0], centre[:, 1])
         cells, local, X, centre = cells[inside], local[inside], X[inside], centre[inside]
@@ -354,6 +348,19 @@ def resolve(
         extra_resultants=np.zeros((len(loads), 3)),
         cell_tractions=cell_tractions,
     )
+
+
+def face_facets(model: LayeredModel, face: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The facets of a face group on this rank's owned cells: (cells (k,), their local facet
+    (k,), DOLFINx reference numbering, and its vertices X (k, 4, 3) mm in tensor order)."""
+    tdim = model.mesh.topology.dim
+    model.mesh.topology.create_connectivity(tdim, tdim - 1)
+    cell_facets = model.mesh.topology.connectivity(tdim, tdim - 1).array.reshape(
+        -1, len(HEX_FACETS)
+    )[: model.n_owned_cells]
+    cells, local = np.nonzero(np.isin(cell_facets, model.beam.facets(face)))
+    nodes = model.V.dofmap.list[: model.n_owned_cells][cells[:, None], HEX_FACETS[local]]
+    return cells, local, model.V.tabulate_dof_coordinates()[nodes]
 
 
 @dataclass(frozen=True)

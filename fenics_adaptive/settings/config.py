@@ -1265,6 +1265,12 @@ def _interfaces(
         _check_adaptive_interfaces(interfaces)
     if set(interfaces.symmetry) & set(interfaces.delaminate):
         raise InputError("interfaces.symmetry", "a symmetry interface cannot also delaminate")
+    if interfaces.symmetry and not mesh.structured:
+        raise InputError(
+            "interfaces.symmetry",
+            "holds u_z = 0 there, a symmetry plane of a flat plate only; on a shell model the "
+            "whole laminate (its normal is not along z)",
+        )
     refinements = tuple(_refinement(t, interfaces, n_plies, mesh) for t in refinement_tables)
     return interfaces, refinements, _cohesive(cohesive_table, interfaces)
 

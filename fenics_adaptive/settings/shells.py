@@ -74,6 +74,10 @@ def shell_shape(table, kind: MeshKind, source: str) -> ShellShape:
         if not table.has(name):
             raise InputError(table.key(name), f'missing (kind = "{kind}" needs it)')
         number = table.integer(name) if name.startswith("n_") else table.number(name)
+        if name == "n_around" and kind == MeshKind.TUBE and number < 3:
+            raise InputError(
+                table.key(name), f"a tube needs at least 3 cells around (got {number})"
+            )
         sizes[name] = number
     direction = table.numbers("direction")
     orientation = table.choice("orientation") if table.has("orientation") else None
@@ -150,10 +154,12 @@ def _resolve(path: str, source: str) -> str:
 def _file_summary(table, file: str, surface: str | None) -> tuple[tuple[str, ...], int]:
     """(edge names, quadrilaterals) of a surface file; InputError naming ``mesh.file`` (or
     ``mesh.surface``) if Gmsh cannot give a quadrilateral surface from it."""
-    from fenics_adaptive.meshes.surface import read_surface  # Gmsh: only for this kind
+    from fenics_adaptive.meshes.shell import check_side_names  # Gmsh: only for this kind
+    from fenics_adaptive.meshes.surface import read_surface
 
     try:
         mesh = read_surface(file, surface)
+        check_side_names(sorted(mesh.edges))
     except ValueError as error:
         text = str(error)
         key = "surface" if text.startswith("mesh.surface") else "file"
