@@ -18,6 +18,7 @@ NAMES = (
     "tcb",
     "four_point_bending",
     "plate_impact",
+    "tube_crush",
     "esl_vs_lw",
     "fracture_tests",
 )

@@ -36,6 +36,7 @@ TCB_RUNS = ("reference", "refined_from_start", "adaptive", "late", "late_stabili
 TCB_LATE_OPENING = 0.005  # mm: the paper's late refinement, past the cohesive initiation
 FOUR_POINT_BENDING_RUNS = ("reference", "adaptive_unstabilised", "adaptive")
 PLATE_IMPACT_RUNS = ("esl", "adaptive", "layerwise")
+TUBE_CRUSH_RUNS = PLATE_IMPACT_RUNS  # derived alike: ``plate_impact_variant``
 FRACTURE_RUNS = ("layerwise", "adaptive")
 
 
@@ -120,7 +121,7 @@ def four_point_bending_variant(base: dict, name: str) -> dict:
 
 def plate_impact_variant(base: dict, name: str) -> dict:
     """One run of the plate-impact study (``PLATE_IMPACT_RUNS``) from ``base``, the config of the
-    adaptive run.
+    adaptive run; the tube crush study's alike (``TUBE_CRUSH_RUNS``, a tube's config).
 
     Parameters:
         base: the config as a TOML table (``demos/plate_impact.toml``).
@@ -377,6 +378,7 @@ STUDIES: dict[str, Study] = {
     "tcb": Study(TCB_RUNS, tcb_variant),
     "four_point_bending": Study(FOUR_POINT_BENDING_RUNS, four_point_bending_variant),
     "plate_impact": Study(PLATE_IMPACT_RUNS, plate_impact_variant),
+    "tube_crush": Study(TUBE_CRUSH_RUNS, plate_impact_variant),
     "fracture_tests": Study(FRACTURE_RUNS, fracture_variant),
 }
 """Every study by the name of its demo (``demos/<name>.py`` and ``demos/<name>.toml``)."""
