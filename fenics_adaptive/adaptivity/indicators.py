@@ -236,8 +236,11 @@ def front_requests(
     """Collective: strong refinements that keep every started delamination inside the refined
     region: at each interface i, the cells whose centroid lies within ``distances[i - 1]``
     (mm, ``front_distances``) of the centroid of a cell whose cohesive element there has
-    damage > 0 (on any rank), not yet strong there. Noted in ``reasons``, when given, as
-    ``front`` with the distance (mm) to the nearest such cell."""
+    damage > 0 (on any rank), and at least the cells that share a node with such a cell
+    (where the cells are larger than the distance: else no cell would be kept ahead of the
+    front, and the border constraint of the refined region would hold its process zone),
+    not yet strong there. Noted in ``reasons``, when given, as ``front`` with the distance
+    (mm) to the nearest such cell (NaN for a touching cell beyond the distance)."""
     state = structure.interface_state
     centroids = face_geometry(structure).centroids
     cells, interfaces, rows = element_data(structure).cohesive_rows.T
@@ -258,7 +261,20 @@ def front_requests(
         asked = [(int(c), interface, InterfaceState.STRONG) for c in todo]
         note(reasons, asked, "front", nearest[todo])
         requests += asked
-    return requests
+    # the cells touching a started delamination (one ring, collective on every rank)
+    damaged = [
+        (int(c), interface, InterfaceState.STRONG)
+        for interface, cells_there in started.items()
+        for c in cells_there
+    ]
+    asked = set(requests)
+    touching = [
+        (c, i, k)
+        for c, i, k in spread(structure, damaged, 1)
+        if state[c, i - 1] < InterfaceState.STRONG and (c, i, k) not in asked
+    ]
+    note(reasons, touching, "front")  # (no distance: a neighbour, however far its centroid)
+    return requests + touching
 
 
 # ---------------------------------------------------------------------------- spreading
