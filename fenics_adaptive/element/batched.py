@@ -98,27 +98,28 @@ def _gather_monomials(element_nodes, order, first, nw, n_base, base, extra, fram
     ``order[first:first + nw]``, lane by lane, from ``base`` / ``extra`` (n, 3) by combined local
     node index (``subelement.gather_nodes``); with ``frames`` (one 3 x 3 per element, rows its
     frame's axes; none: the global frame) the components in the element's frame, F v."""
-    rotate = frames.shape[0] > 0
-    for w in range(nw):
-        e = order[first + w]
-        nodes = element_nodes[e]
-        for a in range(8):
-            node = nodes[a]
-            if node < n_base:
-                v0, v1, v2 = base[node, 0], base[node, 1], base[node, 2]
-            else:
-                k = node - n_base
-                v0, v1, v2 = extra[k, 0], extra[k, 1], extra[k, 2]
-            if rotate:
-                F = frames[e]
-                v0, v1, v2 = (
-                    F[0, 0] * v0 + F[0, 1] * v1 + F[0, 2] * v2,
-                    F[1, 0] * v0 + F[1, 1] * v1 + F[1, 2] * v2,
-                    F[2, 0] * v0 + F[2, 1] * v1 + F[2, 2] * v2,
-                )
-            out[(a * 3) * LANES + w] = v0
-            out[(a * 3 + 1) * LANES + w] = v1
-            out[(a * 3 + 2) * LANES + w] = v2
+    if frames.shape[0] == 0:  # the global frame: the plain copy (the flat meshes' hot path)
+        for w in range(nw):
+            nodes = element_nodes[order[first + w]]
+            for a in range(8):
+                node = nodes[a]
+                for i in range(3):
+                    if node < n_base:
+                        out[(a * 3 + i) * LANES + w] = base[node, i]
+                    else:
+                        out[(a * 3 + i) * LANES + w] = extra[node - n_base, i]
+    else:
+        for w in range(nw):
+            e = order[first + w]
+            nodes = element_nodes[e]
+            F = frames[e]
+            for a in range(8):
+                node = nodes[a]
+                source = base if node < n_base else extra
+                k = node if node < n_base else node - n_base
+                v0, v1, v2 = source[k, 0], source[k, 1], source[k, 2]
+                for i in range(3):
+                    out[(a * 3 + i) * LANES + w] = F[i, 0] * v0 + F[i, 1] * v1 + F[i, 2] * v2
     _butterfly(out, False, nw)
 
 
@@ -126,31 +127,30 @@ def _gather_monomials(element_nodes, order, first, nw, n_base, base, extra, fram
 def _scatter_forces(element_nodes, order, first, nw, n_base, forces, frames, base, extra):
     """Add the vertex forces of the lanes to ``base`` / ``extra`` (n, 3); with ``frames``
     (``_gather_monomials``) the forces are in the elements' frames: F^T f added."""
-    rotate = frames.shape[0] > 0
-    for w in range(nw):
-        e = order[first + w]
-        nodes = element_nodes[e]
-        for a in range(8):
-            node = nodes[a]
-            f0 = forces[(a * 3) * LANES + w]
-            f1 = forces[(a * 3 + 1) * LANES + w]
-            f2 = forces[(a * 3 + 2) * LANES + w]
-            if rotate:
-                F = frames[e]
-                f0, f1, f2 = (
-                    F[0, 0] * f0 + F[1, 0] * f1 + F[2, 0] * f2,
-                    F[0, 1] * f0 + F[1, 1] * f1 + F[2, 1] * f2,
-                    F[0, 2] * f0 + F[1, 2] * f1 + F[2, 2] * f2,
-                )
-            if node < n_base:
-                base[node, 0] += f0
-                base[node, 1] += f1
-                base[node, 2] += f2
-            else:
-                k = node - n_base
-                extra[k, 0] += f0
-                extra[k, 1] += f1
-                extra[k, 2] += f2
+    if frames.shape[0] == 0:  # the global frame (the flat meshes' hot path)
+        for w in range(nw):
+            nodes = element_nodes[order[first + w]]
+            for a in range(8):
+                node = nodes[a]
+                for i in range(3):
+                    if node < n_base:
+                        base[node, i] += forces[(a * 3 + i) * LANES + w]
+                    else:
+                        extra[node - n_base, i] += forces[(a * 3 + i) * LANES + w]
+    else:
+        for w in range(nw):
+            e = order[first + w]
+            nodes = element_nodes[e]
+            F = frames[e]
+            for a in range(8):
+                node = nodes[a]
+                f0 = forces[(a * 3) * LANES + w]
+                f1 = forces[(a * 3 + 1) * LANES + w]
+                f2 = forces[(a * 3 + 2) * LANES + w]
+                target = base if node < n_base else extra
+                k = node if node < n_base else node - n_base
+                for i in range(3):
+                    target[k, i] += F[0, i] * f0 + F[1, i] * f1 + F[2, i] * f2
 
 
 @njit(cache=True, **KERNEL_OPTIONS)
