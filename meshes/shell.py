@@ -263,6 +263,8 @@ def shell_mesh(
                 names, edge_of_side = _side_groups(surface)
             except ValueError as error:  # the user's geometry: an input error on every rank
                 key, _, problem = str(error).partition(": ")
+                if not key.startswith("mesh"):
+                    raise
                 raise InputError(key, problem) from error
             extents = np.sort(np.ptp(surface.nodes, axis=0))[::-1]
             size = extents[:2]

@@ -70,7 +70,7 @@ class SurfaceMesh:
         n = np.cross(X[:, 2] - X[:, 0], X[:, 3] - X[:, 1])
         length = np.linalg.norm(n, axis=1)
         if np.any(length == 0.0):
-            raise ValueError(f"surface mesh: quadrilateral {int(np.argmin(length))} has no area")
+            raise ValueError(f"mesh: quadrilateral {int(np.argmin(length))} has no area")
         return n / length[:, None]
 
     def characteristic_size(self) -> float:

@@ -446,3 +446,27 @@ def test_shell_inputs_refused_where_they_would_do_nothing_or_harm(tmp_path):
     )
     with pytest.raises(InputError, match="cannot be oriented"):
         shell.shell_mesh(MPI.COMM_WORLD, band, [1.0])
+
+
+def test_the_recovered_peel_stress_carries_the_hoop_stress_on_the_walls_curvature():
+    """On a tube (outward normals, axis 1 along x), ply stresses sigma_yy (hoop) uniform along
+    the wall give no in-plane gradients: the recovered peel stress is then the curvature term
+    alone, sigma_zz(top of ply k) = sum over the plies below of t_j sigma_yy,j / (R + z_j), the
+    radial equilibrium of a thin ring (z_j: the ply's centre from the mid-surface; kappa_yy of
+    the mid-surface 1 / R). A flat plate gets no such term."""
+    from fenics_adaptive.adaptivity.interlaminar import face_geometry, recovered_interface_stresses
+
+    structure = build_structure(parse_config(_tube_config(n_around=64, n_along=4)), MPI.COMM_SELF)
+    kappa = face_geometry(structure).curvatures
+    np.testing.assert_allclose(kappa[:, 1], 1 / 20.0, rtol=2e-3)  # the faceted ring: 64 cells
+    np.testing.assert_allclose(kappa[:, [0, 2]], 0.0, atol=1e-12)
+    n_cells, n_plies = structure.base.n_owned_cells, structure.laminate.n_plies
+    hoop = np.array([100.0, -50.0, 30.0, 80.0])  # MPa, ply by ply
+    stresses = np.zeros((n_cells, n_plies, 6))
+    stresses[:, :, 1] = hoop
+    peel = recovered_interface_stresses(structure, stresses)[:, :, 0]
+    t = np.full(n_plies, 0.25)
+    z = np.cumsum(t) - 0.5 * t - 0.5 * t.sum()
+    mean_kappa = kappa[:, 1].mean()
+    expected = np.concatenate([[0.0], np.cumsum(t * hoop * mean_kappa / (1 + mean_kappa * z))])
+    np.testing.assert_allclose(peel, np.broadcast_to(expected, peel.shape), rtol=3e-3, atol=1e-9)

@@ -56,18 +56,7 @@ class FaceGeometry:
         frames = structure.base.element_frames(np.arange(len(X)))
         if len(frames):  # a curved shell: the derivatives along each cell's own axes 1, 2
             X = np.einsum("cij,caj->cai", frames, X)
-        d_xi = np.array([-0.5, 0.5, -0.5, 0.5])
-        d_eta = np.array([-0.5, -0.5, 0.5, 0.5])
-        J = np.stack(
-            [
-                np.stack([X[:, :, 0] @ d_xi, X[:, :, 0] @ d_eta], axis=1),
-                np.stack([X[:, :, 1] @ d_xi, X[:, :, 1] @ d_eta], axis=1),
-            ],
-            axis=1,
-        )  # (n, 2 (x, y), 2 (xi, eta))
-        inv = np.linalg.inv(J) if len(J) else np.zeros((0, 2, 2))  # (n, (xi, eta), (x, y))
-        d_dx = inv[:, 0, 0, None] * d_xi + inv[:, 1, 0, None] * d_eta
-        d_dy = inv[:, 0, 1, None] * d_xi + inv[:, 1, 1, None] * d_eta
+        d_dx, d_dy = face_gradients(X)
         index_map = structure.base.V.dofmap.index_map
         n_owned = index_map.size_local
         areas, owned = [], []
@@ -83,7 +72,7 @@ class FaceGeometry:
         centroids = structure.cell_vertices().mean(axis=1)
         curvatures = None
         if len(frames):
-            curvatures = cell_curvatures(structure.cell_vertices(), frames, d_dx, d_dy)
+            curvatures = cell_curvatures(structure.cell_vertices(), frames)
         return cls(d_dx, d_dy, areas, owned, la.vector(index_map, bs=3), centroids, curvatures)
 
     def sums_vector(self, structure, width: int) -> la.Vector:
@@ -93,6 +82,25 @@ class FaceGeometry:
         vector = self.sums[width]
         vector.array.fill(0.0)
         return vector
+
+
+def face_gradients(X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(d_dx, d_dy) (n, 4): d/dx and d/dy at the centre of quadrilaterals X (n, 4, 3; tensor
+    order; their x and y components taken, the plane of the quadrilateral) of values at their
+    four vertices, bilinear."""
+    d_xi = np.array([-0.5, 0.5, -0.5, 0.5])
+    d_eta = np.array([-0.5, -0.5, 0.5, 0.5])
+    J = np.stack(
+        [
+            np.stack([X[:, :, 0] @ d_xi, X[:, :, 0] @ d_eta], axis=1),
+            np.stack([X[:, :, 1] @ d_xi, X[:, :, 1] @ d_eta], axis=1),
+        ],
+        axis=1,
+    )  # (n, 2 (x, y), 2 (xi, eta))
+    inv = np.linalg.inv(J) if len(J) else np.zeros((0, 2, 2))  # (n, (xi, eta), (x, y))
+    d_dx = inv[:, 0, 0, None] * d_xi + inv[:, 1, 0, None] * d_eta
+    d_dy = inv[:, 0, 1, None] * d_xi + inv[:, 1, 1, None] * d_eta
+    return d_dx, d_dy
 
 
 # per structure (weakly held): its FaceGeometry
@@ -186,13 +194,14 @@ def _shear_profile(corners, table, d_dx, d_dy, t, out, shear):
 
 
 @njit(cache=True)
-def _peel_profile(corners, table, d_dx, d_dy, t, out, curvatures, in_plane, curved):
+def _peel_profile(corners, table, d_dx, d_dy, t, out, curvatures, in_plane, curved, level):
     """The peel stress at the ply boundaries, out[c, :, 0], from the column averages of the
     shears ``table`` (n_nodes, 2 (n_plies + 1) + 1): d sigma_zz / dz = -(d tau_xz / dx +
     d tau_yz / dy) integrated from the bottom face (trapezoidal in each ply); on a ``curved``
     shell plus the in-plane stresses ``in_plane`` (n_cells, 3 n_plies) acting on the
-    curvatures (n_cells, 3: kappa_xx, kappa_yy, kappa_xy, 1/mm), kappa_ab sigma_ab: a hoop
-    stress on a tube's wall pulls its plies apart or presses them together."""
+    curvatures (n_cells, 3: kappa_xx, kappa_yy, kappa_xy, 1/mm) of the mid-surface, taken to
+    each ply's centre at ``level`` (n_plies,) mm from it, kappa_ab sigma_ab: a hoop stress on a
+    tube's wall pulls its plies apart or presses them together."""
     n_plies = t.shape[0]
     for c in range(corners.shape[0]):
         out[c, 0, 0] = 0.0
@@ -202,10 +211,11 @@ def _peel_profile(corners, table, d_dx, d_dy, t, out, curvatures, in_plane, curv
             above, _ = _centre_gradient(corners, table, d_dx, d_dy, c, 2 * (k + 1))
             above += _centre_gradient(corners, table, d_dx, d_dy, c, 2 * (k + 1) + 1)[1]
             out[c, k + 1, 0] = out[c, k, 0] - 0.5 * (above + below) * t[k]
-            if curved:
+            if curved:  # the surface through the ply's centre: kappa / (1 + kappa z)
+                z = level[k]
                 out[c, k + 1, 0] += t[k] * (
-                    curvatures[c, 0] * in_plane[c, 3 * k]
-                    + curvatures[c, 1] * in_plane[c, 3 * k + 1]
+                    curvatures[c, 0] / (1.0 + curvatures[c, 0] * z) * in_plane[c, 3 * k]
+                    + curvatures[c, 1] / (1.0 + curvatures[c, 1] * z) * in_plane[c, 3 * k + 1]
                     + 2.0 * curvatures[c, 2] * in_plane[c, 3 * k + 2]
                 )
             below = above
@@ -243,23 +253,23 @@ def recovered_interface_stresses(structure, stresses: np.ndarray | None = None) 
     table = _column_averages(structure, shear)
     curved = geometry.curvatures is not None
     curvatures = geometry.curvatures if curved else np.zeros((0, 3))
+    level = np.cumsum(t) - 0.5 * t - 0.5 * t.sum()  # each ply's centre from the mid-surface
     _peel_profile(
-        corners, table, geometry.d_dx, geometry.d_dy, t, out, curvatures, in_plane, curved
+        corners, table, geometry.d_dx, geometry.d_dy, t, out, curvatures, in_plane, curved, level
     )
     return out
 
 
-def cell_curvatures(
-    X: np.ndarray, frames: np.ndarray, d_dx: np.ndarray, d_dy: np.ndarray
-) -> np.ndarray:
-    """(n, 3) the curvatures kappa_xx, kappa_yy, kappa_xy (1/mm) of cells with vertices X (n,
-    8, 3) in their frames (n, 3, 3): kappa_ab = e_a . d n / d x_b at the centre, n the unit
-    vertical edges (a curved shell's edges run along its normals), differentiated with the
-    bottom face's in-plane gradient operator (``d_dx``, ``d_dy`` (n, 4), in the frame);
-    positive where the surface bends away from its normal (a tube with outward normals:
-    1 / R around it)."""
+def cell_curvatures(X: np.ndarray, frames: np.ndarray) -> np.ndarray:
+    """(n, 3) the curvatures kappa_xx, kappa_yy, kappa_xy (1/mm) of the mid-surfaces of cells
+    with vertices X (n, 8, 3), in their frames (n, 3, 3): kappa_ab = e_a . d n / d x_b at the
+    centre, n the unit vertical edges (a curved shell's edges run along its normals),
+    differentiated on the mid-surface (the mean of the bottom and top faces). Positive where the
+    surface bends away from its normal (a tube with outward normals: 1 / R around it)."""
     edges = X[:, 4:] - X[:, :4]
     normals = np.einsum("cij,caj->cai", frames, edges / np.linalg.norm(edges, axis=2)[..., None])
+    middle = np.einsum("cij,caj->cai", frames, 0.5 * (X[:, :4] + X[:, 4:]))
+    d_dx, d_dy = face_gradients(middle)
     dn_dx = np.einsum("ca,cai->ci", d_dx, normals)
     dn_dy = np.einsum("ca,cai->ci", d_dy, normals)
     return np.column_stack([dn_dx[:, 0], dn_dy[:, 1], 0.5 * (dn_dx[:, 1] + dn_dy[:, 0])])

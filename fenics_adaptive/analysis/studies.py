@@ -132,6 +132,8 @@ def plate_impact_variant(base: dict, name: str) -> dict:
     Returns:
         A new config table.
     """
+    if name not in PLATE_IMPACT_RUNS:
+        raise ValueError(f"plate_impact_variant: no run {name!r}")
     data = copy.deepcopy(base)
     if name in ("esl", "layerwise"):
         data.pop("indicators")
