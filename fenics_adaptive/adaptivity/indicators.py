@@ -262,16 +262,20 @@ def front_requests(
         note(reasons, asked, "front", nearest[todo])
         requests += asked
     # the cells touching a started delamination (one ring, collective on every rank)
-    damaged = [
-        (int(c), interface, InterfaceState.STRONG)
-        for interface, cells_there in started.items()
-        for c in cells_there
-    ]
-    asked = set(requests)
+    damaged = np.concatenate([np.zeros(0, np.int64), *started.values()]).astype(np.int64)
+    at = np.concatenate(
+        [np.zeros(0, np.int64), *(np.full(len(c), i) for i, c in started.items())]
+    ).astype(np.int64)
+    strong = np.full(len(damaged), int(InterfaceState.STRONG), dtype=np.int64)
+    cells, interfaces, _ = spread_arrays(structure, damaged, at, strong, 1)
+    n = state.shape[1] + 1
+    already = np.array([c * n + i for c, i, _ in requests], dtype=np.int64)
+    new = (state[cells, interfaces - 1] < InterfaceState.STRONG) & ~np.isin(
+        cells * n + interfaces, already
+    )
     touching = [
-        (c, i, k)
-        for c, i, k in spread(structure, damaged, 1)
-        if state[c, i - 1] < InterfaceState.STRONG and (c, i, k) not in asked
+        (c, i, int(InterfaceState.STRONG))
+        for c, i in zip(cells[new].tolist(), interfaces[new].tolist(), strict=True)
     ]
     note(reasons, touching, "front")  # (no distance: a neighbour, however far its centroid)
     return requests + touching
@@ -281,20 +285,27 @@ def front_requests(
 def spread(structure, requests: list[tuple[int, int, int]], rings: int) -> list:
     """Add the cells sharing a node with a requested cell (``rings`` times), with the same
     interface and kind. Collective (neighbours may live on other ranks)."""
+    asked = np.asarray(requests, dtype=np.int64).reshape(-1, 3)
+    cells, interfaces, kinds = spread_arrays(structure, *asked.T, rings)
+    return list(zip(cells.tolist(), interfaces.tolist(), kinds.tolist(), strict=True))
+
+
+def spread_arrays(
+    structure, cells: np.ndarray, interfaces: np.ndarray, kinds: np.ndarray, rings: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``spread`` on arrays: the (cells, interfaces, kinds) (int64) that share a node with the
+    given ones, ``rings`` times (the given ones included). Collective."""
     n_interfaces = structure.interface_state.shape[1]
+    nodes = np.hstack([structure.bottom_local, structure.top_local])
     for _ in range(rings):
-        if not summed(structure.comm, [len(requests)])[0]:
+        if not summed(structure.comm, [len(cells)])[0]:
             break
         marks = la.vector(structure.base.V.dofmap.index_map, bs=2 * n_interfaces)
         table = marks.array.reshape(-1, 2, n_interfaces)
-        nodes = np.hstack([structure.bottom_local, structure.top_local])
-        for cell, interface, kind in requests:
-            table[nodes[cell], kind - 1, interface - 1] = 1.0
+        table[nodes[cells], (kinds - 1)[:, None], (interfaces - 1)[:, None]] = 1.0
         marks.scatter_reverse(la.InsertMode.add)
         marks.scatter_forward()
-        touched = table[nodes] > 0  # (n_cells, 8, 2, n_if)
-        hit = touched.any(axis=1)
-        requests = [
-            (int(c), int(i) + 1, int(k) + 1) for c, k, i in zip(*np.nonzero(hit), strict=True)
-        ]
-    return requests
+        hit = (table[nodes] > 0).any(axis=1)  # (n_cells, 2, n_if)
+        cells, kind_index, interface_index = np.nonzero(hit)
+        kinds, interfaces = kind_index + 1, interface_index + 1
+    return cells.astype(np.int64), interfaces.astype(np.int64), kinds.astype(np.int64)
