@@ -31,78 +31,14 @@ from mpi4py import MPI  # first: the DOLFINx wheel finds libmpi through it
 
 # isort: split
 import numpy as np
-from fenics_adaptive.meshes import shell, surface
 
+from fenics_adaptive.analysis.obstacle_course import pinched_cylinder, scordelis_lo
 from fenics_adaptive.io.output import pyplot
-from fenics_adaptive.materials.laminate import Laminate, PlyMaterial
-from fenics_adaptive.model.forms import build_model
-from fenics_adaptive.model.loading import resolve
 from fenics_adaptive.settings.config import parse_config
-from fenics_adaptive.settings.loads import Amplitude, FaceLoad, PrescribedMotion
-from fenics_adaptive.solver.static import solve_static
 from fenics_adaptive.static_runner import solve_config
 
 ROOT = Path(__file__).resolve().parents[1]
 MESHES = (4, 8, 16, 32)
-SCORDELIS_LO = 0.3024
-PINCHED = 1.8248e-5
-
-
-def isotropic(E: float, nu: float) -> PlyMaterial:
-    G = E / (2 * (1 + nu))
-    return PlyMaterial(name="iso", E1=E, E2=E, G12=G, G23=G, nu12=nu, nu23=nu, rho=1.0)
-
-
-def fixed(face: str, component: str) -> PrescribedMotion:
-    return PrescribedMotion(face, component, "displacement", 0.0, Amplitude.constant(0.0))
-
-
-def cylinder(radius, length, angle, n, thickness, plies):
-    """A model of the cylindrical panel (axis x, from the crown theta = 0 to ``angle``)."""
-    beam = shell.shell_mesh(
-        MPI.COMM_WORLD,
-        surface.panel(radius, length, angle, n, n, start=0.0),
-        [thickness],
-        direction=shell.axial_direction([1.0, 0.0, 0.0]),
-        outward=lambda p: p * [0.0, 1.0, 1.0],
-    )
-    return build_model(beam, [plies])
-
-
-def scordelis_lo(n: int, plies_of: int) -> float:
-    E, t = 4.32e8, 0.25
-    angles = [0] if plies_of == 1 else [0, 90, 0, 90]
-    laminate = Laminate.from_angles(isotropic(E, 0.0), angles, t / len(angles))
-    model = cylinder(25.0, 25.0, 40.0, n, t, laminate)
-    motions = [fixed("x0", "y"), fixed("x0", "z"), fixed("x1", "x"), fixed("theta0", "y")]
-    weight = -90.0 * 25.0 * np.radians(40.0) * 25.0
-    loads = resolve(model, motions, [FaceLoad("top", (0.0, 0.0, weight), Amplitude.constant())])
-    u = solve_static(model, motions, loads, 0.0).reshape(-1, 3)
-    x = model.V.tabulate_dof_coordinates()
-    theta = np.degrees(np.arctan2(x[:, 1], x[:, 2]))
-    edge = (np.abs(x[:, 0] - 25.0) < 1e-6) & (np.abs(theta - 40.0) < 1e-6)
-    return -float(u[edge, 2].mean()) / SCORDELIS_LO
-
-
-def pinched_cylinder(n: int, plies_of: int) -> float:
-    E, t = 3.0e6, 3.0
-    angles = [0] if plies_of == 1 else [0, 90, 0, 90]
-    laminate = Laminate.from_angles(isotropic(E, 0.3), angles, t / len(angles))
-    model = cylinder(300.0, 300.0, 90.0, n, t, laminate)
-    motions = [fixed("x0", "y"), fixed("x0", "z"), fixed("x1", "x")]
-    motions += [fixed("theta0", "y"), fixed("theta1", "z")]
-    loads = resolve(model, motions, [])
-    x = model.V.tabulate_dof_coordinates()
-    under = np.flatnonzero((np.abs(x[:, 0] - 300.0) < 1e-6) & (np.abs(x[:, 1]) < 1e-6))
-    base = loads.external_force
-
-    def external_force(t, out):  # P / 4 on the eighth, shared by the nodes through the wall
-        base(t, out)
-        out[3 * under + 2] -= 0.25 / len(under)
-
-    loads.external_force = external_force
-    u = solve_static(model, motions, loads, 0.0).reshape(-1, 3)
-    return -float(u[under, 2].mean()) / PINCHED
 
 
 PANEL = {
