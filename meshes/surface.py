@@ -59,9 +59,10 @@ class SurfaceMesh:
             raise ValueError("surface mesh: no quadrilaterals")
         if self.quads.min() < 0 or self.quads.max() >= len(self.nodes):
             raise ValueError("surface mesh: a quadrilateral refers to a node that does not exist")
-        for quad in range(len(self.quads)):
-            if len(set(self.quads[quad].tolist())) != 4:
-                raise ValueError(f"surface mesh: quadrilateral {quad} repeats a node")
+        ordered = np.sort(self.quads, axis=1)
+        repeats = np.flatnonzero((ordered[:, 1:] == ordered[:, :-1]).any(axis=1))
+        if len(repeats):
+            raise ValueError(f"surface mesh: quadrilateral {int(repeats[0])} repeats a node")
 
     def quad_normals(self) -> np.ndarray:
         """(m, 3) unit normals of the quadrilaterals at their centres (the cross product of

@@ -48,6 +48,9 @@ class FaceGeometry:
     # (n_owned_cells, 3) curvatures (1/mm) kappa_xx, kappa_yy, kappa_xy of a curved shell's
     # cells in their frames (``cell_curvatures``); None on a flat mesh
     curvatures: np.ndarray | None = None
+    # (n_owned_cells, 3, 3) a curved shell's cell frames (``LayeredModel.element_frames``),
+    # (0, 3, 3) on a flat mesh
+    frames: np.ndarray = field(default_factory=lambda: np.zeros((0, 3, 3)))
     sums: dict[int, la.Vector] = field(default_factory=dict)
 
     @classmethod
@@ -73,7 +76,9 @@ class FaceGeometry:
         curvatures = None
         if len(frames):
             curvatures = cell_curvatures(structure.cell_vertices(), frames)
-        return cls(d_dx, d_dy, areas, owned, la.vector(index_map, bs=3), centroids, curvatures)
+        return cls(
+            d_dx, d_dy, areas, owned, la.vector(index_map, bs=3), centroids, curvatures, frames
+        )
 
     def sums_vector(self, structure, width: int) -> la.Vector:
         """A zeroed work vector of block size ``width`` on the base nodes."""
@@ -341,7 +346,7 @@ def interlaminar_stresses(
     on_faces = structure.loads.cell_face_tractions(t, len(stresses))
     if face_force is not None:
         on_faces += face_tractions(structure, face_force)
-    frames = structure.base.element_frames(np.arange(len(on_faces)))
+    frames = face_geometry(structure).frames
     if len(frames) and len(on_faces):  # a curved shell: in each cell's frame, as its stresses
         on_faces = np.einsum("cij,csj->csi", frames, on_faces)
     _fit_to_faces(on_faces, stresses, thickness, estimate)
