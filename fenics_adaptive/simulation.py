@@ -154,6 +154,7 @@ def build_structure(
         config.stabilisation,
         config.failures,
         config.ply_damage,
+        config.erosion,
     )
     if not config.mesh.structured:  # a plate's regions were checked with its config
         check_regions_hold_cells(structure, config)

@@ -470,7 +470,7 @@ def test_batched_kernel_shares_one_state_per_cell_and_laminate_ply():
                 X_extra[node - n_base] = X[a]
     u_base = rng.normal(scale=3e-3, size=(n_base, 3))
     u_extra = rng.normal(scale=3e-3, size=(n_extra, 3))
-    band_width = rng.uniform(0.2, 0.6, (3, 5))
+    band_width = rng.uniform(0.2, 0.6, (3, 5, 2))
     state = pd.new_state(3, 5)
     state[:, :, pd.S_D] = rng.uniform(0, 0.5, (3, 5))
     state[:, :, pd.S_Y0] = rng.uniform(1e-3, 1e-2, (3, 5))
@@ -492,6 +492,7 @@ def test_batched_kernel_shares_one_state_per_cell_and_laminate_ply():
         f_base,
         f_extra,
         True,
+        False,
         False,
         np.zeros((0, 3, 3)),
     )

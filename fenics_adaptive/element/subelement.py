@@ -61,9 +61,13 @@ from fenics_adaptive.materials.ply_damage import (
     P_C22,
     RESIDUAL,
     S_D,
+    S_DF,
     S_DISSIPATED,
+    S_ERODED,
+    S_FIBRE_DISSIPATED,
     ply_damage_update,
 )
+from fenics_adaptive.settings.materials import F_GFT
 
 # Term codes of the packed rule, in the order of solid_shell.TERMS.
 TERM_NORMAL, TERM_SHEAR_XZ, TERM_SHEAR_YZ, TERM_SHEAR_CROSS = range(4)
@@ -1061,8 +1065,8 @@ def solid_shell_lumped_masses(X_all, points, weights, ply_of_point, density):
 # a ``ply_damage.PackedPlyDamage`` built for the same plies has the same rows. An element whose
 # points are start:stop holds the contiguous plies k0 = ply_of_point[start] .. k1 =
 # ply_of_point[stop - 1] (a rule's first line starts at its lowest ply, its last line ends at
-# its highest: ``PackedRule``); its rule-local ply j = k - k0 reads its crack band width and its
-# damage state (N_STATE floats, updated in place) from row j of the arrays given for that
+# its highest: ``PackedRule``); its rule-local ply j = k - k0 reads its crack band widths (2,)
+# and its damage state (N_STATE floats, updated in place) from row j of the arrays given for that
 # element. The batched kernel takes them per element from ``band_width[state_row[e],
 # first_ply[e] + j]`` and ``damage_state[state_row[e], first_ply[e] + j]``: a cell's row holds
 # all plies of its laminate, so an ESL element (first_ply 0), the subelements of a refined cell
@@ -1072,9 +1076,14 @@ def solid_shell_lumped_masses(X_all, points, weights, ply_of_point, density):
 # Per element: (1) each ply's mean strain (shell frame; normal components and gamma_xy over
 # the ply's "normal" points, gamma_xz over its shear_xz points, gamma_yz over its shear_yz
 # points, weighted by w |det J|); (2) its effective material-frame stress C0 T eps and the
-# damage update; (3) its shell-frame secant stiffness stiffness[k] - d (open A0 + A1) into a
-# scratch copy (a plain copy while d = 0); (4) ``element_force_kernel`` with that copy, which equals
-# the elastic kernel's force (to round-off) while nothing is damaged.
+# damage update; (3) its shell-frame secant stiffness (1 - d_f) (stiffness[k] - d (open A0 +
+# A1)) into a scratch copy (a plain copy while d = d_f = 0); (4) ``element_force_kernel`` with
+# that copy, which equals the elastic kernel's force (to round-off) while nothing is damaged.
+#
+# Erosion (``erode``): an element all of whose plies' fibres have failed (d_f = 1) is removed:
+# its force is no longer computed, its nodes keep their mass. The strain energy it held when it
+# went (the RESIDUAL share of its plies' stiffness) is booked in its plies' S_ERODED, per unit
+# of their volume, so that the energy balance from the states still closes.
 #
 # Consequences of one secant stiffness per ply: the dissipation is exactly G_c per crack area
 # when the strain is uniform within the ply; a strain gradient inside a damaging ply (bending)
@@ -1253,7 +1262,8 @@ def _secant_stiffness(
     for j in range(n_local):
         k = k0 + j
         d = (1.0 - RESIDUAL) * state[j, S_D]
-        if d == 0.0:
+        kept = 1.0 - (1.0 - RESIDUAL) * state[j, S_DF]  # the share the fibres still carry
+        if d == 0.0 and kept == 1.0:
             opening_scale[k] = 0.0
             if dirty[k]:
                 for a in range(6):
@@ -1265,8 +1275,8 @@ def _secant_stiffness(
         # the closed-crack stiffness; the kernel opens the crack point by point
         for a in range(6):
             for b in range(6):
-                degraded[k, a, b] = stiffness[k, a, b] - d * degradation[k, 1, a, b]
-        opening_scale[k] = d / ply_params[k, P_C22]
+                degraded[k, a, b] = kept * (stiffness[k, a, b] - d * degradation[k, 1, a, b])
+        opening_scale[k] = kept * d / ply_params[k, P_C22]
 
 
 @njit(inline="always", **KERNEL_OPTIONS)
@@ -1395,10 +1405,20 @@ def _element_force_damaged(
             for b in range(6):
                 s += strain_to_stress[k, a, b] * strains[j, b]
             sigma[a] = s
+        energy_density = 0.0  # 1/2 eps.C0.eps: the fibres' energy release rate needs it
+        if ply_params[k, F_GFT] > 0.0:
+            for a in range(6):
+                s = 0.0
+                for b in range(6):
+                    s += stiffness[k, a, b] * strains[j, b]
+                energy_density += 0.5 * s * strains[j, a]
         d_old = state[j, S_D]
+        d_fibre_old = state[j, S_DF]
         if update:
-            ply_damage_update(sigma, ply_params[k], band_width[j], state[j])
-        strains[j, 0] = state[j, S_D] - d_old  # the ply's strain is used: its growth instead
+            ply_damage_update(sigma, energy_density, ply_params[k], band_width[j], state[j])
+        # the ply's strain is used: its growth instead (matrix, fibre)
+        strains[j, 1] = state[j, S_DF] - d_fibre_old
+        strains[j, 0] = state[j, S_D] - d_old + strains[j, 1]
         grown += strains[j, 0]
     # Where damage grew, the enhanced strain relaxes to the new stiffness: at fixed nodes the
     # strain energy drops by more than the damage law's increments (the condensed energy is
@@ -1426,7 +1446,10 @@ def _element_force_damaged(
     )
     if grown > 0.0:
         for j in range(n_local):
-            state[j, S_DISSIPATED] += relaxed * (strains[j, 0] / grown) / volumes[j, 0]
+            share = relaxed * (strains[j, 0] / grown) / volumes[j, 0]
+            state[j, S_DISSIPATED] += share
+            if strains[j, 1] > 0.0:
+                state[j, S_FIBRE_DISSIPATED] += share * strains[j, 1] / strains[j, 0]
     return element_force_kernel(
         X,
         u,
@@ -1448,6 +1471,16 @@ def _element_force_damaged(
         maps,
         False,
     )
+
+
+@njit(inline="always", **KERNEL_OPTIONS)
+def _fibres_broken(damage_state, row, first, n):
+    """Whether the fibres of plies first .. first + n - 1 of cell row ``row`` have all failed
+    (d_f = 1): the element holding them is eroded."""
+    for j in range(n):
+        if damage_state[row, first + j, S_DF] < 1.0:
+            return False
+    return True
 
 
 @njit(cache=True, inline="always")
@@ -1561,13 +1594,14 @@ def solid_shell_force_damaged(
     f_out: np.ndarray,
     corotational: bool = False,
 ) -> float:
-    """Internal force (N) of one layered solid-shell (sub)element with matrix damage into
+    """Internal force (N) of one layered solid-shell (sub)element with ply damage into
     ``f_out`` (8, 3), overwritten, updating the damage ``state`` (n_plies, N_STATE) in place;
     returns the secant strain energy (mJ), 1/2 sigma.eps with the damaged stiffness.
 
     ``X``, ``u`` as in ``solid_shell_force``; then the fields of a ``PackedRule`` and of the
     matching ``ply_damage.PackedPlyDamage`` (``pack_ply_damage`` of the same plies), then the
-    crack band width l_c (mm) of each ply (n_plies,) and the plies' states:
+    crack band widths l_c (mm) of each ply across and along its fibres (n_plies, 2) (one
+    width per ply, (n_plies,): the same both ways) and the plies' states:
     ``solid_shell_force_damaged(X, u, *rule, *ply_damage, band_width, state, f_out)``. For a
     subelement spanning laminate plies first:stop of cell row r, pass
     ``band_width[r, first:stop]`` and ``state[r, first:stop]`` (views: updated in place).
@@ -1588,7 +1622,7 @@ def solid_shell_force_damaged(
         strain_to_stress,
         degradation,
         ply_params,
-        np.asarray(band_width, dtype=np.float64)[None],
+        _band_rows(band_width, state.shape[0])[None],
         state[None],
         np.ascontiguousarray(X, dtype=np.float64),
         none,
@@ -1598,10 +1632,21 @@ def solid_shell_force_damaged(
         none,
         True,
         bool(corotational),
+        False,
         np.zeros((0, 3, 3)),
     )
     f_out[:] = f
     return energy
+
+
+def _band_rows(band_width: np.ndarray, n_plies: int) -> np.ndarray:
+    """(n_plies, 2) band widths from (n_plies, 2) or one width per ply (n_plies,)."""
+    band = np.asarray(band_width, dtype=np.float64)
+    if band.ndim == 1:
+        band = np.repeat(band[:, None], 2, axis=1)
+    if band.shape != (n_plies, 2):
+        raise ValueError(f"band widths: expected ({n_plies}, 2) or ({n_plies},), got {band.shape}")
+    return np.ascontiguousarray(band)
 
 
 @njit(cache=True, **KERNEL_OPTIONS)
@@ -1632,15 +1677,18 @@ def add_damaged_subelement_forces(
     f_extra,
     update,
     corotational,
+    erode,
     frames,
 ):
     """f += sum_e P_e^T f_e over damage-aware (sub)elements, updating their damage (not with
     ``update`` False: the energy of a state at its damage so far); returns the total secant
     strain energy (mJ). Call as ``add_damaged_subelement_forces(nodes,
     rule_of_element, state_row, first_ply, *rules, *ply_damage, band_width, damage_state,
-    X_base, X_extra, u_base, u_extra, f_base, f_extra, update, corotational, frames)``,
-    ``nodes`` int32, ``update`` and ``corotational`` bools every time: each other argument type
-    compiles the kernel again (about a minute). ``frames`` (ne, 3, 3): each element's frame on a
+    X_base, X_extra, u_base, u_extra, f_base, f_extra, update, corotational, erode, frames)``,
+    ``nodes`` int32, ``update``, ``corotational`` and ``erode`` bools every time: each other
+    argument type compiles the kernel again (about a minute). ``erode``: elements whose plies'
+    fibres have all failed are removed (module comment at ``N_MAPS``' layout notes: Erosion).
+    ``frames`` (ne, 3, 3): each element's frame on a
     curved shell (rows its axes, ``element.geometry.cell_frames``): the element is computed
     with its coordinates and displacement in it, F X and F u (after the co-rotation), and its
     force turned back, F^T f; (0, 3, 3): the global frame.
@@ -1661,7 +1709,8 @@ def add_damaged_subelement_forces(
     ``rule_of_element[e]`` of the ``PackedRules`` and the concatenated ``PackedPlyDamage``
     (``ply_damage.concatenate_ply_damage``, same order). Its rule-local ply j is laminate ply
     ``first_ply[e] + j`` of the cell row ``state_row[e]``: crack band width
-    ``band_width[state_row[e], first_ply[e] + j]`` (band_width (n_rows, n_plies) in mm) and
+    ``band_width[state_row[e], first_ply[e] + j]`` (band_width (n_rows, n_plies, 2) in mm:
+    across and along the fibres, ``ply_damage.BAND_MATRIX``, ``BAND_FIBRE``) and
     state ``damage_state[state_row[e], first_ply[e] + j]`` (damage_state (n_rows, n_plies,
     N_STATE), updated in place). Coordinates, displacements and forces are (n, 3) arrays;
     forces land on ghosts too (reverse scatter by the caller)."""
@@ -1687,6 +1736,14 @@ def add_damaged_subelement_forces(
     f_local = np.empty((8, 3))
     energy = 0.0
     for e in range(element_nodes.shape[0]):
+        r = rule_of_element[e]
+        start = rule_offsets[r]
+        stop = rule_offsets[r + 1]
+        n_local = ply_of_point[stop - 1] - ply_of_point[start] + 1
+        row = state_row[e]
+        lo = first_ply[e]
+        if erode and _fibres_broken(damage_state, row, lo, n_local):
+            continue  # eroded
         nodes = element_nodes[e]
         gather_nodes(nodes, n_base, X_base, X_extra, X)
         if corotational:
@@ -1698,13 +1755,7 @@ def add_damaged_subelement_forces(
         if frames.shape[0] > 0:
             turn_rows(frames[e], X, False)
             turn_rows(frames[e], u, False)
-        r = rule_of_element[e]
-        start = rule_offsets[r]
-        stop = rule_offsets[r + 1]
-        n_local = ply_of_point[stop - 1] - ply_of_point[start] + 1
-        row = state_row[e]
-        lo = first_ply[e]
-        energy += _element_force_damaged(
+        element_energy = _element_force_damaged(
             X,
             u,
             start,
@@ -1734,6 +1785,16 @@ def add_damaged_subelement_forces(
             f,
             update,
         )
+        if erode and _fibres_broken(damage_state, row, lo, n_local):
+            # eroded now: the energy it held is booked (per unit volume of its plies), its
+            # force is gone
+            volume = 0.0
+            for j in range(n_local):
+                volume += volumes[j, 0]
+            for j in range(n_local):
+                damage_state[row, lo + j, S_ERODED] += element_energy / volume
+            continue
+        energy += element_energy
         if frames.shape[0] > 0:  # out of the cell's frame: F^T f
             turn_rows(frames[e], f, True)
         if corotational:  # the force back in the global frame: R f_local

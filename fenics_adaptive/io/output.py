@@ -44,7 +44,15 @@ from fenics_adaptive.adaptivity.indicators import (
 )
 from fenics_adaptive.element.geometry import slab_vertices, thickness_weight
 from fenics_adaptive.errors import InputError, shared_errors
-from fenics_adaptive.materials.ply_damage import S_D, S_FC, S_FT, S_MC, S_MT, nominal_ply_stresses
+from fenics_adaptive.materials.ply_damage import (
+    S_D,
+    S_DF,
+    S_FC,
+    S_FT,
+    S_MC,
+    S_MT,
+    nominal_ply_stresses,
+)
 from fenics_adaptive.settings.solver import FieldSelection
 from fenics_adaptive.solver.explicit import COLUMNS, HistoryRow
 from fenics_adaptive.solver.observers import Observer
@@ -67,6 +75,8 @@ COLUMN_UNITS = {
     "impact_work": "mJ",
     "cohesive_dissipation": "mJ",
     "ply_dissipation": "mJ",
+    "fibre_dissipation": "mJ",
+    "eroded_energy": "mJ",
     "state_energy_balance": "mJ",
     "crack_growth_area": "mm^2",
     "energy_balance": "mJ",
@@ -511,10 +521,15 @@ class PlyWriter(SeriesWriter):
     @staticmethod
     def _ply_stresses(structure, plies, damage: np.ndarray | None) -> np.ndarray:
         """Material-frame stress (MPa) of every (cell, ply) as its element carries it: the
-        damaged secant stress of the strain, the transverse shears with the element's shear
-        correction (``ply_shear_scale``, applied in the shell frame, where it is defined)."""
+        damaged secant stress of the strain (``damage``: the state, or None), the transverse
+        shears with the element's shear correction (``ply_shear_scale``, applied in the shell
+        frame, where it is defined)."""
         scale = ply_shear_scale(structure)
-        stress = nominal_ply_stresses(scale * ply_strains(structure), plies, damage)
+        strains = scale * ply_strains(structure)
+        if damage is None:
+            stress = nominal_ply_stresses(strains, plies)
+        else:
+            stress = nominal_ply_stresses(strains, plies, damage[:, :, S_D], damage[:, :, S_DF])
         if np.all(scale == 1.0):
             return stress
         angles = np.array([p.angle for p in plies])
@@ -544,7 +559,7 @@ class PlyWriter(SeriesWriter):
         n = len(element)
         connectivity = 8 * np.arange(n)[:, None] + _VTK_HEX[None, :]
         owner = cells[element]
-        damage = s.damage_state[:, :, S_D] if s.ply_damage else None
+        damage = s.damage_state if s.ply_damage else None
         stress = self._ply_stresses(s, plies, damage)[owner, ply]
         angle = np.array([p.angle for p in plies], dtype=float)[ply]
         frames = cell_frames_or_global(s, owner)
@@ -560,6 +575,7 @@ class PlyWriter(SeriesWriter):
             for name, slot in (("FT", S_FT), ("FC", S_FC), ("MT", S_MT), ("MC", S_MC)):
                 cell_data[f"hashin_{name}"] = s.damage_state[owner, ply, slot]
             cell_data["matrix_damage"] = s.damage_state[owner, ply, S_D]
+            cell_data["fibre_damage"] = s.damage_state[owner, ply, S_DF]
         elif all(p.material.name in s.failures for p in plies):
             cell_data["hashin_max"] = ply_failure_indices(s)[owner, ply]
         point_data = {"displacement": slab_points[1]}

@@ -84,11 +84,40 @@ energy is higher than the pure modes' (e.g. transverse tension under through-thi
 compression) can still reach rho_F <= 1: the ply then fails at once (d = 1), dissipating
 l_c y0 > G_c per area, as the cohesive law does.
 
-State of one ply of one element (``N_STATE`` floats, zero initially): S_D damage, S_Y0 onset
-energy (0 until initiation), S_FT, S_FC, S_MT, S_MC the largest fibre tension / fibre
+Fibre damage (with the fibre fracture energies Gft, Gfc given; one scalar d_f per ply per
+element, never decreasing). A ply whose fibres break, in tension or in a kink band, carries
+nothing any more: the whole ply stiffness degrades,
+
+    psi(eps, d, d_f) = (1 - d_f) psi_m(eps, d),   psi_m = 1/2 eps.C0.eps - d y(eps)
+    sigma            = (1 - d_f) C(d) eps,
+
+as LS-DYNA's MAT54/58 and Matzenmiller-Lubliner-Taylor's models treat a ply after fibre
+failure (its stresses go to zero). Chosen over a crack with normal along axis 1 that would take
+s11, s12 and s13 only (the matrix crack's form for the fibre direction): two such rank-one
+degradations of the same C0 are not positive definite together (C0 - c1 c1^T / C0_11 - c2 c2^T
+/ C0_22 has a negative 2x2 minor), while a scale factor is for every (d, d_f), keeps the
+matrix law as it is, and makes a ply whose fibres have all broken what erosion removes. The
+fibres' energy release rate is y_f = -dpsi/dd_f = psi_m(eps, d), the ply's strain energy
+density: again a function of the strain alone at fixed d. Initiation on the maximum fibre stress
+of Hashin and Rotem (1973), s11 = XT or s11 = -XC with s the nominal stress C(d) eps (Abaqus'
+alpha = 0: the longitudinal shears crack the matrix, they do not break fibres; the recorded
+fibre tension index keeps Hashin's 1980 shear term), onset energy y0_f = y_f / index^2, then
+the law of the matrix crack on sqrt(y_f / y0_f) with G = Gft while s11 >= 0, Gfc while
+s11 < 0, and l_c the cell's extent along the fibres (the width of the band a crack across the
+fibres runs through). The dissipated energy is G / l_c per unit volume for any path at a fixed
+mode and matrix damage: G per unit area of the crack across the fibres. In uniaxial fibre stress
+the curve is exactly bilinear, peak XT at XT / E1, and softening needs l_c < 2 E1 Gft / XT^2
+(and 2 E1 Gfc / XC^2 in compression). Matrix damage growing in a ply whose fibres have partly
+failed dissipates (1 - d_f) of what it would in an intact one.
+
+State of one ply of one element (``N_STATE`` floats, zero initially): S_D matrix damage, S_Y0
+its onset energy (0 until initiation), S_FT, S_FC, S_MT, S_MC the largest fibre tension / fibre
 compression / matrix tension / matrix compression index seen so far, evaluated with the
 nominal stress C(d) eps (the effective one while d = 0), S_DISSIPATED the energy density (MPa =
-mJ/mm^3) the damage has dissipated so far, S_Y_LAST the energy release rate y of the last update.
+mJ/mm^3) the ply's damage (matrix and fibre) has dissipated so far, S_Y_LAST the energy
+release rate y of the last update; S_DF the fibre damage, S_Y0F its onset energy, S_YF_LAST its
+y_f of the last update, S_FIBRE_DISSIPATED the fibres' share of S_DISSIPATED, S_ERODED the
+strain energy density the ply's element held when erosion removed it (``subelement``).
 
 Dissipation from the law's own increments. The stiffness loses (1 - RESIDUAL) dd (A_open + A_1)
 per update, and y = 1/2 eps.(A_open + A_1).eps (the released part of the strain energy density),
@@ -115,6 +144,8 @@ from fenics_adaptive.materials.laminate import VOIGT_PAIRS, Ply, PlyMaterial, ro
 from fenics_adaptive.settings.materials import (
     F_G2C,
     F_G6C,
+    F_GFC,
+    F_GFT,
     F_S12,
     F_S23,
     F_XC,
@@ -127,11 +158,15 @@ from fenics_adaptive.settings.materials import (
 
 # Slots of a ply's parameter row (ply_params): the failure slots (PlyFailure.as_array), then
 # the undamaged stiffness C0_21, C0_22, C0_23 (the normal entries of its 22 column), G12, G23.
-P_C21, P_C22, P_C23, P_G12, P_G23 = 8, 9, 10, 11, 12
-N_PLY_PARAMS = 13
+P_C21, P_C22, P_C23, P_G12, P_G23 = range(N_FAILURE, N_FAILURE + 5)
+N_PLY_PARAMS = N_FAILURE + 5
 # Slots of a ply's damage state.
 S_D, S_Y0, S_FT, S_FC, S_MT, S_MC, S_DISSIPATED, S_Y_LAST = range(8)
-N_STATE = 8
+S_DF, S_Y0F, S_YF_LAST, S_FIBRE_DISSIPATED, S_ERODED = range(8, 13)
+N_STATE = 13
+# Columns of a band-width row: the cell's extent across the fibres (matrix crack), along them
+# (fibre crack).
+BAND_MATRIX, BAND_FIBRE = 0, 1
 # A fully cracked ply keeps this fraction of the stiffness its matrix damage removes: the
 # stiffness uses (1 - RESIDUAL) d. Without it a cell whose plies have all cracked is a
 # zero-stiffness mechanism, and crack closure on such a cell has blown explicit runs up. The law
@@ -143,30 +178,51 @@ RESIDUAL = 0.01
 # crack band width
 
 
-def max_band_width(material: PlyMaterial, failure: PlyFailure) -> float:
-    """Largest crack band width l_c (mm) for which the ply softens without snap-back in pure
-    transverse tension (2 E2 G2c / YT^2) and pure in-plane shear (2 G12 G6c / S12^2); l_c must
-    stay strictly below it."""
-    return min(
-        2.0 * material.E2 * failure.G2c / failure.YT**2,
-        2.0 * material.G12 * failure.G6c / failure.S12**2,
-    )
-
-
-def check_band_width(material: PlyMaterial, failure: PlyFailure, band_width: float) -> None:
-    """Raise ``InputError`` if ``band_width`` (mm) is not below ``max_band_width``."""
-    key = f"materials.{material.name}.failure"
-    limits = (
+def band_limits(material: PlyMaterial, failure: PlyFailure) -> tuple[tuple[str, float, str], ...]:
+    """The snap-back limits of the crack band width (mm), as (energy field, limit, formula):
+    matrix cracks in pure transverse tension (2 E2 G2c / YT^2) and pure in-plane shear (2 G12
+    G6c / S12^2) for the band across the fibres; with fibre damage, fibre tension (2 E1 Gft /
+    XT^2) and compression (2 E1 Gfc / XC^2) for the band along them. A band must stay strictly
+    below its limits."""
+    limits = [
         ("G2c", 2.0 * material.E2 * failure.G2c / failure.YT**2, "2 E2 G2c / YT^2"),
         ("G6c", 2.0 * material.G12 * failure.G6c / failure.S12**2, "2 G12 G6c / S12^2"),
-    )
-    for field, limit, formula in limits:
-        if not band_width < limit:
+    ]
+    if failure.fibre_damage:
+        limits += [
+            ("Gft", 2.0 * material.E1 * failure.Gft / failure.XT**2, "2 E1 Gft / XT^2"),
+            ("Gfc", 2.0 * material.E1 * failure.Gfc / failure.XC**2, "2 E1 Gfc / XC^2"),
+        ]
+    return tuple(limits)
+
+
+def max_band_width(material: PlyMaterial, failure: PlyFailure) -> float:
+    """Largest crack band width l_c (mm) across the fibres for which the matrix softens without
+    snap-back in pure transverse tension and pure in-plane shear (``band_limits``)."""
+    return min(limit for _, limit, _ in band_limits(material, failure)[:2])
+
+
+def check_band_width(
+    material: PlyMaterial,
+    failure: PlyFailure,
+    band_width: float,
+    fibre_band_width: float | None = None,
+) -> None:
+    """Raise ``InputError`` if ``band_width`` (mm, across the fibres) is not below the matrix
+    limits of ``band_limits``, or ``fibre_band_width`` (mm, along them; None: not checked) not
+    below the fibre ones."""
+    key = f"materials.{material.name}.failure"
+    limits = band_limits(material, failure)
+    widths = [band_width] * 2 + [fibre_band_width] * (len(limits) - 2)
+    for (field, limit, formula), width in zip(limits, widths, strict=True):
+        if width is not None and not width < limit:
+            across = "across the fibres" if field in ("G2c", "G6c") else "along the fibres"
+            crack = "matrix" if field in ("G2c", "G6c") else "fibre"
             raise InputError(
                 f"{key}.{field}",
-                f"a cell is {band_width:.6g} mm across the matrix crack, at least the snap-back "
-                f"limit {formula} = {limit:.6g} mm of the crack band model: use smaller cells "
-                f"or a larger {field}",
+                f"a cell is {width:.6g} mm {across}, at least the snap-back limit {formula} = "
+                f"{limit:.6g} mm of the {crack} crack band: use smaller cells or a larger "
+                f"{field}",
             )
 
 
@@ -175,12 +231,19 @@ def crack_band_width(X: np.ndarray, angle_deg: float) -> float:
     extent of its mid-surface (the mean of the bottom and top vertices, DOLFINx order, zeta
     through the thickness) along the in-plane transverse axis 2. For an a x b rectangle and a
     ply at angle t this is a |sin t| + b |cos t|, the area of the cells a straight crack along
-    the fibres crosses per unit crack length in a structured mesh."""
+    the fibres crosses per unit crack length in a structured mesh. The band of a crack across
+    the fibres (fibre failure) is the extent along axis 1: ``crack_band_width(X, angle - 90)``."""
     X = np.asarray(X, dtype=np.float64).reshape(8, 3)
     mid = 0.5 * (X[:4] + X[4:])
     axis_2 = rotation_about_z(angle_deg)[:, 1]
     projection = mid @ axis_2
     return float(projection.max() - projection.min())
+
+
+def crack_band_widths(X: np.ndarray, angle_deg: float) -> np.ndarray:
+    """(2,) mm: the band widths of a ply at ``angle_deg`` in the cell X, across its fibres
+    (matrix cracks, column BAND_MATRIX) and along them (fibre cracks, BAND_FIBRE)."""
+    return np.array([crack_band_width(X, angle_deg), crack_band_width(X, angle_deg - 90.0)])
 
 
 # ---------------------------------------------------------------------------------------------
@@ -219,10 +282,15 @@ def degradation_matrices(material: PlyMaterial) -> np.ndarray:
     return A
 
 
-def damaged_material_stiffness(material: PlyMaterial, d: float, crack_open: bool) -> np.ndarray:
-    """6x6 material-frame secant stiffness C(d) of a ply with matrix damage d."""
+def damaged_material_stiffness(
+    material: PlyMaterial, d: float, crack_open: bool, fibre_damage: float = 0.0
+) -> np.ndarray:
+    """6x6 material-frame secant stiffness (1 - d_f) C(d) of a ply with matrix damage d and
+    fibre damage ``fibre_damage`` (both with the RESIDUAL kept)."""
     A = degradation_matrices(material)
-    return material.stiffness() - (1.0 - RESIDUAL) * d * ((A[0] if crack_open else 0.0) + A[1])
+    kept = 1.0 - RESIDUAL
+    matrix = material.stiffness() - kept * d * ((A[0] if crack_open else 0.0) + A[1])
+    return (1.0 - kept * fibre_damage) * matrix
 
 
 def ply_params_row(material: PlyMaterial, failure: PlyFailure) -> np.ndarray:
@@ -275,20 +343,32 @@ def concatenate_ply_damage(packed: Sequence[PackedPlyDamage]) -> PackedPlyDamage
 
 
 def degraded_shell_stiffness(
-    stiffness: np.ndarray, ply_damage: PackedPlyDamage, k: int, d: float, crack_open: bool
+    stiffness: np.ndarray,
+    ply_damage: PackedPlyDamage,
+    k: int,
+    d: float,
+    crack_open: bool,
+    fibre_damage: float = 0.0,
 ) -> np.ndarray:
-    """Shell-frame secant stiffness of ply k with damage d: what the kernels use (stiffness[k]
-    is the ply's undamaged shell-frame stiffness, e.g. ``PackedRule.stiffness``)."""
+    """Shell-frame secant stiffness of ply k with matrix damage d and fibre damage
+    ``fibre_damage``: what the kernels use (stiffness[k] is the ply's undamaged shell-frame
+    stiffness, e.g. ``PackedRule.stiffness``)."""
     A = ply_damage.degradation[k]
-    return stiffness[k] - (1.0 - RESIDUAL) * d * ((A[0] if crack_open else 0.0) + A[1])
+    kept = 1.0 - RESIDUAL
+    matrix = stiffness[k] - kept * d * ((A[0] if crack_open else 0.0) + A[1])
+    return (1.0 - kept * fibre_damage) * matrix
 
 
 def nominal_ply_stresses(
-    strains: np.ndarray, plies: Sequence[Ply], damage: np.ndarray | None = None
+    strains: np.ndarray,
+    plies: Sequence[Ply],
+    damage: np.ndarray | None = None,
+    fibre_damage: np.ndarray | None = None,
 ) -> np.ndarray:
-    """Material-frame stress C(d) T eps (MPa) of plies with shell-frame strains ``strains``
-    (n, n_plies, 6) and matrix damage ``damage`` (n, n_plies; None: undamaged): what the kernels
-    compute at those strains. The crack is open where the undamaged s22 is tensile."""
+    """Material-frame stress (1 - d_f) C(d) T eps (MPa) of plies with shell-frame strains
+    ``strains`` (n, n_plies, 6), matrix damage ``damage`` and fibre damage ``fibre_damage``
+    (n, n_plies; None: undamaged): what the kernels compute at those strains. The crack is open
+    where the undamaged s22 is tensile."""
     out = np.empty_like(strains)
     for k, ply in enumerate(plies):
         eps = strains[:, k] @ strain_rotation(ply.angle).T
@@ -299,6 +379,8 @@ def nominal_ply_stresses(
             d = (1.0 - RESIDUAL) * damage[:, k, None]
             open_crack = (effective[:, 1] > 0.0)[:, None]
             out[:, k] -= d * (open_crack * (eps @ A[0].T) + eps @ A[1].T)
+        if fibre_damage is not None:
+            out[:, k] *= 1.0 - (1.0 - RESIDUAL) * fibre_damage[:, k, None]
     return out
 
 
@@ -352,13 +434,28 @@ def _record_indices(s11, s22, s33, s23, s13, s12, params, state):
 
 
 @njit(cache=True, inline="always", error_model="numpy")
-def ply_damage_update(sigma, params, band_width, state):
+def _softened(y, y0, G, band_width):
+    """The damage of the bilinear crack-band law at energy release rate y > y0 (onset y0,
+    fracture energy G (N/mm) over the band ``band_width`` (mm), the RESIDUAL stiffness
+    included)."""
+    rho_f = G / ((1.0 - RESIDUAL) * band_width * y0)
+    rho = math.sqrt(y / y0)
+    if rho >= rho_f:  # also covers rho_f <= 1 (no softening possible: instant failure)
+        return 1.0
+    return (1.0 - 1.0 / rho) / (1.0 - 1.0 / rho_f)
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def ply_damage_update(sigma, energy_density, params, band_width, state):
     """Update one ply's damage state (N_STATE,) in place from its effective material-frame
-    stress ``sigma`` (6,) = C0 eps; ``params`` is its ply_params_row, ``band_width`` l_c (mm).
+    stress ``sigma`` (6,) = C0 eps and effective strain energy density ``energy_density`` =
+    1/2 eps.C0.eps (MPa; read only with fibre damage); ``params`` is its ply_params_row,
+    ``band_width`` (2,) its l_c across and along the fibres (mm, BAND_MATRIX, BAND_FIBRE).
     Returns True if the crack is open (s22 > 0): the kernels then degrade with both
     degradation matrices, else with the shear one only. The recorded indices are those of the
     nominal stress C(d) eps (equal to the effective one while d = 0): once the matrix has
     cracked, the opening strain no longer loads the fibres through the Poisson coupling."""
+    kept = 1.0 - RESIDUAL
     s22 = sigma[1]
     crack_open = s22 > 0.0
     y_normal = s22 * s22 / (2.0 * params[P_C22]) if crack_open else 0.0
@@ -369,42 +466,69 @@ def ply_damage_update(sigma, params, band_width, state):
     y_last = state[S_Y_LAST]
     state[S_Y_LAST] = y
     y0 = state[S_Y0]
+    recorded = False
     if y0 == 0.0:  # not initiated, so d = 0: the effective stress is the nominal one
         matrix = _record_indices(
             sigma[0], sigma[1], sigma[2], sigma[3], sigma[4], sigma[5], params, state
         )
-        if matrix < 1.0 or y <= 0.0:
-            return crack_open
-        y0 = y / (matrix * matrix)
-        state[S_Y0] = y0
+        recorded = True
+        if matrix >= 1.0 and y > 0.0:
+            y0 = y / (matrix * matrix)
+            state[S_Y0] = y0
     d_old = state[S_D]
-    if y > y0:
+    if y0 > 0.0 and y > y0:
         G2c = params[F_G2C]
-        Gc = (G2c + (params[F_G6C] - G2c) * (y_shear / y)) / (1.0 - RESIDUAL)
-        rho_f = Gc / (band_width * y0)
-        rho = math.sqrt(y / y0)
-        if rho >= rho_f:  # also covers rho_f <= 1 (no softening possible: instant failure)
-            d = 1.0
-        else:
-            d = (1.0 - 1.0 / rho) / (1.0 - 1.0 / rho_f)
+        d = _softened(y, y0, G2c + (params[F_G6C] - G2c) * (y_shear / y), band_width[0])
         if d > d_old:
             state[S_D] = d
-            # the consistent increment (module docstring)
-            state[S_DISSIPATED] += (1.0 - RESIDUAL) * (d - d_old) * math.sqrt(y * y_last)
+            # the consistent increment (module docstring), of the fibres' intact share
+            released = kept * (d - d_old) * math.sqrt(y * y_last)
+            state[S_DISSIPATED] += (1.0 - kept * state[S_DF]) * released
     d = state[S_D]
+    s11 = sigma[0]
     if d > 0.0:
-        opening = d * s22 / params[P_C22] if crack_open else 0.0
+        opening = kept * d * s22 / params[P_C22] if crack_open else 0.0
+        s11 = sigma[0] - opening * params[P_C21]
         _record_indices(
-            sigma[0] - opening * params[P_C21],
+            s11,
             sigma[1] - opening * params[P_C22],
             sigma[2] - opening * params[P_C23],
-            (1.0 - d) * sigma[3],
+            (1.0 - kept * d) * sigma[3],
             sigma[4],
-            (1.0 - d) * sigma[5],
+            (1.0 - kept * d) * sigma[5],
             params,
             state,
         )
+    elif not recorded:
+        _record_indices(sigma[0], sigma[1], sigma[2], sigma[3], sigma[4], sigma[5], params, state)
+    if params[F_GFT] > 0.0:
+        _fibre_update(s11, energy_density - kept * d * y, params, band_width[1], state)
     return crack_open
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def _fibre_update(s11, y_fibre, params, band_width, state):
+    """Fibre damage of one ply from its nominal fibre stress ``s11`` (MPa) and energy release
+    rate ``y_fibre`` = psi_m (MPa) over the band ``band_width`` along the fibres (mm)."""
+    y_last = state[S_YF_LAST]
+    state[S_YF_LAST] = y_fibre
+    y0 = state[S_Y0F]
+    if y0 == 0.0:
+        index = s11 / params[F_XT] if s11 >= 0.0 else -s11 / params[F_XC]
+        if index < 1.0 or y_fibre <= 0.0:
+            return
+        y0 = y_fibre / (index * index)
+        state[S_Y0F] = y0
+    if y_fibre <= y0:
+        return
+    G = params[F_GFT] if s11 >= 0.0 else params[F_GFC]
+    d = _softened(y_fibre, y0, G, band_width)
+    d_old = state[S_DF]
+    if d > d_old:
+        state[S_DF] = d
+        released = (1.0 - RESIDUAL) * (d - d_old) * math.sqrt(y_fibre * y_last)
+        state[S_DISSIPATED] += released
+        state[S_FIBRE_DISSIPATED] += released
 
 
 # ---------------------------------------------------------------------------------------------
@@ -433,15 +557,20 @@ def material_point_update(
     material: PlyMaterial,
     failure: PlyFailure,
     strain: np.ndarray,
-    band_width: float,
+    band_width: float | Sequence[float],
     state: np.ndarray,
 ) -> tuple[np.ndarray, float]:
     """One ply at one point: material-frame strain (6,) -> material-frame stress (6,) (MPa) and
     secant strain energy density 1/2 sigma.eps (MPa), updating ``state`` (N_STATE,) in place.
-    The same law as the element kernels (for tests, plots and calibration)."""
+    ``band_width``: l_c across and along the fibres (mm), or one value for both. The same law
+    as the element kernels (for tests, plots and calibration)."""
     eps = np.asarray(strain, dtype=np.float64)
+    C0 = material.stiffness()
+    effective = C0 @ eps
+    bands = np.broadcast_to(np.asarray(band_width, dtype=np.float64), (2,)).copy()
     crack_open = ply_damage_update(
-        material.stiffness() @ eps, ply_params_row(material, failure), band_width, state
+        effective, 0.5 * float(effective @ eps), ply_params_row(material, failure), bands, state
     )
     sigma = damaged_material_stiffness(material, state[S_D], bool(crack_open)) @ eps
+    sigma *= 1.0 - (1.0 - RESIDUAL) * state[S_DF]
     return sigma, 0.5 * float(sigma @ eps)

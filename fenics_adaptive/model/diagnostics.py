@@ -59,18 +59,27 @@ def insert_film_area(structure: Structure) -> float:
 
 
 def local_damage_dissipation(structure: Structure) -> np.ndarray:
-    """(2,) mJ, this rank's share of ``damage_dissipation`` (local: no communication)."""
+    """(4,) mJ, this rank's share of ``damage_dissipation`` (local: no communication)."""
     damage = structure.ply_damage_state
-    ply = damage.dissipated_energy() if damage is not None else 0.0
-    return np.array([structure.cohesive.dissipated_energy(), ply])
+    if damage is None:
+        return np.array([structure.cohesive.dissipated_energy(), 0.0, 0.0, 0.0])
+    return np.array(
+        [
+            structure.cohesive.dissipated_energy(),
+            damage.dissipated_energy(),
+            damage.fibre_dissipated_energy(),
+            damage.eroded_energy(),
+        ]
+    )
 
 
-def damage_dissipation(structure: Structure) -> tuple[float, float]:
-    """Collective: (cohesive, ply) energy (mJ) dissipated so far, summed from the damage laws'
-    own increments (``cohesive_element_force_tracked``, ``ply_damage_update``), over all
+def damage_dissipation(structure: Structure) -> tuple[float, float, float, float]:
+    """Collective: (cohesive, ply, the fibres' share of ply) energy (mJ) dissipated so far,
+    summed from the damage laws' own increments (``cohesive_element_force_tracked``,
+    ``ply_damage_update``), and the strain energy the eroded elements took with them, over all
     ranks."""
-    cohesive, ply = summed(structure.comm, local_damage_dissipation(structure))
-    return float(cohesive), float(ply)
+    cohesive, ply, fibre, eroded = summed(structure.comm, local_damage_dissipation(structure))
+    return float(cohesive), float(ply), float(fibre), float(eroded)
 
 
 def describe_dof(structure: Structure, block: int, dof: int) -> str:

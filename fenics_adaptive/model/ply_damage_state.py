@@ -1,6 +1,6 @@
-"""The matrix-damage state of a structure's plies: per (owned cell, laminate ply) the state of
-``materials.ply_damage``, its crack band width and reference volume, and the (sub)elements the
-damage-aware numba kernel computes.
+"""The damage state of a structure's plies (matrix cracks, broken fibres): per (owned cell,
+laminate ply) the state of ``materials.ply_damage``, its crack band widths and reference volume,
+and the (sub)elements the damage-aware numba kernel computes.
 
 Units: N, mm, s, tonne (energies mJ).
 
@@ -23,10 +23,12 @@ from fenics_adaptive.element.timestep import hexahedron_volumes
 from fenics_adaptive.materials.laminate import Laminate
 from fenics_adaptive.materials.ply_damage import (
     S_DISSIPATED,
+    S_ERODED,
+    S_FIBRE_DISSIPATED,
     S_Y0,
     check_band_width,
     concatenate_ply_damage,
-    crack_band_width,
+    crack_band_widths,
     new_state,
     pack_ply_damage,
 )
@@ -43,7 +45,8 @@ class PlyDamageState:
     against the widest over all ranks). Raises InputError where a cell is too wide for a ply's
     crack band. ``frames`` (n_cells, 3, 3): the cells' frames on a curved shell (the kernel
     computes each element in its cell's, ``LayeredModel.element_frames``); (0, 3, 3) or None:
-    the global frame."""
+    the global frame. ``erode``: (sub)elements whose plies' fibres have all failed leave the
+    force computation (``subelement``: Erosion)."""
 
     def __init__(
         self,
@@ -54,6 +57,7 @@ class PlyDamageState:
         cell_plies: np.ndarray,
         comm: MPI.Comm,
         frames: np.ndarray | None = None,
+        erode: bool = False,
     ):
         if rule_table.preintegrate:
             raise ValueError("ply damage needs rules ply by ply (RuleTable(preintegrate=False))")
@@ -61,6 +65,7 @@ class PlyDamageState:
         self.laminate = laminate
         self.failures = failures
         self.comm = comm
+        self.erode = bool(erode)
         self.frames = np.zeros((0, 3, 3)) if frames is None else np.asarray(frames)
         if len(self.frames):  # the band widths across the fibres in each cell's frame
             cell_X = np.einsum("cij,caj->cai", self.frames, cell_X)
@@ -68,18 +73,18 @@ class PlyDamageState:
             [pack_ply_damage(plies[a:b], failures) for a, b in rule_table.spans]
         )
         n_cells = len(cell_X)
-        # crack band width (mm) of each ply of each cell, across its fibres
-        self.band_width = np.zeros((n_cells, len(plies)))
+        # crack band widths (mm) of each ply of each cell, across and along its fibres
+        self.band_width = np.zeros((n_cells, len(plies), 2))
         for k, ply in enumerate(plies):
             in_cell = (cell_plies[:, 0] <= k) & (k < cell_plies[:, 1])
             for cell in np.flatnonzero(in_cell):
-                self.band_width[cell, k] = crack_band_width(cell_X[cell], ply.angle)
-            # the widest band over all ranks: every rank takes the same decision
-            widest = comm.allreduce(
-                self.band_width[:, k].max() if in_cell.any() else -1.0, op=MPI.MAX
-            )
-            if widest >= 0.0:
-                check_band_width(ply.material, failures[ply.material.name], widest)
+                self.band_width[cell, k] = crack_band_widths(cell_X[cell], ply.angle)
+            # the widest bands over all ranks: every rank takes the same decision
+            local = self.band_width[in_cell, k].max(axis=0) if in_cell.any() else np.full(2, -1.0)
+            widest = np.empty(2)
+            comm.Allreduce(np.ascontiguousarray(local), widest, op=MPI.MAX)
+            if widest[0] >= 0.0:
+                check_band_width(ply.material, failures[ply.material.name], *widest)
         self.damage = new_state(n_cells, len(plies))  # (n_cells, n_plies, N_STATE)
         # reference volume (mm^3) of each ply of each cell: the ply's dissipation density
         # (ply_damage S_DISSIPATED) times it is its dissipated energy
@@ -170,6 +175,7 @@ class PlyDamageState:
             f_extra,
             update,
             corotational,
+            self.erode,
             elements[4],
         )
 
@@ -182,9 +188,22 @@ class PlyDamageState:
             YT = self.failures[ply.material.name].YT
             self.damage[cells, k, S_Y0] = (factor * YT) ** 2 / (2.0 * C22)
 
+    def _integral(self, slot: int) -> float:
+        """A density slot of the state (MPa = mJ/mm^3) times the plies' volumes: mJ, this
+        rank."""
+        return float(np.dot(self.damage[:, :, slot].ravel(), self.ply_volumes.ravel()))
+
     def dissipated_energy(self) -> float:
-        """Energy (mJ) the matrix damage of this rank's plies dissipated so far."""
-        return float(np.dot(self.damage[:, :, S_DISSIPATED].ravel(), self.ply_volumes.ravel()))
+        """Energy (mJ) the damage (matrix and fibre) of this rank's plies dissipated so far."""
+        return self._integral(S_DISSIPATED)
+
+    def fibre_dissipated_energy(self) -> float:
+        """The fibres' share (mJ) of ``dissipated_energy``."""
+        return self._integral(S_FIBRE_DISSIPATED)
+
+    def eroded_energy(self) -> float:
+        """Strain energy (mJ) this rank's elements held when erosion removed them."""
+        return self._integral(S_ERODED)
 
     def state(self) -> dict[str, np.ndarray]:
         """{"damage": the (n_cells, n_plies, N_STATE) state}."""
@@ -192,5 +211,12 @@ class PlyDamageState:
 
     def restore(self, state: dict[str, np.ndarray]) -> None:
         """Put back the damage state of ``state`` (as ``state`` gives it), in place (the kernel
-        arguments keep pointing at it)."""
-        self.damage[:] = state["damage"]
+        arguments keep pointing at it). Raises ValueError for a state of another shape (a
+        checkpoint written by a version with other state slots)."""
+        damage = state["damage"]
+        if damage.shape != self.damage.shape:
+            raise ValueError(
+                f"ply damage state of shape {damage.shape}, this model's is {self.damage.shape}: "
+                "the checkpoint was written by another version of the ply damage law"
+            )
+        self.damage[:] = damage

@@ -102,10 +102,14 @@ class Structure:
         stabilisation: Stabilisation | None = None,
         failures: dict | None = None,
         ply_damage: bool = False,
+        erosion: bool = False,
     ):
         self.base = base
         self.failures = failures or {}
         self.ply_damage = ply_damage
+        if erosion and not ply_damage:
+            raise ValueError("erosion needs ply damage")
+        self.erosion = erosion
         self.stabilisation = stabilisation or Stabilisation()
         self.loads = loads
         self.comm = base.comm
@@ -289,7 +293,7 @@ class Structure:
         return stable_time_step(self, current)
 
     def _setup_ply_damage(self) -> None:
-        """Matrix damage per (cell, ply): every cell leaves the UFL form for the damage-aware
+        """Ply damage per (cell, ply): every cell leaves the UFL form for the damage-aware
         numba kernel (``internal_forces.DamagedSolid``, the same for ESL, adaptive and LW
         cells)."""
         self.ply_damage_state = PlyDamageState(
@@ -300,6 +304,7 @@ class Structure:
             self.cell_plies,
             self.comm,
             self.base.element_frames(np.arange(self.base.n_owned_cells)),
+            erode=self.erosion,
         )
         self.base.set_ufl_cells([np.zeros(0, np.int32)] * len(self.base.layer_laminates))
 

@@ -161,6 +161,8 @@ class RunConfig:
     stabilisation: Stabilisation = field(default_factory=Stabilisation)
     failures: dict[str, PlyFailure] = field(default_factory=dict)
     ply_damage: bool = False
+    # elements whose plies' fibres have all failed leave the force computation
+    erosion: bool = False
     kinematics: Kinematics = Kinematics.SMALL
     # transverse shear correction of the elements (materials.laminate.shear_correction_factors)
     shear_correction: bool = True
@@ -605,6 +607,7 @@ def parse_config(data: dict, source: str = "<memory>", seen: set[str] | None = N
     lever = _lever(root, rigid_bodies, faces)
     indicators = _indicators(root, model.kind, interfaces)
     _check_failure_data(laminate, failures, model.ply_damage, indicators)
+    _check_erosion(laminate, failures, model)
     flaws = _matrix_strength(root, model.ply_damage, laminate, mesh)
     delaminations = _delaminations(root, model.kind, interfaces, mesh)
     motions, loads = _motions_and_loads(root, model.kind, faces, mesh, split, interfaces)
@@ -627,6 +630,7 @@ def parse_config(data: dict, source: str = "<memory>", seen: set[str] | None = N
         stabilisation=stabilisation,
         failures=failures,
         ply_damage=model.ply_damage,
+        erosion=model.erosion,
         kinematics=model.kinematics,
         impactor=impactor,
         rigid_bodies=rigid_bodies,
@@ -646,6 +650,7 @@ class _Model:
     kind: ModelKind
     points_per_ply: int
     ply_damage: bool
+    erosion: bool
     kinematics: Kinematics
     max_memory: float  # GB
     shear_correction: bool
@@ -660,6 +665,7 @@ def _model(table: _Table) -> _Model:
         kind=table.choice("kind"),
         points_per_ply=table.integer("points_per_ply"),
         ply_damage=table.boolean("ply_damage"),
+        erosion=table.boolean("erosion"),
         kinematics=table.choice("kinematics"),
         max_memory=table.number("max_memory"),
         shear_correction=table.boolean("shear_correction"),
@@ -687,6 +693,23 @@ def _check_model_size(model: _Model, mesh: MeshConfig, laminate: Laminate) -> No
             f"the model would have {size.cells:.4g} cells of {laminate.n_plies} plies in "
             f"{size.cell_layers} cell layer(s), an estimated {memory / 1e9:.3g} GB, above "
             f"model.max_memory = {model.max_memory:g} GB (raise it to run this model)",
+        )
+
+
+def _check_erosion(laminate: Laminate, failures: dict[str, PlyFailure], model: _Model) -> None:
+    """Erosion removes elements whose fibres have broken: it needs ply damage and fibre
+    fracture energies for the materials of the laminate (else nothing could ever erode)."""
+    if not model.erosion:
+        return
+    if not model.ply_damage:
+        raise InputError("model.erosion", "needs model.ply_damage = true")
+    names = sorted({ply.material.name for ply in laminate.plies})
+    without = [name for name in names if not failures[name].fibre_damage]
+    if without:
+        raise InputError(
+            f"materials.{without[0]}.failure.Gft",
+            "missing: model.erosion removes elements whose fibres have all broken, and the "
+            "fibres break only with the fibre fracture energies Gft and Gfc",
         )
 
 

@@ -21,8 +21,9 @@ from fenics_adaptive.settings.kinds import MixedModeLaw
 
 # ----------------------------------------------------------------- ply failure (ply_damage)
 # Slots of PlyFailure.as_array() (the first N_FAILURE slots of a ply's parameter row).
-F_XT, F_XC, F_YT, F_YC, F_S12, F_S23, F_G2C, F_G6C = range(8)
-N_FAILURE = 8
+# F_GFT = F_GFC = 0: no fibre damage (fibre failure an index only).
+F_XT, F_XC, F_YT, F_YC, F_S12, F_S23, F_G2C, F_G6C, F_GFT, F_GFC = range(10)
+N_FAILURE = 10
 # Puck's fracture angle under pure transverse compression; S23 defaults to YC / (2 tan 53 deg)
 # (Puck & Schuermann; LaRC04, Pinho et al.).
 FRACTURE_ANGLE_DEG = 53.0
@@ -30,13 +31,15 @@ FRACTURE_ANGLE_DEG = 53.0
 
 @dataclass(frozen=True)
 class PlyFailure:
-    """Strengths (MPa) and matrix fracture energies (N/mm) of one ply material.
+    """Strengths (MPa) and fracture energies (N/mm) of one ply material.
 
     XT, XC: fibre tension / compression strength; YT, YC: transverse tension / compression;
     S12: in-plane shear; S23: transverse shear (optional, default YC / (2 tan 53 deg));
     G2c: matrix mode I (transverse tension) fracture energy; G6c: matrix in-plane shear
-    fracture energy. All > 0, and S23 > YT / 2 (else Hashin's matrix tension criterion never
-    reaches 1 under equal biaxial transverse tension)."""
+    fracture energy; Gft, Gfc: fibre tension / fibre (kink-band) compression fracture energy
+    (optional, both or neither: without them fibre failure is an index only, with them the
+    fibres break, ``materials.ply_damage``). All > 0, and S23 > YT / 2 (else Hashin's matrix
+    tension criterion never reaches 1 under equal biaxial transverse tension)."""
 
     name: str
     XT: float
@@ -47,13 +50,23 @@ class PlyFailure:
     G2c: float
     G6c: float
     S23: float | None = None
+    Gft: float | None = None
+    Gfc: float | None = None
 
     REQUIRED = ("XT", "XC", "YT", "YC", "S12", "G2c", "G6c")
-    OPTIONAL = ("S23",)
+    OPTIONAL = ("S23", "Gft", "Gfc")
 
     def __post_init__(self) -> None:
         key = f"materials.{self.name}.failure"
-        for field in self.REQUIRED + (("S23",) if self.S23 is not None else ()):
+        if (self.Gft is None) != (self.Gfc is None):
+            missing = "Gfc" if self.Gfc is None else "Gft"
+            raise InputError(
+                f"{key}.{missing}",
+                "missing: fibre damage needs both fibre fracture energies, Gft (tension) and "
+                "Gfc (compression); give neither to keep fibre failure an index",
+            )
+        given = tuple(f for f in self.OPTIONAL if getattr(self, f) is not None)
+        for field in self.REQUIRED + given:
             value = getattr(self, field)
             if (
                 isinstance(value, bool)
@@ -75,7 +88,7 @@ class PlyFailure:
     @classmethod
     def from_mapping(cls, name: str, values: Mapping[str, object]) -> PlyFailure:
         """Build from the config table ``materials.NAME.failure``: exactly the keys XT, XC, YT,
-        YC, S12, G2c, G6c and optionally S23."""
+        YC, S12, G2c, G6c and optionally S23, and Gft with Gfc."""
         key = f"materials.{name}.failure"
         if not isinstance(values, Mapping):
             raise InputError(key, "must be a table of strengths and fracture energies")
@@ -97,14 +110,21 @@ class PlyFailure:
             return self.S23
         return self.YC / (2.0 * math.tan(math.radians(FRACTURE_ANGLE_DEG)))
 
+    @property
+    def fibre_damage(self) -> bool:
+        """Whether the fibres break (the fibre fracture energies are given)."""
+        return self.Gft is not None
+
     def as_array(self) -> np.ndarray:
         """float64 array for the kernels, slots F_XT, F_XC, F_YT, F_YC, F_S12, F_S23, F_G2C,
-        F_G6C (S23 with its default applied)."""
+        F_G6C, F_GFT, F_GFC (S23 with its default applied; the fibre energies 0 if not
+        given)."""
         params = np.empty(N_FAILURE, dtype=np.float64)
         params[F_XT], params[F_XC] = self.XT, self.XC
         params[F_YT], params[F_YC] = self.YT, self.YC
         params[F_S12], params[F_S23] = self.S12, self.transverse_shear_strength
         params[F_G2C], params[F_G6C] = self.G2c, self.G6c
+        params[F_GFT], params[F_GFC] = (self.Gft, self.Gfc) if self.fibre_damage else (0.0, 0.0)
         return params
 
 

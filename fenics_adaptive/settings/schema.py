@@ -77,6 +77,7 @@ UNIT_SLIPS: dict[str, tuple[tuple[str, str, float], ...]] = {
     "modulus": (("Pa", "MPa", 1e-6), ("GPa", "MPa", 1e3)),
     "strength": (("Pa", "MPa", 1e-6), ("kPa", "MPa", 1e-3)),
     "fracture energy": (("J/m^2", "N/mm", 1e-3),),
+    "fibre fracture energy": (("J/m^2", "N/mm", 1e-3),),
     "penalty": (("N/m^3", "N/mm^3", 1e-9), ("MN/m^3", "N/mm^3", 1e-3)),
 }
 # Plausible ranges for engineering solids (in this code's units).
@@ -85,6 +86,8 @@ PLAUSIBLE = {
     "modulus": (5e2, 1.2e6),  # MPa: 0.5 GPa (polymers) .. 1200 GPa (diamond)
     "strength": (1.0, 1.0e4),  # MPa
     "fracture energy": (1e-2, 50.0),  # N/mm: 10 J/m^2 .. 50 kJ/m^2
+    # N/mm: breaking fibres costs more (carbon/epoxy 50 .. 200 kJ/m^2, Pinho et al. 2006)
+    "fibre fracture energy": (1.0, 1.0e3),
     "penalty": (1e2, 1e9),  # N/mm^3
 }
 
@@ -189,10 +192,10 @@ def _strength(name: str, description: str, default=REQUIRED) -> Key:
     return Key(name, "float", description, "MPa", default, 0.0, open_min=True, quantity="strength")
 
 
-def _fracture_energy(name: str, description: str) -> Key:
-    return Key(
-        name, "float", description, "N/mm", minimum=0.0, open_min=True, quantity="fracture energy"
-    )
+def _fracture_energy(
+    name: str, description: str, default=REQUIRED, quantity: str = "fracture energy"
+) -> Key:
+    return Key(name, "float", description, "N/mm", default, 0.0, open_min=True, quantity=quantity)
 
 
 def _range_pair(what: str) -> tuple[Key, Key]:
@@ -347,7 +350,15 @@ SECTIONS: tuple[Section, ...] = (
             Key(
                 "ply_damage",
                 "bool",
-                "matrix damage per (cell, ply); needs [materials.NAME.failure]",
+                "matrix damage per (cell, ply), and fibre damage where the material gives Gft "
+                "and Gfc; needs [materials.NAME.failure]",
+                default=False,
+            ),
+            Key(
+                "erosion",
+                "bool",
+                "remove the (sub)elements whose plies' fibres have all failed from the force "
+                "computation (their mass stays on their nodes); needs ply_damage and Gft, Gfc",
                 default=False,
             ),
             Key(
@@ -573,7 +584,7 @@ SECTIONS: tuple[Section, ...] = (
     ),
     Section(
         "materials.NAME.failure",
-        "ply strengths (Hashin) and matrix fracture energies, for ply_damage and indicators",
+        "ply strengths (Hashin) and fracture energies, for ply_damage and indicators",
         (
             _strength("XT", "fibre tensile strength"),
             _strength("XC", "fibre compressive strength"),
@@ -585,6 +596,19 @@ SECTIONS: tuple[Section, ...] = (
             ),
             _fracture_energy("G2c", "matrix mode I fracture energy"),
             _fracture_energy("G6c", "matrix in-plane shear fracture energy"),
+            _fracture_energy(
+                "Gft",
+                "fibre tension fracture energy (with Gfc: the fibres break under ply_damage; "
+                "without: fibre failure is an index only)",
+                OPTIONAL,
+                "fibre fracture energy",
+            ),
+            _fracture_energy(
+                "Gfc",
+                "fibre (kink-band) compression fracture energy",
+                OPTIONAL,
+                "fibre fracture energy",
+            ),
         ),
     ),
     Section(

@@ -53,8 +53,11 @@ class HistoryRow:
     impact_work: float = 0.0
     cohesive_dissipation: float = 0.0  # mJ, summed from the cohesive law's damage increments
     ply_dissipation: float = 0.0  # mJ, summed from the ply damage law's increments
-    # mJ: kinetic + strain + stored cohesive + cohesive and ply dissipation + damping - external
-    # - impact - refinement energy - the strain and cohesive energy at t = 0 (from the states)
+    fibre_dissipation: float = 0.0  # mJ, the broken fibres' share of ply_dissipation
+    eroded_energy: float = 0.0  # mJ, strain energy the eroded elements held when they went
+    # mJ: kinetic + strain + stored cohesive + cohesive and ply dissipation + eroded + damping
+    # - external - impact - refinement energy - the strain and cohesive energy at t = 0 (from
+    # the states)
     state_energy_balance: float = 0.0
     crack_growth_area: float = 0.0  # mm^2, failed cohesive elements outside the insert films
     # per [[rigid]] body: "<name>_force" (N, z, the force the structure applies to it) and
@@ -139,8 +142,8 @@ class HistoryRecorder:
         solid, cohesive = total[10:12]
         if any(c.kind is ForceKind.INTERNAL for c in self.contributors):
             solid += total[9]  # a run's own internal forces: their energy is strain energy
-        cohesive_dissipation, ply_dissipation = total[12:14]
-        delaminated, grown = total[14:16]
+        cohesive_dissipation, ply_dissipation, fibre_dissipation, eroded = total[12:16]
+        delaminated, grown = total[16:18]
         if s.step == 0:  # an initial velocity or displacement brings energy along
             s.initial_energy = total[3] + solid + cohesive + total[8]
             s.initial_potential = solid + cohesive
@@ -170,6 +173,8 @@ class HistoryRecorder:
         self.guards.runaway(abs(total[3]), abs(total[5]) + s.initial_energy + abs(row.impact_work))
         row.cohesive_dissipation = cohesive_dissipation
         row.ply_dissipation = ply_dissipation
+        row.fibre_dissipation = fibre_dissipation
+        row.eroded_energy = eroded
         row.state_energy_balance = (
             row.kinetic_energy
             + solid
@@ -177,6 +182,7 @@ class HistoryRecorder:
             - s.initial_potential
             + cohesive_dissipation
             + ply_dissipation
+            + eroded
             + row.damping_energy
             - row.external_work
             - row.impact_work
@@ -193,10 +199,10 @@ class HistoryRecorder:
         applied load, kinetic energy, internal, external and damping work
         (``BlockState.energies_at_step``: the scheme's own at t_n), inverted, the energy the
         run's contributors hold, the strain energy of its INTERNAL ones, the structure's solid
-        and cohesive energies (``InternalForces.energies``), its cohesive and ply dissipation
-        (``diagnostics.damage_dissipation``), its delaminated and grown areas
-        (``diagnostics.delaminated_areas``)); raises (``guards``) if an element inverted or a
-        sum is not finite."""
+        and cohesive energies (``InternalForces.energies``), its cohesive, ply and fibre
+        dissipation and eroded energy (``diagnostics.damage_dissipation``), its delaminated and
+        grown areas (``diagnostics.delaminated_areas``)); raises (``guards``) if an element
+        inverted or a sum is not finite."""
         base = blocks[0]
         inverted = inversion.check(s.t)
         kinetic = damping = reaction = 0.0
