@@ -155,6 +155,7 @@ def build_structure(
         config.failures,
         config.ply_damage,
         config.erosion,
+        config.erosion_volume_ratio,
     )
     if not config.mesh.structured:  # a plate's regions were checked with its config
         check_regions_hold_cells(structure, config)

@@ -66,6 +66,7 @@ def pull_to_failure(size: float, sign: float, steps: int = 3000, erode: bool = F
     work, energy = 0.0, 0.0
     u_old, f_old = np.zeros((8, 3)), np.zeros((8, 3))
     stresses, strains = [], []
+    eroded = np.zeros(1, dtype=np.int64)
     for eps in sign * np.linspace(0.0, 1.3 * final, steps + 1)[1:]:
         u = uniaxial_stress_motion(X, eps)
         f = np.zeros((8, 3))
@@ -87,6 +88,8 @@ def pull_to_failure(size: float, sign: float, steps: int = 3000, erode: bool = F
             True,
             False,
             erode,
+            0.0,
+            eroded,
             np.zeros((0, 3, 3)),
         )
         work += 0.5 * np.sum((f + f_old) * (u - u_old))
@@ -96,6 +99,7 @@ def pull_to_failure(size: float, sign: float, steps: int = 3000, erode: bool = F
     ply_volume = volume / n
     dissipated = state[0, :, pd.S_DISSIPATED].sum() * ply_volume
     fibre = state[0, :, pd.S_FIBRE_DISSIPATED].sum() * ply_volume
+    assert eroded[0] == (1 if erode and state[0, :, pd.S_DF].min() == 1.0 else 0)
     eroded = state[0, :, pd.S_ERODED].sum() * ply_volume
     return dissipated, fibre, eroded, work - energy, np.array(stresses), np.array(strains), state
 
@@ -217,3 +221,73 @@ def test_a_rigidly_turned_element_breaks_its_fibres_alike(sign):
         turned[:, pd.S_FIBRE_DISSIPATED], dissipated, rtol=0, atol=1e-10 * dissipated.max()
     )
     np.testing.assert_allclose(g, f, rtol=0, atol=1e-9 * np.abs(f).max())
+
+
+def test_a_fast_sphere_perforates_a_plate_that_erodes(tmp_path):
+    """tests/data/perforation.toml: a 1 g sphere at 100 m/s (5 J) through a 1 mm [0/90]s plate,
+    finite kinematics, ply damage with broken fibres and erosion. Erosion removes the broken
+    and the crushed elements (without it the run stops on an inverted element), the sphere
+    goes through (the contact force
+    falls to a fraction of its peak, the sphere 2.8 mm down), and the energy balance from the
+    work stays closed to 1e-3 of the impact energy through it. Most of the energy the plies
+    take is the fibres'. (The balance from the states is 12 % off here: fibres and matrix
+    soften within a few steps at this rate, where the law's consistent increment is exact only
+    for proportional steps; quasi-static fibre failure closes it, the tests above.)"""
+    import tomllib
+    from pathlib import Path
+
+    from fenics_adaptive.io.output import read_history
+    from fenics_adaptive.runner import execute
+    from fenics_adaptive.settings.config import parse_config
+
+    data = tomllib.loads((Path(__file__).parent / "data" / "perforation.toml").read_text())
+    _, structure = execute(
+        parse_config(data), tmp_path / "eroding", MPI.COMM_WORLD, False, log=None
+    )
+    h = read_history(tmp_path / "eroding" / "history.csv")
+    energy = 0.5 * 1.0e-6 * 1.0e5**2  # mJ
+    assert np.ptp(h["energy_balance"]) < 1e-3 * energy
+    assert h["eroded_energy"][-1] > 0.0
+    assert h["fibre_dissipation"][-1] > 0.8 * h["ply_dissipation"][-1]
+    assert h["contact_force"][-1] < 0.25 * max(h["contact_force"])
+    assert h["impactor_displacement"][-1] < -2.5  # mm: through the 1 mm plate
+    damage = structure.damage_state
+    assert np.count_nonzero(damage[:, :, pd.S_DF].min(axis=1) == 1.0) >= 4  # eroded cells
+    data["model"]["erosion"] = False
+    with pytest.raises(Exception, match="inverted"):
+        execute(parse_config(data), tmp_path / "whole", MPI.COMM_WORLD, False, log=None)
+
+
+def test_contact_lets_go_of_the_nodes_erosion_has_freed(tmp_path):
+    """The sphere's contact with the top face of tests/data/perforation.toml: with the four
+    cells around the plate's centre eroded, their shared centre node leaves the contact (no
+    element holds it), their other nodes stay (their neighbours still do); a node pressed
+    into the sphere then gets no force."""
+    import tomllib
+    from pathlib import Path
+
+    from fenics_adaptive.model.contact import Contact
+    from fenics_adaptive.settings.config import parse_config
+    from fenics_adaptive.simulation import build_structure
+
+    data = tomllib.loads((Path(__file__).parent / "data" / "perforation.toml").read_text())
+    config = parse_config(data)
+    structure = build_structure(config, MPI.COMM_WORLD)
+    contact = Contact.on(config.impactor, structure)
+    X = structure.X_base[contact.nodes]
+    centre = np.flatnonzero(np.all(np.isclose(X, [5.0, 5.0, 1.0]), axis=1))
+    cells = np.flatnonzero(
+        np.all(np.abs(structure.cell_vertices().mean(axis=1)[:, :2] - 5.0) < 0.5, axis=1)
+    )
+    assert len(centre) == 1 and len(cells) == 4
+    structure.damage_state[cells, :, pd.S_DF] = 1.0
+    contact.release()
+    assert np.flatnonzero(~contact.active).tolist() == centre.tolist()
+    # push every face node 0.1 mm into the sphere: the freed one is left alone
+    structure.base.u.x.array[:] = 0.0
+    u = structure.base.u.x.array.reshape(-1, 3)
+    u[contact.nodes, 2] = contact.centre[2] - contact.body.radius - 1.0 + 0.1
+    f = np.zeros(structure.base.u.x.array.shape)
+    contact.add_force(0.0, f, np.zeros(0))
+    pushed = f.reshape(-1, 3)[contact.nodes, 2]
+    assert pushed[centre[0]] == 0.0 and np.count_nonzero(pushed) > 0

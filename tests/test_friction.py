@@ -41,11 +41,13 @@ def slide_one_node(path_x, depth: float):
         moved = np.array([x - last, 0.0, 0.0])
         last = x
         f, total = np.zeros(3), np.zeros(3)
-        add_penalty_forces(u, nodes, X, centre, RADIUS, 0, PENALTY, f, total)
+        active = np.ones(len(nodes), dtype=bool)
+        add_penalty_forces(u, nodes, active, X, centre, RADIUS, 0, PENALTY, f, total)
         normal = -f[2]
         springs, dissipated = add_friction_forces(
-            u, nodes, X, centre, moved, RADIUS, 0, PENALTY, MU, previous, traction, f, total
-        )
+            u, nodes, active, X, centre, moved, RADIUS, 0, PENALTY, MU, previous, traction, f,
+            total,
+        )  # fmt: skip
         np.testing.assert_allclose(total, -f, rtol=0, atol=1e-15)  # the body's reaction
         out.append((f[0], normal, springs, dissipated))
     return np.array(out)

@@ -494,6 +494,8 @@ def test_batched_kernel_shares_one_state_per_cell_and_laminate_ply():
         True,
         False,
         False,
+        0.0,
+        np.zeros(1, dtype=np.int64),
         np.zeros((0, 3, 3)),
     )
     g_base, g_extra = np.zeros((n_base, 3)), np.zeros((n_extra, 3))

@@ -1213,6 +1213,37 @@ def _normal_energy(start, stop, terms, ply_of_point, stiffness, opening, opening
 
 
 @njit(inline="always", **KERNEL_OPTIONS)
+def _ply_energy_density(start, stop, terms, ply_of_point, stiffness, maps, strains, volumes, j):
+    """Undamaged strain energy density (MPa) of rule-local ply j of one element: the mean over
+    its "normal" points of 1/2 e.C0.e (xx, yy, zz, xy), plus that of its mean transverse shears
+    (which the rule samples at their own points; a ply's stiffness couples them with nothing
+    else). ``strains``, ``volumes``: as ``_ply_means`` left them. The mean of the energy, not
+    the energy of the mean strain: the fibre damage scales every point of the ply, so that it
+    releases this (a ply bent within its thickness holds more than its mean strain says)."""
+    k = ply_of_point[start] + j
+    normal = 0.0
+    for pp in range(start, stop):
+        if terms[pp] != TERM_NORMAL or ply_of_point[pp] != k:
+            continue
+        row = pp - start
+        e = (maps[10, row], maps[11, row], maps[12, row], maps[15, row])
+        density = 0.0
+        for a, i in enumerate((0, 1, 2, 5)):
+            s = 0.0
+            for b, c in enumerate((0, 1, 2, 5)):
+                s += stiffness[k, i, c] * e[b]
+            density += 0.5 * s * e[a]
+        normal += maps[0, row] * density
+    g_yz, g_xz = strains[j, 3], strains[j, 4]
+    shear = 0.5 * (
+        stiffness[k, 3, 3] * g_yz * g_yz
+        + 2.0 * stiffness[k, 3, 4] * g_yz * g_xz
+        + stiffness[k, 4, 4] * g_xz * g_xz
+    )
+    return normal / volumes[j, 0] + shear
+
+
+@njit(inline="always", **KERNEL_OPTIONS)
 def _ply_means(start, stop, terms, ply_of_point, maps, strains, volumes):
     """Mean shell-frame strain (xx, yy, zz, yz, xz, xy; engineering shears) of each ply of one
     element (points start:stop) into ``strains[j]``, j = ply_of_point[p] - ply_of_point[start],
@@ -1405,13 +1436,11 @@ def _element_force_damaged(
             for b in range(6):
                 s += strain_to_stress[k, a, b] * strains[j, b]
             sigma[a] = s
-        energy_density = 0.0  # 1/2 eps.C0.eps: the fibres' energy release rate needs it
+        energy_density = 0.0  # the fibres' energy release rate needs it
         if ply_params[k, F_GFT] > 0.0:
-            for a in range(6):
-                s = 0.0
-                for b in range(6):
-                    s += stiffness[k, a, b] * strains[j, b]
-                energy_density += 0.5 * s * strains[j, a]
+            energy_density = _ply_energy_density(
+                start, stop, terms, ply_of_point, stiffness, maps, strains, volumes, j
+            )
         d_old = state[j, S_D]
         d_fibre_old = state[j, S_DF]
         if update:
@@ -1474,6 +1503,47 @@ def _element_force_damaged(
 
 
 @njit(inline="always", **KERNEL_OPTIONS)
+def _corner_det(P, k, u, moved):
+    """det of the three edges leaving corner k of the hexahedron P (8, 3) (DOLFINx order:
+    neighbours k ^ 1, k ^ 2, k ^ 4), of P + u if ``moved``."""
+    a = k ^ 1
+    b = k ^ 2
+    c = k ^ 4
+    s = 1.0 if moved else 0.0
+    x0 = P[a, 0] - P[k, 0] + s * (u[a, 0] - u[k, 0])
+    x1 = P[a, 1] - P[k, 1] + s * (u[a, 1] - u[k, 1])
+    x2 = P[a, 2] - P[k, 2] + s * (u[a, 2] - u[k, 2])
+    y0 = P[b, 0] - P[k, 0] + s * (u[b, 0] - u[k, 0])
+    y1 = P[b, 1] - P[k, 1] + s * (u[b, 1] - u[k, 1])
+    y2 = P[b, 2] - P[k, 2] + s * (u[b, 2] - u[k, 2])
+    z0 = P[c, 0] - P[k, 0] + s * (u[c, 0] - u[k, 0])
+    z1 = P[c, 1] - P[k, 1] + s * (u[c, 1] - u[k, 1])
+    z2 = P[c, 2] - P[k, 2] + s * (u[c, 2] - u[k, 2])
+    return x0 * (y1 * z2 - y2 * z1) - x1 * (y0 * z2 - y2 * z0) + x2 * (y0 * z1 - y1 * z0)
+
+
+@njit(cache=True, error_model="numpy")
+def corner_volume_ratio(X, u):
+    """The smallest volume ratio at the 8 corners of a hexahedron with vertices X (8, 3)
+    (DOLFINx order) moved by u (8, 3): det of the three edges leaving a corner, deformed over
+    reference. A distortion measure that sees what the affine fit of the motion averages out
+    (a corner folded over while the element keeps its volume); <= 0 where a corner has turned
+    inside out. Scalars only: no allocation."""
+    smallest = np.inf
+    for k in range(8):
+        smallest = min(smallest, _corner_det(X, k, u, True) / _corner_det(X, k, u, False))
+    return smallest
+
+
+@njit(inline="always", **KERNEL_OPTIONS)
+def _break_fibres(damage_state, row, first, n):
+    """Set the fibre damage of plies first .. first + n - 1 of cell row ``row`` to 1 (an
+    element eroded by distortion)."""
+    for j in range(n):
+        damage_state[row, first + j, S_DF] = 1.0
+
+
+@njit(inline="always", **KERNEL_OPTIONS)
 def _fibres_broken(damage_state, row, first, n):
     """Whether the fibres of plies first .. first + n - 1 of cell row ``row`` have all failed
     (d_f = 1): the element holding them is eroded."""
@@ -1506,7 +1576,8 @@ def element_rotation(X, u, R):
     R|^(-1/3) (the fit is independent of the vertex order, and a rigid rotation Q of the
     deformed element gives Q R). NaN throughout where the fit is not a rotation's (det F <= 0:
     an element turned inside out or flattened) or the iteration does not converge. ``R`` is
-    the only storage used: no allocation per element."""
+    the only storage used: no allocation per element. Returns det F, the volume ratio of the
+    fit (NaN if it is not finite)."""
     Xc, xc = _centroids(X, u)
     R[:, :] = 0.0  # first A = sum dx dX^T, then F = A B^-1
     b00 = b01 = b02 = b11 = b12 = b22 = 0.0
@@ -1530,10 +1601,13 @@ def element_rotation(X, u, R):
         R[i, 1] = r0 * K[1] + r1 * K[4] + r2 * K[7]
         R[i, 2] = r0 * K[2] + r1 * K[5] + r2 * K[8]
     converged = False
-    for _ in range(POLAR_ITERATIONS):
+    volume_ratio = np.nan
+    for iteration in range(POLAR_ITERATIONS):
         det, K = _inverse3(
             (R[0, 0], R[0, 1], R[0, 2], R[1, 0], R[1, 1], R[1, 2], R[2, 0], R[2, 1], R[2, 2])
         )
+        if iteration == 0:
+            volume_ratio = det
         if not det > 0.0:  # inside out, flat, or NaN already
             break
         g = det ** (-1.0 / 3.0)
@@ -1548,6 +1622,7 @@ def element_rotation(X, u, R):
             break
     if not converged:
         R[:, :] = np.nan
+    return volume_ratio
 
 
 @njit(cache=True)
@@ -1633,6 +1708,8 @@ def solid_shell_force_damaged(
         True,
         bool(corotational),
         False,
+        0.0,
+        np.zeros(1, dtype=np.int64),
         np.zeros((0, 3, 3)),
     )
     f_out[:] = f
@@ -1678,16 +1755,25 @@ def add_damaged_subelement_forces(
     update,
     corotational,
     erode,
+    min_volume_ratio,
+    eroded,
     frames,
 ):
     """f += sum_e P_e^T f_e over damage-aware (sub)elements, updating their damage (not with
     ``update`` False: the energy of a state at its damage so far); returns the total secant
     strain energy (mJ). Call as ``add_damaged_subelement_forces(nodes,
     rule_of_element, state_row, first_ply, *rules, *ply_damage, band_width, damage_state,
-    X_base, X_extra, u_base, u_extra, f_base, f_extra, update, corotational, erode, frames)``,
-    ``nodes`` int32, ``update``, ``corotational`` and ``erode`` bools every time: each other
-    argument type compiles the kernel again (about a minute). ``erode``: elements whose plies'
-    fibres have all failed are removed (module comment at ``N_MAPS``' layout notes: Erosion).
+    X_base, X_extra, u_base, u_extra, f_base, f_extra, update, corotational, erode,
+    min_volume_ratio, eroded, frames)``, ``nodes`` int32, ``update``, ``corotational`` and
+    ``erode`` bools and ``min_volume_ratio`` a float every time: each other argument type
+    compiles the kernel again (about a minute). ``erode``: elements whose plies' fibres have
+    all failed are removed (the layout notes above ``N_MAPS``: Erosion), and also those
+    crushed below ``min_volume_ratio`` at a corner (``corner_volume_ratio``) or, with
+    ``corotational``, as a whole (det F of the affine fit of their motion,
+    ``element_rotation``): their plies' fibres are broken then (the energy such an element
+    held is booked as for the others; one whose fit is inside out is removed without, its
+    energy cannot be computed); ``eroded`` (1,) int64 counts the elements that went in this
+    call.
     ``frames`` (ne, 3, 3): each element's frame on a
     curved shell (rows its axes, ``element.geometry.cell_frames``): the element is computed
     with its coordinates and displacement in it, F X and F u (after the co-rotation), and its
@@ -1746,12 +1832,24 @@ def add_damaged_subelement_forces(
             continue  # eroded
         nodes = element_nodes[e]
         gather_nodes(nodes, n_base, X_base, X_extra, X)
+        crushed = False
         if corotational:
             gather_nodes(nodes, n_base, u_base, u_extra, u_global)
-            element_rotation(X, u_global, R)
+            volume_ratio = element_rotation(X, u_global, R)
+            # erosion by distortion: crushed below the volume ratio (or inside out), as a
+            # whole or at a corner
+            if erode and update:
+                corner = corner_volume_ratio(X, u_global)
+                crushed = not (volume_ratio >= min_volume_ratio and corner >= min_volume_ratio)
+            if crushed and not np.isfinite(R[0, 0]):  # no frame: nothing to compute with
+                _break_fibres(damage_state, row, lo, n_local)
+                eroded[0] += 1
+                continue
             to_rotated_frame(X, u_global, R, u)
         else:
             gather_nodes(nodes, n_base, u_base, u_extra, u)
+            if erode and update:
+                crushed = not corner_volume_ratio(X, u) >= min_volume_ratio
         if frames.shape[0] > 0:
             turn_rows(frames[e], X, False)
             turn_rows(frames[e], u, False)
@@ -1785,6 +1883,8 @@ def add_damaged_subelement_forces(
             f,
             update,
         )
+        if crushed:
+            _break_fibres(damage_state, row, lo, n_local)
         if erode and _fibres_broken(damage_state, row, lo, n_local):
             # eroded now: the energy it held is booked (per unit volume of its plies), its
             # force is gone
@@ -1793,6 +1893,7 @@ def add_damaged_subelement_forces(
                 volume += volumes[j, 0]
             for j in range(n_local):
                 damage_state[row, lo + j, S_ERODED] += element_energy / volume
+            eroded[0] += 1
             continue
         energy += element_energy
         if frames.shape[0] > 0:  # out of the cell's frame: F^T f

@@ -98,8 +98,11 @@ degradations of the same C0 are not positive definite together (C0 - c1 c1^T / C
 / C0_22 has a negative 2x2 minor), while a scale factor is for every (d, d_f), keeps the
 matrix law as it is, and makes a ply whose fibres have all broken what erosion removes. The
 fibres' energy release rate is y_f = -dpsi/dd_f = psi_m(eps, d), the ply's strain energy
-density: again a function of the strain alone at fixed d. Initiation on the maximum fibre stress
-of Hashin and Rotem (1973), s11 = XT or s11 = -XC with s the nominal stress C(d) eps (Abaqus'
+density: again a function of the strain alone at fixed d. The element kernels take its
+undamaged part as the mean over the ply's integration points (what scaling every point of the
+ply releases: a ply bent within its thickness holds more than the energy of its mean strain)
+and the matrix part at the ply-mean strain, as the matrix law. Initiation on the maximum fibre
+stress of Hashin and Rotem (1973), s11 = XT or s11 = -XC with s the nominal stress C(d) eps (Abaqus'
 alpha = 0: the longitudinal shears crack the matrix, they do not break fibres; the recorded
 fibre tension index keeps Hashin's 1980 shear term), onset energy y0_f = y_f / index^2, then
 the law of the matrix crack on sqrt(y_f / y0_f) with G = Gft while s11 >= 0, Gfc while
@@ -448,8 +451,9 @@ def _softened(y, y0, G, band_width):
 @njit(cache=True, inline="always", error_model="numpy")
 def ply_damage_update(sigma, energy_density, params, band_width, state):
     """Update one ply's damage state (N_STATE,) in place from its effective material-frame
-    stress ``sigma`` (6,) = C0 eps and effective strain energy density ``energy_density`` =
-    1/2 eps.C0.eps (MPa; read only with fibre damage); ``params`` is its ply_params_row,
+    stress ``sigma`` (6,) = C0 eps and undamaged strain energy density ``energy_density``
+    (MPa; read only with fibre damage: 1/2 eps.C0.eps at a point, the mean of it over the
+    ply's points in the element kernels); ``params`` is its ply_params_row,
     ``band_width`` (2,) its l_c across and along the fibres (mm, BAND_MATRIX, BAND_FIBRE).
     Returns True if the crack is open (s22 > 0): the kernels then degrade with both
     degradation matrices, else with the shear one only. The recorded indices are those of the

@@ -56,6 +56,7 @@ Units: N, mm, s, tonne.
 from __future__ import annotations
 
 import numpy as np
+from dolfinx import la
 from mpi4py import MPI
 from numba import njit
 
@@ -80,14 +81,18 @@ def _offset(u, k, X, i, centre, axis):
 
 
 @njit(cache=True)
-def add_penalty_forces(u, nodes, X, centre, radius, axis, penalty, f, total):
+def add_penalty_forces(u, nodes, active, X, centre, radius, axis, penalty, f, total):
     """Add the contact forces on the face nodes ``nodes`` (reference positions X (n, 3), mm;
     displacements in the flat u, x y z interleaved) into the flat f (N) and put their
-    reaction on the body into total (3,); returns the penalty energy (mJ). ``axis``: -1 for a
-    sphere, 0 or 1 for a cylinder along x or y. One pass: gather, penalty, scatter."""
+    reaction on the body into total (3,); returns the penalty energy (mJ). ``active`` (n,)
+    bool: the nodes that can touch (False: erosion has removed every element holding it).
+    ``axis``: -1 for a sphere, 0 or 1 for a cylinder along x or y. One pass: gather, penalty,
+    scatter."""
     total[:] = 0.0
     energy = 0.0
     for i in range(nodes.shape[0]):
+        if not active[i]:
+            continue
         k = 3 * nodes[i]
         dx, dy, dz, distance = _offset(u, k, X, i, centre, axis)
         gap = distance - radius
@@ -106,12 +111,26 @@ def add_penalty_forces(u, nodes, X, centre, radius, axis, penalty, f, total):
 
 @njit(cache=True)
 def add_friction_forces(
-    u, nodes, X, centre, moved, radius, axis, penalty, friction, previous, traction, f, total
+    u,
+    nodes,
+    active,
+    X,
+    centre,
+    moved,
+    radius,
+    axis,
+    penalty,
+    friction,
+    previous,
+    traction,
+    f,
+    total,
 ):
     """Add Coulomb friction with a regularised stick (``friction``: the coefficient mu) on the
-    face nodes ``nodes`` into the flat f (N) and its reaction into the body's ``total`` (3,).
-    Each node in contact carries a tangential force t (``traction`` (n, 3), N: its state),
-    held by a tangential spring of the normal ``penalty`` (N/mm) until it reaches mu f_n:
+    face nodes ``nodes`` (those ``active``, as in ``add_penalty_forces``) into the flat f (N)
+    and its reaction into the body's ``total`` (3,). Each node in contact carries a tangential
+    force t (``traction`` (n, 3), N: its state), held by a tangential spring of the normal
+    ``penalty`` (N/mm) until it reaches mu f_n:
 
         t_trial = t_old (turned into the tangent plane, its size kept) - penalty * dv_t,
         t = t_trial                           if |t_trial| <= mu f_n (stick),
@@ -137,7 +156,7 @@ def add_friction_forces(
         previous[i, 0], previous[i, 1], previous[i, 2] = x, y, z
         ox, oy, oz = traction[i, 0], traction[i, 1], traction[i, 2]
         tx, ty, tz = 0.0, 0.0, 0.0
-        if gap < 0.0 and distance > 0.0:
+        if gap < 0.0 and distance > 0.0 and active[i]:
             nx, ny, nz = dx / distance, dy / distance, dz / distance
             # the old force turned into the current tangent plane, its size kept
             on = ox * nx + oy * ny + oz * nz
@@ -203,7 +222,10 @@ class Contact(Contributor):
         C33 = max(p.material.stiffness()[2, 2] for p in structure.laminate.plies)
         mass = structure.mass_base.array[3 * owned]
         h = structure.laminate.thickness
-        return cls(body, structure.comm, owned, X, mass, area, C33, h, structure.base.u.x)
+        contact = cls(body, structure.comm, owned, X, mass, area, C33, h, structure.base.u.x)
+        if structure.erosion:
+            contact.watch_erosion(structure)
+        return contact
 
     def __init__(
         self,
@@ -268,6 +290,35 @@ class Contact(Contributor):
         self._request = MPI.REQUEST_NULL  # the reduction of ``totals`` under way, if any
         self._taken = True  # ``totals`` of the last add_force are in force, energy, acceleration
         self.axis = -1 if body.shape == ImpactorShape.SPHERE else "xy".index(body.axis)
+        # the face nodes that can touch: erosion releases those it has left without elements
+        # (``watch_erosion``)
+        self.active = np.ones(len(self.nodes), dtype=bool)
+        self._carriers = None  # -> (n_local,) elements of all ranks holding each base node
+
+    def watch_erosion(self, structure) -> None:
+        """Collective: from now on ``release`` lets go of the face nodes erosion leaves without
+        elements (``report`` calls it at every history row)."""
+        damage = structure.ply_damage_state
+        n_base = structure.n_base
+        counts = la.vector(structure.base.V.dofmap.index_map, bs=1)
+
+        def carriers() -> np.ndarray:
+            counts.array[:] = damage.base_node_carriers(n_base)
+            counts.scatter_reverse(la.InsertMode.add)  # the other ranks' elements too
+            return counts.array
+
+        self._carriers = carriers
+
+    def release(self) -> None:
+        """Collective: stop contact at the face nodes that no element of any rank holds any
+        more (erosion has removed them all); a released node carries no friction force. At
+        the history rows only, so that the contact changes at the same times whatever the
+        number of ranks (a node on a partition boundary needs the other ranks' elements):
+        a node erosion frees keeps its contact until the next row (``output.interval``)."""
+        if self._carriers is None:
+            return
+        self.active &= self._carriers()[self.nodes] > 0
+        self.traction[~self.active] = 0.0
 
     def initial_gap(self) -> float:
         """Collective: the smallest gap (mm) between the body and its undeformed face."""
@@ -328,6 +379,7 @@ class Contact(Contributor):
         self.totals[3] = add_penalty_forces(
             self.displacement.array,
             self.nodes,
+            self.active,
             self.X,
             self.centre,
             self.body.radius,
@@ -357,6 +409,7 @@ class Contact(Contributor):
         springs, dissipated = add_friction_forces(
             self.displacement.array,
             self.nodes,
+            self.active,
             self.X,
             self.centre,
             self.slid,
@@ -448,6 +501,7 @@ class Contact(Contributor):
         of what friction dissipated, which has its column ``<name>_friction_energy``) into a
         history row; ``first``: the row at t = 0."""
         force, penalty, drive_work, friction = self.totals_over_ranks()
+        self.release()
         if first:
             self.initial = self.total_energy()
             self.initial_penalty = penalty
@@ -488,6 +542,7 @@ class Contact(Contributor):
             "friction_centre": self.friction_centre.copy(),
             "friction_started": np.array(self.friction_started),
             "friction_local": np.array(self.friction_local),
+            "active": self.active.copy(),
         }
 
     def restore(self, state: dict) -> None:
@@ -509,3 +564,5 @@ class Contact(Contributor):
             self.friction_centre[:] = state["friction_centre"]
             self.friction_started = bool(state["friction_started"])
             self.friction_local = float(state["friction_local"])
+        if "active" in state:  # checkpoints before erosion had every node active
+            self.active[:] = state["active"]

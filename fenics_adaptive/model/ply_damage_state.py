@@ -22,6 +22,7 @@ from fenics_adaptive.element.subelement import add_damaged_subelement_forces
 from fenics_adaptive.element.timestep import hexahedron_volumes
 from fenics_adaptive.materials.laminate import Laminate
 from fenics_adaptive.materials.ply_damage import (
+    S_DF,
     S_DISSIPATED,
     S_ERODED,
     S_FIBRE_DISSIPATED,
@@ -46,7 +47,8 @@ class PlyDamageState:
     crack band. ``frames`` (n_cells, 3, 3): the cells' frames on a curved shell (the kernel
     computes each element in its cell's, ``LayeredModel.element_frames``); (0, 3, 3) or None:
     the global frame. ``erode``: (sub)elements whose plies' fibres have all failed leave the
-    force computation (``subelement``: Erosion)."""
+    force computation (``subelement``: Erosion), and those crushed below
+    ``min_volume_ratio`` (``add_damaged_subelement_forces``)."""
 
     def __init__(
         self,
@@ -58,6 +60,7 @@ class PlyDamageState:
         comm: MPI.Comm,
         frames: np.ndarray | None = None,
         erode: bool = False,
+        min_volume_ratio: float = 0.0,
     ):
         if rule_table.preintegrate:
             raise ValueError("ply damage needs rules ply by ply (RuleTable(preintegrate=False))")
@@ -66,6 +69,9 @@ class PlyDamageState:
         self.failures = failures
         self.comm = comm
         self.erode = bool(erode)
+        self.min_volume_ratio = float(min_volume_ratio)
+        # the elements erosion has removed on this rank so far (the kernel counts them)
+        self.eroded_count = np.zeros(1, dtype=np.int64)
         self.frames = np.zeros((0, 3, 3)) if frames is None else np.asarray(frames)
         if len(self.frames):  # the band widths across the fibres in each cell's frame
             cell_X = np.einsum("cij,caj->cai", self.frames, cell_X)
@@ -99,6 +105,7 @@ class PlyDamageState:
             ply_X = slab_vertices(cell_X[in_cell, :4], cell_X[in_cell, 4:], w_lo, w_hi)
             self.ply_volumes[in_cell, k] = hexahedron_volumes(ply_X)
         self.elements: tuple[np.ndarray, ...] = ()  # set_elements
+        self._spans = np.zeros((0, 2), dtype=np.int64)
         self._parts: dict[str | int, tuple[np.ndarray, ...]] = {}
         self.interior_chunks = 0
 
@@ -116,6 +123,7 @@ class PlyDamageState:
         0 .. ``interior_chunks`` - 1 (``assembly.chunk_bounds``)."""
         first = slice(None) if interior is None else np.argsort(~interior, kind="stable")
         cells = cells.astype(np.int64)[first]
+        self._spans = np.asarray(plies[first]).astype(np.int64)  # [first, stop) of each
         self.elements = (
             np.ascontiguousarray(nodes[first]),
             rule_table.rule_of(plies[first]),
@@ -176,6 +184,8 @@ class PlyDamageState:
             update,
             corotational,
             self.erode,
+            self.min_volume_ratio,
+            self.eroded_count,
             elements[4],
         )
 
@@ -187,6 +197,28 @@ class PlyDamageState:
             C22 = ply.material.stiffness()[1, 1]
             YT = self.failures[ply.material.name].YT
             self.damage[cells, k, S_Y0] = (factor * YT) ** 2 / (2.0 * C22)
+
+    def eroded(self, cells: np.ndarray, spans: np.ndarray) -> np.ndarray:
+        """(n,) bool: which of the elements of owned ``cells`` holding plies ``spans`` (n, 2)
+        [first, stop) erosion has removed (all their plies' fibres broken; none without
+        ``erode``)."""
+        gone = np.zeros(len(cells), dtype=bool)
+        if not self.erode:
+            return gone
+        broken = self.damage[:, :, S_DF] >= 1.0
+        counts = spans[:, 1] - spans[:, 0]
+        for n in np.unique(counts):  # the elements of n plies at once
+            of_n = np.flatnonzero(counts == n)
+            plies = spans[of_n, :1] + np.arange(n)
+            gone[of_n] = broken[cells[of_n, None], plies].all(axis=1)
+        return gone
+
+    def base_node_carriers(self, n_base: int) -> np.ndarray:
+        """(n_base,) int: for each local base node (owned and ghost), how many of this rank's
+        elements hold it and have not eroded."""
+        nodes, _, cells = self.elements[:3]
+        held = nodes[~self.eroded(cells, self._spans)].ravel()
+        return np.bincount(held[held < n_base], minlength=n_base)
 
     def _integral(self, slot: int) -> float:
         """A density slot of the state (MPa = mJ/mm^3) times the plies' volumes: mJ, this

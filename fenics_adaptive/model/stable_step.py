@@ -41,6 +41,10 @@ def stable_time_step(structure: Structure, current: bool = False) -> tuple[float
     else:
         ratios = structure.base.cell_time_steps().copy()
     ratios[structure.refinement.refined_cells()] = np.inf
+    eroded = structure.ply_damage_state.eroded if structure.erosion else None
+    if eroded is not None:  # what erosion removed has no step
+        cells = np.arange(len(ratios))
+        ratios[eroded(cells, structure.cell_plies)] = np.inf
     if len(ratios):
         cell = int(np.argmin(ratios))
         candidates.append((float(ratios[cell]), f"cell {structure.original_cell[cell]}"))
@@ -49,6 +53,8 @@ def stable_time_step(structure: Structure, current: bool = False) -> tuple[float
         if current:
             X += structure.gather(structure.subelements.nodes, "u")
         sub_ratios = characteristic_lengths(X) / structure.subelement_speeds
+        if eroded is not None:
+            sub_ratios[eroded(structure.subelement_cells, structure.subelement_plies)] = np.inf
         s = int(np.argmin(sub_ratios))
         cell = structure.subelement_cells[s]
         candidates.append(

@@ -103,6 +103,7 @@ class Structure:
         failures: dict | None = None,
         ply_damage: bool = False,
         erosion: bool = False,
+        erosion_volume_ratio: float = 0.2,
     ):
         self.base = base
         self.failures = failures or {}
@@ -110,6 +111,7 @@ class Structure:
         if erosion and not ply_damage:
             raise ValueError("erosion needs ply damage")
         self.erosion = erosion
+        self.erosion_volume_ratio = erosion_volume_ratio
         self.stabilisation = stabilisation or Stabilisation()
         self.loads = loads
         self.comm = base.comm
@@ -305,6 +307,7 @@ class Structure:
             self.comm,
             self.base.element_frames(np.arange(self.base.n_owned_cells)),
             erode=self.erosion,
+            min_volume_ratio=self.erosion_volume_ratio,
         )
         self.base.set_ufl_cells([np.zeros(0, np.int32)] * len(self.base.layer_laminates))
 

@@ -161,8 +161,10 @@ class RunConfig:
     stabilisation: Stabilisation = field(default_factory=Stabilisation)
     failures: dict[str, PlyFailure] = field(default_factory=dict)
     ply_damage: bool = False
-    # elements whose plies' fibres have all failed leave the force computation
+    # elements whose plies' fibres have all failed leave the force computation, and those
+    # crushed below this volume ratio
     erosion: bool = False
+    erosion_volume_ratio: float = 0.2
     kinematics: Kinematics = Kinematics.SMALL
     # transverse shear correction of the elements (materials.laminate.shear_correction_factors)
     shear_correction: bool = True
@@ -631,6 +633,7 @@ def parse_config(data: dict, source: str = "<memory>", seen: set[str] | None = N
         failures=failures,
         ply_damage=model.ply_damage,
         erosion=model.erosion,
+        erosion_volume_ratio=model.erosion_volume_ratio,
         kinematics=model.kinematics,
         impactor=impactor,
         rigid_bodies=rigid_bodies,
@@ -651,6 +654,7 @@ class _Model:
     points_per_ply: int
     ply_damage: bool
     erosion: bool
+    erosion_volume_ratio: float
     kinematics: Kinematics
     max_memory: float  # GB
     shear_correction: bool
@@ -666,6 +670,7 @@ def _model(table: _Table) -> _Model:
         points_per_ply=table.integer("points_per_ply"),
         ply_damage=table.boolean("ply_damage"),
         erosion=table.boolean("erosion"),
+        erosion_volume_ratio=table.number("erosion_volume_ratio"),
         kinematics=table.choice("kinematics"),
         max_memory=table.number("max_memory"),
         shear_correction=table.boolean("shear_correction"),

@@ -362,6 +362,18 @@ SECTIONS: tuple[Section, ...] = (
                 default=False,
             ),
             Key(
+                "erosion_volume_ratio",
+                "float",
+                "with erosion: also remove an element crushed below this ratio of its volume at "
+                "a corner (the edges' det, deformed over reference) or, under finite "
+                "kinematics, as a whole, its fibres then broken",
+                default=0.2,
+                minimum=0.0,
+                maximum=1.0,
+                open_min=True,
+                open_max=True,
+            ),
+            Key(
                 "check_units",
                 "bool",
                 "refuse densities, moduli, strengths, fracture energies and penalties outside "

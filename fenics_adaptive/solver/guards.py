@@ -234,10 +234,13 @@ class InversionGuard:
         if not len(self.nodes):
             return None
         rules = self.rules
+        kept = slice(None)
+        if s.erosion:  # eroded elements carry nothing: they may turn over
+            kept = np.flatnonzero(~s.ply_damage_state.eroded(self.cells, self.plies))
         e, p, det = first_inverted_point(
-            self.nodes,
-            self.rule_of_element,
-            self.orientation,
+            self.nodes[kept],
+            self.rule_of_element[kept],
+            self.orientation[kept],
             *self.lines,
             rules.zeta,
             rules.position_of_point,
@@ -251,7 +254,8 @@ class InversionGuard:
         )
         if e < 0:
             return None
-        return self.describe(t, int(e), int(p), float(det))
+        e = int(np.arange(len(self.nodes))[kept][e])
+        return self.describe(t, e, int(p), float(det))
 
     def describe(self, t: float, e: int, p: int, det: float) -> str:
         """The message for point p (index into the packed rules) of element e."""
