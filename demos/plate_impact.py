@@ -36,8 +36,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 
 from fenics_adaptive.analysis.studies import PLATE_IMPACT_RUNS, plate_impact_variant
-from fenics_adaptive.element.geometry import quad_areas
 from fenics_adaptive.errors import script_main
+from fenics_adaptive.io.cscan import delaminated_area_per_interface, interface_damage, plot_cscan
 from fenics_adaptive.io.output import read_history
 from fenics_adaptive.runner import execute
 from fenics_adaptive.settings.config import parse_config
@@ -53,27 +53,9 @@ STYLES = {
 }
 
 
-def interface_damage(structure) -> dict[int, tuple[np.ndarray, np.ndarray]]:
-    """Per delaminating interface: the in-plane centres (n, 2) of its cohesive elements (mm)
-    and their mean damage (n,)."""
-    cohesive = structure.cohesive
-    if not len(cohesive):
-        return {}
-    X = structure.gather(cohesive.nodes[:, :4], "X").mean(axis=1)[:, :2]
-    damage = cohesive.damage[cohesive.damage_row].mean(axis=1)
-    return {
-        int(i): (X[cohesive.interface == i], damage[cohesive.interface == i])
-        for i in np.unique(cohesive.interface)
-    }
-
-
 def facts(structure, summary: dict, history: dict) -> dict:
-    cell_area = float(quad_areas(structure.X_base[structure.bottom_local]).mean())  # mm^2
     refined = (structure.interface_state == InterfaceState.STRONG).any(axis=1)
-    per_interface = {
-        str(i): float((damage >= 1.0).sum() * cell_area)
-        for i, (_, damage) in interface_damage(structure).items()
-    }
+    per_interface = delaminated_area_per_interface(structure)
     return {
         "peak_contact_force_N": float(max(history["contact_force"])),
         "time_of_peak_ms": 1e3 * history["time"][int(np.argmax(history["contact_force"]))],
@@ -116,36 +98,6 @@ def plot_histories(histories: dict, results: dict, path: Path) -> None:
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
     fig.suptitle("rigid sphere on a clamped [0/45/90/-45]2s plate, 625 mJ")
-    fig.savefig(path, dpi=150)
-    plt.close(fig)
-
-
-def plot_cscan(maps: dict, refined: dict, size: tuple[float, float], path: Path) -> None:
-    """Damage of each interface seen from above, one row per run."""
-    runs = [n for n in ("adaptive", "layerwise") if n in maps]
-    interfaces = sorted({i for n in runs for i in maps[n]})
-    if not runs or not interfaces:
-        return
-    fig, axes = plt.subplots(
-        len(runs), len(interfaces), figsize=(3.4 * len(interfaces), 3.2 * len(runs)),
-        layout="constrained", squeeze=False,
-    )  # fmt: skip
-    for r, name in enumerate(runs):
-        for c, interface in enumerate(interfaces):
-            ax = axes[r, c]
-            xy, damage = maps[name].get(interface, (np.zeros((0, 2)), np.zeros(0)))
-            ax.set_facecolor("0.92")
-            shown = ax.scatter(
-                xy[:, 0], xy[:, 1], c=damage, s=4, marker="s", vmin=0, vmax=1, cmap="inferno_r"
-            )
-            if name == "adaptive" and name in refined:
-                hull = refined[name]
-                ax.plot(hull[:, 0], hull[:, 1], ",", color="tab:blue", alpha=0.3)
-            ax.set_xlim(0, size[0])
-            ax.set_ylim(0, size[1])
-            ax.set_aspect("equal")
-            ax.set_title(f"{name}: interface {interface}", fontsize=9)
-    fig.colorbar(shown, ax=axes, label="cohesive damage (1 = delaminated)")
     fig.savefig(path, dpi=150)
     plt.close(fig)
 

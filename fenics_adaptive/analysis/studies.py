@@ -11,6 +11,8 @@ Studies (``STUDIES``):
 - ``four_point_bending``: ``demos/four_point_bending.toml`` (the stabilised adaptive run): the
   layerwise reference, adaptive unstabilised, adaptive;
 - ``plate_impact``: ``demos/plate_impact.toml`` (the adaptive run): ESL, adaptive, layerwise;
+  ``tube_crush`` (``demos/tube_crush.toml``) and ``crash_impact`` (``demos/crash_impact.toml``)
+  alike;
 - ``fracture_tests``: the DCB of ``demos/fracture_tests.toml``, the ENF of
   ``demos/fracture_tests_enf.toml`` and the MMB of ``demos/fracture_tests_mmb.toml`` (the
   layerwise runs; ``mmb_mixity`` makes the MMB's other mixities): layerwise, adaptive (the
@@ -37,6 +39,7 @@ TCB_LATE_OPENING = 0.005  # mm: the paper's late refinement, past the cohesive i
 FOUR_POINT_BENDING_RUNS = ("reference", "adaptive_unstabilised", "adaptive")
 PLATE_IMPACT_RUNS = ("esl", "adaptive", "layerwise")
 TUBE_CRUSH_RUNS = PLATE_IMPACT_RUNS  # derived alike: ``plate_impact_variant``
+CRASH_IMPACT_RUNS = PLATE_IMPACT_RUNS  # likewise
 FRACTURE_RUNS = ("layerwise", "adaptive")
 
 
@@ -381,6 +384,7 @@ STUDIES: dict[str, Study] = {
     "four_point_bending": Study(FOUR_POINT_BENDING_RUNS, four_point_bending_variant),
     "plate_impact": Study(PLATE_IMPACT_RUNS, plate_impact_variant),
     "tube_crush": Study(TUBE_CRUSH_RUNS, plate_impact_variant),
+    "crash_impact": Study(CRASH_IMPACT_RUNS, plate_impact_variant),
     "fracture_tests": Study(FRACTURE_RUNS, fracture_variant),
 }
 """Every study by the name of its demo (``demos/<name>.py`` and ``demos/<name>.toml``)."""

@@ -1213,13 +1213,17 @@ def _normal_energy(start, stop, terms, ply_of_point, stiffness, opening, opening
 
 
 @njit(inline="always", **KERNEL_OPTIONS)
-def _ply_energy_density(start, stop, terms, ply_of_point, stiffness, maps, strains, volumes, j):
-    """Undamaged strain energy density (MPa) of rule-local ply j of one element: the mean over
-    its "normal" points of 1/2 e.C0.e (xx, yy, zz, xy), plus that of its mean transverse shears
-    (which the rule samples at their own points; a ply's stiffness couples them with nothing
-    else). ``strains``, ``volumes``: as ``_ply_means`` left them. The mean of the energy, not
-    the energy of the mean strain: the fibre damage scales every point of the ply, so that it
-    releases this (a ply bent within its thickness holds more than its mean strain says)."""
+def _ply_energy_density(
+    start, stop, terms, ply_of_point, stiffness, opening, opening_scale, maps, strains, volumes, j
+):
+    """Strain energy density (MPa) of rule-local ply j of one element with its secant
+    ``stiffness`` and crack ``opening_scale`` (as ``_secant_stiffness`` left them): the mean
+    over its "normal" points of the density ``_normal_energy`` integrates, plus that of its
+    mean transverse shears (which the rule samples at their own points; a ply's stiffness
+    couples them with nothing else). ``strains``, ``volumes``: as ``_ply_means`` left them.
+    The mean of the energy, not the energy of the mean strain: fibre damage scales every point
+    of the ply, so that it releases this (a ply bent within its thickness holds more than its
+    mean strain says)."""
     k = ply_of_point[start] + j
     normal = 0.0
     for pp in range(start, stop):
@@ -1233,6 +1237,9 @@ def _ply_energy_density(start, stop, terms, ply_of_point, stiffness, maps, strai
             for b, c in enumerate((0, 1, 2, 5)):
                 s += stiffness[k, i, c] * e[b]
             density += 0.5 * s * e[a]
+        s22 = opening[k, 0] * e[0] + opening[k, 1] * e[1] + opening[k, 2] * e[2]
+        s22 += opening[k, 5] * e[3]
+        density -= 0.5 * opening_scale[k] * max(s22, 0.0) ** 2
         normal += maps[0, row] * density
     g_yz, g_xz = strains[j, 3], strains[j, 4]
     shear = 0.5 * (
@@ -1437,10 +1444,20 @@ def _element_force_damaged(
                 s += strain_to_stress[k, a, b] * strains[j, b]
             sigma[a] = s
         energy_density = 0.0  # the fibres' energy release rate needs it
-        if ply_params[k, F_GFT] > 0.0:
+        if ply_params[k, F_GFT] > 0.0:  # the ply's, its fibres intact: over the share kept
             energy_density = _ply_energy_density(
-                start, stop, terms, ply_of_point, stiffness, maps, strains, volumes, j
-            )
+                start,
+                stop,
+                terms,
+                ply_of_point,
+                degraded,
+                strain_to_stress[:, 1, :],
+                opening_scale,
+                maps,
+                strains,
+                volumes,
+                j,
+            ) / (1.0 - (1.0 - RESIDUAL) * state[j, S_DF])
         d_old = state[j, S_D]
         d_fibre_old = state[j, S_DF]
         if update:

@@ -98,10 +98,10 @@ degradations of the same C0 are not positive definite together (C0 - c1 c1^T / C
 / C0_22 has a negative 2x2 minor), while a scale factor is for every (d, d_f), keeps the
 matrix law as it is, and makes a ply whose fibres have all broken what erosion removes. The
 fibres' energy release rate is y_f = -dpsi/dd_f = psi_m(eps, d), the ply's strain energy
-density: again a function of the strain alone at fixed d. The element kernels take its
-undamaged part as the mean over the ply's integration points (what scaling every point of the
-ply releases: a ply bent within its thickness holds more than the energy of its mean strain)
-and the matrix part at the ply-mean strain, as the matrix law. Initiation on the maximum fibre
+density: again a function of the strain alone at fixed d. The element kernels take it as the
+mean over the ply's integration points (what scaling every point of the ply releases: a ply
+bent within its thickness holds more than the energy of its mean strain), with the matrix
+damage of before the update. Initiation on the maximum fibre
 stress of Hashin and Rotem (1973), s11 = XT or s11 = -XC with s the nominal stress C(d) eps (Abaqus'
 alpha = 0: the longitudinal shears crack the matrix, they do not break fibres; the recorded
 fibre tension index keeps Hashin's 1980 shear term), onset energy y0_f = y_f / index^2, then
@@ -451,9 +451,10 @@ def _softened(y, y0, G, band_width):
 @njit(cache=True, inline="always", error_model="numpy")
 def ply_damage_update(sigma, energy_density, params, band_width, state):
     """Update one ply's damage state (N_STATE,) in place from its effective material-frame
-    stress ``sigma`` (6,) = C0 eps and undamaged strain energy density ``energy_density``
-    (MPa; read only with fibre damage: 1/2 eps.C0.eps at a point, the mean of it over the
-    ply's points in the element kernels); ``params`` is its ply_params_row,
+    stress ``sigma`` (6,) = C0 eps and strain energy density ``energy_density`` = psi_m
+    (MPa; read only with fibre damage: 1/2 eps.C(d).eps at the matrix damage d of before the
+    update, at a point, the mean of it over the ply's points in the element kernels);
+    ``params`` is its ply_params_row,
     ``band_width`` (2,) its l_c across and along the fibres (mm, BAND_MATRIX, BAND_FIBRE).
     Returns True if the crack is open (s22 > 0): the kernels then degrade with both
     degradation matrices, else with the shear one only. The recorded indices are those of the
@@ -506,7 +507,7 @@ def ply_damage_update(sigma, energy_density, params, band_width, state):
     elif not recorded:
         _record_indices(sigma[0], sigma[1], sigma[2], sigma[3], sigma[4], sigma[5], params, state)
     if params[F_GFT] > 0.0:
-        _fibre_update(s11, energy_density - kept * d * y, params, band_width[1], state)
+        _fibre_update(s11, energy_density, params, band_width[1], state)
     return crack_open
 
 
@@ -569,11 +570,12 @@ def material_point_update(
     ``band_width``: l_c across and along the fibres (mm), or one value for both. The same law
     as the element kernels (for tests, plots and calibration)."""
     eps = np.asarray(strain, dtype=np.float64)
-    C0 = material.stiffness()
-    effective = C0 @ eps
+    effective = material.stiffness() @ eps
     bands = np.broadcast_to(np.asarray(band_width, dtype=np.float64), (2,)).copy()
+    matrix = damaged_material_stiffness(material, state[S_D], bool(effective[1] > 0.0))
+    psi_m = 0.5 * float(eps @ matrix @ eps)  # the fibres' energy release rate
     crack_open = ply_damage_update(
-        effective, 0.5 * float(effective @ eps), ply_params_row(material, failure), bands, state
+        effective, psi_m, ply_params_row(material, failure), bands, state
     )
     sigma = damaged_material_stiffness(material, state[S_D], bool(crack_open)) @ eps
     sigma *= 1.0 - (1.0 - RESIDUAL) * state[S_DF]
