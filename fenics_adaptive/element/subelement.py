@@ -50,6 +50,7 @@ F = I + H; the rest is unchanged.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from typing import NamedTuple
 
@@ -1214,13 +1215,27 @@ def _normal_energy(start, stop, terms, ply_of_point, stiffness, opening, opening
 
 @njit(inline="always", **KERNEL_OPTIONS)
 def _ply_energy_density(
-    start, stop, terms, ply_of_point, stiffness, opening, opening_scale, maps, strains, volumes, j
+    start,
+    stop,
+    terms,
+    ply_of_point,
+    stiffness,
+    opening,
+    opening_scale,
+    maps,
+    strains,
+    volumes,
+    j,
+    root_xz,
+    root_yz,
 ):
     """Strain energy density (MPa) of rule-local ply j of one element with its secant
     ``stiffness`` and crack ``opening_scale`` (as ``_secant_stiffness`` left them): the mean
     over its "normal" points of the density ``_normal_energy`` integrates, plus that of its
     mean transverse shears (which the rule samples at their own points; a ply's stiffness
-    couples them with nothing else). ``strains``, ``volumes``: as ``_ply_means`` left them.
+    couples them with nothing else), with the element's shear correction (``root_xz``,
+    ``root_yz``: the square roots of its factors). ``strains``, ``volumes``: as ``_ply_means``
+    left them.
     The mean of the energy, not the energy of the mean strain: fibre damage scales every point
     of the ply, so that it releases this (a ply bent within its thickness holds more than its
     mean strain says)."""
@@ -1241,7 +1256,7 @@ def _ply_energy_density(
         s22 += opening[k, 5] * e[3]
         density -= 0.5 * opening_scale[k] * max(s22, 0.0) ** 2
         normal += maps[0, row] * density
-    g_yz, g_xz = strains[j, 3], strains[j, 4]
+    g_yz, g_xz = root_yz * strains[j, 3], root_xz * strains[j, 4]
     shear = 0.5 * (
         stiffness[k, 3, 3] * g_yz * g_yz
         + 2.0 * stiffness[k, 3, 4] * g_yz * g_xz
@@ -1443,6 +1458,12 @@ def _element_force_damaged(
             for b in range(6):
                 s += strain_to_stress[k, a, b] * strains[j, b]
             sigma[a] = s
+        # the transverse shear the element's energy carries: its shear terms' weights hold
+        # the shear correction k (solid_shell.shear_weights), so the strains times sqrt(k)
+        root_xz = math.sqrt(volumes[j, 1] / volumes[j, 0])
+        root_yz = math.sqrt(volumes[j, 2] / volumes[j, 0])
+        s23_corrected = sigma[3] + strain_to_stress[k, 3, 3] * (root_yz - 1.0) * strains[j, 3]
+        s23_corrected += strain_to_stress[k, 3, 4] * (root_xz - 1.0) * strains[j, 4]
         energy_density = 0.0  # the fibres' energy release rate needs it
         if ply_params[k, F_GFT] > 0.0:  # the ply's, its fibres intact: over the share kept
             energy_density = _ply_energy_density(
@@ -1457,11 +1478,15 @@ def _element_force_damaged(
                 strains,
                 volumes,
                 j,
+                root_xz,
+                root_yz,
             ) / (1.0 - (1.0 - RESIDUAL) * state[j, S_DF])
         d_old = state[j, S_D]
         d_fibre_old = state[j, S_DF]
         if update:
-            ply_damage_update(sigma, energy_density, ply_params[k], band_width[j], state[j])
+            ply_damage_update(
+                sigma, s23_corrected, energy_density, ply_params[k], band_width[j], state[j]
+            )
         # the ply's strain is used: its growth instead (matrix, fibre)
         strains[j, 1] = state[j, S_DF] - d_fibre_old
         strains[j, 0] = state[j, S_D] - d_old + strains[j, 1]
