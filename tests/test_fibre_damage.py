@@ -290,3 +290,65 @@ def test_contact_lets_go_of_the_nodes_erosion_has_freed(tmp_path):
     contact.add_force(0.0, f, np.zeros(0))
     pushed = f.reshape(-1, 3)[contact.nodes, 2]
     assert pushed[centre[0]] == 0.0 and np.count_nonzero(pushed) > 0
+
+
+def _uniaxial_fibre_path(stresses: np.ndarray, state: np.ndarray) -> np.ndarray:
+    """Drive one IM7 point through uniaxial fibre stresses (MPa, the undamaged strain of each
+    along the path: eps = S0 s e1); returns the fibre stress it carries at each."""
+    S0 = np.linalg.inv(IM7.stiffness())
+    carried = []
+    for s in stresses:
+        sigma, _ = pd.material_point_update(IM7, IM7_FAILURE, S0[:, 0] * s, 0.5, state)
+        carried.append(sigma[0])
+    return np.array(carried)
+
+
+@pytest.mark.parametrize("first", ["compression", "tension"])
+def test_each_fibre_mode_starts_at_its_own_strength(first):
+    """A ply just past its strength in one mode (the fibres start to break there), unloaded,
+    then loaded the other way breaks at that mode's strength (within 1 %), not at the first
+    mode's: tension and kink-band compression each have their own onset."""
+    XT, XC = IM7_FAILURE.XT, IM7_FAILURE.XC
+    sign = -1.0 if first == "compression" else 1.0
+    strength, other = (XC, XT) if first == "compression" else (XT, XC)
+    state = np.zeros(pd.N_STATE)
+    up = np.linspace(0.0, 1.002 * strength, 400)
+    _uniaxial_fibre_path(sign * np.concatenate([up, up[::-1]]), state)
+    started = state[pd.S_DF]
+    assert 0.0 < started < 0.01
+    carried = _uniaxial_fibre_path(-sign * np.linspace(0.0, 1.5 * other, 1500), state)
+    peak = other * (1.0 - (1.0 - pd.RESIDUAL) * started)  # the fibres the first mode left
+    assert np.abs(carried).max() == pytest.approx(peak, rel=1e-2)
+
+
+def test_matrix_and_fibres_breaking_in_one_step_book_what_the_ply_loses():
+    """One point strained proportionally in fibre compression with in-plane shear, in steps
+    coarse enough that matrix and fibre damage grow in the same updates: the damage laws'
+    summed dissipation is the work done on the point (trapezoidal) minus its strain energy,
+    to 1e-3 (6e-4: the fibres' increments see the matrix stiffness change between steps;
+    booking their release at the matrix damage of before the update made it 1.9e-3)."""
+    direction = np.array([-1.0, 0.0, 0.0, 0.0, 0.0, 2.5])  # material frame, engineering shear
+    state = np.zeros(pd.N_STATE)
+    work, energy, sigma_old, eps_old = 0.0, 0.0, np.zeros(6), np.zeros(6)
+    both = 0
+    for s in np.linspace(0.0, 0.12, 121)[1:]:
+        d_before = state[[pd.S_D, pd.S_DF]].copy()
+        eps = s * direction
+        sigma, energy = pd.material_point_update(IM7, IM7_FAILURE, eps, 0.5, state)
+        work += 0.5 * (sigma + sigma_old) @ (eps - eps_old)
+        sigma_old, eps_old = sigma, eps
+        both += bool(np.all(state[[pd.S_D, pd.S_DF]] > d_before))
+    assert both >= 3 and state[pd.S_DF] > 0.5
+    assert state[pd.S_DISSIPATED] == pytest.approx(work - energy, rel=1e-3)
+
+
+def test_a_volume_ratio_without_erosion_is_refused():
+    import tomllib
+    from pathlib import Path
+
+    from fenics_adaptive.settings.config import parse_config
+
+    data = tomllib.loads((Path(__file__).parent / "data" / "perforation.toml").read_text())
+    data["model"].update(erosion=False, erosion_volume_ratio=0.3)
+    with pytest.raises(InputError, match=r"model\.erosion_volume_ratio: needs model\.erosion"):
+        parse_config(data)

@@ -1081,10 +1081,13 @@ def solid_shell_lumped_masses(X_all, points, weights, ply_of_point, density):
 # A1)) into a scratch copy (a plain copy while d = d_f = 0); (4) ``element_force_kernel`` with
 # that copy, which equals the elastic kernel's force (to round-off) while nothing is damaged.
 #
-# Erosion (``erode``): an element all of whose plies' fibres have failed (d_f = 1) is removed:
-# its force is no longer computed, its nodes keep their mass. The strain energy it held when it
-# went (the RESIDUAL share of its plies' stiffness) is booked in its plies' S_ERODED, per unit
-# of their volume, so that the energy balance from the states still closes.
+# Erosion (``erode``): an element all of whose plies' fibres have failed (d_f = 1), or crushed
+# (``add_damaged_subelement_forces``), is removed: its force is no longer computed, its nodes
+# keep their mass. The strain energy it held when it went (the RESIDUAL share of its plies'
+# stiffness when its fibres broke, all of it when it was crushed) is booked in its plies'
+# S_ERODED, per unit of their volume, so that the energy balance from the states still closes.
+# A subelement whose plies' fibres all broke before its cell refined leaves at the refinement:
+# its energy goes with the refinement's (``refinement_energy``).
 #
 # Consequences of one secant stiffness per ply: the dissipation is exactly G_c per crack area
 # when the strain is uniform within the ply; a strain gradient inside a damaging ply (bending)
@@ -1419,7 +1422,7 @@ def _element_force_damaged(
 ):
     """Damage update (unless ``update`` is False: the damage as it is) and force of one
     element (points start:stop) into f_out (8, 3); returns the secant strain energy.
-    ``band_width`` (n_local,) and ``state`` (n_local, N_STATE) are the element's plies' rows
+    ``band_width`` (n_local, 2) and ``state`` (n_local, N_STATE) are the element's plies' rows
     (rule-local); ``degraded`` is a scratch array shaped like ``stiffness`` (only the
     element's rows are written) and ``dirty`` (len(stiffness),) bool says which of its rows
     differ from ``stiffness`` (elements sharing a rule share rows). Other scratch: ``maps``
@@ -1465,7 +1468,7 @@ def _element_force_damaged(
         s23_corrected = sigma[3] + strain_to_stress[k, 3, 3] * (root_yz - 1.0) * strains[j, 3]
         s23_corrected += strain_to_stress[k, 3, 4] * (root_xz - 1.0) * strains[j, 4]
         energy_density = 0.0  # the fibres' energy release rate needs it
-        if ply_params[k, F_GFT] > 0.0:  # the ply's, its fibres intact: over the share kept
+        if update and ply_params[k, F_GFT] > 0.0:  # the ply's, its fibres intact: / share kept
             energy_density = _ply_energy_density(
                 start,
                 stop,
@@ -1814,8 +1817,8 @@ def add_damaged_subelement_forces(
     ``corotational``, as a whole (det F of the affine fit of their motion,
     ``element_rotation``): their plies' fibres are broken then (the energy such an element
     held is booked as for the others; one whose fit is inside out is removed without, its
-    energy cannot be computed); ``eroded`` (1,) int64 counts the elements that went in this
-    call.
+    energy cannot be computed); ``eroded`` (1,) int64: the number of elements that went in
+    this call is added to it.
     ``frames`` (ne, 3, 3): each element's frame on a
     curved shell (rows its axes, ``element.geometry.cell_frames``): the element is computed
     with its coordinates and displacement in it, F X and F u (after the co-rotation), and its

@@ -101,26 +101,32 @@ fibres' energy release rate is y_f = -dpsi/dd_f = psi_m(eps, d), the ply's strai
 density: again a function of the strain alone at fixed d. The element kernels take it as the
 mean over the ply's integration points (what scaling every point of the ply releases: a ply
 bent within its thickness holds more than the energy of its mean strain), with the matrix
-damage of before the update. Initiation on the maximum fibre
-stress of Hashin and Rotem (1973), s11 = XT or s11 = -XC with s the nominal stress C(d) eps (Abaqus'
-alpha = 0: the longitudinal shears crack the matrix, they do not break fibres; the recorded
-fibre tension index keeps Hashin's 1980 shear term), onset energy y0_f = y_f / index^2, then
-the law of the matrix crack on sqrt(y_f / y0_f) with G = Gft while s11 >= 0, Gfc while
-s11 < 0, and l_c the cell's extent along the fibres (the width of the band a crack across the
-fibres runs through). The dissipated energy is G / l_c per unit volume for any path at a fixed
-mode and matrix damage: G per unit area of the crack across the fibres. In uniaxial fibre stress
-the curve is exactly bilinear, peak XT at XT / E1, and softening needs l_c < 2 E1 Gft / XT^2
-(and 2 E1 Gfc / XC^2 in compression). Matrix damage growing in a ply whose fibres have partly
-failed dissipates (1 - d_f) of what it would in an intact one.
+damage of before the update (less what the update's own matrix increment released).
+Initiation on the maximum fibre stress of Hashin and Rotem (1973), s11 = XT or s11 = -XC with
+s the nominal stress C(d) eps (Abaqus' alpha = 0: the longitudinal shears crack the matrix,
+they do not break fibres; the recorded fibre tension index keeps Hashin's 1980 shear term),
+onset energy y0_f = y_f / index^2 of its own for each mode (tension while s11 >= 0,
+compression while s11 < 0: a ply that began to kink still breaks in tension at XT), then the
+law of the matrix crack on sqrt(y_f / y0_f) with the mode's onset and G = Gft or Gfc, d_f the
+largest either mode has reached, and l_c the cell's extent along the fibres (the width of the
+band a crack across the fibres runs through). The dissipated energy is G / l_c per unit volume
+for any path at a fixed mode and matrix damage: G per unit area of the crack across the
+fibres. In uniaxial fibre stress the curve is exactly bilinear, peak XT at XT / E1, and
+softening needs l_c < 2 E1 Gft / XT^2 (and 2 E1 Gfc / XC^2 in compression). Matrix damage
+growing in a ply whose fibres have partly failed dissipates (1 - d_f) of what it would in an
+intact one, and fibres breaking in the update that cracks the matrix further release psi_m at
+the new matrix damage: what the two increments book together is the energy the ply loses at
+that strain.
 
 State of one ply of one element (``N_STATE`` floats, zero initially): S_D matrix damage, S_Y0
 its onset energy (0 until initiation), S_FT, S_FC, S_MT, S_MC the largest fibre tension / fibre
 compression / matrix tension / matrix compression index seen so far, evaluated with the
 nominal stress C(d) eps (the effective one while d = 0), S_DISSIPATED the energy density (MPa =
 mJ/mm^3) the ply's damage (matrix and fibre) has dissipated so far, S_Y_LAST the energy
-release rate y of the last update; S_DF the fibre damage, S_Y0F its onset energy, S_YF_LAST its
-y_f of the last update, S_FIBRE_DISSIPATED the fibres' share of S_DISSIPATED, S_ERODED the
-strain energy density the ply's element held when erosion removed it (``subelement``).
+release rate y of the last update; S_DF the fibre damage, S_Y0FT and S_Y0FC its onset energies
+in tension and compression, S_YF_LAST its y_f of the last update, S_FIBRE_DISSIPATED the fibres'
+share of S_DISSIPATED, S_ERODED the strain energy density the ply's element held when erosion
+removed it (``subelement``).
 
 Dissipation from the law's own increments. The stiffness loses (1 - RESIDUAL) dd (A_open + A_1)
 per update, and y = 1/2 eps.(A_open + A_1).eps (the released part of the strain energy density),
@@ -168,8 +174,8 @@ P_C21, P_C22, P_C23, P_G12, P_G23 = range(N_FAILURE, N_FAILURE + 5)
 N_PLY_PARAMS = N_FAILURE + 5
 # Slots of a ply's damage state.
 S_D, S_Y0, S_FT, S_FC, S_MT, S_MC, S_DISSIPATED, S_Y_LAST = range(8)
-S_DF, S_Y0F, S_YF_LAST, S_FIBRE_DISSIPATED, S_ERODED = range(8, 13)
-N_STATE = 13
+S_DF, S_Y0FT, S_Y0FC, S_YF_LAST, S_FIBRE_DISSIPATED, S_ERODED = range(8, 14)
+N_STATE = 14
 # Columns of a band-width row: the cell's extent across the fibres (matrix crack), along them
 # (fibre crack).
 BAND_MATRIX, BAND_FIBRE = 0, 1
@@ -513,8 +519,9 @@ def ply_damage_update(sigma, s23_corrected, energy_density, params, band_width, 
         )
     elif not recorded:
         _record_indices(sigma[0], sigma[1], sigma[2], sigma[3], sigma[4], sigma[5], params, state)
-    if params[F_GFT] > 0.0:
-        _fibre_update(s11, energy_density, params, band_width[1], state)
+    if params[F_GFT] > 0.0:  # psi_m at the matrix damage of after this update
+        released = kept * (d - d_old) * y
+        _fibre_update(s11, energy_density - released, params, band_width[1], state)
     return crack_open
 
 
@@ -524,17 +531,18 @@ def _fibre_update(s11, y_fibre, params, band_width, state):
     rate ``y_fibre`` = psi_m (MPa) over the band ``band_width`` along the fibres (mm)."""
     y_last = state[S_YF_LAST]
     state[S_YF_LAST] = y_fibre
-    y0 = state[S_Y0F]
-    if y0 == 0.0:
-        index = s11 / params[F_XT] if s11 >= 0.0 else -s11 / params[F_XC]
+    tension = s11 >= 0.0
+    onset = S_Y0FT if tension else S_Y0FC
+    y0 = state[onset]
+    if y0 == 0.0:  # this mode has not initiated
+        index = s11 / params[F_XT] if tension else -s11 / params[F_XC]
         if index < 1.0 or y_fibre <= 0.0:
             return
         y0 = y_fibre / (index * index)
-        state[S_Y0F] = y0
+        state[onset] = y0
     if y_fibre <= y0:
         return
-    G = params[F_GFT] if s11 >= 0.0 else params[F_GFC]
-    d = _softened(y_fibre, y0, G, band_width)
+    d = _softened(y_fibre, y0, params[F_GFT] if tension else params[F_GFC], band_width)
     d_old = state[S_DF]
     if d > d_old:
         state[S_DF] = d

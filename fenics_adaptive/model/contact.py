@@ -311,14 +311,17 @@ class Contact(Contributor):
 
     def release(self) -> None:
         """Collective: stop contact at the face nodes that no element of any rank holds any
-        more (erosion has removed them all); a released node carries no friction force. At
+        more (erosion has removed them all); a released node carries no force (the normal
+        penalty energy it held goes with the body's energy, its tangential spring's is booked
+        as dissipated by friction). At
         the history rows only, so that the contact changes at the same times whatever the
         number of ranks (a node on a partition boundary needs the other ranks' elements):
         a node erosion frees keeps its contact until the next row (``output.interval``)."""
         if self._carriers is None:
             return
+        # (the friction kernel lets a released node's tangential spring go, booking its
+        # energy as dissipated)
         self.active &= self._carriers()[self.nodes] > 0
-        self.traction[~self.active] = 0.0
 
     def initial_gap(self) -> float:
         """Collective: the smallest gap (mm) between the body and its undeformed face."""

@@ -70,7 +70,8 @@ class PlyDamageState:
         self.comm = comm
         self.erode = bool(erode)
         self.min_volume_ratio = float(min_volume_ratio)
-        # the elements erosion has removed on this rank so far (the kernel counts them)
+        # the elements erosion has removed on this rank in this process (the kernel adds them:
+        # a diagnostic for a debugger, not a state: a restart starts it at 0)
         self.eroded_count = np.zeros(1, dtype=np.int64)
         self.frames = np.zeros((0, 3, 3)) if frames is None else np.asarray(frames)
         if len(self.frames):  # the band widths across the fibres in each cell's frame

@@ -677,6 +677,8 @@ def _model(table: _Table) -> _Model:
         enhanced_strain=table.boolean("enhanced_strain"),
         thickness_integration=table.choice("thickness_integration"),
     )
+    if table.has("erosion_volume_ratio") and not model.erosion:
+        raise InputError(table.key("erosion_volume_ratio"), "needs model.erosion = true")
     return model
 
 
