@@ -187,3 +187,26 @@ def test_the_indicators_see_the_same_ply_stresses_after_a_rigid_turn():
     )
     structure.base.set_kinematics("small")
     assert np.abs(ply_stresses(structure) - stresses).max() > 10.0 * scale
+
+
+def test_a_strained_element_spinning_rigidly_does_no_work():
+    """The co-rotated force of a strained, damaged element is projected off the rigid
+    rotations of the element as it is now (``subelement.remove_spin``): turning the strained
+    element rigidly by a small angle does no work to first order (the force's moment about
+    its centre vanishes, 1e-12 of the force times the size; without the projection it is of
+    the order of strain times force), and the forces keep a zero sum."""
+    laminate = random_laminate(np.random.default_rng(3), 4)
+    packed = pd.pack_ply_damage(laminate.plies, FAILURES)
+    rule = se.pack_rule(laminate.ply_fractions, np.array(laminate.ply_stiffnesses()), 2)
+    X = se.CORNERS * [1.0, 1.0, laminate.thickness]
+    H = np.array([[0.05, 0.02, 0.0], [0.01, -0.03, 0.04], [0.0, 0.02, 0.08]])  # large strains
+    state = pd.new_state(1, 4)[0]
+    f = np.zeros((8, 3))
+    u = X @ H.T
+    se.solid_shell_force_damaged(X, u, *rule, *packed, np.full(4, 0.5), state, f, corotational=True)
+    x = X + u
+    r = x - x.mean(axis=0)
+    moment = np.cross(r, f).sum(axis=0)
+    scale = np.abs(f).max() * np.abs(r).max()
+    assert np.abs(moment).max() < 1e-12 * scale
+    assert np.abs(f.sum(axis=0)).max() < 1e-12 * np.abs(f).max()

@@ -1580,6 +1580,52 @@ def corner_volume_ratio(X, u):
     return smallest
 
 
+@njit(cache=True, error_model="numpy")
+def remove_spin(X, u, f):
+    """Project the element forces f (8, 3) onto the space orthogonal to the rigid rotations of
+    the element as it is now, about its centre (positions X + u, (8, 3)), in place:
+    f <- f - w x r_a, w = A^-1 sum_a r_a x f_a, A = sum_a (|r_a|^2 I - r_a r_a^T) (the
+    projector of Rankin and Nour-Omid's element-independent co-rotational formulation). The
+    co-rotated small-strain force is balanced in moment on the reference shape, not on the
+    strained one: a strained element spinning would take or give energy through that moment
+    (loose, strained, damaged cells tumbling after a perforation have pumped energy into a
+    run until it diverged). Forces keep their sum. Scalars only: no allocation."""
+    cx = cy = cz = 0.0
+    for a in range(8):
+        cx += 0.125 * (X[a, 0] + u[a, 0])
+        cy += 0.125 * (X[a, 1] + u[a, 1])
+        cz += 0.125 * (X[a, 2] + u[a, 2])
+    a00 = a01 = a02 = a11 = a12 = a22 = 0.0
+    bx = by = bz = 0.0
+    for a in range(8):
+        rx = X[a, 0] + u[a, 0] - cx
+        ry = X[a, 1] + u[a, 1] - cy
+        rz = X[a, 2] + u[a, 2] - cz
+        rr = rx * rx + ry * ry + rz * rz
+        a00 += rr - rx * rx
+        a11 += rr - ry * ry
+        a22 += rr - rz * rz
+        a01 -= rx * ry
+        a02 -= rx * rz
+        a12 -= ry * rz
+        bx += ry * f[a, 2] - rz * f[a, 1]
+        by += rz * f[a, 0] - rx * f[a, 2]
+        bz += rx * f[a, 1] - ry * f[a, 0]
+    det, K = _inverse3((a00, a01, a02, a01, a11, a12, a02, a12, a22))
+    if not det > 0.0:  # collapsed to a line: nothing to spin about
+        return
+    wx = K[0] * bx + K[1] * by + K[2] * bz
+    wy = K[3] * bx + K[4] * by + K[5] * bz
+    wz = K[6] * bx + K[7] * by + K[8] * bz
+    for a in range(8):
+        rx = X[a, 0] + u[a, 0] - cx
+        ry = X[a, 1] + u[a, 1] - cy
+        rz = X[a, 2] + u[a, 2] - cz
+        f[a, 0] -= wy * rz - wz * ry
+        f[a, 1] -= wz * rx - wx * rz
+        f[a, 2] -= wx * ry - wy * rx
+
+
 @njit(inline="always", **KERNEL_OPTIONS)
 def _break_fibres(damage_state, row, first, n):
     """Set the fibre damage of plies first .. first + n - 1 of cell row ``row`` to 1 (an
@@ -1941,6 +1987,8 @@ def add_damaged_subelement_forces(
             eroded[0] += 1
             continue
         energy += element_energy
+        if corotational:  # no work in a rigid spin of the element as it is now
+            remove_spin(X, u, f)
         if frames.shape[0] > 0:  # out of the cell's frame: F^T f
             turn_rows(frames[e], f, True)
         if corotational:  # the force back in the global frame: R f_local
