@@ -1217,37 +1217,21 @@ def _normal_energy(start, stop, terms, ply_of_point, stiffness, opening, opening
 
 
 @njit(inline="always", **KERNEL_OPTIONS)
-def _ply_energy_density(
-    start,
-    stop,
-    terms,
-    ply_of_point,
-    stiffness,
-    opening,
-    opening_scale,
-    maps,
-    strains,
-    volumes,
-    j,
-    root_xz,
-    root_yz,
+def _ply_normal_energies(
+    start, stop, terms, ply_of_point, stiffness, opening, opening_scale, maps, out
 ):
-    """Strain energy density (MPa) of rule-local ply j of one element with its secant
-    ``stiffness`` and crack ``opening_scale`` (as ``_secant_stiffness`` left them): the mean
-    over its "normal" points of the density ``_normal_energy`` integrates, plus that of its
-    mean transverse shears (which the rule samples at their own points; a ply's stiffness
-    couples them with nothing else), with the element's shear correction (``root_xz``,
-    ``root_yz``: the square roots of its factors). ``strains``, ``volumes``: as ``_ply_means``
-    left them.
-    The mean of the energy, not the energy of the mean strain: fibre damage scales every point
-    of the ply, so that it releases this (a ply bent within its thickness holds more than its
-    mean strain says)."""
-    k = ply_of_point[start] + j
-    normal = 0.0
+    """Strain energy (mJ) of each ply's "normal" term in one element, with its secant
+    ``stiffness`` and crack ``opening_scale`` (as ``_secant_stiffness`` left them; the density
+    ``_normal_energy`` integrates), into ``out[j]`` for rule-local ply j, in one pass over the
+    points. The fibres' energy release rate is its mean over the ply (``_fibre_energy``)."""
+    k0 = ply_of_point[start]
+    for j in range(ply_of_point[stop - 1] - k0 + 1):
+        out[j] = 0.0
     for pp in range(start, stop):
-        if terms[pp] != TERM_NORMAL or ply_of_point[pp] != k:
+        if terms[pp] != TERM_NORMAL:
             continue
         row = pp - start
+        k = ply_of_point[pp]
         e = (maps[10, row], maps[11, row], maps[12, row], maps[15, row])
         density = 0.0
         for a, i in enumerate((0, 1, 2, 5)):
@@ -1258,14 +1242,26 @@ def _ply_energy_density(
         s22 = opening[k, 0] * e[0] + opening[k, 1] * e[1] + opening[k, 2] * e[2]
         s22 += opening[k, 5] * e[3]
         density -= 0.5 * opening_scale[k] * max(s22, 0.0) ** 2
-        normal += maps[0, row] * density
+        out[k - k0] += maps[0, row] * density
+
+
+@njit(inline="always", **KERNEL_OPTIONS)
+def _fibre_energy(k, j, stiffness, normal_energy, strains, volumes, root_xz, root_yz):
+    """Strain energy density (MPa) of rule-local ply j (ply k of the rule) of one element: the
+    mean of its "normal" term's (``_ply_normal_energies``) plus that of its mean transverse
+    shears (which the rule samples at their own points; a ply's stiffness couples them with
+    nothing else) with the element's shear correction (``root_xz``, ``root_yz``: the square
+    roots of its factors). ``strains``, ``volumes``: as ``_ply_means`` left them. The mean of
+    the energy, not the energy of the mean strain: fibre damage scales every point of the ply,
+    so that it releases this (a ply bent within its thickness holds more than its mean strain
+    says)."""
     g_yz, g_xz = root_yz * strains[j, 3], root_xz * strains[j, 4]
     shear = 0.5 * (
         stiffness[k, 3, 3] * g_yz * g_yz
         + 2.0 * stiffness[k, 3, 4] * g_yz * g_xz
         + stiffness[k, 4, 4] * g_xz * g_xz
     )
-    return normal / volumes[j, 0] + shear
+    return normal_energy[j] / volumes[j, 0] + shear
 
 
 @njit(inline="always", **KERNEL_OPTIONS)
@@ -1417,6 +1413,7 @@ def _element_force_damaged(
     strains,
     volumes,
     sigma,
+    normal_energy,
     f_out,
     update,
 ):
@@ -1427,7 +1424,7 @@ def _element_force_damaged(
     element's rows are written) and ``dirty`` (len(stiffness),) bool says which of its rows
     differ from ``stiffness`` (elements sharing a rule share rows). Other scratch: ``maps``
     (N_MAPS, >= stop - start), ``strains`` (>= n_local, 6), ``volumes`` (>= n_local, 3),
-    ``sigma`` (6,)."""
+    ``sigma`` (6,), ``normal_energy`` (>= n_local,)."""
     _point_maps(X, u, start, stop, zeta, weights, position_of_point, positions, work, line, maps)
     k0 = ply_of_point[start]
     n_local = ply_of_point[stop - 1] - k0 + 1
@@ -1453,6 +1450,22 @@ def _element_force_damaged(
         False,
     )
     _ply_means(start, stop, terms, ply_of_point, maps, strains, volumes)
+    fibres = False  # does a ply of the element break its fibres?
+    if update:
+        for j in range(n_local):
+            fibres = fibres or ply_params[k0 + j, F_GFT] > 0.0
+    if fibres:
+        _ply_normal_energies(
+            start,
+            stop,
+            terms,
+            ply_of_point,
+            degraded,
+            strain_to_stress[:, 1, :],
+            opening_scale,
+            maps,
+            normal_energy,
+        )
     grown = 0.0
     for j in range(n_local):
         k = k0 + j
@@ -1468,21 +1481,9 @@ def _element_force_damaged(
         s23_corrected = sigma[3] + strain_to_stress[k, 3, 3] * (root_yz - 1.0) * strains[j, 3]
         s23_corrected += strain_to_stress[k, 3, 4] * (root_xz - 1.0) * strains[j, 4]
         energy_density = 0.0  # the fibres' energy release rate needs it
-        if update and ply_params[k, F_GFT] > 0.0:  # the ply's, its fibres intact: / share kept
-            energy_density = _ply_energy_density(
-                start,
-                stop,
-                terms,
-                ply_of_point,
-                degraded,
-                strain_to_stress[:, 1, :],
-                opening_scale,
-                maps,
-                strains,
-                volumes,
-                j,
-                root_xz,
-                root_yz,
+        if fibres and ply_params[k, F_GFT] > 0.0:  # the ply's, its fibres intact: / share kept
+            energy_density = _fibre_energy(
+                k, j, degraded, normal_energy, strains, volumes, root_xz, root_yz
             ) / (1.0 - (1.0 - RESIDUAL) * state[j, S_DF])
         d_old = state[j, S_D]
         d_fibre_old = state[j, S_DF]
@@ -1904,6 +1905,7 @@ def add_damaged_subelement_forces(
     maps = np.empty((N_MAPS, longest))
     strains = np.empty((n_plies, 6))
     volumes = np.empty((n_plies, 3))
+    normal_energy = np.empty(n_plies)
     sigma = np.empty(6)
     X = np.empty((8, 3))
     u = np.empty((8, 3))
@@ -1971,6 +1973,7 @@ def add_damaged_subelement_forces(
             strains,
             volumes,
             sigma,
+            normal_energy,
             f,
             update,
         )
