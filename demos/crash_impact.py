@@ -37,7 +37,6 @@ integration, stays closed to round-off.
 
 import argparse
 import json
-import math
 import tomllib
 from pathlib import Path
 
@@ -48,7 +47,11 @@ matplotlib.use("Agg")
 
 import matplotlib.pyplot as plt
 
-from fenics_adaptive.analysis.studies import CRASH_IMPACT_RUNS, plate_impact_variant
+from fenics_adaptive.analysis.studies import (
+    CRASH_IMPACT_RUNS,
+    add_ratios_to_layerwise,
+    plate_impact_variant,
+)
 from fenics_adaptive.errors import script_main
 from fenics_adaptive.io.cscan import delaminated_area_per_interface, interface_damage, plot_cscan
 from fenics_adaptive.io.output import json_safe, read_history
@@ -175,12 +178,7 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> None:
         maps[name] = interface_damage(structure)
         cells = (structure.interface_state != InterfaceState.NONE).any(axis=1)
         refined[name] = structure.X_base[structure.bottom_local[cells]].mean(axis=1)[:, :2]
-    if "layerwise" in results:
-        reference = results["layerwise"]
-        for name in set(results) - {"layerwise"}:
-            for key in ("peak_contact_force_N", "energy_absorbed_mJ", "wall_time_s"):
-                ratio = results[name][key] / reference[key] if reference[key] else math.nan
-                results[name][f"{key}_relative_to_layerwise"] = ratio
+    add_ratios_to_layerwise(results, ("peak_contact_force_N", "energy_absorbed_mJ", "wall_time_s"))
     plot(histories, results, out / "crash_impact.png")
     plot_cscan(maps, refined, (base["mesh"]["length"], base["mesh"]["width"]), out / "cscan.png")
     summary = {"units": "N, mm, s, tonne (mJ, mm/s)", "runs": results}

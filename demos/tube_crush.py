@@ -29,7 +29,6 @@ spheres and cylinders touching the top or bottom face: no rigid plane yet.
 
 import argparse
 import json
-import math
 import tomllib
 from pathlib import Path
 
@@ -40,7 +39,11 @@ matplotlib.use("Agg")
 
 import matplotlib.pyplot as plt
 
-from fenics_adaptive.analysis.studies import TUBE_CRUSH_RUNS, plate_impact_variant
+from fenics_adaptive.analysis.studies import (
+    TUBE_CRUSH_RUNS,
+    add_ratios_to_layerwise,
+    plate_impact_variant,
+)
 from fenics_adaptive.errors import script_main
 from fenics_adaptive.io.output import json_safe, read_history
 from fenics_adaptive.runner import execute
@@ -137,12 +140,7 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> None:
         summary, structure = execute(config, out / name, overwrite=args.overwrite)
         histories[name] = read_history(out / name / "history.csv")
         results[name] = facts(structure, summary, histories[name])
-    if "layerwise" in results:
-        reference = results["layerwise"]
-        for name in set(results) - {"layerwise"}:
-            for key in ("peak_force_N", "energy_absorbed_mJ", "wall_time_s"):
-                ratio = results[name][key] / reference[key] if reference[key] else math.nan
-                results[name][f"{key}_relative_to_layerwise"] = ratio
+    add_ratios_to_layerwise(results, ("peak_force_N", "energy_absorbed_mJ", "wall_time_s"))
     plot(histories, results, out / "tube_crush.png")
     summary = {"units": "N, mm, s, tonne (mJ)", "runs": results}
     text = json.dumps(json_safe(summary), indent=2)  # NaN ratios as "nan": valid JSON

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import copy
 import itertools
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -147,6 +148,19 @@ def plate_impact_variant(base: dict, name: str) -> dict:
         bounds = [0, *data["interfaces"]["delaminate"], plies]
         data["mesh"]["layers"] = [b - a for a, b in itertools.pairwise(bounds)]
     return data
+
+
+def add_ratios_to_layerwise(results: dict[str, dict], keys: tuple[str, ...]) -> None:
+    """Give every run of a study's ``results`` (run name -> its numbers) but the layerwise one
+    ``<key>_relative_to_layerwise`` for each of ``keys``: its value over the layerwise run's
+    (NaN where that is 0), in place; nothing without a layerwise run."""
+    reference = results.get("layerwise")
+    if reference is None:
+        return
+    for name in set(results) - {"layerwise"}:
+        for key in keys:
+            ratio = results[name][key] / reference[key] if reference[key] else math.nan
+            results[name][f"{key}_relative_to_layerwise"] = ratio
 
 
 def fracture_variant(base: dict, name: str) -> dict:

@@ -1192,6 +1192,24 @@ def _condense_enhanced_strain(
         p = end
 
 
+@njit(inline="always", **KERNEL_OPTIONS)
+def _normal_energy_at(maps, row, k, stiffness, opening, opening_scale):
+    """w |det J| times the "normal" term's strain energy density at the point in column
+    ``row`` of ``maps`` (ply k's ``stiffness``, its crack opened where the point's s22 > 0, as
+    ``element_force_kernel`` computes it): mJ."""
+    e = (maps[10, row], maps[11, row], maps[12, row], maps[15, row])
+    density = 0.0
+    for a, i in enumerate((0, 1, 2, 5)):
+        s = 0.0
+        for b, j in enumerate((0, 1, 2, 5)):
+            s += stiffness[k, i, j] * e[b]
+        density += 0.5 * s * e[a]
+    s22 = opening[k, 0] * e[0] + opening[k, 1] * e[1] + opening[k, 2] * e[2]
+    s22 += opening[k, 5] * e[3]
+    density -= 0.5 * opening_scale[k] * max(s22, 0.0) ** 2
+    return maps[0, row] * density
+
+
 @njit(cache=True, **KERNEL_OPTIONS)  # called per element: compiled once, not inlined
 def _normal_energy(start, stop, terms, ply_of_point, stiffness, opening, opening_scale, maps):
     """Strain energy (mJ) of the "normal" term of one element from the strains in ``maps``,
@@ -1201,18 +1219,7 @@ def _normal_energy(start, stop, terms, ply_of_point, stiffness, opening, opening
         if terms[pp] != TERM_NORMAL:
             continue
         row = pp - start
-        k = ply_of_point[pp]
-        e = (maps[10, row], maps[11, row], maps[12, row], maps[15, row])
-        density = 0.0
-        for a, i in enumerate((0, 1, 2, 5)):
-            s = 0.0
-            for b, j in enumerate((0, 1, 2, 5)):
-                s += stiffness[k, i, j] * e[b]
-            density += 0.5 * s * e[a]
-        s22 = opening[k, 0] * e[0] + opening[k, 1] * e[1] + opening[k, 2] * e[2]
-        s22 += opening[k, 5] * e[3]
-        density -= 0.5 * opening_scale[k] * max(s22, 0.0) ** 2
-        energy += maps[0, row] * density
+        energy += _normal_energy_at(maps, row, ply_of_point[pp], stiffness, opening, opening_scale)
     return energy
 
 
@@ -1232,17 +1239,7 @@ def _ply_normal_energies(
             continue
         row = pp - start
         k = ply_of_point[pp]
-        e = (maps[10, row], maps[11, row], maps[12, row], maps[15, row])
-        density = 0.0
-        for a, i in enumerate((0, 1, 2, 5)):
-            s = 0.0
-            for b, c in enumerate((0, 1, 2, 5)):
-                s += stiffness[k, i, c] * e[b]
-            density += 0.5 * s * e[a]
-        s22 = opening[k, 0] * e[0] + opening[k, 1] * e[1] + opening[k, 2] * e[2]
-        s22 += opening[k, 5] * e[3]
-        density -= 0.5 * opening_scale[k] * max(s22, 0.0) ** 2
-        out[k - k0] += maps[0, row] * density
+        out[k - k0] += _normal_energy_at(maps, row, k, stiffness, opening, opening_scale)
 
 
 @njit(inline="always", **KERNEL_OPTIONS)
