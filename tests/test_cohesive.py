@@ -392,3 +392,85 @@ def test_from_mapping():
     with pytest.raises(InputError) as info:
         CohesiveLaw.from_mapping({**BASE, "GIc": -0.4})
     assert info.value.key == "cohesive.GIc"
+
+
+def _turned_element(rng):
+    """A distorted, non-planar element's reference X (8, 3) and a motion u (8, 3) that turns and
+    stretches its mid-surface far from the reference, without a jump yet."""
+    face = FACE * [2.0, 1.5, 0.0] + rng.uniform(-0.3, 0.3, (4, 3))
+    mid = rng.uniform(-0.2, 0.2, (4, 3)) + face @ rotation((0.3, 1.0, 0.2), 70.0).T - face
+    return np.vstack([face, face]), np.vstack([mid, mid])
+
+
+@pytest.mark.parametrize("damage", [0.95, 1.0])
+def test_force_is_energy_gradient_of_a_damaged_interface_in_compression(damage):
+    """Damaged (or broken) and partly closed, with K_n != K_s, the energy depends on how the
+    jump splits into normal and tangential parts, hence on the frame, which turns with the
+    mid-surface: f_coh = -dW/du holds only with the frame's turning in the force. Without it
+    the interface would give or take energy on a closed path (next test)."""
+    law = make_law(K_s=0.6e5)
+    params = law.as_array()
+    rng = np.random.default_rng(7)
+    X, u = _turned_element(rng)
+    jump = rng.uniform(-2e-4, 2e-4, (4, 3))  # mixed signs: points open and closed
+    u[:4] -= 0.5 * jump
+    u[4:] += 0.5 * jump
+    state = np.full(4, damage)
+
+    def energy(v):
+        d = state.copy()
+        W, _ = cohesive_element_force(X, v, params, d, np.zeros((8, 3)))
+        assert np.array_equal(d, state)  # the openings stay below what would damage it more
+        return W
+
+    f = np.zeros((8, 3))
+    cohesive_element_force(X, u, params, state.copy(), f)
+    h = 1e-9
+    grad = np.zeros((8, 3))
+    for a in range(8):
+        for i in range(3):
+            up, down = u.copy(), u.copy()
+            up[a, i] += h
+            down[a, i] -= h
+            grad[a, i] = (energy(up) - energy(down)) / (2 * h)
+    np.testing.assert_allclose(f, -grad, rtol=0, atol=1e-6 * np.abs(f).max())
+
+
+def test_a_broken_interface_turned_around_a_closed_path_does_no_work():
+    """A fully damaged interface pressed closed (its only force the contact penalty K_n d3 n)
+    whose faces turn by 60 degrees, change their jump, turn back and restore it: the work of
+    its forces around the closed path is zero (to the trapezoidal rule's O(h^2)), as for any
+    force that is the gradient of an energy. A penalty along a normal that turns without its
+    share of the frame's change did a tenth of the largest stored energy per cycle."""
+    law = make_law(K_s=0.6e5)
+    params = law.as_array()
+    J0 = np.array([1.0e-4, 0.5e-4, -2.0e-4])  # mm, global: closed at the start
+    J1 = np.array([0.0, -1.5e-4, 0.5e-4])
+
+    def motion(theta, s):
+        mid = X_UNIT[:4] @ rotation((1.0, 0.3, 0.0), theta).T - X_UNIT[:4]
+        jump = J0 + s * J1
+        return np.vstack([mid - 0.5 * jump, mid + 0.5 * jump])
+
+    n = 2000
+    legs = [
+        [(60.0 * k / n, 0.0) for k in range(n + 1)],
+        [(60.0, k / n) for k in range(n + 1)],
+        [(60.0 * (1 - k / n), 1.0) for k in range(n + 1)],
+        [(0.0, 1 - k / n) for k in range(n + 1)],
+    ]
+    damage = np.ones(4)
+    work = 0.0
+    stored = []
+    f_old = u_old = None
+    for leg in legs:
+        for theta, s in leg:
+            u = motion(theta, s)
+            f = np.zeros((8, 3))
+            energy, _ = cohesive_element_force(X_UNIT, u, params, damage, f)
+            stored.append(energy)
+            if f_old is not None:
+                work += 0.5 * np.sum((f_old + f) * (u - u_old))
+            f_old, u_old = f, u
+    assert max(stored) > 0.0 and stored[-1] == pytest.approx(stored[0], rel=1e-12)
+    assert abs(work) < 1e-6 * max(stored)  # measured 2e-8

@@ -67,6 +67,12 @@ is the history of point k. At each point the local frame follows the current mid
 x_mid = X + (u_lower + u_upper)/2: t1 = dx_mid/dxi normalised, n = t1' x t2' normalised
 (t1', t2' the two tangents), t2 = n x t1. The jump u_upper - u_lower is projected on (t1, t2, n)
 to give delta. Tractions are nominal: they are integrated over the REFERENCE mid-surface area.
+The force is the gradient of the element's energy sum_k psi_k dA_k, the frame's turning
+included: psi depends on how the jump splits into normal and tangential parts once the
+interface is damaged or pressed closed (or K_n != K_s), so a frame that turns with the
+mid-surface changes psi by -w.(delta x t) (w its rotation, in local axes) with the jump held.
+Without that term a broken, pressed interface whose faces tumble (a perforated plate) is a
+non-conservative force that gave energy to the run.
 
 Force sign (paper Eq. 3, f_int = f_lam - f_coh): ``f_coh`` is the force the tractions apply to the
 nodes, -N_a T dA on upper node a + 4 and +N_a T dA on lower node a (T the traction in global
@@ -252,16 +258,35 @@ def _element_force(X, u, params, damage, history, track, f_coh):
         Tx = tau1 * a0 + tau2 * b0 + tau3 * n0
         Ty = tau1 * a1 + tau2 * b1 + tau3 * n1
         Tz = tau1 * a2 + tau2 * b2 + tau3 * n2
+        # The frame turns with the mid-surface: psi(Q^T jump) changes by -w.(delta x t) for a
+        # frame rotation w (local axes), so the force is the energy's gradient only with that
+        # term (zero where t is parallel to delta: an open, undamaged interface with K_n = K_s).
+        # w = (-b.dn, a.dn, b.da) with dn, da from the mid-surface tangents' change: p1, p2
+        # below are the energy's gradient with respect to g1 and g2 through the frame.
+        m1 = d2 * tau3 - d3 * tau2
+        m2 = d3 * tau1 - d1 * tau3
+        m3 = d1 * tau2 - d2 * tau1
+        v0, v1, v2 = m1 * b0 - m2 * a0, m1 * b1 - m2 * a1, m1 * b2 - m2 * a2
+        sn, sa = c / n_norm, c * m3 / g1_norm
+        p1x = sn * (g2y * v2 - g2z * v1) - sa * b0
+        p1y = sn * (g2z * v0 - g2x * v2) - sa * b1
+        p1z = sn * (g2x * v1 - g2y * v0) - sa * b2
+        p2x = sn * (v1 * g1z - v2 * g1y)
+        p2y = sn * (v2 * g1x - v0 * g1z)
+        p2z = sn * (v0 * g1y - v1 * g1x)
         for a in range(4):
-            nx = xi if a & 1 else 1.0 - xi
-            ny = eta if (a >> 1) & 1 else 1.0 - eta
-            shape = nx * ny
-            f_coh[a, 0] += shape * Tx * c
-            f_coh[a, 1] += shape * Ty * c
-            f_coh[a, 2] += shape * Tz * c
-            f_coh[a + 4, 0] -= shape * Tx * c
-            f_coh[a + 4, 1] -= shape * Ty * c
-            f_coh[a + 4, 2] -= shape * Tz * c
+            nx, dnx = (xi, 1.0) if a & 1 else (1.0 - xi, -1.0)
+            ny, dny = (eta, 1.0) if (a >> 1) & 1 else (1.0 - eta, -1.0)
+            shape, dxi, deta = nx * ny, 0.5 * dnx * ny, 0.5 * nx * dny
+            turn_x = dxi * p1x + deta * p2x  # (half: x_mid takes half of each face's motion)
+            turn_y = dxi * p1y + deta * p2y
+            turn_z = dxi * p1z + deta * p2z
+            f_coh[a, 0] += shape * Tx * c - turn_x
+            f_coh[a, 1] += shape * Ty * c - turn_y
+            f_coh[a, 2] += shape * Tz * c - turn_z
+            f_coh[a + 4, 0] -= shape * Tx * c + turn_x
+            f_coh[a + 4, 1] -= shape * Ty * c + turn_y
+            f_coh[a + 4, 2] -= shape * Tz * c + turn_z
         energy += psi * c
         area += c
     return energy, area
