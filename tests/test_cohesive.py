@@ -474,3 +474,51 @@ def test_a_broken_interface_turned_around_a_closed_path_does_no_work():
             f_old, u_old = f, u
     assert max(stored) > 0.0 and stored[-1] == pytest.approx(stored[0], rel=1e-12)
     assert abs(work) < 1e-6 * max(stored)  # measured 2e-8
+
+
+def smooth_step(x, start, stop):
+    t = min(max((x - start) / (stop - start), 0.0), 1.0)
+    return 1.0 - t * t * (3.0 - 2.0 * t)
+
+
+@pytest.mark.parametrize(("slid", "pressed"), [(0.3, 0.05), (0.7, 0.05), (0.9, 0.15), (0.2, 0.18)])
+def test_a_broken_interface_lets_go_of_faces_slid_by_its_size_or_pressed_through(slid, pressed):
+    """A broken interface pressed closed keeps its full contact penalty while its faces slid
+    by less than half its size (1 mm here) and passed less than a tenth of it into each
+    other; it lets go smoothly up to a slip of its size and a depth of a fifth of it
+    (``pressed_share``), and carries nothing beyond; the force stays the energy's gradient
+    through the fade."""
+    law = make_law(K_s=0.6e5)
+    params = law.as_array()
+    direction = np.array([math.cos(PHI), math.sin(PHI), 0.0])
+
+    def state(slip, depth=pressed):
+        jump = slip * direction + [0.0, 0.0, -depth]
+        u = np.zeros((8, 3))
+        u[4:] = jump
+        return u
+
+    def energy(u):
+        d = np.ones(4)
+        W, _ = cohesive_element_force(X_UNIT, u, params, d, np.zeros((8, 3)))
+        return W
+
+    u = state(slid)
+    f = np.zeros((8, 3))
+    stored, _ = cohesive_element_force(X_UNIT, u, params, np.ones(4), f)
+    full = 0.5 * law.K_n * pressed**2  # per unit area, unit area
+    share = smooth_step(slid, 0.5, 1.0) * smooth_step(pressed, 0.1, 0.2)
+    assert stored == pytest.approx(share * full, rel=1e-9)
+    h = 1e-9
+    grad = np.zeros((8, 3))
+    for a in range(8):
+        for i in range(3):
+            up, down = u.copy(), u.copy()
+            up[a, i] += h
+            down[a, i] -= h
+            grad[a, i] = (energy(up) - energy(down)) / (2 * h)
+    np.testing.assert_allclose(f, -grad, rtol=0, atol=1e-6 * np.abs(f).max())
+    beyond = np.zeros((8, 3))
+    for far in (state(1.01), state(slid, 0.21)):
+        assert cohesive_element_force(X_UNIT, far, params, np.ones(4), beyond)[0] == 0.0
+        assert np.abs(beyond).max() == 0.0

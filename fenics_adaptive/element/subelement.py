@@ -1579,49 +1579,72 @@ def corner_volume_ratio(X, u):
 
 
 @njit(cache=True, error_model="numpy")
-def remove_spin(X, u, f):
-    """Project the element forces f (8, 3) onto the space orthogonal to the rigid rotations of
-    the element as it is now, about its centre (positions X + u, (8, 3)), in place:
-    f <- f - w x r_a, w = A^-1 sum_a r_a x f_a, A = sum_a (|r_a|^2 I - r_a r_a^T) (the
-    projector of Rankin and Nour-Omid's element-independent co-rotational formulation). The
-    co-rotated small-strain force is balanced in moment on the reference shape, not on the
-    strained one: a strained element spinning would take or give energy through that moment
-    (loose, strained, damaged cells tumbling after a perforation have pumped energy into a
-    run until it diverged). Forces keep their sum. Scalars only: no allocation."""
-    cx = cy = cz = 0.0
+def corotated_gradient(X, u, f):
+    """Turn the force f (8, 3) of an element computed in its co-rotated frame, the gradient of
+    its energy with respect to u_local, into the gradient with respect to the element's
+    current positions (in the co-rotated axes), in place: f_a <- f_a - z x G_a, with
+    G_a = B^-1 D_a, D_a = X_a - X_c, B = sum_a D_a D_a^T, z = (tr U I - U)^-1 m, U the
+    stretch of the affine fit of the motion (F = R U, ``element_rotation``: here the fit of
+    y_a = D_a + u_a, the positions as the frame sees them) and m = sum_a y_a x f_a, the
+    force's moment about the centre. This is the frame's spin differentiated: R turns by
+    w = 2 (tr U I - U)^-1 axial(skew(R^T dF)) under a change dF of the fit, and the energy
+    psi(u_local), u_local = R^T (x - x_c) - D, changes by -w.m with it. The result is the
+    exact gradient of psi(x): balanced in force and in moment about the centre as the element
+    is now (a rigid spin does no work), and its work is the energy's change, so a strained,
+    damaged element tumbling neither takes nor gives energy. ``X``, ``u`` (8, 3): the element
+    as the kernel saw it (sum_a u_a = 0). Scalars only: no allocation."""
+    Xc0 = Xc1 = Xc2 = 0.0
     for a in range(8):
-        cx += 0.125 * (X[a, 0] + u[a, 0])
-        cy += 0.125 * (X[a, 1] + u[a, 1])
-        cz += 0.125 * (X[a, 2] + u[a, 2])
-    a00 = a01 = a02 = a11 = a12 = a22 = 0.0
-    bx = by = bz = 0.0
+        Xc0 += 0.125 * X[a, 0]
+        Xc1 += 0.125 * X[a, 1]
+        Xc2 += 0.125 * X[a, 2]
+    b00 = b01 = b02 = b11 = b12 = b22 = 0.0
+    A00 = A01 = A02 = A10 = A11 = A12 = A20 = A21 = A22 = 0.0  # sum_a y_a D_a^T
+    m0 = m1 = m2 = 0.0
     for a in range(8):
-        rx = X[a, 0] + u[a, 0] - cx
-        ry = X[a, 1] + u[a, 1] - cy
-        rz = X[a, 2] + u[a, 2] - cz
-        rr = rx * rx + ry * ry + rz * rz
-        a00 += rr - rx * rx
-        a11 += rr - ry * ry
-        a22 += rr - rz * rz
-        a01 -= rx * ry
-        a02 -= rx * rz
-        a12 -= ry * rz
-        bx += ry * f[a, 2] - rz * f[a, 1]
-        by += rz * f[a, 0] - rx * f[a, 2]
-        bz += rx * f[a, 1] - ry * f[a, 0]
-    det, K = _inverse3((a00, a01, a02, a01, a11, a12, a02, a12, a22))
-    if not det > 0.0:  # collapsed to a line: nothing to spin about
+        D0, D1, D2 = X[a, 0] - Xc0, X[a, 1] - Xc1, X[a, 2] - Xc2
+        y0, y1, y2 = D0 + u[a, 0], D1 + u[a, 1], D2 + u[a, 2]
+        b00 += D0 * D0
+        b01 += D0 * D1
+        b02 += D0 * D2
+        b11 += D1 * D1
+        b12 += D1 * D2
+        b22 += D2 * D2
+        A00 += y0 * D0
+        A01 += y0 * D1
+        A02 += y0 * D2
+        A10 += y1 * D0
+        A11 += y1 * D1
+        A12 += y1 * D2
+        A20 += y2 * D0
+        A21 += y2 * D1
+        A22 += y2 * D2
+        m0 += y1 * f[a, 2] - y2 * f[a, 1]
+        m1 += y2 * f[a, 0] - y0 * f[a, 2]
+        m2 += y0 * f[a, 1] - y1 * f[a, 0]
+    _, Bi = _inverse3((b00, b01, b02, b01, b11, b12, b02, b12, b22))
+    # U = A B^-1 (symmetric up to the polar iteration's tolerance: its symmetric part)
+    U00 = A00 * Bi[0] + A01 * Bi[3] + A02 * Bi[6]
+    U11 = A10 * Bi[1] + A11 * Bi[4] + A12 * Bi[7]
+    U22 = A20 * Bi[2] + A21 * Bi[5] + A22 * Bi[8]
+    U01 = 0.5 * (A00 * Bi[1] + A01 * Bi[4] + A02 * Bi[7] + A10 * Bi[0] + A11 * Bi[3] + A12 * Bi[6])
+    U02 = 0.5 * (A00 * Bi[2] + A01 * Bi[5] + A02 * Bi[8] + A20 * Bi[0] + A21 * Bi[3] + A22 * Bi[6])
+    U12 = 0.5 * (A10 * Bi[2] + A11 * Bi[5] + A12 * Bi[8] + A20 * Bi[1] + A21 * Bi[4] + A22 * Bi[7])
+    trace = U00 + U11 + U22
+    det, Ti = _inverse3((trace - U00, -U01, -U02, -U01, trace - U11, -U12, -U02, -U12, trace - U22))
+    if not det > 0.0:  # (tr U I - U is positive definite for any stretch)
         return
-    wx = K[0] * bx + K[1] * by + K[2] * bz
-    wy = K[3] * bx + K[4] * by + K[5] * bz
-    wz = K[6] * bx + K[7] * by + K[8] * bz
+    z0 = Ti[0] * m0 + Ti[1] * m1 + Ti[2] * m2
+    z1 = Ti[3] * m0 + Ti[4] * m1 + Ti[5] * m2
+    z2 = Ti[6] * m0 + Ti[7] * m1 + Ti[8] * m2
     for a in range(8):
-        rx = X[a, 0] + u[a, 0] - cx
-        ry = X[a, 1] + u[a, 1] - cy
-        rz = X[a, 2] + u[a, 2] - cz
-        f[a, 0] -= wy * rz - wz * ry
-        f[a, 1] -= wz * rx - wx * rz
-        f[a, 2] -= wx * ry - wy * rx
+        D0, D1, D2 = X[a, 0] - Xc0, X[a, 1] - Xc1, X[a, 2] - Xc2
+        G0 = Bi[0] * D0 + Bi[1] * D1 + Bi[2] * D2
+        G1 = Bi[3] * D0 + Bi[4] * D1 + Bi[5] * D2
+        G2 = Bi[6] * D0 + Bi[7] * D1 + Bi[8] * D2
+        f[a, 0] -= z1 * G2 - z2 * G1
+        f[a, 1] -= z2 * G0 - z0 * G2
+        f[a, 2] -= z0 * G1 - z1 * G0
 
 
 @njit(inline="always", **KERNEL_OPTIONS)
@@ -1757,6 +1780,7 @@ def solid_shell_force_damaged(
     state: np.ndarray,
     f_out: np.ndarray,
     corotational: bool = False,
+    update: bool = True,
 ) -> float:
     """Internal force (N) of one layered solid-shell (sub)element with ply damage into
     ``f_out`` (8, 3), overwritten, updating the damage ``state`` (n_plies, N_STATE) in place;
@@ -1769,8 +1793,9 @@ def solid_shell_force_damaged(
     ``solid_shell_force_damaged(X, u, *rule, *ply_damage, band_width, state, f_out)``. For a
     subelement spanning laminate plies first:stop of cell row r, pass
     ``band_width[r, first:stop]`` and ``state[r, first:stop]`` (views: updated in place).
-    ``corotational``: in the element's co-rotated frame (``add_damaged_subelement_forces``). The
-    batched kernel with one element (one compiled kernel fewer)."""
+    ``corotational``: in the element's co-rotated frame (``add_damaged_subelement_forces``);
+    ``update`` False: at the damage so far (the energy and force of a state). The batched
+    kernel with one element (one compiled kernel fewer)."""
     rule = PackedRule(
         zeta, weights, terms, ply_of_point, position_of_point, positions, stiffness, enhanced_mode
     )
@@ -1794,7 +1819,7 @@ def solid_shell_force_damaged(
         none,
         f,
         none,
-        True,
+        bool(update),
         bool(corotational),
         False,
         0.0,
@@ -1875,9 +1900,10 @@ def add_damaged_subelement_forces(
     explicit codes treat their damaged shells; chosen over a Green-Lagrange form of the damage
     law because the law, its enhanced-strain condensation and its exact dissipation stay the
     small-strain ones, and a rigid rotation leaves u_local, hence the damage and what it
-    dissipates, unchanged). The strains within the element must stay small; the spin of the
-    frame is not differentiated (the force is not exactly the gradient of the energy: the
-    balance from the states departs from the one from the work by that, second order).
+    dissipates, unchanged). The force is the exact gradient of the energy psi(u_local(x)), the
+    frame's spin differentiated (``corotated_gradient``), so the states' energy balance holds
+    however the element tumbles; the strain measure is the small-strain one of u_local, good
+    for the moderate strains of a damaged laminate.
 
     ``element_nodes`` (ne, 8): combined local node indices (i < n_base = len(X_base): base node
     i, else extra node i - n_base), as in ``assembly``; element e uses rule
@@ -1987,8 +2013,8 @@ def add_damaged_subelement_forces(
             eroded[0] += 1
             continue
         energy += element_energy
-        if corotational:  # no work in a rigid spin of the element as it is now
-            remove_spin(X, u, f)
+        if corotational:  # the gradient with respect to x, the frame's spin included
+            corotated_gradient(X, u, f)
         if frames.shape[0] > 0:  # out of the cell's frame: F^T f
             turn_rows(frames[e], f, True)
         if corotational:  # the force back in the global frame: R f_local
