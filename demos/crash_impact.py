@@ -2,7 +2,7 @@
 
 The crash case of the method. A rigid 10 mm sphere (5 g at 50 m/s: 6.25 J) strikes the centre
 of a clamped 24 x 24 mm plate of 8 IM7/8552 plies [0/45/90/-45]s, 2 mm thick, and nearly
-goes through it (2.4 mm deep in the layerwise run before it turns back). Everything that
+goes through it (2.3 mm deep in the layerwise run before it turns back). Everything that
 breaks a laminate acts: finite kinematics (the damaged cells co-rotate), matrix cracking and
 broken fibres in every ply (crack band, tension and kink-band compression), erosion of the
 cells whose fibres have all broken or that are crushed, Coulomb friction between sphere and
@@ -29,10 +29,10 @@ mJ, velocities mm/s).
 What the energies are: the sphere's loss is the work of the contact on the plate plus what
 friction dissipated; the mechanisms are summed from the damage laws' own increments, the
 plate's part is its kinetic plus strain energy now. Their sum departs from the sphere's loss
-by the balance built from the states (``state_energy_balance``): 0.5 % for ESL, 15-22 % of the
-impact energy for the adaptive and layerwise plates as they break through (README: not
-resolved); the balance from the work (``energy_balance``), which checks the time
-integration, stays closed to round-off.
+by the balance built from the states (``state_energy_balance``, which checks the materials'
+bookkeeping): 0.07 % of the impact energy for ESL, 1.1 and 1.6 % for the adaptive and
+layerwise plates as their fibres break (README); the balance from the work
+(``energy_balance``), which checks the time integration, stays within 1 mJ.
 """
 
 import argparse
@@ -186,10 +186,12 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> None:
     (out / "summary.json").write_text(text + "\n")
     print(text)
 
-    # the check: every run kept its energy balance from the work (1 % of the impact energy),
-    # fibres broke (in the full runs, in every plate), and the models that can delaminate did
+    # the check: every run kept its energy balance from the work (1 % of the impact energy)
+    # and from the states (2.5 %: the materials' books), fibres broke (in the full runs, in
+    # every plate), and the models that can delaminate did
     for name, r in results.items():
         assert r["max_energy_balance_error_mJ"] <= 0.01 * r["impact_energy_mJ"], name
+        assert abs(r["state_energy_balance_mJ"]) <= 0.025 * r["impact_energy_mJ"], name
     assert any(r["energy_by_mechanism_mJ"]["fibres"] > 0.0 for r in results.values())
     if "layerwise" in results:
         assert results["layerwise"]["energy_by_mechanism_mJ"]["delamination"] > 0.0

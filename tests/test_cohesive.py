@@ -15,7 +15,11 @@ import pytest
 
 from fenics_adaptive.errors import InputError
 from fenics_adaptive.materials.cohesive import (
+    H_DISSIPATED,
+    H_RELEASED,
+    HISTORY,
     cohesive_element_force,
+    cohesive_element_force_tracked,
     critical_energy,
     traction_separation_curve,
 )
@@ -486,39 +490,53 @@ def test_a_broken_interface_lets_go_of_faces_slid_by_its_size_or_pressed_through
     """A broken interface pressed closed keeps its full contact penalty while its faces slid
     by less than half its size (1 mm here) and passed less than a tenth of it into each
     other; it lets go smoothly up to a slip of its size and a depth of a fifth of it
-    (``pressed_share``), and carries nothing beyond; the force stays the energy's gradient
-    through the fade."""
+    (``pressed_share``), and carries nothing beyond. An intact interface keeps all of it."""
     law = make_law(K_s=0.6e5)
     params = law.as_array()
     direction = np.array([math.cos(PHI), math.sin(PHI), 0.0])
 
-    def state(slip, depth=pressed):
-        jump = slip * direction + [0.0, 0.0, -depth]
+    def state(slip, depth):
         u = np.zeros((8, 3))
-        u[4:] = jump
+        u[4:] = slip * direction + [0.0, 0.0, -depth]
         return u
 
-    def energy(u):
-        d = np.ones(4)
-        W, _ = cohesive_element_force(X_UNIT, u, params, d, np.zeros((8, 3)))
-        return W
-
-    u = state(slid)
     f = np.zeros((8, 3))
-    stored, _ = cohesive_element_force(X_UNIT, u, params, np.ones(4), f)
-    full = 0.5 * law.K_n * pressed**2  # per unit area, unit area
+    stored, _ = cohesive_element_force(X_UNIT, state(slid, pressed), params, np.ones(4), f)
     share = smooth_step(slid, 0.5, 1.0) * smooth_step(pressed, 0.1, 0.2)
-    assert stored == pytest.approx(share * full, rel=1e-9)
-    h = 1e-9
-    grad = np.zeros((8, 3))
-    for a in range(8):
-        for i in range(3):
-            up, down = u.copy(), u.copy()
-            up[a, i] += h
-            down[a, i] -= h
-            grad[a, i] = (energy(up) - energy(down)) / (2 * h)
-    np.testing.assert_allclose(f, -grad, rtol=0, atol=1e-6 * np.abs(f).max())
-    beyond = np.zeros((8, 3))
-    for far in (state(1.01), state(slid, 0.21)):
-        assert cohesive_element_force(X_UNIT, far, params, np.ones(4), beyond)[0] == 0.0
-        assert np.abs(beyond).max() == 0.0
+    assert stored == pytest.approx(share * 0.5 * law.K_n * pressed**2, rel=1e-9)
+    # the penalty's force only, pressing the faces apart: no pull, no push along the slip
+    np.testing.assert_allclose(
+        f[4:].sum(axis=0), [0.0, 0.0, share * law.K_n * pressed], atol=1e-12 * law.K_n
+    )
+    for far in (state(1.01, pressed), state(slid, 0.21)):
+        assert cohesive_element_force(X_UNIT, far, params, np.ones(4), f)[0] == 0.0
+        assert np.abs(f).max() == 0.0
+        intact, _ = cohesive_element_force(X_UNIT, far, params, np.zeros(4), f)
+        assert intact > 0.5 * law.K_n * far[4, 2] ** 2 - 1e-12  # all of it, and shear
+
+
+def test_what_a_broken_interface_lets_go_of_is_gone_and_dissipated():
+    """The faces of a broken interface pressed 0.08 mm deep slide 1.2 times its size and back:
+    the contact lets go as they slide past half its size and does not come back when they
+    return (the smallest share it has had); the work done on the interface equals what it
+    holds plus what it dissipated (the penalty's energy let go), to 1e-4 of that energy."""
+    law = make_law()
+    params = law.as_array()
+    damage, history = np.ones(4), np.zeros((4, HISTORY))
+    direction = np.array([math.cos(PHI), math.sin(PHI), 0.0])
+    slips = np.concatenate([np.linspace(0.0, 1.2, 3001), np.linspace(1.2, 0.0, 3001)[1:]])
+    work, f_old, u_old, stored = 0.0, None, None, []
+    for slip in slips:
+        u = np.zeros((8, 3))
+        u[4:] = slip * direction + [0.0, 0.0, -0.08]
+        f = np.zeros((8, 3))
+        energy, _ = cohesive_element_force_tracked(X_UNIT, u, params, damage, history, f)
+        stored.append(energy)
+        if f_old is not None:
+            work -= 0.5 * np.sum((f_old + f) * (u - u_old))  # done on the interface
+        f_old, u_old = f, u
+    assert stored[0] == pytest.approx(0.5 * law.K_n * 0.08**2, rel=1e-12)
+    assert stored[-1] == 0.0 and np.all(history[:, H_RELEASED] == 1.0)
+    dissipated = history[:, H_DISSIPATED].sum()
+    assert dissipated == pytest.approx(stored[0], rel=1e-12)  # it let go of all it held
+    assert work + stored[0] == pytest.approx(stored[-1] + dissipated, rel=1e-4)

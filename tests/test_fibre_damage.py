@@ -350,3 +350,47 @@ def test_a_volume_ratio_without_erosion_is_refused():
     data["model"].update(erosion=False, erosion_volume_ratio=0.3)
     with pytest.raises(InputError, match=r"model\.erosion_volume_ratio: needs model\.erosion"):
         parse_config(data)
+
+
+def test_an_element_turned_inside_out_books_the_energy_it_held():
+    """Under finite kinematics an element whose motion's fit turns inside out has no frame to
+    compute its energy in: it is eroded with the energy its plies held at their last update
+    (``subelement._book_last_energy``), here all of the strain energy of a cube stretched
+    along its fibres to half their strength, then mirrored through its mid-plane."""
+    X, rule, packed = unidirectional_cube(1.0)
+    n = len(rule.stiffness)
+    state = pd.new_state(1, n)
+    bands = np.array([pd.crack_band_widths(X, 0.0)] * n)[None]
+    eroded = np.zeros(1, dtype=np.int64)
+
+    def step(u):
+        return se.add_damaged_subelement_forces(
+            np.arange(8, dtype=np.int32)[None],
+            np.zeros(1, np.int64),
+            np.zeros(1, np.int64),
+            np.zeros(1, np.int64),
+            *se.concatenate_rules([rule]),
+            *packed,
+            bands,
+            state,
+            X,
+            np.zeros((0, 3)),
+            u,
+            np.zeros((0, 3)),
+            np.zeros((8, 3)),
+            np.zeros((0, 3)),
+            True,
+            True,
+            True,
+            0.2,
+            eroded,
+            np.zeros((0, 3, 3)),
+        )
+
+    held = step(uniaxial_stress_motion(X, 0.5 * IM7_FAILURE.XT / IM7.E1))
+    assert held > 0.0 and eroded[0] == 0
+    mirrored = X * [1.0, 1.0, -1.0] - X
+    assert step(mirrored) == 0.0
+    assert eroded[0] == 1 and np.all(state[0, :, pd.S_DF] == 1.0)
+    booked = state[0, :, pd.S_ERODED].sum() / n  # per unit volume of the unit cube's plies
+    assert booked == pytest.approx(held, rel=1e-9)

@@ -66,6 +66,7 @@ from fenics_adaptive.materials.ply_damage import (
     S_DISSIPATED,
     S_ERODED,
     S_FIBRE_DISSIPATED,
+    S_YF_LAST,
     ply_damage_update,
 )
 from fenics_adaptive.settings.materials import F_GFT
@@ -1656,6 +1657,17 @@ def _break_fibres(damage_state, row, first, n):
 
 
 @njit(inline="always", **KERNEL_OPTIONS)
+def _book_last_energy(damage_state, row, first, n):
+    """Book as eroded the energy density plies first .. first + n - 1 of cell row ``row`` held
+    at their last update, (1 - (1 - RESIDUAL) d_f) y_f (y_f = psi_m, the ply's mean secant
+    energy density, ``S_YF_LAST``): for an element turned inside out, whose energy now has no
+    frame to be computed in (its fibres break next). The last step's work on it is left out."""
+    for j in range(n):
+        ply = damage_state[row, first + j]
+        ply[S_ERODED] += (1.0 - (1.0 - RESIDUAL) * ply[S_DF]) * ply[S_YF_LAST]
+
+
+@njit(inline="always", **KERNEL_OPTIONS)
 def _fibres_broken(damage_state, row, first, n):
     """Whether the fibres of plies first .. first + n - 1 of cell row ``row`` have all failed
     (d_f = 1): the element holding them is eroded."""
@@ -1885,8 +1897,9 @@ def add_damaged_subelement_forces(
     crushed below ``min_volume_ratio`` at a corner (``corner_volume_ratio``) or, with
     ``corotational``, as a whole (det F of the affine fit of their motion,
     ``element_rotation``): their plies' fibres are broken then (the energy such an element
-    held is booked as for the others; one whose fit is inside out is removed without, its
-    energy cannot be computed); ``eroded`` (1,) int64: the number of elements that went in
+    held is booked as for the others; one whose fit is inside out, whose energy cannot be
+    computed, with the energy its plies held at their last update, ``_book_last_energy``);
+    ``eroded`` (1,) int64: the number of elements that went in
     this call is added to it.
     ``frames`` (ne, 3, 3): each element's frame on a
     curved shell (rows its axes, ``element.geometry.cell_frames``): the element is computed
@@ -1958,6 +1971,7 @@ def add_damaged_subelement_forces(
                 corner = corner_volume_ratio(X, u_global)
                 crushed = not (volume_ratio >= min_volume_ratio and corner >= min_volume_ratio)
             if crushed and not np.isfinite(R[0, 0]):  # no frame: nothing to compute with
+                _book_last_energy(damage_state, row, lo, n_local)
                 _break_fibres(damage_state, row, lo, n_local)
                 eroded[0] += 1
                 continue

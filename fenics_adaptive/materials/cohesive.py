@@ -39,18 +39,18 @@ Damage (one scalar per integration point, never decreasing):
     d = clip(dF (delta_m - d0) / (delta_m (dF - d0)), 0, 1),   d = max(d_old, d)
 
 Tractions: t_i = (1 - d) K_s d_i (i = 1, 2); t_3 = (1 - d) K_n d3 if d3 > 0, else
-phi K_n d3 (compression is never damaged; phi = 1 until the faces have slid by half the
-element's size or passed a tenth of it into each other, then smooth steps to 0, at its size
-and a fifth of it, ``pressed_share``: beyond that a pressed jump no longer says where the faces
-are, and a broken interface of a perforated plate is left to its open faces). On a
+phi K_n d3 (compression is never damaged). phi = 1 but at a broken point (d = 1) whose faces
+have slid by more than half the element's size or passed a tenth of it into each other: it
+then lets go of its contact, smoothly, down to nothing at a slip of the element's size or a
+depth of a fifth of it (``pressed_share``), and for good (phi the smallest share it has had;
+the energy it lets go of is dissipated, booked as the damage's): beyond that a pressed jump
+no longer says where the faces are, and a broken interface of a perforated plate is left to
+its open faces. On a
 proportional path the effective traction K_m delta_m (1 - d) rises linearly to K_m d0 and
 falls linearly to zero at dF: the area under it is G_c. Unloading goes back to the origin
 along the damaged secant (1 - d) K. The recoverable (stored) energy density is
 
     psi = 1/2 (1 - d) (K_s (d1^2 + d2^2) + K_n <d3>^2) + 1/2 phi K_n <-d3>^2
-
-(with phi's change along the slip and the depth in the tractions, so that t = dpsi/d delta
-still)
 
 so that the dissipated energy is the external work minus psi.
 
@@ -107,9 +107,10 @@ from fenics_adaptive.settings.materials import (
 )
 
 # Columns of a cohesive point's history (cohesive_element_force_tracked): the local opening of
-# the last call, and the energy the point has dissipated (mJ).
-H_D1, H_D2, H_D3, H_DISSIPATED = range(4)
-HISTORY = 4
+# the last call, the energy the point has dissipated (mJ), and the share of its contact penalty
+# a broken point has let go of (``pressed_share``: 0 while it holds all of it).
+H_D1, H_D2, H_D3, H_DISSIPATED, H_RELEASED = range(5)
+HISTORY = 5
 
 
 def critical_energy(law: CohesiveLaw, mixity: float) -> float:
@@ -139,40 +140,38 @@ def cohesive_zone_length(law: CohesiveLaw, transverse_modulus: float, M: float =
 
 @njit(cache=True, inline="always")
 def _fade(x, start, stop):
-    """(value, slope) of the smooth (C1) step from 1 at x <= start to 0 at x >= stop."""
+    """The smooth (C1) step from 1 at x <= start to 0 at x >= stop."""
     if x <= start:
-        return 1.0, 0.0
+        return 1.0
     if x >= stop:
-        return 0.0, 0.0
+        return 0.0
     t = (x - start) / (stop - start)
-    return 1.0 - t * t * (3.0 - 2.0 * t), -6.0 * t * (1.0 - t) / (stop - start)
+    return 1.0 - t * t * (3.0 - 2.0 * t)
 
 
 @njit(cache=True, inline="always")
 def pressed_share(slip, depth, size):
-    """(phi, dphi/dslip, dphi/ddepth): the share of its contact penalty that a point pressed
-    closed by ``depth`` (mm, -d3 > 0) keeps after its faces slid by ``slip`` (mm), in an
-    element of in-plane size ``size`` (mm): all of it up to a slip of size / 2 and a depth of
-    size / 10, none from a slip of ``size`` or a depth of size / 5 (smooth steps between, their
-    product). The penalty keeps the faces of a broken interface apart while each still faces
-    its partner; once they have slid by about an element, or passed through each other, the
-    jump's normal part no longer says where the faces are (a perforated plate's broken
-    interfaces slid by up to 7 mm in 0.6 mm cells and were read as pressed 0.02 mm deep, then
-    1.6 mm deep once faces passed through: 160 GPa, and the run exploded). A contact search
-    would find the faces that do touch then; LS-DYNA's contacts release a node pressed deeper
-    than a set depth likewise, and its and Abaqus's cohesive elements go once broken. Real
-    contact presses a point K_n size / 10 (6 GPa for K_n = 1e5 N/mm^3 in 0.6 mm cells) before
-    the share drops."""
-    a, da = _fade(slip, 0.5 * size, size)
-    b, db = _fade(depth, 0.1 * size, 0.2 * size)
-    return a * b, da * b, a * db
+    """The share of its contact penalty that a broken point pressed closed by ``depth`` (mm,
+    -d3 > 0) may keep after its faces slid by ``slip`` (mm), in an element of in-plane size
+    ``size`` (mm): all of it up to a slip of size / 2 and a depth of size / 10, none from a
+    slip of ``size`` or a depth of size / 5 (smooth steps between, their product). The point
+    keeps the smallest share it has had (what it lets go of is gone, its energy dissipated:
+    ``_element_force``). The penalty keeps the faces of a broken interface apart while each
+    still faces its partner; once they have slid by about an element, or passed through each
+    other, the jump's normal part no longer says where the faces are (a perforated plate's
+    broken interfaces slid by up to 7 mm in 0.6 mm cells and were read as pressed, then as
+    pressed 1.6 mm deep once faces had passed through: 160 GPa, and the run exploded). A
+    contact search would find the faces that do touch; LS-DYNA's contacts release a node
+    pressed deeper than a set depth likewise, and its and Abaqus's cohesive elements go once
+    broken. A broken point presses K_n size / 10 (6 GPa for K_n = 1e5 N/mm^3 in 0.6 mm cells)
+    before its share drops; an intact or damaged one keeps all of it."""
+    return _fade(slip, 0.5 * size, size) * _fade(depth, 0.1 * size, 0.2 * size)
 
 
 @njit(cache=True)
-def _law(d1, d2, d3, params, damage_old, size):
-    """Scalar kernel: returns (t1, t2, t3, damage_new, stored_energy_density). ``size`` (mm):
-    the element's in-plane size, over which a pressed point lets go as its faces slide
-    (``pressed_share``; ``math.inf``: never)."""
+def _law(d1, d2, d3, params, damage_old, share):
+    """Scalar kernel: returns (t1, t2, t3, damage_new, stored_energy_density). ``share``: of
+    the contact penalty, for a pressed point (1 but for broken points, ``pressed_share``)."""
     K_n, K_s = params[P_KN], params[P_KS]
     sI2 = d3 * d3 if d3 > 0.0 else 0.0  # delta_I^2
     sII2 = d1 * d1 + d2 * d2  # delta_II^2
@@ -208,14 +207,8 @@ def _law(d1, d2, d3, params, damage_old, size):
     if d3 > 0.0:
         t3 = s * K_n * d3
     else:
-        share, along_slip, along_depth = pressed_share(math.sqrt(sII2), -d3, size)
-        # t = dpsi/d delta with the share's change along the slip and the depth
-        t3 = share * K_n * d3 - 0.5 * K_n * d3 * d3 * along_depth
+        t3 = share * K_n * d3
         psi += 0.5 * share * K_n * d3 * d3
-        if along_slip != 0.0:
-            push = 0.5 * K_n * d3 * d3 * along_slip / math.sqrt(sII2)
-            t1 += push * d1
-            t2 += push * d2
     return t1, t2, t3, damage, psi
 
 
@@ -225,7 +218,7 @@ def cohesive_traction(
 ) -> tuple[np.ndarray, float, float]:
     """Traction (3,) in the local frame, new damage and stored energy density for the local
     opening ``delta`` = (d1, d2, d3) and the point's previous damage."""
-    t1, t2, t3, damage, psi = _law(delta[0], delta[1], delta[2], params, damage_old, math.inf)
+    t1, t2, t3, damage, psi = _law(delta[0], delta[1], delta[2], params, damage_old, 1.0)
     traction = np.empty(3)
     traction[0] = t1
     traction[1] = t2
@@ -241,8 +234,9 @@ def _element_force(X, u, params, damage, history, track, f_coh):
     time)."""
     g = 0.5 / math.sqrt(3.0)
     f_coh[:, :] = 0.0
-    # in-plane size: the square root of the reference mid-surface's area (half the cross
-    # product of the diagonals 0-3 and 1-2, exact for a plane face)
+    # in-plane size: the square root of the reference area of the lower face (the faces
+    # coincide in the reference; half the cross product of the diagonals 0-3 and 1-2, exact
+    # for a plane face)
     e0, e1, e2 = X[3, 0] - X[0, 0], X[3, 1] - X[0, 1], X[3, 2] - X[0, 2]
     h0, h1, h2 = X[2, 0] - X[1, 0], X[2, 1] - X[1, 1], X[2, 2] - X[1, 2]
     size = math.sqrt(
@@ -296,8 +290,20 @@ def _element_force(X, u, params, damage, history, track, f_coh):
         d2 = jx * b0 + jy * b1 + jz * b2
         d3 = jx * n0 + jy * n1 + jz * n2
         damage_old = damage[k]
-        tau1, tau2, tau3, damage[k], psi = _law(d1, d2, d3, params, damage_old, size)
         c = 0.25 * dA
+        share = 1.0
+        if damage_old >= 1.0:  # broken: its contact lets go of faces slid or pressed through
+            held = 1.0 - history[k, H_RELEASED] if track else 1.0
+            share = min(held, pressed_share(math.sqrt(d1 * d1 + d2 * d2), -d3, size))
+            if track and share < held:
+                # the energy let go, in the consistent form of a secant law (as below)
+                last = history[k, H_D3]
+                pressed = 0.0  # (an open point holds no contact energy)
+                if d3 < 0.0:
+                    pressed = last * d3 if last < 0.0 else d3 * d3
+                history[k, H_DISSIPATED] += 0.5 * (held - share) * params[P_KN] * pressed * c
+                history[k, H_RELEASED] = 1.0 - share
+        tau1, tau2, tau3, damage[k], psi = _law(d1, d2, d3, params, damage_old, share)
         if track:
             if damage[k] > damage_old:
                 # consistent with the trapezoidal work of the secant law (module docstring)

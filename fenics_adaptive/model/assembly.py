@@ -104,8 +104,8 @@ class CohesiveSet:
     damage: np.ndarray  # (rows, 4)
     params: np.ndarray  # CohesiveLaw.as_array()
     interface: np.ndarray  # (n,) ply interface (1-based) of each element
-    # (rows, 4, cohesive.HISTORY) per point: last local opening and dissipated energy (mJ);
-    # persists with ``damage``
+    # (rows, 4, cohesive.HISTORY) per point: last local opening, dissipated energy (mJ) and
+    # released contact share; persists with ``damage``
     history: np.ndarray | None = None
     # (rows,) the rows of an insert film ([[delamination]]): failed from t = 0, not grown
     insert: np.ndarray | None = None
@@ -179,9 +179,13 @@ class CohesiveSet:
 
     def restore(self, state: dict[str, np.ndarray]) -> None:
         """Put back the damage, history and insert rows of ``state`` (as ``state`` gives them)
-        into the rows the set holds (a checkpoint written before inserts existed has none)."""
+        into the rows the set holds (a checkpoint written before inserts existed has none;
+        one written before the history's last column, ``cohesive.H_RELEASED``, zeros there)."""
         self.damage[:] = state["damage"]
-        self.history[:] = state["history"]
+        history = state["history"]
+        # a checkpoint written before the contact's release was tracked: none let go then
+        self.history[..., : history.shape[-1]] = history
+        self.history[..., history.shape[-1] :] = 0.0
         self.insert[:] = state.get("insert", False)
 
     def __len__(self) -> int:
