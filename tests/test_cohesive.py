@@ -540,3 +540,16 @@ def test_what_a_broken_interface_lets_go_of_is_gone_and_dissipated():
     dissipated = history[:, H_DISSIPATED].sum()
     assert dissipated == pytest.approx(stored[0], rel=1e-12)  # it let go of all it held
     assert work + stored[0] == pytest.approx(stored[-1] + dissipated, rel=1e-4)
+
+
+def test_a_collapsed_mid_surface_gives_nan_not_an_exception():
+    """Faces moved so that their mid-surface collapses to a point have no normal: the kernel
+    returns NaN forces (which a run's not-finite guard reports, naming the time and place)
+    instead of raising from inside the compiled loop."""
+    law = make_law()
+    u = np.zeros((8, 3))
+    u[:4] = -X_UNIT[:4]  # lower face to the origin, upper face too: mid-surface a point
+    u[4:] = -X_UNIT[4:]
+    f = np.zeros((8, 3))
+    cohesive_element_force(X_UNIT, u, law.as_array(), np.ones(4), f)
+    assert np.isnan(f).any()

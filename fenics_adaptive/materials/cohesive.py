@@ -226,7 +226,7 @@ def cohesive_traction(
     return traction, damage, psi
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, inline="always", error_model="numpy")
 def _element_force(X, u, params, damage, history, track, f_coh):
     """``cohesive_element_force``; with ``track`` also the dissipation of each point into
     ``history`` (4, HISTORY) (``cohesive_element_force_tracked``). Vectors are scalar
@@ -351,7 +351,9 @@ def _element_force(X, u, params, damage, history, track, f_coh):
     return energy, area
 
 
-@njit(cache=True)
+# error_model "numpy": a mid-surface collapsed to a line or a point (no normal) gives NaN
+# forces, which the run's not-finite guard reports, rather than an exception from the kernel
+@njit(cache=True, error_model="numpy")
 def cohesive_element_force(
     X: np.ndarray, u: np.ndarray, params: np.ndarray, damage: np.ndarray, f_coh: np.ndarray
 ) -> tuple[float, float]:
@@ -363,7 +365,7 @@ def cohesive_element_force(
     return _element_force(X, u, params, damage, np.empty((4, HISTORY)), False, f_coh)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def cohesive_element_force_tracked(
     X: np.ndarray,
     u: np.ndarray,
