@@ -145,6 +145,18 @@ def laminate_rule(laminate: Laminate, ppp: int) -> se.PackedRule:
     return se.pack_rule(laminate.ply_fractions, np.array(laminate.ply_stiffnesses()), ppp)
 
 
+def energy_gradient(energy, u: np.ndarray, h: float) -> np.ndarray:
+    """Central differences, step ``h`` (mm), of the scalar ``energy(u)`` (mJ) with respect to
+    each entry of the displacements ``u`` (n, 3): (n, 3) N."""
+    grad = np.zeros_like(u)
+    for index in np.ndindex(u.shape):
+        up, down = u.copy(), u.copy()
+        up[index] += h
+        down[index] -= h
+        grad[index] = (energy(up) - energy(down)) / (2 * h)
+    return grad
+
+
 def relative_difference(a: np.ndarray, b: np.ndarray) -> float:
     """Largest entry of |a - b| over the largest entry of |b|."""
     return float(np.abs(a - b).max() / np.abs(b).max())

@@ -12,6 +12,7 @@ import math
 
 import numpy as np
 import pytest
+from helpers import energy_gradient
 
 from fenics_adaptive.errors import InputError
 from fenics_adaptive.materials.cohesive import (
@@ -326,13 +327,7 @@ def test_force_is_energy_gradient():
     f = np.zeros((8, 3))
     cohesive_element_force(X, u, params, np.zeros(4), f)
     h = 1e-8
-    grad = np.zeros((8, 3))
-    for a in range(8):
-        for i in range(3):
-            up, down = u.copy(), u.copy()
-            up[a, i] += h
-            down[a, i] -= h
-            grad[a, i] = (energy(up) - energy(down)) / (2 * h)
+    grad = energy_gradient(energy, u, h)
     np.testing.assert_allclose(f, -grad, rtol=0, atol=1e-6 * np.abs(f).max())
     np.testing.assert_allclose(f.sum(axis=0), 0.0, atol=1e-12 * np.abs(f).max())
 
@@ -430,13 +425,7 @@ def test_force_is_energy_gradient_of_a_damaged_interface_in_compression(damage):
     f = np.zeros((8, 3))
     cohesive_element_force(X, u, params, state.copy(), f)
     h = 1e-9
-    grad = np.zeros((8, 3))
-    for a in range(8):
-        for i in range(3):
-            up, down = u.copy(), u.copy()
-            up[a, i] += h
-            down[a, i] -= h
-            grad[a, i] = (energy(up) - energy(down)) / (2 * h)
+    grad = energy_gradient(energy, u, h)
     np.testing.assert_allclose(f, -grad, rtol=0, atol=1e-6 * np.abs(f).max())
 
 

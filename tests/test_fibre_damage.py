@@ -50,6 +50,37 @@ def uniaxial_stress_motion(X: np.ndarray, fibre_strain: float) -> np.ndarray:
     return X * strain
 
 
+def element_step(
+    X, u, rule, packed, bands, state, f, corotational, erode, min_volume_ratio, eroded
+):
+    """One damage-updating call of the batched damaged kernel on the single element X (8, 3)
+    moved by u: its force into f (8, 3), its energy (mJ) returned; the other arguments as
+    ``subelement.add_damaged_subelement_forces`` takes them (one cell row, base nodes only)."""
+    none = np.zeros((0, 3))
+    return se.add_damaged_subelement_forces(
+        np.arange(8, dtype=np.int32)[None],
+        np.zeros(1, np.int64),
+        np.zeros(1, np.int64),
+        np.zeros(1, np.int64),
+        *se.concatenate_rules([rule]),
+        *packed,
+        bands,
+        state,
+        X,
+        none,
+        u,
+        none,
+        f,
+        none,
+        True,
+        corotational,
+        erode,
+        min_volume_ratio,
+        eroded,
+        np.zeros((0, 3, 3)),
+    )
+
+
 def pull_to_failure(size: float, sign: float, steps: int = 3000, erode: bool = False):
     """Strain the cube along its fibres (sign +1: tension, -1: compression) to 1.3 times the
     strain where the bilinear law's fibre stress would vanish. Returns (dissipated by the law,
@@ -70,28 +101,7 @@ def pull_to_failure(size: float, sign: float, steps: int = 3000, erode: bool = F
     for eps in sign * np.linspace(0.0, 1.3 * final, steps + 1)[1:]:
         u = uniaxial_stress_motion(X, eps)
         f = np.zeros((8, 3))
-        energy = se.add_damaged_subelement_forces(
-            np.arange(8, dtype=np.int32)[None],
-            np.zeros(1, np.int64),
-            np.zeros(1, np.int64),
-            np.zeros(1, np.int64),
-            *se.concatenate_rules([rule]),
-            *packed,
-            bands,
-            state,
-            X,
-            np.zeros((0, 3)),
-            u,
-            np.zeros((0, 3)),
-            f,
-            np.zeros((0, 3)),
-            True,
-            False,
-            erode,
-            0.0,
-            eroded,
-            np.zeros((0, 3, 3)),
-        )
+        energy = element_step(X, u, rule, packed, bands, state, f, False, erode, 0.0, eroded)
         work += 0.5 * np.sum((f + f_old) * (u - u_old))
         u_old, f_old = u, f
         stresses.append(f[X[:, 0] > 0.5 * size, 0].sum() / size**2)
@@ -364,27 +374,8 @@ def test_an_element_turned_inside_out_books_the_energy_it_held():
     eroded = np.zeros(1, dtype=np.int64)
 
     def step(u):
-        return se.add_damaged_subelement_forces(
-            np.arange(8, dtype=np.int32)[None],
-            np.zeros(1, np.int64),
-            np.zeros(1, np.int64),
-            np.zeros(1, np.int64),
-            *se.concatenate_rules([rule]),
-            *packed,
-            bands,
-            state,
-            X,
-            np.zeros((0, 3)),
-            u,
-            np.zeros((0, 3)),
-            np.zeros((8, 3)),
-            np.zeros((0, 3)),
-            True,
-            True,
-            True,
-            0.2,
-            eroded,
-            np.zeros((0, 3, 3)),
+        return element_step(
+            X, u, rule, packed, bands, state, np.zeros((8, 3)), True, True, 0.2, eroded
         )
 
     held = step(uniaxial_stress_motion(X, 0.5 * IM7_FAILURE.XT / IM7.E1))

@@ -45,10 +45,10 @@ then lets go of its contact, smoothly, down to nothing at a slip of the element'
 depth of a fifth of it (``pressed_share``), and for good (phi the smallest share it has had;
 the energy it lets go of is dissipated, booked as the damage's): beyond that a pressed jump
 no longer says where the faces are, and a broken interface of a perforated plate is left to
-its open faces. On a
-proportional path the effective traction K_m delta_m (1 - d) rises linearly to K_m d0 and
-falls linearly to zero at dF: the area under it is G_c. Unloading goes back to the origin
-along the damaged secant (1 - d) K. The recoverable (stored) energy density is
+its open faces. On a proportional path the effective traction K_m delta_m (1 - d) rises
+linearly to K_m d0 and falls linearly to zero at dF: the area under it is G_c. Unloading goes
+back to the origin along the damaged secant (1 - d) K. The recoverable (stored) energy
+density is
 
     psi = 1/2 (1 - d) (K_s (d1^2 + d2^2) + K_n <d3>^2) + 1/2 phi K_n <-d3>^2
 
