@@ -320,6 +320,9 @@ class RefinementHook:
         # the indicators' defaults that depend on the model, set at their first evaluation
         self.front: np.ndarray | None = None  # mm per interface (indicators.front_distances)
         self.interval: float | None = None  # s (indicators.default_interval)
+        # the started delaminations whose surroundings are refined (``front_requests``'
+        # keys): not kept in checkpoints, a restart searches around all of them once
+        self.front_known = np.zeros(0, np.int64)
         # N, the forces from outside on the base DOFs besides the face loads (reactions,
         # contact) at the time of the call: the solver's, set by ``Simulation``
         self.face_force: Callable[[], np.ndarray] | None = None
@@ -398,7 +401,10 @@ class RefinementHook:
                 note(reasons, around, "spread")
                 requests += around
             if self.front.any():
-                requests += front_requests(structure, self.front, reasons)
+                around, self.front_known = front_requests(
+                    structure, self.front, reasons, self.front_known
+                )
+                requests += around
             self.evaluations += 1
             self.indicator_seconds += time.perf_counter() - started
         python_due = np.flatnonzero(self.python_next <= t)  # the same on every rank

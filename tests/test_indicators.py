@@ -136,20 +136,45 @@ def test_front_keeps_a_started_delamination_inside_the_refined_region():
         [(c, 2, InterfaceState.STRONG) for c in np.flatnonzero(np.abs(x - 5.25) < 0.3)]
     )
     distances = np.array([0.0, 1.01, 0.0, 0.0, 0.0, 0.0, 0.0])  # mm, interface 2 only
-    assert ind.front_requests(structure, distances) == []
+    assert ind.front_requests(structure, distances)[0] == []
     structure.cohesive.damage[structure.damage_rows[(middle, 2)], 1] = 0.01
     reasons = {}
-    requests = ind.front_requests(structure, distances, reasons)
+    requests, _ = ind.front_requests(structure, distances, reasons)
     assert sorted(np.round(x[[c for c, _, _ in requests]], 6)) == [4.25, 4.75, 5.75, 6.25]
     assert {(i, k) for _, i, k in requests} == {(2, InterfaceState.STRONG)}
     for cell, interface, kind in requests:
         assert reasons[(cell, interface, kind)].indicator == "front"
         assert reasons[(cell, interface, kind)].value == pytest.approx(abs(x[cell] - 5.25))
     distances[1] = 0.99
-    assert sorted(np.round(x[[c for c, _, _ in ind.front_requests(structure, distances)]], 6)) == [
-        4.75,
-        5.75,
-    ]
+    nearer = ind.front_requests(structure, distances)[0]
+    assert sorted(np.round(x[[c for c, _, _ in nearer]], 6)) == [4.75, 5.75]
+
+
+def test_front_searches_only_around_delaminations_started_since_the_last_call():
+    """Given the started delaminations an earlier call searched around (and whose requests
+    were refined), a call asks for what a call that knows nothing asks for: nothing more
+    around the known ones, the same around a new one."""
+    structure = build_structure(parse_config(tcb()))
+    x = structure.X_base[structure.bottom_local][:, :, 0].mean(axis=1)
+    near = lambda at: np.flatnonzero(np.abs(x - at) < 0.3)  # noqa: E731
+    structure.refine([(c, 2, InterfaceState.STRONG) for c in near(3.25)])
+    structure.refine([(c, 2, InterfaceState.STRONG) for c in near(7.25)])
+    distances = np.array([0.0, 1.01, 0.0, 0.0, 0.0, 0.0, 0.0])
+    first = int(np.argmin(np.abs(x - 3.25)))
+    structure.cohesive.damage[structure.damage_rows[(first, 2)], 1] = 0.01
+    requests, known = ind.front_requests(structure, distances)
+    assert len(requests) == 4 and len(known) == 1
+    structure.refine(requests)
+    assert ind.front_requests(structure, distances, known=known) == ([], known)
+    second = int(np.argmin(np.abs(x - 7.25)))
+    structure.cohesive.damage[structure.damage_rows[(second, 2)], 1] = 0.01
+    fresh, _ = ind.front_requests(structure, distances)
+    reasons = {}
+    incremental, known = ind.front_requests(structure, distances, reasons, known)
+    assert sorted(incremental) == sorted(fresh)
+    assert sorted(np.round(x[[c for c, _, _ in incremental]], 6)) == [6.25, 6.75, 7.75, 8.25]
+    assert len(known) == 2
+    assert all(reasons[r].value == pytest.approx(abs(x[r[0]] - 7.25)) for r in incremental)
 
 
 def test_front_distance_is_the_process_zone_plus_two_sublaminates():

@@ -231,8 +231,11 @@ def _nearest_within(points, sources, reach, out):
 
 
 def front_requests(
-    structure, distances: np.ndarray, reasons: Reasons | None = None
-) -> list[tuple[int, int, int]]:
+    structure,
+    distances: np.ndarray,
+    reasons: Reasons | None = None,
+    known: np.ndarray | None = None,
+) -> tuple[list[tuple[int, int, int]], np.ndarray]:
     """Collective: strong refinements that keep every started delamination inside the refined
     region: at each interface i, the cells whose centroid lies within ``distances[i - 1]``
     (mm, ``front_distances``) of the centroid of a cell whose cohesive element there has
@@ -240,14 +243,28 @@ def front_requests(
     (where the cells are larger than the distance: else no cell would be kept ahead of the
     front, and the border constraint of the refined region would hold its process zone),
     not yet strong there. Noted in ``reasons``, when given, as ``front`` with the distance
-    (mm) to the nearest such cell (NaN for a touching cell beyond the distance)."""
+    (mm) to the nearest such cell (NaN for a touching cell beyond the distance).
+
+    ``known``: the started (cell, interface) pairs, as keys ``cell * n_plies + interface``
+    (sorted, this rank's), whose surroundings an earlier call asked for and that were all
+    refined since: only the others are searched around (refinement is never undone and the
+    centroids do not move, so the cells around a known one are strong already). Returns the
+    requests and the keys known after this call (give them to the next one once the requests
+    are refined)."""
     state = structure.interface_state
     centroids = face_geometry(structure).centroids
     cells, interfaces, rows = element_data(structure).cohesive_rows.T
     hit = (distances[interfaces - 1] > 0.0) & (structure.cohesive.damage[rows].max(axis=1) > 0.0)
+    n = state.shape[1] + 1
+    keys = cells * n + interfaces
+    known = np.zeros(0, np.int64) if known is None else known
+    hit &= ~np.isin(keys, known, assume_unique=True)
+    known = np.union1d(known, keys[hit]).astype(np.int64)
     started = {int(i): cells[hit & (interfaces == i)] for i in np.unique(interfaces[hit])}
     # every rank takes part, whatever it holds: the interfaces in order, one gather each
     everywhere = structure.comm.allgather(sorted(started))
+    if not any(everywhere):  # nothing started anywhere since the last call
+        return [], known
     requests = []
     for interface in sorted(set().union(*everywhere)):
         local = centroids[started.get(interface, np.zeros(0, np.int64))].reshape(-1, 3)
@@ -268,7 +285,6 @@ def front_requests(
     ).astype(np.int64)
     strong = np.full(len(damaged), int(InterfaceState.STRONG), dtype=np.int64)
     cells, interfaces, _ = spread_arrays(structure, damaged, at, strong, 1)
-    n = state.shape[1] + 1
     already = np.array([c * n + i for c, i, _ in requests], dtype=np.int64)
     new = (state[cells, interfaces - 1] < InterfaceState.STRONG) & ~np.isin(
         cells * n + interfaces, already
@@ -278,7 +294,7 @@ def front_requests(
         for c, i in zip(cells[new].tolist(), interfaces[new].tolist(), strict=True)
     ]
     note(reasons, touching, "front")  # (no distance: a neighbour, however far its centroid)
-    return requests + touching
+    return requests + touching, known
 
 
 # ---------------------------------------------------------------------------- spreading
@@ -305,7 +321,9 @@ def spread_arrays(
         table[nodes[cells], (kinds - 1)[:, None], (interfaces - 1)[:, None]] = 1.0
         marks.scatter_reverse(la.InsertMode.add)
         marks.scatter_forward()
-        hit = (table[nodes] > 0).any(axis=1)  # (n_cells, 2, n_if)
-        cells, kind_index, interface_index = np.nonzero(hit)
-        kinds, interfaces = kind_index + 1, interface_index + 1
+        marked = table.reshape(len(table), -1).any(axis=1)
+        near = np.flatnonzero(marked[nodes].any(axis=1))  # cells with a marked node
+        hit = (table[nodes[near]] > 0).any(axis=1)  # (len(near), 2, n_if)
+        at, kind_index, interface_index = np.nonzero(hit)
+        cells, kinds, interfaces = near[at], kind_index + 1, interface_index + 1
     return cells.astype(np.int64), interfaces.astype(np.int64), kinds.astype(np.int64)
