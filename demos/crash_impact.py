@@ -107,6 +107,7 @@ def facts(structure, summary: dict, history: dict, impactor: dict) -> dict:
         "energy_by_mechanism_mJ": energy_by_mechanism(history),
         "delaminated_area_mm2_per_interface": delaminated_area_per_interface(structure),
         "refined_cell_fraction": float(refined.mean()) if structure.interface_state.size else 0.0,
+        "eroded_elements": summary["eroded_elements_at_end"],
         "max_energy_balance_error_mJ": float(np.max(np.abs(history["energy_balance"]))),
         "state_energy_balance_mJ": float(history["state_energy_balance"][-1]),
         "wall_time_s": summary["wall_time_s"],

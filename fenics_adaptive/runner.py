@@ -474,6 +474,10 @@ def _finish(
             },
             "extra_nodes_at_end": comm.allreduce(structure.extra.n_owned, op=MPI.SUM),
             "cohesive_elements_at_end": comm.allreduce(len(structure.cohesive), op=MPI.SUM),
+            "eroded_elements_at_end": comm.allreduce(
+                structure.ply_damage_state.eroded_elements() if structure.erosion else 0,
+                op=MPI.SUM,
+            ),
             # judged as the energy guard judges it: the change since t = 0, where the balance
             # holds the first step's impulse of a motion or load that starts abruptly
             "max_energy_balance_error_relative": max(

@@ -32,6 +32,9 @@ def test_the_demo_writes_its_runs_and_its_figures(results):
     # fibres break from 15 us (ESL) and 28 us (adaptive) on; in the layerwise plate from 33 us
     for name in ("esl", "adaptive"):
         assert runs[name]["energy_by_mechanism_mJ"]["fibres"] > 0.0, name
+    # an element goes with the energy it held: none eroded, none booked
+    for run in runs.values():
+        assert (run["eroded_elements"] > 0) == (run["energy_by_mechanism_mJ"]["eroded"] > 0.0)
 
 
 def test_both_delaminate_and_esl_pushes_back_harder(results):

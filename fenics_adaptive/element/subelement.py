@@ -1633,7 +1633,12 @@ def corotated_gradient(X, u, f):
     U12 = 0.5 * (A10 * Bi[2] + A11 * Bi[5] + A12 * Bi[8] + A20 * Bi[1] + A21 * Bi[4] + A22 * Bi[7])
     trace = U00 + U11 + U22
     det, Ti = _inverse3((trace - U00, -U01, -U02, -U01, trace - U11, -U12, -U02, -U12, trace - U22))
-    if not det > 0.0:  # (tr U I - U is positive definite for any stretch)
+    if not det > 0.0:
+        # tr U I - U is positive definite for any stretch; not so only for a fit crushed to a
+        # line or turned inside out, whose frame has no derivative: its force stays the one in
+        # the frame. Erosion removes such an element in this same call (crushed below
+        # ``min_volume_ratio``) before it gets here; without erosion the inversion guard stops
+        # the run within 64 steps (its poll) or at the next history row.
         return
     z0 = Ti[0] * m0 + Ti[1] * m1 + Ti[2] * m2
     z1 = Ti[3] * m0 + Ti[4] * m1 + Ti[5] * m2
@@ -1670,11 +1675,20 @@ def _book_last_energy(damage_state, row, first, n):
 @njit(inline="always", **KERNEL_OPTIONS)
 def _fibres_broken(damage_state, row, first, n):
     """Whether the fibres of plies first .. first + n - 1 of cell row ``row`` have all failed
-    (d_f = 1): the element holding them is eroded."""
+    (d_f = 1): the element holding them is eroded. The one erosion rule: the damaged kernel
+    skips such an element, ``elements_eroded`` tells the rest of the code which they are."""
     for j in range(n):
         if damage_state[row, first + j, S_DF] < 1.0:
             return False
     return True
+
+
+@njit(cache=True, **KERNEL_OPTIONS)
+def elements_eroded(damage_state, rows, spans, out):
+    """out[e] = whether erosion has removed element e, which holds plies spans[e, 0] ..
+    spans[e, 1] - 1 of cell row rows[e] (``_fibres_broken``)."""
+    for e in range(rows.shape[0]):
+        out[e] = _fibres_broken(damage_state, rows[e], spans[e, 0], spans[e, 1] - spans[e, 0])
 
 
 @njit(cache=True, inline="always")

@@ -18,11 +18,10 @@ from mpi4py import MPI
 
 from fenics_adaptive.element.geometry import slab_vertices, thickness_weight
 from fenics_adaptive.element.rules import RuleTable
-from fenics_adaptive.element.subelement import add_damaged_subelement_forces
+from fenics_adaptive.element.subelement import add_damaged_subelement_forces, elements_eroded
 from fenics_adaptive.element.timestep import hexahedron_volumes
 from fenics_adaptive.materials.laminate import Laminate
 from fenics_adaptive.materials.ply_damage import (
-    S_DF,
     S_DISSIPATED,
     S_ERODED,
     S_FIBRE_DISSIPATED,
@@ -204,15 +203,20 @@ class PlyDamageState:
         [first, stop) erosion has removed (all their plies' fibres broken; none without
         ``erode``)."""
         gone = np.zeros(len(cells), dtype=bool)
-        if not self.erode:
-            return gone
-        broken = self.damage[:, :, S_DF] >= 1.0
-        counts = spans[:, 1] - spans[:, 0]
-        for n in np.unique(counts):  # the elements of n plies at once
-            of_n = np.flatnonzero(counts == n)
-            plies = spans[of_n, :1] + np.arange(n)
-            gone[of_n] = broken[cells[of_n, None], plies].all(axis=1)
+        if self.erode and len(cells):
+            elements_eroded(
+                self.damage,
+                np.asarray(cells, dtype=np.int64),
+                np.asarray(spans, dtype=np.int64).reshape(-1, 2),
+                gone,
+            )
         return gone
+
+    def eroded_elements(self) -> int:
+        """How many of this rank's (sub)elements erosion has removed (``eroded``)."""
+        if not self.elements:
+            return 0
+        return int(np.count_nonzero(self.eroded(self.elements[2], self._spans)))
 
     def base_node_carriers(self, n_base: int) -> np.ndarray:
         """(n_base,) int: for each local base node (owned and ghost), how many of this rank's
