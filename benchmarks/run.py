@@ -22,6 +22,9 @@ Rows (issue 5's targets in brackets):
   computation [<= 20 %];
 - ``overhead``: the step of a 100-cell ESL beam less its internal force: the fixed cost of a
   step (issue 17) [<= 20 us];
+- ``startup``: a fresh process that imports the package, builds that beam and takes its first
+  step, caches warm (issue 17) [<= 1 s from the first import to the end of the first step];
+  with the resident memory it then holds;
 - ``mass``: the step with lumped and selectively scaled masses, ESL and layerwise, on the TCB
   beam of 0.064 mm plies (issue 17) [the scaled update costs <= 10 % of the step];
 - ``scaling``: unrefined step time per cell at growing sizes [within 15 % of linear];
@@ -269,6 +272,60 @@ def bench_overhead(steps: int, repeat: int) -> list[dict]:
             "us_per_cell": 1e6 * step / structure.base.n_owned_cells,
             "force_seconds": force,
             "overhead_us": 1e6 * (step - force),
+        }
+    ]
+
+
+# the start-up worker: a fresh interpreter, its clock started before the first import
+STARTUP_WORKER = """
+import time
+started = time.perf_counter()
+import dataclasses, json, sys
+import mpi4py.MPI
+from fenics_adaptive.settings.config import parse_config
+from fenics_adaptive.simulation import build_structure
+from fenics_adaptive.solver import explicit
+imported = time.perf_counter()
+config = parse_config(json.loads(sys.argv[1]), source="startup")
+structure = build_structure(config)
+built = time.perf_counter()
+dt, _, _ = explicit.choose_time_step(structure, config.solver)
+settings = dataclasses.replace(config.solver, end_time=dt, output_interval=dt)
+stats = explicit.run(structure, settings, config.probe, time_step=dt)
+stepped = time.perf_counter()
+rss = [line for line in open("/proc/self/status") if line.startswith("VmRSS:")]
+print(json.dumps({"import_s": imported - started, "build_s": built - imported,
+                  "first_step_s": stepped - built, "steps": stats.steps,
+                  "rss_MiB": int(rss[0].split()[1]) / 1024.0}))
+"""
+
+
+def bench_startup(repeat: int) -> list[dict]:
+    """Start-up of the 100-cell ESL beam of ``overhead``: ``repeat`` fresh processes after one
+    that fills the caches, each timing its imports, the model's build and its run to the end of
+    the first step (median of each part, and of their sum); the resident memory then."""
+    data = beam_config(100)
+    data["model"]["kind"] = "esl"
+    for name in ("interfaces", "cohesive"):
+        data.pop(name, None)
+    command = [sys.executable, "-c", STARTUP_WORKER, json.dumps(data)]
+    runs = []
+    for k in range(repeat + 1):
+        done = subprocess.run(command, capture_output=True, text=True, check=True, cwd=ROOT)
+        if k:  # the first one fills numba's cache (a fresh clone compiles there)
+            runs.append(json.loads(done.stdout.strip().splitlines()[-1]))
+    median = {key: statistics.median(r[key] for r in runs) for key in runs[0]}
+    total = statistics.median(r["import_s"] + r["build_s"] + r["first_step_s"] for r in runs)
+    return [
+        {
+            "benchmark": "startup",
+            "case": "100-cell ESL beam, import to first step",
+            "cells": 100,
+            "seconds": total,
+            "import_s": median["import_s"],
+            "build_s": median["build_s"],
+            "first_step_s": median["first_step_s"],
+            "resident_MiB": median["rss_MiB"],
         }
     ]
 
@@ -534,6 +591,10 @@ def table(rows: list[dict]) -> str:
             ("relative_to_layerwise", "x{:.2f} of LW"),
             ("net_relative_to_layerwise", "net of the fixed x{:.2f}"),
             ("overhead_us", "overhead {:.0f} us per step"),
+            ("import_s", "imports {:.2f} s"),
+            ("build_s", "build {:.2f} s"),
+            ("first_step_s", "first step {:.2f} s"),
+            ("resident_MiB", "{:.0f} MiB resident"),
             ("time_step_s", "step {:.3g} s"),
             ("wall_s_per_simulated_us", "{:.3g} s per simulated us"),
             ("mass_setup_s", "scaled mass built in {:.1f} s"),
@@ -611,6 +672,7 @@ def main() -> None:
             for row in bench_mpi(cells, args.steps, args.repeat)
         ],
         "memory": lambda: bench_memory(args.memory_cells),
+        "startup": lambda: bench_startup(args.repeat),
         "refined": lambda: bench_refined(args.refined_cells, args.steps, args.repeat),
         "plate": lambda: bench_plate(args.plate_end_time, args.repeat),
     }
@@ -649,6 +711,7 @@ JOB_ROWS = {
     "scaling": "scaling",
     "mpi": "mpi",
     "memory": "memory",
+    "startup": "startup",
     "refined": "refined",
     "plate": "plate",
 }
