@@ -35,7 +35,6 @@ layerwise plates as their fibres break (README); the balance from the work
 (``energy_balance``), which checks the time integration, stays within 1 mJ.
 """
 
-import argparse
 import json
 import tomllib
 from pathlib import Path
@@ -50,6 +49,8 @@ import matplotlib.pyplot as plt
 from fenics_adaptive.analysis.studies import (
     CRASH_IMPACT_RUNS,
     add_ratios_to_layerwise,
+    chosen_runs,
+    demo_parser,
     plate_impact_variant,
 )
 from fenics_adaptive.errors import script_main
@@ -148,21 +149,11 @@ def plot(histories: dict, results: dict, path: Path) -> None:
 
 
 def main(argv: list[str] | None = None, prog: str = PROG) -> None:
-    parser = argparse.ArgumentParser(prog=prog, description=__doc__.splitlines()[0].lstrip("# "))
-    parser.add_argument("--config", default=HERE / "crash_impact.toml")
-    parser.add_argument("--out", default="results/crash_impact")
-    parser.add_argument(
-        "--overwrite",
-        action="store_true",
-        help="reuse run folders that hold other files (only this program's own files go)",
+    parser = demo_parser(
+        prog, __doc__, HERE / "crash_impact.toml", "results/crash_impact", CRASH_IMPACT_RUNS
     )
-    parser.add_argument("--runs", default=",".join(CRASH_IMPACT_RUNS), help="comma separated")
-    parser.add_argument("--end-time", type=float, default=None, help="s (default: the config's)")
     args = parser.parse_args(argv)
-    runs = args.runs.split(",")
-    unknown = sorted(set(runs) - set(CRASH_IMPACT_RUNS))
-    if unknown:
-        parser.error(f"--runs: unknown {', '.join(unknown)} (runs: {', '.join(CRASH_IMPACT_RUNS)})")
+    runs = chosen_runs(parser, args.runs, CRASH_IMPACT_RUNS)
     base = tomllib.loads(Path(args.config).read_text())
     if args.end_time is not None:
         base["solver"]["end_time"] = args.end_time

@@ -17,7 +17,6 @@ Run it (the README's main command does exactly this):
 Units: N, mm, s, tonne.
 """
 
-import argparse
 import json
 from pathlib import Path
 
@@ -26,6 +25,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 
+from fenics_adaptive.analysis.studies import demo_parser
 from fenics_adaptive.errors import script_main
 from fenics_adaptive.io.output import read_history
 from fenics_adaptive.runner import run_config
@@ -49,14 +49,7 @@ def beam_theory(config) -> dict:
 
 
 def main(argv: list[str] | None = None, prog: str = PROG) -> None:
-    parser = argparse.ArgumentParser(prog=prog, description=__doc__.splitlines()[0].lstrip("# "))
-    parser.add_argument("--config", default=HERE / "esl_cantilever.toml")
-    parser.add_argument("--out", default="results/esl_cantilever")
-    parser.add_argument(
-        "--overwrite",
-        action="store_true",
-        help="reuse run folders that hold other files (only this program's own files go)",
-    )
+    parser = demo_parser(prog, __doc__, HERE / "esl_cantilever.toml", "results/esl_cantilever")
     args = parser.parse_args(argv)
 
     # 1. the run itself: the same function the command-line program calls

@@ -111,7 +111,6 @@ Units: N, mm, s, tonne (stress MPa, energy mJ).
 
 from __future__ import annotations
 
-import argparse
 import copy
 import csv
 import dataclasses
@@ -134,6 +133,7 @@ import matplotlib.pyplot as plt
 import fenics_adaptive
 from fenics_adaptive.adaptivity.indicators import recovered_interface_stresses
 from fenics_adaptive.analysis import comparison as cmp
+from fenics_adaptive.analysis.studies import demo_parser
 from fenics_adaptive.analysis.timing import time_call, time_per_step
 from fenics_adaptive.errors import script_main
 from fenics_adaptive.model.structure import Structure
@@ -658,9 +658,9 @@ def _json(value):
 
 
 def main(argv: list[str] | None = None, prog: str = PROG) -> None:
-    parser = argparse.ArgumentParser(prog=prog, description=__doc__.splitlines()[0].lstrip("# "))
-    parser.add_argument("--config", default=HERE / "esl_vs_lw.toml")
-    parser.add_argument("--out", default="results/esl_vs_lw")
+    parser = demo_parser(
+        prog, __doc__, HERE / "esl_vs_lw.toml", "results/esl_vs_lw", overwrite=False
+    )
     args = parser.parse_args(argv)
     if MPI.COMM_WORLD.size > 1:
         raise SystemExit("demos/esl_vs_lw.py runs on one rank (its static solver is serial)")

@@ -31,7 +31,6 @@ Writes ``results/four_point_bending/<run>/`` and ``four_point_bending.png`` (for
 loading-roller displacement, like Figure 8) and ``summary.json``. Units: N, mm, s, tonne.
 """
 
-import argparse
 import json
 import tomllib
 from pathlib import Path
@@ -42,7 +41,11 @@ import numpy as np
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 
-from fenics_adaptive.analysis.studies import FOUR_POINT_BENDING_RUNS, four_point_bending_variant
+from fenics_adaptive.analysis.studies import (
+    FOUR_POINT_BENDING_RUNS,
+    demo_parser,
+    four_point_bending_variant,
+)
 from fenics_adaptive.errors import script_main
 from fenics_adaptive.io.output import read_history
 from fenics_adaptive.materials.ply_damage import S_D
@@ -115,13 +118,8 @@ def plot(histories: dict, path: Path) -> None:
 
 
 def main(argv: list[str] | None = None, prog: str = PROG) -> None:
-    parser = argparse.ArgumentParser(prog=prog, description=__doc__.splitlines()[0].lstrip("# "))
-    parser.add_argument("--config", default=HERE / "four_point_bending.toml")
-    parser.add_argument("--out", default="results/four_point_bending")
-    parser.add_argument(
-        "--overwrite",
-        action="store_true",
-        help="reuse run folders that hold other files (only this program's own files go)",
+    parser = demo_parser(
+        prog, __doc__, HERE / "four_point_bending.toml", "results/four_point_bending"
     )
     parser.add_argument(
         "--plot-only", action="store_true", help="redraw the plot from the results in --out"

@@ -23,7 +23,6 @@ interface, refined fraction and wall time of each run. About 8 min on 2 cores (m
 layerwise reference). Units: N, mm, s, tonne (energy mJ).
 """
 
-import argparse
 import json
 import tomllib
 from pathlib import Path
@@ -35,7 +34,12 @@ matplotlib.use("Agg")
 
 import matplotlib.pyplot as plt
 
-from fenics_adaptive.analysis.studies import PLATE_IMPACT_RUNS, plate_impact_variant
+from fenics_adaptive.analysis.studies import (
+    PLATE_IMPACT_RUNS,
+    chosen_runs,
+    demo_parser,
+    plate_impact_variant,
+)
 from fenics_adaptive.errors import script_main
 from fenics_adaptive.io.cscan import delaminated_area_per_interface, interface_damage, plot_cscan
 from fenics_adaptive.io.output import read_history
@@ -103,16 +107,7 @@ def plot_histories(histories: dict, results: dict, path: Path) -> None:
 
 
 def main(argv: list[str] | None = None, prog: str = PROG) -> None:
-    parser = argparse.ArgumentParser(prog=prog, description=__doc__.splitlines()[0].lstrip("# "))
-    parser.add_argument("--config", default=HERE / "plate_impact.toml")
-    parser.add_argument("--out", default="results/plate_impact")
-    parser.add_argument(
-        "--overwrite",
-        action="store_true",
-        help="reuse run folders that hold other files (only this program's own files go)",
-    )
-    parser.add_argument("--runs", default=",".join(RUNS), help="which runs, comma separated")
-    parser.add_argument("--end-time", type=float, default=None, help="s (default: the config's)")
+    parser = demo_parser(prog, __doc__, HERE / "plate_impact.toml", "results/plate_impact", RUNS)
     args = parser.parse_args(argv)
     base = tomllib.loads(Path(args.config).read_text())
     if args.end_time is not None:
@@ -121,7 +116,7 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> None:
     out.mkdir(parents=True, exist_ok=True)
 
     results, histories, maps, refined = {}, {}, {}, {}
-    for name in args.runs.split(","):
+    for name in chosen_runs(parser, args.runs, RUNS):
         print(f"--- {name}")
         config = parse_config(
             plate_impact_variant(base, name), source=f"plate_impact.toml [{name}]"

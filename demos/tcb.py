@@ -26,7 +26,6 @@ Writes ``results/tcb/<run>/`` (history.csv, summary.json, plots, ParaView fields
 ``tcb_deformed.png`` and ``summary.json`` with the comparisons. Units: N, mm, s, tonne.
 """
 
-import argparse
 import json
 import tomllib
 from pathlib import Path
@@ -40,7 +39,13 @@ import matplotlib.pyplot as plt
 from matplotlib.collections import PolyCollection
 
 from fenics_adaptive.analysis.lefm import lefm_comparison, tcb_lefm_force
-from fenics_adaptive.analysis.studies import TCB_LATE_OPENING, TCB_RUNS, tcb_quick, tcb_variant
+from fenics_adaptive.analysis.studies import (
+    TCB_LATE_OPENING,
+    TCB_RUNS,
+    demo_parser,
+    tcb_quick,
+    tcb_variant,
+)
 from fenics_adaptive.analysis.timing import time_call
 from fenics_adaptive.errors import script_main
 from fenics_adaptive.io.output import read_history
@@ -177,15 +182,8 @@ def deformed(structures: dict, out: Path, length: float) -> None:
 
 
 def main(argv: list[str] | None = None, prog: str = PROG) -> None:
-    parser = argparse.ArgumentParser(prog=prog, description=__doc__.splitlines()[0].lstrip("# "))
-    parser.add_argument("--config", default=HERE / "tcb.toml")
-    parser.add_argument("--out", default="results/tcb")
+    parser = demo_parser(prog, __doc__, HERE / "tcb.toml", "results/tcb")
     parser.add_argument("--quick", action="store_true", help="20 mm beam, for a fast look")
-    parser.add_argument(
-        "--overwrite",
-        action="store_true",
-        help="reuse run folders that hold other files (only this program's own files go)",
-    )
     args = parser.parse_args(argv)
     base = tomllib.loads(Path(args.config).read_text())
     if args.quick:

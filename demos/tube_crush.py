@@ -27,7 +27,6 @@ presses the tube sideways rather than a rigid plate hitting its end, because rig
 spheres and cylinders touching the top or bottom face: no rigid plane yet.
 """
 
-import argparse
 import json
 import tomllib
 from pathlib import Path
@@ -42,6 +41,8 @@ import matplotlib.pyplot as plt
 from fenics_adaptive.analysis.studies import (
     TUBE_CRUSH_RUNS,
     add_ratios_to_layerwise,
+    chosen_runs,
+    demo_parser,
     plate_impact_variant,
 )
 from fenics_adaptive.errors import script_main
@@ -112,21 +113,11 @@ def plot(histories: dict, results: dict, path: Path) -> None:
 
 
 def main(argv: list[str] | None = None, prog: str = PROG) -> None:
-    parser = argparse.ArgumentParser(prog=prog, description=__doc__.splitlines()[0].lstrip("# "))
-    parser.add_argument("--config", default=HERE / "tube_crush.toml")
-    parser.add_argument("--out", default="results/tube_crush")
-    parser.add_argument(
-        "--overwrite",
-        action="store_true",
-        help="reuse run folders that hold other files (only this program's own files go)",
+    parser = demo_parser(
+        prog, __doc__, HERE / "tube_crush.toml", "results/tube_crush", TUBE_CRUSH_RUNS
     )
-    parser.add_argument("--runs", default=",".join(TUBE_CRUSH_RUNS), help="comma separated")
-    parser.add_argument("--end-time", type=float, default=None, help="s (default: the config's)")
     args = parser.parse_args(argv)
-    runs = args.runs.split(",")
-    unknown = sorted(set(runs) - set(TUBE_CRUSH_RUNS))
-    if unknown:
-        parser.error(f"--runs: unknown {', '.join(unknown)} (runs: {', '.join(TUBE_CRUSH_RUNS)})")
+    runs = chosen_runs(parser, args.runs, TUBE_CRUSH_RUNS)
     base = tomllib.loads(Path(args.config).read_text())
     if args.end_time is not None:
         base["solver"]["end_time"] = args.end_time

@@ -19,11 +19,13 @@ Studies (``STUDIES``):
   indicators at their defaults), and, outside the demo, refined from the start at the
   delaminating interface.
 
-A variant never changes its ``base``: it works on a deep copy.
+A variant never changes its ``base``: it works on a deep copy. ``demo_parser`` and
+``chosen_runs`` are the command line the demos share.
 """
 
 from __future__ import annotations
 
+import argparse
 import copy
 import itertools
 import math
@@ -42,6 +44,46 @@ PLATE_IMPACT_RUNS = ("esl", "adaptive", "layerwise")
 TUBE_CRUSH_RUNS = PLATE_IMPACT_RUNS  # derived alike: ``plate_impact_variant``
 CRASH_IMPACT_RUNS = PLATE_IMPACT_RUNS  # likewise
 FRACTURE_RUNS = ("layerwise", "adaptive")
+
+
+def demo_parser(
+    prog: str,
+    doc: str,
+    config: object,
+    out: str,
+    runs: tuple[str, ...] | None = None,
+    overwrite: bool = True,
+) -> argparse.ArgumentParser:
+    """The command line of a demo: ``--config`` (default ``config``, its TOML file), ``--out``
+    (default ``out``, a folder), ``--overwrite`` (unless ``overwrite`` is False) and, for a
+    study of ``runs``, ``--runs`` (comma separated, all by default: ``chosen_runs``) and
+    ``--end-time`` (s, default the config's). ``doc``: the demo's docstring, whose first line
+    (a Markdown title) describes it."""
+    parser = argparse.ArgumentParser(prog=prog, description=doc.splitlines()[0].lstrip("# "))
+    parser.add_argument("--config", default=config, help="the config, TOML (default: %(default)s)")
+    parser.add_argument("--out", default=out, help="folder of the results (default: %(default)s)")
+    if overwrite:
+        parser.add_argument(
+            "--overwrite",
+            action="store_true",
+            help="reuse run folders that hold other files (only this program's own files go)",
+        )
+    if runs is not None:
+        parser.add_argument("--runs", default=",".join(runs), help="which runs, comma separated")
+        parser.add_argument(
+            "--end-time", type=float, default=None, help="s (default: the config's)"
+        )
+    return parser
+
+
+def chosen_runs(parser: argparse.ArgumentParser, given: str, runs: tuple[str, ...]) -> list[str]:
+    """The runs named in ``given`` (``--runs``, comma separated), in its order; an unknown
+    name ends the program with the parser's usage error naming the runs there are."""
+    chosen = given.split(",")
+    unknown = sorted(set(chosen) - set(runs))
+    if unknown:
+        parser.error(f"--runs: unknown {', '.join(unknown)} (runs: {', '.join(runs)})")
+    return chosen
 
 
 def tcb_variant(base: dict, name: str) -> dict:
