@@ -66,6 +66,7 @@ nitpicky = True
 nitpick_ignore_regex = [
     (r"py:.*", r"(np|numpy|npt|dolfinx|fem|la|mesh|mpi4py|MPI|petsc4py|PETSc|ufl|basix)\..*"),
     (r"py:.*", r"(common|numba|gmsh|collections\.abc|typing|pathlib|enum|dataclasses)\..*"),
+    (r"py:.*", r"argparse\..*"),
     (r"py:.*", r"(ndarray|ArrayLike|NDArray|Path)"),
     # pieces of string annotations that Sphinx splits at the brackets
     (r"py:.*", r".*[\[\]'].*"),

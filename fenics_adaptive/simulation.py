@@ -356,6 +356,7 @@ class RefinementHook:
 
     def restore(self, state: dict[str, np.ndarray]) -> None:
         self.pending = [int(k) for k in state["pending"]]
+        self.front_known = np.zeros(0, np.int64)  # of the structure restored: search all once
         self.next_check = float(state["next_check"])
         stored = np.asarray(state.get("python_next_check", np.zeros(0)), dtype=float)
         if len(stored) != len(self.python):
@@ -388,6 +389,7 @@ class RefinementHook:
             note(reasons, asked, "manual")
             requests += asked
         evaluate = settings is not None and t >= self.next_check
+        front_known = self.front_known
         if evaluate:
             started = time.perf_counter()
             self._resolve(structure)
@@ -401,7 +403,7 @@ class RefinementHook:
                 note(reasons, around, "spread")
                 requests += around
             if self.front.any():
-                around, self.front_known = front_requests(
+                around, front_known = front_requests(
                     structure, self.front, reasons, self.front_known
                 )
                 requests += around
@@ -419,6 +421,7 @@ class RefinementHook:
         started = time.perf_counter()
         event = refine(structure, requests, t, reasons)
         self.refinement_seconds += time.perf_counter() - started
+        self.front_known = front_known  # (the surroundings of the new ones refined now)
         return event
 
     def cost(self, comm: MPI.Comm) -> tuple[int, float, float]:
