@@ -19,7 +19,7 @@ Writes ``results/plate_impact/<run>/`` (history, summary, energies), ``plate_imp
 (contact force and impactor displacement against time, energy balance, cost), ``cscan.png``
 (damage of each interface seen from above, like an ultrasonic C-scan, for the adaptive and
 layerwise runs) and ``summary.json`` with the peak contact force, delaminated area per
-interface, refined fraction and wall time of each run. About 8 min on 2 cores (most of it the
+interface, refined fraction and wall time of each run. About 3 min on 2 cores (most of it the
 layerwise reference). Units: N, mm, s, tonne (energy mJ).
 """
 
