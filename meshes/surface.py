@@ -21,6 +21,7 @@ Generated geometry, axis along x (the beams' length direction):
 
 from __future__ import annotations
 
+import copy
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -161,22 +162,35 @@ def _cad_normals(entities: list[int], index: np.ndarray, n_nodes: int) -> np.nda
     return normals
 
 
+# the last surface read from a file, by the file's identity (``read_surface``): a run reads
+# its file when its config is checked and again when its mesh is built
+_LAST_READ: dict[tuple, SurfaceMesh] = {}
+
+
 def read_surface(path: str | Path, surface: str | None = None) -> SurfaceMesh:
     """The quadrilateral surface of a Gmsh ``.msh`` file, or of a ``.geo`` script (meshed in
-    two dimensions if it has no mesh yet), restricted to the physical surface ``surface``."""
+    two dimensions if it has no mesh yet), restricted to the physical surface ``surface``. The
+    last surface read is kept: the same file (path, size and modification time) and surface
+    again gives a copy of it without Gmsh."""
     path = Path(path)
     if not path.is_file():
         raise ValueError(f"mesh.file: {str(path)!r} is not a file")
     if path.suffix.lower() not in (".msh", ".geo"):
         raise ValueError(f"mesh.file: {path.name!r} is neither a .msh nor a .geo file")
-    with _gmsh_model("fenics_adaptive_surface"):
-        try:
-            gmsh.open(str(path))
-        except Exception as error:
-            raise ValueError(f"mesh.file: gmsh cannot read {path.name!r}: {error}") from error
-        if len(gmsh.model.mesh.getElements(2)[0]) == 0:
-            gmsh.model.mesh.generate(2)
-        return from_gmsh(surface)
+    stat = path.stat()
+    key = (str(path.resolve()), stat.st_size, stat.st_mtime_ns, surface)
+    if key not in _LAST_READ:
+        with _gmsh_model("fenics_adaptive_surface"):
+            try:
+                gmsh.open(str(path))
+            except Exception as error:
+                raise ValueError(f"mesh.file: gmsh cannot read {path.name!r}: {error}") from error
+            if len(gmsh.model.mesh.getElements(2)[0]) == 0:
+                gmsh.model.mesh.generate(2)
+            read = from_gmsh(surface)
+        _LAST_READ.clear()
+        _LAST_READ[key] = read
+    return copy.deepcopy(_LAST_READ[key])  # the caller may change its arrays
 
 
 class _gmsh_model:

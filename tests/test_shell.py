@@ -224,6 +224,26 @@ def test_a_msh_file_of_a_generated_surface_gives_the_generated_shell(tmp_path):
     )
 
 
+def test_a_surface_file_is_read_once_while_it_is_unchanged(tmp_path, monkeypatch):
+    """The config check and the mesh build both read a [mesh] file: the second read of the
+    same unchanged file gives an equal, separate surface without Gmsh; a changed file is read
+    again."""
+    path = tmp_path / "panel.msh"
+    surface.write_surface(surface.panel(30.0, 20.0, 60.0, 6, 4), path)
+    opened = []
+    real_open = surface.gmsh.open
+    monkeypatch.setattr(surface.gmsh, "open", lambda name: opened.append(name) or real_open(name))
+    first = surface.read_surface(path)
+    second = surface.read_surface(path)
+    assert len(opened) == 1
+    np.testing.assert_array_equal(second.nodes, first.nodes)
+    np.testing.assert_array_equal(second.quads, first.quads)
+    second.nodes[:] = 0.0  # a copy: the kept surface is untouched
+    assert np.abs(surface.read_surface(path).nodes).max() > 0.0
+    surface.write_surface(surface.panel(30.0, 20.0, 60.0, 8, 4), path)
+    assert len(surface.read_surface(path).quads) == 32 and len(opened) == 2
+
+
 # ------------------------------------------------------------------ obstacle course
 @pytest.mark.slow
 def test_scordelis_lo_roof_converges_to_the_reference():
