@@ -109,6 +109,7 @@ def plot_histories(histories: dict, results: dict, path: Path) -> None:
 def main(argv: list[str] | None = None, prog: str = PROG) -> None:
     parser = demo_parser(prog, __doc__, HERE / "plate_impact.toml", "results/plate_impact", RUNS)
     args = parser.parse_args(argv)
+    runs = chosen_runs(parser, args.runs, RUNS)
     base = tomllib.loads(Path(args.config).read_text())
     if args.end_time is not None:
         base["solver"]["end_time"] = args.end_time
@@ -116,7 +117,7 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> None:
     out.mkdir(parents=True, exist_ok=True)
 
     results, histories, maps, refined = {}, {}, {}, {}
-    for name in chosen_runs(parser, args.runs, RUNS):
+    for name in runs:
         print(f"--- {name}")
         config = parse_config(
             plate_impact_variant(base, name), source=f"plate_impact.toml [{name}]"

@@ -1594,11 +1594,7 @@ def corotated_gradient(X, u, f):
     is now (a rigid spin does no work), and its work is the energy's change, so a strained,
     damaged element tumbling neither takes nor gives energy. ``X``, ``u`` (8, 3): the element
     as the kernel saw it (sum_a u_a = 0). Scalars only: no allocation."""
-    Xc0 = Xc1 = Xc2 = 0.0
-    for a in range(8):
-        Xc0 += 0.125 * X[a, 0]
-        Xc1 += 0.125 * X[a, 1]
-        Xc2 += 0.125 * X[a, 2]
+    (Xc0, Xc1, Xc2), _ = _centroids(X, u)
     b00 = b01 = b02 = b11 = b12 = b22 = 0.0
     A00 = A01 = A02 = A10 = A11 = A12 = A20 = A21 = A22 = 0.0  # sum_a y_a D_a^T
     m0 = m1 = m2 = 0.0
