@@ -164,10 +164,11 @@ def test_a_struck_plate_with_ply_damage_under_finite_kinematics(tmp_path):
 
 
 def test_the_indicators_see_the_same_ply_stresses_after_a_rigid_turn():
-    """The indicators' ply stresses (``ply_fields.indicator_stresses``: ply failure, the
-    interlaminar estimate) under finite kinematics are those of the damage law's co-rotated
-    frame: a strained, refined strip turned by 75 degrees gives them unchanged (1e-9 of the
-    largest), where the small-strain reading of the same motion is off by the turn."""
+    """The indicators' ply stresses (``ply_fields.ply_stresses``: ply failure; the
+    interlaminar estimate's ``ply_sums``) under finite kinematics are those of the damage
+    law's co-rotated frame: a strained, refined strip turned by 75 degrees gives them
+    unchanged (1e-9 of the largest), where the small-strain reading of the same motion is off
+    by the turn."""
     from test_finite_rotation import STRAIN, refined_strip, set_motion
     from test_finite_rotation import rotation as axis_rotation
 

@@ -100,8 +100,8 @@ def test_a_dcb_arm_opening_is_seen_at_the_mid_plane(dcb):
     esl, lw = dcb
     stresses = ind.ply_stresses(esl)
     face_force = support_force(esl)
-    estimate = ind.interlaminar_stresses(esl, 0.0, stresses, face_force)
-    recovered = ind.recovered_interface_stresses(esl, stresses)
+    estimate = ind.interlaminar_stresses(esl, 0.0, face_force)
+    recovered = ind.recovered_interface_stresses(esl)
     lines, traction = cmp.interface_tractions(lw)[6]
     end = np.argmin(centres(esl))
     peel = estimate[end, 6, 0]
@@ -234,3 +234,114 @@ def test_the_plies_carry_the_shear_force_the_element_carries(shear_correction):
     shear_force = np.einsum("k,ck->c", thickness, stresses[:, :, 4]) * 2.0  # N, width 2 mm
     q_b = 10.0 / 20.0  # N/mm: the pressure's resultant per length
     np.testing.assert_allclose(shear_force[away], q_b * x[away], rtol=1e-9)
+
+
+def reference_estimate(structure, face_force: np.ndarray) -> np.ndarray:
+    """The estimate (n_cells, n_plies + 1, 3) written out ply by ply from the plies' stresses
+    (``ply_stresses``), serial, as the recovery is stated: column averages of each ply's
+    in-plane stresses, their divergence integrated from the bottom face (the linear part that
+    frees the top face taken off), averaged again, the peel integrated by the trapezoidal
+    rule; then the face tractions by a linear correction and the cell's own resultants by the
+    bubble 6 (z/h)(1 - z/h)."""
+    from fenics_adaptive.adaptivity.interlaminar import face_geometry
+
+    stresses = ind.ply_stresses(structure)
+    n, n_plies, _ = stresses.shape
+    t = np.array([p.thickness for p in structure.laminate.plies])
+    z = np.concatenate([[0.0], np.cumsum(t)])
+    zr = z / z[-1]
+    corners = structure.bottom_local
+    geometry = face_geometry(structure)
+
+    def gradients(values):  # per cell (n, m) -> d/dx, d/dy of their column averages (n, m)
+        table = np.zeros((len(structure.X_base), values.shape[1]))
+        count = np.zeros(len(structure.X_base))
+        np.add.at(table, corners.ravel(), np.repeat(values, 4, axis=0))
+        np.add.at(count, corners.ravel(), 1.0)
+        averages = table[corners] / np.maximum(count[corners], 1.0)[..., None]
+        return (
+            np.einsum("ca,cam->cm", geometry.d_dx, averages),
+            np.einsum("ca,cam->cm", geometry.d_dy, averages),
+        )
+
+    d_dx, d_dy = (
+        g.reshape(n, n_plies, 3) for g in gradients(stresses[:, :, [0, 1, 5]].reshape(n, -1))
+    )
+    divergence = np.stack([d_dx[..., 0] + d_dy[..., 2], d_dx[..., 2] + d_dy[..., 1]], axis=2)
+    tau = np.zeros((n, n_plies + 1, 2))
+    tau[:, 1:] = -np.cumsum(divergence * t[None, :, None], axis=1)
+    tau -= zr[None, :, None] * tau[:, -1:, :]
+    d_dx, d_dy = (g.reshape(n, n_plies + 1, 2) for g in gradients(tau.reshape(n, -1)))
+    div_tau = d_dx[..., 0] + d_dy[..., 1]
+    peel = np.zeros((n, n_plies + 1))
+    peel[:, 1:] = -np.cumsum(0.5 * (div_tau[:, 1:] + div_tau[:, :-1]) * t, axis=1)
+    profile = np.concatenate([peel[..., None], tau], axis=2)
+
+    on_faces = structure.loads.cell_face_tractions(0.0, n) + ind.face_tractions(
+        structure, face_force
+    )
+    bottom, top = -on_faces[:, 0, [2, 0, 1]], on_faces[:, 1, [2, 0, 1]]
+    profile += bottom[:, None] + zr[None, :, None] * (top - bottom - profile[:, -1])[:, None]
+
+    def integral(f):  # the trapezoidal rule over the plies, axis 1
+        return np.einsum("k,ck...->c...", t, 0.5 * (f[:, 1:] + f[:, :-1]))
+
+    bubble = 6.0 * zr * (1.0 - zr)
+    own = np.einsum("k,ckm->cm", t, stresses[:, :, [2, 4, 3]])
+    missing = (own - integral(profile)) / integral(bubble[None, :])[:, None]
+    return profile + missing[:, None, :] * bubble[None, :, None]
+
+
+def test_the_estimate_equals_its_ply_by_ply_statement_on_a_refined_plate():
+    """The estimate is computed from a few weighted sums of the ply stresses per boundary,
+    each element's from its strain at its bottom and top (``Recovery``,
+    ``ply_fields.ply_sums``): on a plate refined weakly and strongly at different interfaces
+    under a random motion, face load and face forces, it equals ``reference_estimate``, the
+    recovery written out ply by ply, to round-off; the estimate at some boundaries equals those
+    rows of the whole profile; the elements' sums taken ply by ply equal those from the ends
+    of their axes."""
+    from fenics_adaptive.adaptivity import interlaminar as il
+    from fenics_adaptive.adaptivity import ply_fields as pf
+    from fenics_adaptive.settings.kinds import InterfaceState
+
+    data = {
+        "model": {"kind": "adaptive"},
+        "mesh": {"length": 6.0, "width": 4.0, "nx": 6, "ny": 4},
+        "materials": copy.deepcopy(IM7),
+        "laminate": {
+            "material": "im7",
+            "ply_thickness": 0.2,
+            "angles": [0, 45, 90, -45, -45, 90, 45, 0, 30],
+        },
+        "interfaces": {"delaminate": [2, 4, 6]},
+        "cohesive": {"K_n": 1e5, "K_s": 1e5, "N": 60.0, "S": 90.0, "GIc": 0.3, "GIIc": 0.8},
+        "clamp": [{"face": "x0"}],
+        "load": [{"face": "top", "pressure": 1.5, "curve": [[0.0, 1.0]]}],
+        "solver": {"end_time": 1e-6},
+        "output": {
+            "interval": 1e-6,
+            "displacement_face": "x1",
+            "reaction_face": "x0",
+            "component": "z",
+        },
+    }
+    data["cohesive"].update(law="bk", exponent=2.1)
+    structure = build_structure(parse_config(data))
+    strong, weak = InterfaceState.STRONG, InterfaceState.WEAK
+    requests = [(c, 4, strong) for c in (3, 4, 9, 10)] + [(c, 2, weak) for c in (4, 5, 16)]
+    structure.refine([*requests, (10, 6, strong), (11, 6, strong)], 0.0)
+    rng = np.random.default_rng(7)
+    for u in (structure.base.u.x.array, structure.extra.vectors["u"].array):
+        u[:] = 1e-3 * rng.standard_normal(len(u))
+    face_force = rng.standard_normal(structure.blocks[0].n_owned)
+
+    estimate = ind.interlaminar_stresses(structure, 0.0, face_force)
+    expected = reference_estimate(structure, face_force)
+    scale = np.abs(expected).max()
+    assert scale > 1.0
+    np.testing.assert_allclose(estimate, expected, rtol=0, atol=1e-12 * scale)
+    some = ind.interlaminar_stresses(structure, 0.0, face_force, boundaries=(6, 2, 4))
+    np.testing.assert_allclose(some, estimate[:, [2, 4, 6]], rtol=0, atol=1e-13 * scale)
+    sums = il.recovery(structure, (2, 4, 6)).sums
+    by_ends, by_ply = pf.ply_sums(structure, sums), pf.ply_sums(structure, sums, per_ply=True)
+    np.testing.assert_allclose(by_ends, by_ply, rtol=0, atol=1e-12 * np.abs(by_ply).max())

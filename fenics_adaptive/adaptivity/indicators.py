@@ -31,6 +31,7 @@ from fenics_adaptive.adaptivity.events import Reasons, note
 from fenics_adaptive.adaptivity.interlaminar import (
     face_geometry,
     face_tractions,
+    initiation_index,
     interface_initiation,
     interlaminar_stresses,
     recovered_interface_stresses,
@@ -38,7 +39,6 @@ from fenics_adaptive.adaptivity.interlaminar import (
 from fenics_adaptive.adaptivity.ply_fields import (
     ElementData,
     element_data,
-    indicator_stresses,
     ply_failure_indices,
     ply_shear_scale,
     ply_strains,
@@ -59,6 +59,7 @@ __all__ = [
     "front_distances",
     "front_requests",
     "indicator_requests",
+    "initiation_index",
     "interface_initiation",
     "interlaminar_stresses",
     "ply_failure_indices",
@@ -121,16 +122,16 @@ def indicator_requests(
             note(reasons, asked, "matrix_damage", worst)
             requests += asked
     if settings.interface_stress is not None:
-        stresses = indicator_stresses(structure)
-        estimate = interlaminar_stresses(structure, t, stresses, face_force)
-        index = interface_initiation(estimate, *strengths)
-        for interface in structure.interfaces.delaminate:
-            flagged = (index[:, interface - 1] >= settings.interface_stress) & (
+        at = structure.interfaces.delaminate  # (the estimate at these boundaries alone)
+        estimate = interlaminar_stresses(structure, t, face_force, boundaries=at)
+        index = initiation_index(estimate, *strengths)
+        for j, interface in enumerate(sorted(set(at))):
+            flagged = (index[:, j] >= settings.interface_stress) & (
                 state[:, interface - 1] < InterfaceState.STRONG
             )
             todo = np.flatnonzero(flagged)
             asked = [(int(c), interface, InterfaceState.STRONG) for c in todo]
-            note(reasons, asked, "interface_stress", index[todo, interface - 1])
+            note(reasons, asked, "interface_stress", index[todo, j])
             requests += asked
     return requests
 

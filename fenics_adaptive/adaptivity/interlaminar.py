@@ -12,9 +12,13 @@ d tau_xz/dz = -(d sigma_xx/dx + d sigma_xy/dy), d tau_yz/dz = -(d sigma_xy/dx + 
 from the free bottom face gives the shear stresses at the interfaces (a linear correction makes
 the top face free of shear traction too), and once more d sigma_zz/dz = -(d tau_xz/dx +
 d tau_yz/dy) the peel stress. That profile is then taken onto the face tractions and scaled to
-the cell's own resultants (``interlaminar_stresses``). Each pass over the cells is a numba
-kernel; the column averages are the only exchanges between ranks (two per estimate).
-``FaceGeometry`` keeps the reference geometry they read.
+the cell's own resultants (``interlaminar_stresses``). All of it is linear in the plies'
+stresses, so it is computed from a few weighted sums of them per boundary asked for
+(``Recovery``: partial resultants and their trapezoidal integrals), which each element gives
+from its strain at its bottom and top (``ply_fields.ply_sums``): the cost grows with the
+boundaries estimated (the indicators ask for the delaminable interfaces), not with the plies.
+Each pass over the cells is a numba kernel; the column averages are the only exchanges between
+ranks (two per estimate). ``FaceGeometry`` keeps the reference geometry they read.
 """
 
 from __future__ import annotations
@@ -27,7 +31,7 @@ import numpy as np
 from dolfinx import la
 from numba import njit
 
-from fenics_adaptive.adaptivity.ply_fields import ply_stresses
+from fenics_adaptive.adaptivity.ply_fields import PlySums, ply_stresses, ply_sums
 from fenics_adaptive.element.geometry import quad_areas
 
 
@@ -157,73 +161,119 @@ def _centre_gradient(corners, averages, d_dx, d_dy, c, j):
     return g_x, g_y
 
 
-@njit(cache=True)
-def _in_plane_stresses(stresses, out):
-    """out[c, 3 k + (0, 1, 2)] = (sigma_xx, sigma_yy, tau_xy) of ply k of cell c."""
-    for c in range(stresses.shape[0]):
-        for k in range(stresses.shape[1]):
-            out[c, 3 * k] = stresses[c, k, 0]
-            out[c, 3 * k + 1] = stresses[c, k, 1]
-            out[c, 3 * k + 2] = stresses[c, k, 5]
+@dataclass(frozen=True)
+class Recovery:
+    """The estimate at some ply boundaries (``boundaries``, 0 the bottom face to n_plies the
+    top one) as linear functionals of the ply-centre stresses, so that the plies' stresses
+    are never formed (``ply_fields.ply_sums``).
+
+    With t_k the ply thicknesses, z_j the boundaries' heights, h the laminate's, the recovered
+    shear at boundary j is tau_j = -D(P_j) + (z_j / h) D(P_n), P_j = sum_{k<j} t_k sigma_k the
+    in-plane stresses' partial resultant, averaged on the columns, D(s) = (d s_xx/dx +
+    d s_xy/dy, d s_xy/dx + d s_yy/dy) at the cell's centre (the second term frees the top
+    face). The peel stress integrates -div tau by the trapezoidal rule, sigma_zz,j = -div
+    sum_l w_jl tau_l, and sum_l w_jl tau_l = -D(Q_j) + c_j D(P_n) with Q_j = sum_l w_jl P_l,
+    c_j = sum_l w_jl z_l / h: a second column average of that, per boundary. The profile's
+    thickness means (the bubble's scale, ``interlaminar_stresses``) are the same sums at the
+    top, and for the peel once more, U = sum_j w_nj Q_j. Rows of ``sums``: P_j and Q_j for
+    every j in ``levels`` (the boundaries and the top face), then U, each as (xx, yy, xy);
+    then the cell's own resultants sum_k t_k (sigma_zz, tau_xz, tau_yz)_k."""
+
+    boundaries: np.ndarray  # (m,) the ply boundaries estimated, sorted
+    levels: np.ndarray  # (L,) the boundaries and the top face
+    at: np.ndarray  # (m,) each boundary's place in ``levels``
+    sums: PlySums
+    thickness: np.ndarray  # (n_plies,) mm
+    trapezoid: np.ndarray  # (n_plies + 1, n_plies + 1) w_jl
+    heights: np.ndarray  # (L,) z_j / h of the levels
+    shifts: np.ndarray  # (L + 1,) c_j of the levels, then c_U = sum_j w_nj c_j
+
+    @classmethod
+    def of(cls, thickness: np.ndarray, boundaries) -> Recovery:
+        t = np.asarray(thickness, dtype=float)
+        n = len(t)
+        boundaries = np.asarray(sorted({int(j) for j in boundaries}), dtype=np.int64)
+        if len(boundaries) and (boundaries[0] < 0 or boundaries[-1] > n):
+            raise ValueError(f"ply boundaries run from 0 to {n}, not {boundaries.tolist()}")
+        levels = np.union1d(boundaries, [n]).astype(np.int64)
+        z = np.concatenate([[0.0], np.cumsum(t)])
+        h = z[-1]
+        below = (np.arange(n)[None, :] < np.arange(n + 1)[:, None]).astype(float)  # [k < j]
+        partial = below * t  # P_j's weights (n + 1, n)
+        w = np.zeros((n + 1, n + 1))  # sigma_zz,j = -div sum_l w_jl tau_l
+        for j in range(n + 1):
+            for k in range(j):
+                w[j, k] += 0.5 * t[k]
+                w[j, k + 1] += 0.5 * t[k]
+        second = w @ partial  # Q_j's weights
+        c = w @ (z / h)
+        in_plane = [*partial[levels], *second[levels], w[n] @ second]
+        weights = [row for f in in_plane for row in (f, f, f)] + [t, t, t]
+        components = [i for _ in in_plane for i in (0, 1, 5)] + [2, 4, 3]
+        return cls(
+            boundaries,
+            levels,
+            np.searchsorted(levels, boundaries),
+            PlySums(np.array(weights), np.array(components, dtype=np.int64)),
+            t,
+            w,
+            z[levels] / h,
+            np.append(c[levels], w[n] @ c),
+        )
+
+
+# per structure (weakly held): its Recovery by boundaries
+_RECOVERIES: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def recovery(structure, boundaries=None) -> Recovery:
+    """The structure's ``Recovery`` at ``boundaries`` (all ply boundaries by default)."""
+    n = structure.laminate.n_plies
+    key = tuple(range(n + 1)) if boundaries is None else tuple(sorted({int(j) for j in boundaries}))
+    known = _RECOVERIES.setdefault(structure, {})
+    if key not in known:
+        known[key] = Recovery.of([p.thickness for p in structure.laminate.plies], key)
+    return known[key]
 
 
 @njit(cache=True)
-def _shear_profile(corners, table, d_dx, d_dy, t, out, shear):
-    """The transverse shears at the ply boundaries, out[c, :, 1:] (tau_xz, tau_yz), from the
-    column averages of the plies' in-plane stresses ``table`` (n_nodes, 3 n_plies + 1): their
-    in-plane gradients integrated through the thickness from the free bottom face (d tau_xz /
-    dz = -(d sigma_xx / dx + d tau_xy / dy), d tau_yz / dz = -(d tau_xy / dx + d sigma_yy /
-    dy)), less the linear part that makes the top face free too. ``shear`` (n_cells,
-    2 (n_plies + 1)): the same, flat, for the next column average."""
-    n_plies = t.shape[0]
-    h = t.sum()
+def _gradient_pair(corners, table, d_dx, d_dy, c, f):
+    """D(s) = (d s_xx/dx + d s_xy/dy, d s_xy/dx + d s_yy/dy) at cell c's centre of the column
+    averages of the in-plane triple f of ``table`` (columns 3 f, 3 f + 1, 3 f + 2)."""
+    dxx_dx, _ = _centre_gradient(corners, table, d_dx, d_dy, c, 3 * f)
+    _, dyy_dy = _centre_gradient(corners, table, d_dx, d_dy, c, 3 * f + 1)
+    dxy_dx, dxy_dy = _centre_gradient(corners, table, d_dx, d_dy, c, 3 * f + 2)
+    return dxx_dx + dxy_dy, dxy_dx + dyy_dy
+
+
+@njit(cache=True)
+def _shears(corners, table, d_dx, d_dy, heights, shifts, shear, lumped):
+    """From the column averages of the rows P_j, Q_j, U (``Recovery``) in ``table``: the
+    recovered shears shear[c, l] (tau_xz, tau_yz) at the levels and, for the second average,
+    lumped[c] = (sum_l w_jl tau_l for each level j, then sum_j w_nj of those), flat."""
+    n_levels = heights.shape[0]
+    top = n_levels - 1
     for c in range(corners.shape[0]):
-        out[c, 0, 1] = 0.0
-        out[c, 0, 2] = 0.0
-        for k in range(n_plies):
-            dxx_dx, _ = _centre_gradient(corners, table, d_dx, d_dy, c, 3 * k)
-            _, dyy_dy = _centre_gradient(corners, table, d_dx, d_dy, c, 3 * k + 1)
-            dxy_dx, dxy_dy = _centre_gradient(corners, table, d_dx, d_dy, c, 3 * k + 2)
-            out[c, k + 1, 1] = out[c, k, 1] - (dxx_dx + dxy_dy) * t[k]
-            out[c, k + 1, 2] = out[c, k, 2] - (dxy_dx + dyy_dy) * t[k]
-        top_xz = out[c, n_plies, 1]
-        top_yz = out[c, n_plies, 2]
-        z = 0.0
-        for j in range(n_plies + 1):
-            out[c, j, 1] -= z / h * top_xz
-            out[c, j, 2] -= z / h * top_yz
-            shear[c, 2 * j] = out[c, j, 1]
-            shear[c, 2 * j + 1] = out[c, j, 2]
-            if j < n_plies:
-                z += t[j]
+        top_x, top_y = _gradient_pair(corners, table, d_dx, d_dy, c, top)
+        for j in range(n_levels):
+            g_x, g_y = _gradient_pair(corners, table, d_dx, d_dy, c, j)
+            shear[c, j, 0] = -g_x + heights[j] * top_x
+            shear[c, j, 1] = -g_y + heights[j] * top_y
+        for j in range(n_levels + 1):
+            g_x, g_y = _gradient_pair(corners, table, d_dx, d_dy, c, n_levels + j)
+            lumped[c, 2 * j] = -g_x + shifts[j] * top_x
+            lumped[c, 2 * j + 1] = -g_y + shifts[j] * top_y
 
 
 @njit(cache=True)
-def _peel_profile(corners, table, d_dx, d_dy, t, out, curvatures, in_plane, curved, level):
-    """The peel stress at the ply boundaries, out[c, :, 0], from the column averages of the
-    shears ``table`` (n_nodes, 2 (n_plies + 1) + 1): d sigma_zz / dz = -(d tau_xz / dx +
-    d tau_yz / dy) integrated from the bottom face (trapezoidal in each ply); on a ``curved``
-    shell plus the in-plane stresses ``in_plane`` (n_cells, 3 n_plies) acting on the
-    curvatures (n_cells, 3: kappa_xx, kappa_yy, kappa_xy, 1/mm) of the mid-surface, taken to
-    each ply's centre at ``level`` (n_plies,) mm from it, kappa_ab sigma_ab: a hoop stress on a
-    tube's wall pulls its plies apart or presses them together."""
-    n_plies = t.shape[0]
+def _peels(corners, table, d_dx, d_dy, peel):
+    """peel[c, j] = -div of the column averages of the pairs j of ``table`` (``_shears``'
+    ``lumped``): the peel stress at each level, then its thickness integral."""
     for c in range(corners.shape[0]):
-        out[c, 0, 0] = 0.0
-        below, _ = _centre_gradient(corners, table, d_dx, d_dy, c, 0)
-        below += _centre_gradient(corners, table, d_dx, d_dy, c, 1)[1]
-        for k in range(n_plies):
-            above, _ = _centre_gradient(corners, table, d_dx, d_dy, c, 2 * (k + 1))
-            above += _centre_gradient(corners, table, d_dx, d_dy, c, 2 * (k + 1) + 1)[1]
-            out[c, k + 1, 0] = out[c, k, 0] - 0.5 * (above + below) * t[k]
-            if curved:  # the surface through the ply's centre: kappa / (1 + kappa z)
-                z = level[k]
-                out[c, k + 1, 0] += t[k] * (
-                    curvatures[c, 0] / (1.0 + curvatures[c, 0] * z) * in_plane[c, 3 * k]
-                    + curvatures[c, 1] / (1.0 + curvatures[c, 1] * z) * in_plane[c, 3 * k + 1]
-                    + 2.0 * curvatures[c, 2] * in_plane[c, 3 * k + 2]
-                )
-            below = above
+        for j in range(peel.shape[1]):
+            d_x, _ = _centre_gradient(corners, table, d_dx, d_dy, c, 2 * j)
+            _, d_y = _centre_gradient(corners, table, d_dx, d_dy, c, 2 * j + 1)
+            peel[c, j] = -(d_x + d_y)
 
 
 def _column_averages(structure, values: np.ndarray) -> np.ndarray:
@@ -240,28 +290,66 @@ def _column_averages(structure, values: np.ndarray) -> np.ndarray:
     return table
 
 
-def recovered_interface_stresses(structure, stresses: np.ndarray | None = None) -> np.ndarray:
-    """(n_cells, n_plies + 1, 3): recovered (sigma_zz, tau_xz, tau_yz) in MPa at every ply
-    boundary of every owned cell, bottom face (0) to top face (n_plies). Each derivative is
-    taken of the values averaged on the columns (the cells around each bottom node, over all
-    ranks), bilinear over the cell's bottom face, at its centre. Collective."""
-    stresses = ply_stresses(structure) if stresses is None else stresses
-    n_cells, n_plies, _ = stresses.shape
-    t = np.array([p.thickness for p in structure.laminate.plies])
+@dataclass
+class _Profile:
+    """A recovery's results per owned cell: ``shear`` (n, L, 2) and ``peel`` (n, L + 1: the
+    levels, then the peel's thickness integral, N/mm) at the levels, the shears' thickness
+    integrals ``shear_integral`` (n, 2) and the cell's own resultants ``own`` (n, 3:
+    sigma_zz, tau_xz, tau_yz integrated over the thickness, N/mm)."""
+
+    shear: np.ndarray
+    peel: np.ndarray
+    shear_integral: np.ndarray
+    own: np.ndarray
+
+
+def _recover(structure, rec: Recovery) -> _Profile:
+    """Collective: the recovered profile of every owned cell at ``rec``'s levels."""
+    sums = ply_sums(structure, rec.sums)
     geometry, corners = face_geometry(structure), structure.bottom_local
-    out = np.empty((n_cells, n_plies + 1, 3))
-    in_plane = np.empty((n_cells, 3 * n_plies))
-    _in_plane_stresses(stresses, in_plane)
-    table = _column_averages(structure, in_plane)
-    shear = np.empty((n_cells, 2 * (n_plies + 1)))
-    _shear_profile(corners, table, geometry.d_dx, geometry.d_dy, t, out, shear)
-    table = _column_averages(structure, shear)
-    curved = geometry.curvatures is not None
-    curvatures = geometry.curvatures if curved else np.zeros((0, 3))
+    n_cells, n_levels = len(sums), len(rec.levels)
+    table = _column_averages(structure, sums[:, : 3 * (2 * n_levels + 1)])
+    shear = np.empty((n_cells, n_levels, 2))
+    lumped = np.empty((n_cells, 2 * (n_levels + 1)))
+    _shears(corners, table, geometry.d_dx, geometry.d_dy, rec.heights, rec.shifts, shear, lumped)
+    table = _column_averages(structure, lumped)
+    peel = np.empty((n_cells, n_levels + 1))
+    _peels(corners, table, geometry.d_dx, geometry.d_dy, peel)
+    if geometry.curvatures is not None:
+        peel += _hoop_peel(structure, rec)
+    return _Profile(shear, peel, lumped[:, 2 * n_levels - 2 : 2 * n_levels], sums[:, -3:])
+
+
+def _hoop_peel(structure, rec: Recovery) -> np.ndarray:
+    """(n_cells, L + 1) what a curved shell's in-plane stresses acting on the curvatures of its
+    mid-surface add to the peel stress at the levels, then to its thickness integral:
+    sum_{k<j} t_k kappa_ab sigma_ab,k, the curvatures (``FaceGeometry.curvatures``) taken to
+    each ply's centre, kappa / (1 + kappa z): a hoop stress on a tube's wall pulls its plies
+    apart or presses them together. From the plies' stresses (a curved shell only)."""
+    kappa = face_geometry(structure).curvatures
+    t = rec.thickness
     level = np.cumsum(t) - 0.5 * t - 0.5 * t.sum()  # each ply's centre from the mid-surface
-    _peel_profile(
-        corners, table, geometry.d_dx, geometry.d_dy, t, out, curvatures, in_plane, curved, level
+    sigma = ply_stresses(structure)
+    per_ply = t * (
+        kappa[:, 0, None] / (1.0 + kappa[:, 0, None] * level) * sigma[:, :, 0]
+        + kappa[:, 1, None] / (1.0 + kappa[:, 1, None] * level) * sigma[:, :, 1]
+        + 2.0 * kappa[:, 2, None] * sigma[:, :, 5]
     )
+    partial = np.concatenate([np.zeros((len(sigma), 1)), np.cumsum(per_ply, axis=1)], axis=1)
+    return np.column_stack([partial[:, rec.levels], partial @ rec.trapezoid[-1]])
+
+
+def recovered_interface_stresses(structure, boundaries=None) -> np.ndarray:
+    """(n_cells, m, 3): recovered (sigma_zz, tau_xz, tau_yz) in MPa at the ply ``boundaries``
+    (m of them, sorted; default all, bottom face (0) to top face (n_plies)) of every owned
+    cell. Each derivative is taken of the values averaged on the columns (the cells around
+    each bottom node, over all ranks), bilinear over the cell's bottom face, at its centre
+    (``Recovery`` says how it is summed). Collective."""
+    rec = recovery(structure, boundaries)
+    profile = _recover(structure, rec)
+    out = np.empty((len(profile.shear), len(rec.boundaries), 3))
+    out[:, :, 0] = profile.peel[:, rec.at]
+    out[:, :, 1:] = profile.shear[:, rec.at]
     return out
 
 
@@ -318,12 +406,13 @@ def face_tractions(structure, nodal_force: np.ndarray) -> np.ndarray:
 def interlaminar_stresses(
     structure,
     t: float = 0.0,
-    stresses: np.ndarray | None = None,
     face_force: np.ndarray | None = None,
+    boundaries=None,
 ) -> np.ndarray:
-    """(n_cells, n_plies + 1, 3): estimate of (sigma_zz, tau_xz, tau_yz) in MPa at every ply
-    boundary of every owned cell, bottom face (0) to top face (n_plies), at time t (s), from
-    three load paths, each exact in the case it is made for:
+    """(n_cells, m, 3): estimate of (sigma_zz, tau_xz, tau_yz) in MPa at the ply
+    ``boundaries`` (m of them, sorted; default all, bottom face (0) to top face (n_plies)) of
+    every owned cell, at time t (s), from three load paths, each exact in the case it is made
+    for:
 
     - the *variation* through the thickness from equilibrium recovery
       (``recovered_interface_stresses``): the shear and peel that in-plane stress gradients
@@ -338,70 +427,91 @@ def interlaminar_stresses(
       arms, a punch, a prescribed motion or contact on the faces): a parabola that vanishes on
       both faces, 6 (z/h)(1 - z/h), scaled so that the estimate has the cell's mean.
 
-    ``stresses``: the ply-centre stresses (``ply_stresses``) if already computed. Collective.
+    The indicators ask for the delaminable interfaces alone: the cost is in the rows of
+    ``Recovery``, two per boundary. Collective.
     """
-    stresses = ply_stresses(structure) if stresses is None else stresses
-    estimate = recovered_interface_stresses(structure, stresses)
-    thickness = np.array([p.thickness for p in structure.laminate.plies])
-    on_faces = structure.loads.cell_face_tractions(t, len(stresses))
+    rec = recovery(structure, boundaries)
+    profile = _recover(structure, rec)
+    n_cells = len(profile.own)
+    on_faces = structure.loads.cell_face_tractions(t, n_cells)
     if face_force is not None:
         on_faces += face_tractions(structure, face_force)
     frames = face_geometry(structure).frames
     if len(frames) and len(on_faces):  # a curved shell: in each cell's frame, as its stresses
         on_faces = np.einsum("cij,csj->csi", frames, on_faces)
-    _fit_to_faces(on_faces, stresses, thickness, estimate)
+    estimate = np.empty((n_cells, len(rec.boundaries), 3))
+    _fit_to_faces(
+        on_faces,
+        profile.shear,
+        profile.peel,
+        profile.shear_integral,
+        profile.own,
+        rec.thickness,
+        rec.heights[rec.at],
+        rec.at,
+        estimate,
+    )
     return estimate
 
 
 @njit(cache=True)
-def _fit_to_faces(on_faces, stresses, t, estimate):
-    """Take the recovered profiles ``estimate`` (n_cells, n_plies + 1, 3), in place, onto the
-    face tractions ``on_faces`` (n_cells, 2 (bottom, top), 3 (x, y, z)) by a linear correction,
-    then onto the cells' own thickness means of (sigma_zz, tau_xz, tau_yz) by the bubble
-    6 (z/h)(1 - z/h) (``interlaminar_stresses``); means linear between ply boundaries."""
+def _fit_to_faces(on_faces, shear, peel, shear_integral, own, t, heights, at, estimate):
+    """The recovered profile (``_Profile``: at the levels, the top face last, and its
+    thickness integrals) at the boundaries ``at`` (their places among the levels; ``heights``
+    z / h) into ``estimate`` (n_cells, m, 3), taken onto the face tractions ``on_faces``
+    (n_cells, 2 (bottom, top), 3 (x, y, z)) by a linear correction, then onto the cells' own
+    thickness integrals ``own`` of (sigma_zz, tau_xz, tau_yz) by the bubble
+    6 (z/h)(1 - z/h) (``interlaminar_stresses``); integrals by the trapezoidal rule over the
+    plies, as the bubble's own mean."""
     n_plies = t.shape[0]
     h = t.sum()
-    zr = np.empty(n_plies + 1)  # z / h at the ply boundaries
-    zr[0] = 0.0
-    for k in range(n_plies):
-        zr[k + 1] = zr[k] + t[k] / h
+    top = shear.shape[1] - 1
     bubble_mean = 0.0
+    zr = 0.0
     for k in range(n_plies):
-        bubble_mean += t[k] * 3.0 * (zr[k + 1] * (1.0 - zr[k + 1]) + zr[k] * (1.0 - zr[k])) / h
-    own_component = (2, 4, 3)  # sigma_zz, tau_xz, tau_yz in the Voigt stress
+        above = zr + t[k] / h
+        bubble_mean += t[k] * 3.0 * (above * (1.0 - above) + zr * (1.0 - zr)) / h
+        zr = above
     face_component = (2, 0, 1)
     for c in range(estimate.shape[0]):
         for m in range(3):
             # sigma_i3 on the faces: the top face's outward normal is +z (sigma_i3 = T_i), the
             # bottom face's -z (sigma_i3 = -T_i)
             bottom = -on_faces[c, 0, face_component[m]]
-            top = on_faces[c, 1, face_component[m]]
-            jump = top - bottom - estimate[c, n_plies, m]
-            for j in range(n_plies + 1):
-                estimate[c, j, m] += bottom + zr[j] * jump
-            own = 0.0
-            mean = 0.0
-            for k in range(n_plies):
-                own += t[k] * stresses[c, k, own_component[m]]
-                mean += t[k] * 0.5 * (estimate[c, k + 1, m] + estimate[c, k, m])
-            missing = (own - mean) / h / bubble_mean
-            for j in range(n_plies + 1):
-                estimate[c, j, m] += missing * 6.0 * zr[j] * (1.0 - zr[j])
+            upper = on_faces[c, 1, face_component[m]]
+            if m == 0:
+                at_top, integral = peel[c, top], peel[c, top + 1]
+            else:
+                at_top, integral = shear[c, top, m - 1], shear_integral[c, m - 1]
+            jump = upper - bottom - at_top
+            # the linear correction's integral is h (bottom + jump / 2)
+            missing = (own[c, m] - integral - h * (bottom + 0.5 * jump)) / h / bubble_mean
+            for j in range(at.shape[0]):
+                value = peel[c, at[j]] if m == 0 else shear[c, at[j], m - 1]
+                z = heights[j]
+                estimate[c, j, m] = value + bottom + z * jump + missing * 6.0 * z * (1.0 - z)
 
 
 def interface_initiation(recovered: np.ndarray, strength_n: float, strength_s: float):
-    """sqrt((<sigma_zz>/N)^2 + (tau/S)^2) at the inner interfaces 1 .. n-1: (n_cells, n - 1)."""
-    out = np.empty((recovered.shape[0], recovered.shape[1] - 2))
-    _initiation(recovered, 1.0 / strength_n, 1.0 / strength_s, out)
+    """sqrt((<sigma_zz>/N)^2 + (tau/S)^2) at the inner interfaces 1 .. n-1 of an estimate at
+    every ply boundary (n_cells, n + 1, 3): (n_cells, n - 1)."""
+    return initiation_index(recovered[:, 1:-1], strength_n, strength_s)
+
+
+def initiation_index(estimate: np.ndarray, strength_n: float, strength_s: float) -> np.ndarray:
+    """sqrt((<sigma_zz>/N)^2 + (tau/S)^2) (n_cells, m) of stresses (n_cells, m, 3: sigma_zz,
+    tau_xz, tau_yz, MPa) against the strengths N and S (MPa)."""
+    out = np.empty(estimate.shape[:2])
+    _initiation(np.ascontiguousarray(estimate), 1.0 / strength_n, 1.0 / strength_s, out)
     return out
 
 
 @njit(cache=True)
-def _initiation(recovered, per_n, per_s, out):
-    """``interface_initiation`` with the strengths' reciprocals."""
+def _initiation(estimate, per_n, per_s, out):
+    """``initiation_index`` with the strengths' reciprocals."""
     for c in range(out.shape[0]):
         for j in range(out.shape[1]):
-            peel = max(recovered[c, j + 1, 0], 0.0) * per_n
-            shear_xz = recovered[c, j + 1, 1] * per_s
-            shear_yz = recovered[c, j + 1, 2] * per_s
+            peel = max(estimate[c, j, 0], 0.0) * per_n
+            shear_xz = estimate[c, j, 1] * per_s
+            shear_yz = estimate[c, j, 2] * per_s
             out[c, j] = math.sqrt(peel * peel + shear_xz * shear_xz + shear_yz * shear_yz)

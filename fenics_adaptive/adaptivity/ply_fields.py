@@ -13,7 +13,7 @@ and stiffness); a refinement keeps the maps of the elements it did not change.
 from __future__ import annotations
 
 import weakref
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from numba import njit
@@ -49,8 +49,15 @@ def _inverse_3x3(A, out):
     return det
 
 
+# what ``_ply_kernel`` makes of the strain at each ply's centre
+STRAINS, STRESSES, SUMS = 0, 1, 2
+# an element is a prism when its top face's edges equal its bottom face's to this share of its
+# size: a mesh's coordinates, computed apart for the two faces, differ in the last bits
+PRISM_TOLERANCE = 1.0e-12
+
+
 @njit(cache=True)
-def _ply_center_strains(
+def _ply_kernel(
     X_base,
     X_extra,
     u_base,
@@ -60,43 +67,60 @@ def _ply_center_strains(
     plies,
     fractions,
     centre_maps,
-    stiffness,
     root,
-    to_stress,
-    out,
     corotational,
     frames,
+    mode,
+    stiffness,
+    out,
+    pattern,
+    of_pattern,
+    of_ply,
+    kinds,
+    per_ply,
+    sums,
 ):
-    """Small strain (Voigt, engineering shears) at the in-plane centre of every ply of every
-    element, at the ply's mid-thickness, into out[cell, ply]; with the element's enhanced
-    thickness strain alpha g(zeta) / |det J|, alpha its parameter at the in-plane centre, the
-    map ``centre_maps[e]`` (``ElementData.centre_maps``) of its nodes' displacements.
+    """The small strain (Voigt, engineering shears) at the in-plane centre of every ply of every
+    element, at the ply's mid-thickness, with the element's enhanced thickness strain
+    alpha g(zeta) / |det J| (alpha its parameter at the in-plane centre, the map
+    ``centre_maps[e]`` (``ElementData.centre_maps``) of its nodes' displacements), and what
+    ``mode`` makes of it:
+
+    - ``STRAINS``: the strain into out[cell, ply];
+    - ``STRESSES``: the ply's stress D C_k (D strain) into out[cell, ply] (``stiffness``
+      (n_plies, 6, 6), monoclinic; D the element's shear scale, ``root`` (n_elements, 2) its
+      sqrt k_xz, sqrt k_yz: ``ply_stresses``);
+    - ``SUMS``: sums[cell, r] += sum_k w_rk sigma_k[i_r] over the element's plies
+      (``PlySums``). Along the axis of a prism the strain is linear in zeta, eps = (1 - zeta)
+      eps_bottom + zeta eps_top, so each row is fixed coefficients of the element's ply range
+      (``of_pattern[pattern[e]]``, ``_sum_matrices``) on the strain at its bottom and top,
+      zeta = 0 and 1; otherwise (or with ``per_ply``) of each ply (``of_ply[k]``) on that
+      ply's strain. A normal stress row (``kinds[r]`` 0) reads the normal strains; a
+      transverse shear row (3: tau_yz, 4: tau_xz) gamma_yz and gamma_xz apart, scaled by the
+      element's shear factors (``_scaled``).
+
     ``corotational`` (finite kinematics): in the element's co-rotated frame, as the damaged
     kernel computes it (``subelement.element_rotation``): the displacement there, and alpha
     from it. ``frames`` (n_elements, 3, 3): on a curved shell, each element's frame, in which
     its strain is taken (``subelement.add_damaged_subelement_forces``); (0, 3, 3): the global
-    frame. ``to_stress``: the ply's stress D C_k (D strain) instead (``stiffness``
-    (n_plies, 6, 6), monoclinic; D the element's shear scale, ``root`` (n_elements, 2) its
-    sqrt k_xz, sqrt k_yz: ``ply_stresses``).
+    frame.
 
     On the element's axis (xi = eta = 1/2) the trilinear shape functions' in-plane derivatives
     are (1 - zeta) times the bottom face's plus zeta times the top face's, and the thickness
     derivative does not depend on zeta: the Jacobian and the displacement gradient (in the
     element's coordinates) are formed once per element, as a bottom, a top and a normal part,
-    and combined per ply."""
+    and combined per ply. (One kernel for the three: a call per ply to a shared helper cost
+    more than the ply's arithmetic.)"""
     n_base = X_base.shape[0]
-    X = np.empty((8, 3))
-    u = np.empty((8, 3))
+    X, u, u_global = np.empty((8, 3)), np.empty((8, 3)), np.empty((8, 3))
     parts = np.empty((2, 3, 5))  # (X, u), component, (d_xi bottom, top, d_eta bottom, top, d_zeta)
-    J = np.empty((3, 3))
-    G = np.empty((3, 3))
-    Jinv = np.empty((3, 3))
-    grad = np.empty((3, 3))
+    J, G, Jinv, grad = np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3))
     ends = np.empty((2, 3, 3))
     strain = np.empty(6)
+    # a prism's normal strains at its bottom and top, then gamma_yz, gamma_xz there (``SUMS``)
+    both = np.empty(12)
     R = np.eye(3)
-    u_global = np.empty((8, 3))
-    enhanced = 0.0  # alpha / |det J| of the element (a prism) or of the ply
+    n_rows = kinds.shape[0]
     for e in range(nodes.shape[0]):
         gather_nodes(nodes[e], n_base, X_base, X_extra, X)
         if corotational:
@@ -126,12 +150,20 @@ def _ply_center_strains(
                     parts[f, i, 4] += 0.25 * s_zeta * value
         first, stop = plies[e, 0], plies[e, 1]
         bottom, top_f = fractions[first], fractions[stop]
-        # a prism (top face a translate of the bottom one): J does not vary along the axis,
-        # and grad u = G J^-1 is linear in zeta there: two products per element
+        # a prism (top face a translate of the bottom one, to round-off of the coordinates): J
+        # does not vary along the axis, and grad u = G J^-1 is linear in zeta there: two
+        # products per element
+        size = 0.0
+        for i in range(3):
+            size = max(size, abs(parts[0, i, 0]) + abs(parts[0, i, 2]) + abs(parts[0, i, 4]))
         prism = True
         for i in range(3):
-            if parts[0, i, 0] != parts[0, i, 1] or parts[0, i, 2] != parts[0, i, 3]:
+            if (
+                abs(parts[0, i, 0] - parts[0, i, 1]) > PRISM_TOLERANCE * size
+                or abs(parts[0, i, 2] - parts[0, i, 3]) > PRISM_TOLERANCE * size
+            ):
                 prism = False
+        enhanced = 0.0  # alpha / |det J| of the element (a prism) or of the ply
         if prism:
             for i in range(3):
                 J[i, 0] = parts[0, i, 0]
@@ -143,9 +175,16 @@ def _ply_center_strains(
                     g0, g1, g2 = parts[1, i, f], parts[1, i, 2 + f], parts[1, i, 4]
                     for r in range(3):
                         ends[f, i, r] = g0 * Jinv[0, r] + g1 * Jinv[1, r] + g2 * Jinv[2, r]
+        ends_only = mode == SUMS and prism and not per_ply  # the strain at zeta = 0 and 1
         span = 1.0 / (top_f - bottom)
-        for k in range(first, stop):
-            zeta = (0.5 * (fractions[k] + fractions[k + 1]) - bottom) * span
+        c = cells[e]
+        points = 2 if ends_only else stop - first
+        for point in range(points):
+            k = first + point
+            if ends_only:
+                zeta = float(point)
+            else:
+                zeta = (0.5 * (fractions[k] + fractions[k + 1]) - bottom) * span
             if prism:
                 for i in range(3):
                     for r in range(3):
@@ -164,14 +203,29 @@ def _ply_center_strains(
                         grad[i, r] = (
                             G[i, 0] * Jinv[0, r] + G[i, 1] * Jinv[1, r] + G[i, 2] * Jinv[2, r]
                         )
-            c = cells[e]
             strain[0] = grad[0, 0]
             strain[1] = grad[1, 1]
             strain[2] = grad[2, 2] + enhanced * (zeta - 0.5)
             strain[3] = grad[1, 2] + grad[2, 1]
             strain[4] = grad[0, 2] + grad[2, 0]
             strain[5] = grad[0, 1] + grad[1, 0]
-            if to_stress:  # monoclinic plies: the normal and the transverse shear parts apart
+            if ends_only:  # (normal strains, then the shears, as the rows take them)
+                for q in range(4):
+                    both[4 * point + q] = strain[NORMAL[q]]
+                both[8 + point] = strain[3]
+                both[10 + point] = strain[4]
+            elif mode == SUMS:
+                for r in range(n_rows):
+                    if kinds[r] == 0:
+                        total = 0.0
+                        for q in range(4):
+                            total += of_ply[k, r, q] * strain[NORMAL[q]]
+                        sums[c, r] += total
+                    else:
+                        a = of_ply[k, r, 0] * strain[3]
+                        b = of_ply[k, r, 1] * strain[4]
+                        sums[c, r] += _scaled(kinds[r], root[e, 0], root[e, 1], a, b)
+            elif mode == STRESSES:  # monoclinic plies: the normal and transverse shear parts
                 for a in range(4):
                     i = NORMAL[a]
                     total = 0.0
@@ -185,6 +239,30 @@ def _ply_center_strains(
             else:
                 for i in range(6):
                     out[c, k, i] = strain[i]
+        if ends_only:
+            p = pattern[e]
+            for r in range(n_rows):
+                if kinds[r] == 0:
+                    total = 0.0
+                    for q in range(8):
+                        total += of_pattern[p, r, q] * both[q]
+                    sums[c, r] += total
+                else:
+                    a = of_pattern[p, r, 0] * both[8] + of_pattern[p, r, 1] * both[9]
+                    b = of_pattern[p, r, 2] * both[10] + of_pattern[p, r, 3] * both[11]
+                    sums[c, r] += _scaled(kinds[r], root[e, 0], root[e, 1], a, b)
+
+
+@njit(cache=True)
+def _scaled(kind, root_xz, root_yz, a, b):
+    """A ``PlySums`` row's two parts a, b combined with an element's shear factors: a for a
+    normal stress, r_yz^2 a + r_yz r_xz b for tau_yz (``kind`` 3), r_xz r_yz a + r_xz^2 b for
+    tau_xz (4)."""
+    if kind == 3:
+        return root_yz * (root_yz * a + root_xz * b)
+    if kind == 4:
+        return root_xz * (root_yz * a + root_xz * b)
+    return a
 
 
 @njit(cache=True)
@@ -204,7 +282,8 @@ class ElementData:
     nodal displacements (8, 3) to its enhanced thickness strain parameter at the in-plane
     centre (the mean of its four lines' small-strain maps, undamaged:
     ``RuleTable.enhanced_parameter_maps``), the square roots of its shear correction factors, the
-    plies' stiffnesses, and where each (cell, interface) keeps its cohesive damage.
+    plies' stiffnesses, where each (cell, interface) keeps its cohesive damage, and the distinct
+    ply ranges of the elements (``ply_sums`` makes a matrix per range).
     ``subelements``: the structure's ``SubelementSet`` they were made for (a refinement makes
     a new one); ``keys``: each element's (cell, first ply, stop ply) as one integer, by which a
     refinement keeps the maps of the elements it did not change."""
@@ -219,8 +298,11 @@ class ElementData:
     stiffness: np.ndarray  # (n_plies, 6, 6) MPa, shell frame
     cohesive_rows: np.ndarray  # (m, 3) cell, interface, damage row (``Structure.damage_rows``)
     fractions: np.ndarray  # (n_plies + 1,) the ply boundaries' height in the laminate, 0 to 1
-    stresses: np.ndarray  # (n_owned_cells, n_plies, 6) the indicators' ply stresses, zero at first
     frames: np.ndarray  # (n_elements, 3, 3) on a curved shell, (0, 3, 3) flat (``element_frames``)
+    patterns: np.ndarray  # (n_patterns, 2) the distinct (first ply, stop ply) of the elements
+    pattern: np.ndarray  # (n_elements,) each element's row of ``patterns``
+    # ``ply_sums``' matrices by ``PlySums.key``, for these elements' patterns
+    sum_matrices: dict = field(default_factory=dict)
 
     @classmethod
     def of(cls, structure, previous: ElementData | None = None) -> ElementData:
@@ -245,6 +327,7 @@ class ElementData:
         centre_maps[todo] = maps.mean(axis=1)
         root = np.sqrt(table.shear_factors(plies))  # (n_elements, 2)
         stiffness = np.array(structure.laminate.ply_stiffnesses()).reshape(n_plies, 6, 6)
+        patterns, pattern = np.unique(plies.reshape(-1, 2), axis=0, return_inverse=True)
         return cls(
             structure.refined_cells.subelements,
             nodes,
@@ -258,8 +341,9 @@ class ElementData:
                 [(c, i, row) for (c, i), row in structure.damage_rows.items()], dtype=np.int64
             ).reshape(-1, 3),
             np.asarray(structure.laminate.ply_fractions, dtype=float),
-            np.zeros((structure.base.n_owned_cells, n_plies, 6)),
             frames,
+            patterns.reshape(-1, 2).astype(np.int64),
+            pattern.reshape(-1).astype(np.int64),
         )
 
 
@@ -275,30 +359,41 @@ def element_data(structure) -> ElementData:
     return data
 
 
-def _ply_field(structure, to_stress: bool, out: np.ndarray) -> np.ndarray:
-    """The ply-centre strains, or stresses (``to_stress``), of every ply into ``out``
-    (n_owned_cells, n_plies, 6), which the call overwrites where a ply is (zero it first for
-    a layerwise model, whose cells hold some plies each). Returns ``out``."""
+def _run_kernel(structure, mode: int, out=None, sums_args=None) -> None:
+    """``_ply_kernel`` on the structure's elements in ``mode``: into ``out`` (n_owned_cells,
+    n_plies, 6) for ``STRAINS`` and ``STRESSES``; ``sums_args`` (pattern, of_pattern, of_ply,
+    kinds, per_ply, sums) for ``SUMS``. The arrays a mode does not use are empty."""
     data = element_data(structure)
-    u_base = structure.base.u.x.array.reshape(-1, 3)
-    u_extra = structure.extra.vectors["u"].array.reshape(-1, 3)
-    _ply_center_strains(
+    if out is None:
+        out = np.zeros((0, 0, 6))
+    if sums_args is None:
+        empty = (np.zeros((0, 0, 8)), np.zeros((0, 0, 4)), np.zeros(0, np.int64))
+        sums_args = (data.pattern, *empty, False, np.zeros((0, 0)))
+    _ply_kernel(
         structure.X_base,
         structure.extra.vectors["X"].array.reshape(-1, 3),
-        u_base,
-        u_extra,
+        structure.base.u.x.array.reshape(-1, 3),
+        structure.extra.vectors["u"].array.reshape(-1, 3),
         data.nodes,
         data.cells,
         data.plies,
         data.fractions,
         data.centre_maps,
-        data.stiffness,
         data.shear_roots,
-        to_stress,
-        out,
         structure.base.finite,  # the damaged kernel's co-rotated frame (and objective)
         data.frames,
+        mode,
+        data.stiffness,
+        out,
+        *sums_args,
     )
+
+
+def _ply_field(structure, to_stress: bool, out: np.ndarray) -> np.ndarray:
+    """The ply-centre strains, or stresses (``to_stress``), of every ply into ``out``
+    (n_owned_cells, n_plies, 6), which the call overwrites where a ply is (zero it first for
+    a layerwise model, whose cells hold some plies each). Returns ``out``."""
+    _run_kernel(structure, STRESSES if to_stress else STRAINS, out)
     return out
 
 
@@ -330,10 +425,69 @@ def ply_stresses(structure) -> np.ndarray:
     return _ply_field(structure, True, np.zeros(shape))
 
 
-def indicator_stresses(structure) -> np.ndarray:
-    """``ply_stresses`` into the indicators' own array (``ElementData.stresses``): valid until
-    the next call."""
-    return _ply_field(structure, True, element_data(structure).stresses)
+@dataclass(frozen=True)
+class PlySums:
+    """Rows of weighted sums of every cell's ply-centre stresses, sum_k w_rk sigma_k[i_r]
+    (``ply_sums``): ``weights`` (n_rows, n_plies), e.g. ply thicknesses in mm for resultants
+    (N/mm), and ``components`` (n_rows,) the Voigt component i_r of each row."""
+
+    weights: np.ndarray
+    components: np.ndarray
+
+    @property
+    def key(self) -> bytes:
+        """What identifies these rows (the cache key of their matrices)."""
+        return self.weights.tobytes() + np.asarray(self.components, np.int64).tobytes()
+
+
+def _sum_matrices(data: ElementData, sums: PlySums) -> tuple:
+    """(of_pattern (n_patterns, n_rows, 8), of_ply (n_plies, n_rows, 4), kinds (n_rows,)): the
+    coefficients ``_ply_kernel`` takes ``sums``' rows with. Of a ply: a normal stress row
+    w_rk C_k[i, NORMAL] (on the normal strains); a transverse shear row i (3: yz, 4: xz)
+    w_rk C_k[i, 3], w_rk C_k[i, 4] (on gamma_yz, gamma_xz). Of a ply range [first, stop)
+    (an element's): the sums of its plies' with weights 1 - zeta_k on the bottom strains and
+    zeta_k on the top ones; a shear row's four: on gamma_yz bottom, top, gamma_xz bottom,
+    top."""
+    stiffness, f = data.stiffness, data.fractions
+    n_plies, n_rows = stiffness.shape[0], len(sums.components)
+    of_ply = np.zeros((n_plies, n_rows, 4))
+    kinds = np.asarray(sums.components, dtype=np.int64).copy()
+    normal = list(NORMAL)
+    for r, i in enumerate(kinds):
+        w = sums.weights[r]
+        if i in (3, 4):
+            of_ply[:, r, :2] = w[:, None] * stiffness[:, i, 3:5]
+        else:
+            of_ply[:, r, :] = w[:, None] * stiffness[:, i, normal]
+            kinds[r] = 0
+    of_pattern = np.zeros((len(data.patterns), n_rows, 8))
+    shear = kinds > 0
+    for p, (first, stop) in enumerate(data.patterns):
+        span = 1.0 / (f[stop] - f[first])
+        for k in range(first, stop):  # zeta as the kernel takes it
+            zeta = (0.5 * (f[k] + f[k + 1]) - f[first]) * span
+            of_pattern[p, ~shear, :4] += (1.0 - zeta) * of_ply[k, ~shear]
+            of_pattern[p, ~shear, 4:] += zeta * of_ply[k, ~shear]
+            of_pattern[p, shear, 0:4:2] += (1.0 - zeta) * of_ply[k, shear, :2]
+            of_pattern[p, shear, 1:4:2] += zeta * of_ply[k, shear, :2]
+    return of_pattern, of_ply, kinds
+
+
+def ply_sums(structure, sums: PlySums, per_ply: bool = False) -> np.ndarray:
+    """(n_owned_cells, n_rows): sum_k w_rk sigma_k[i_r] over the plies of each cell (``sums``),
+    sigma_k the ply-centre stress of ``ply_stresses``, from whichever elements hold the plies.
+    Each element's rows are a fixed matrix of its ply range times its strain at its bottom and
+    top (exact along the axis of a prism, where the strain is linear in the height); other
+    elements, or all with ``per_ply``, go ply by ply (``_ply_kernel``)."""
+    data = element_data(structure)
+    matrices = data.sum_matrices.get(sums.key)
+    if matrices is None:
+        matrices = data.sum_matrices[sums.key] = _sum_matrices(data, sums)
+    of_pattern, of_ply, kinds = matrices
+    out = np.zeros((structure.base.n_owned_cells, len(kinds)))
+    args = (data.pattern, of_pattern, of_ply, kinds, per_ply, out)
+    _run_kernel(structure, SUMS, sums_args=args)
+    return out
 
 
 def to_material_frame(stresses: np.ndarray, angles_deg: np.ndarray) -> np.ndarray:
