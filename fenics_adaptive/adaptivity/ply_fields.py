@@ -303,6 +303,9 @@ class ElementData:
     pattern: np.ndarray  # (n_elements,) each element's row of ``patterns``
     # ``ply_sums``' matrices by ``PlySums.key``, for these elements' patterns
     sum_matrices: dict = field(default_factory=dict)
+    # the same per (key, first, stop) and per key (of_ply, kinds): kept when the structure
+    # refines (``_sum_matrices``)
+    range_matrices: dict = field(default_factory=dict)
 
     @classmethod
     def of(cls, structure, previous: ElementData | None = None) -> ElementData:
@@ -327,7 +330,8 @@ class ElementData:
         centre_maps[todo] = maps.mean(axis=1)
         root = np.sqrt(table.shear_factors(plies))  # (n_elements, 2)
         stiffness = np.array(structure.laminate.ply_stiffnesses()).reshape(n_plies, 6, 6)
-        patterns, pattern = np.unique(plies.reshape(-1, 2), axis=0, return_inverse=True)
+        ranges, pattern = np.unique(plies[:, 0] * (n_plies + 1) + plies[:, 1], return_inverse=True)
+        patterns = np.column_stack(np.divmod(ranges, n_plies + 1))
         return cls(
             structure.refined_cells.subelements,
             nodes,
@@ -344,6 +348,7 @@ class ElementData:
             frames,
             patterns.reshape(-1, 2).astype(np.int64),
             pattern.reshape(-1).astype(np.int64),
+            range_matrices={} if previous is None else previous.range_matrices,
         )
 
 
@@ -447,29 +452,33 @@ def _sum_matrices(data: ElementData, sums: PlySums) -> tuple:
     w_rk C_k[i, 3], w_rk C_k[i, 4] (on gamma_yz, gamma_xz). Of a ply range [first, stop)
     (an element's): the sums of its plies' with weights 1 - zeta_k on the bottom strains and
     zeta_k on the top ones; a shear row's four: on gamma_yz bottom, top, gamma_xz bottom,
-    top."""
-    stiffness, f = data.stiffness, data.fractions
-    n_plies, n_rows = stiffness.shape[0], len(sums.components)
-    of_ply = np.zeros((n_plies, n_rows, 4))
-    kinds = np.asarray(sums.components, dtype=np.int64).copy()
-    normal = list(NORMAL)
-    for r, i in enumerate(kinds):
-        w = sums.weights[r]
-        if i in (3, 4):
-            of_ply[:, r, :2] = w[:, None] * stiffness[:, i, 3:5]
-        else:
-            of_ply[:, r, :] = w[:, None] * stiffness[:, i, normal]
-            kinds[r] = 0
-    of_pattern = np.zeros((len(data.patterns), n_rows, 8))
-    shear = kinds > 0
-    for p, (first, stop) in enumerate(data.patterns):
-        span = 1.0 / (f[stop] - f[first])
-        for k in range(first, stop):  # zeta as the kernel takes it
-            zeta = (0.5 * (f[k] + f[k + 1]) - f[first]) * span
-            of_pattern[p, ~shear, :4] += (1.0 - zeta) * of_ply[k, ~shear]
-            of_pattern[p, ~shear, 4:] += zeta * of_ply[k, ~shear]
-            of_pattern[p, shear, 0:4:2] += (1.0 - zeta) * of_ply[k, shear, :2]
-            of_pattern[p, shear, 1:4:2] += zeta * of_ply[k, shear, :2]
+    top. Each range's are made once (``ElementData.range_matrices``)."""
+    known = data.range_matrices
+    if sums.key not in known:
+        stiffness = data.stiffness
+        of_ply = np.zeros((stiffness.shape[0], len(sums.components), 4))
+        kinds = np.asarray(sums.components, dtype=np.int64).copy()
+        for r, i in enumerate(kinds):
+            if i in (3, 4):
+                of_ply[:, r, :2] = sums.weights[r][:, None] * stiffness[:, i, 3:5]
+            else:
+                of_ply[:, r, :] = sums.weights[r][:, None] * stiffness[:, i, list(NORMAL)]
+                kinds[r] = 0
+        known[sums.key] = (of_ply, kinds)
+    of_ply, kinds = known[sums.key]
+    shear, f = kinds > 0, data.fractions
+    of_pattern = np.zeros((len(data.patterns), len(kinds), 8))
+    for p, (first, stop) in enumerate(data.patterns.tolist()):
+        if (sums.key, first, stop) not in known:
+            k = np.arange(first, stop)
+            zeta = (0.5 * (f[k] + f[k + 1]) - f[first]) * (1.0 / (f[stop] - f[first]))
+            low = np.einsum("k,krq->rq", 1.0 - zeta, of_ply[first:stop])
+            high = np.einsum("k,krq->rq", zeta, of_ply[first:stop])
+            matrix = np.zeros((len(kinds), 8))
+            matrix[~shear, :4], matrix[~shear, 4:] = low[~shear], high[~shear]
+            matrix[shear, 0:4:2], matrix[shear, 1:4:2] = low[shear, :2], high[shear, :2]
+            known[sums.key, first, stop] = matrix
+        of_pattern[p] = known[sums.key, first, stop]
     return of_pattern, of_ply, kinds
 
 
