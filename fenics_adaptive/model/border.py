@@ -86,12 +86,17 @@ def column_counts(comm, base_map, bottom_local: np.ndarray, state: np.ndarray) -
     n_active = len(active)
     counts = la.vector(base_map, bs=1 + 2 * n_active)
     table = counts.array.reshape(-1, 1 + 2 * n_active)
-    refined = (state[:, active] >= InterfaceState.WEAK).astype(np.float64)
-    strong = (state[:, active] == InterfaceState.STRONG).astype(np.float64)
-    for a in range(bottom_local.shape[1]):
-        np.add.at(table[:, 0], bottom_local[:, a], 1.0)
-        np.add.at(table[:, 1 : 1 + n_active], bottom_local[:, a], refined)
-        np.add.at(table[:, 1 + n_active :], bottom_local[:, a], strong)
+    per_cell = np.hstack(  # (n_cells, 1 + 2 n_active): the cell, refined, strong
+        [
+            np.ones((len(state), 1)),
+            state[:, active] >= InterfaceState.WEAK,
+            state[:, active] == InterfaceState.STRONG,
+        ]
+    )
+    corners = bottom_local.ravel()  # each cell's bottom nodes, cell by cell
+    for column in range(per_cell.shape[1]):
+        weights = np.repeat(per_cell[:, column], bottom_local.shape[1])
+        table[:, column] += np.bincount(corners, weights, minlength=len(table))
     counts.scatter_reverse(la.InsertMode.add)
     counts.scatter_forward()
     out = np.zeros((len(table), 1 + 2 * n_interfaces), dtype=np.int32)

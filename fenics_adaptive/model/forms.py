@@ -98,6 +98,7 @@ class LayeredModel:
     _cell_time_steps: np.ndarray | None = None  # cell_time_steps, once computed
     _cells_pending: bool = False  # set_ufl_cells(defer=True) recorded cells the forms lack
     _frames: np.ndarray | None = None  # cell_frames, once computed
+    _face_nodes: dict = field(default_factory=dict)  # loading.face_nodes, by face and range
 
     @property
     def finite(self) -> bool:

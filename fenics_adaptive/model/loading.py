@@ -233,7 +233,19 @@ def face_nodes(
 ) -> np.ndarray:
     """Local nodes (owned and ghosts, sorted) on a face group. ``a&b`` names the nodes on both
     face a and face b (for example ``x1&top``: the top edge of the end x1); ``x_range`` keeps
-    only those with x_min <= x <= x_max (a line of nodes across the width, or a pad)."""
+    only those with x_min <= x <= x_max (a line of nodes across the width, or a pad). Found
+    once per model and face (the base mesh never changes: a refinement asks again for each
+    motion); a copy is returned."""
+    key = (face, None if x_range is None else tuple(x_range))
+    if key not in model._face_nodes:
+        model._face_nodes[key] = _located_face_nodes(model, face, x_range)
+    return model._face_nodes[key].copy()
+
+
+def _located_face_nodes(
+    model: LayeredModel, face: str, x_range: tuple[float, float] | None
+) -> np.ndarray:
+    """``face_nodes`` found from the mesh's facet groups."""
     names = face.split("&")
     nodes = None
     for name in names:
@@ -423,11 +435,14 @@ def extra_node_prescriptions(
     if extra.index_map.size_global == 0:  # the same on every rank
         return prescribed
     n_base = base.V.dofmap.index_map.size_local + base.V.dofmap.index_map.num_ghosts
-    parts = [enr.key_parts(k, n_interfaces) for k in extra.index]
-    local = np.fromiter(extra.index.values(), dtype=np.int64)
-    bottom = np.array([extra.local_base_node(g) for g, _, _ in parts], dtype=np.int64)
-    top = np.array([column_top[b] for b in bottom], dtype=np.int64)
-    interface = np.array([i for _, i, _ in parts], dtype=np.int64)
+    keys = np.fromiter(extra.index.keys(), dtype=np.int64, count=len(extra.index))
+    local = np.fromiter(extra.index.values(), dtype=np.int64, count=len(extra.index))
+    rest = keys // 2  # (``enrichment.key_parts`` on arrays: the node set is keys % 2)
+    bottom = extra.local_base_nodes(rest // n_interfaces)
+    interface = rest % n_interfaces + 1
+    top_of = np.full(n_base, -1, dtype=np.int64)
+    top_of[np.fromiter(column_top.keys(), np.int64)] = np.fromiter(column_top.values(), np.int64)
+    top = top_of[bottom]
     for m, motion in enumerate(motions):
         if motion.face.startswith("interface"):
             on = interface == int(motion.face.removeprefix("interface"))
