@@ -41,7 +41,8 @@ class FaceGeometry:
     in-plane gradient operator of its bottom face at the centre (``d_dx``, ``d_dy`` (n, 4):
     d/dx of values at the face's four nodes, tensor order), per side (bottom, top) each node's
     tributary face area (mm^2, owned and ghost entries) and the owned nodes on it, the cells'
-    centroids, and work vectors (the face tractions', the column averages' by width)."""
+    centroids, and work vectors (the face tractions', both faces' on a node: 6 entries; the
+    column averages' by width)."""
 
     d_dx: np.ndarray
     d_dy: np.ndarray
@@ -81,7 +82,7 @@ class FaceGeometry:
         if len(frames):
             curvatures = cell_curvatures(structure.cell_vertices(), frames)
         return cls(
-            d_dx, d_dy, areas, owned, la.vector(index_map, bs=3), centroids, curvatures, frames
+            d_dx, d_dy, areas, owned, la.vector(index_map, bs=6), centroids, curvatures, frames
         )
 
     def sums_vector(self, structure, width: int) -> la.Vector:
@@ -370,14 +371,16 @@ def cell_curvatures(X: np.ndarray, frames: np.ndarray) -> np.ndarray:
 
 @njit(cache=True)
 def _face_means(nodes, values, out, side):
-    """out[c, side] = the mean of values (n_nodes, 3) over the four ``nodes[c]``."""
+    """out[c, side] = the mean of values[:, 3 side : 3 side + 3] (n_nodes, 6) over the four
+    ``nodes[c]``."""
     for c in range(nodes.shape[0]):
         for i in range(3):
+            j = 3 * side + i
             out[c, side, i] = 0.25 * (
-                values[nodes[c, 0], i]
-                + values[nodes[c, 1], i]
-                + values[nodes[c, 2], i]
-                + values[nodes[c, 3], i]
+                values[nodes[c, 0], j]
+                + values[nodes[c, 1], j]
+                + values[nodes[c, 2], j]
+                + values[nodes[c, 3], j]
             )
 
 
@@ -388,17 +391,19 @@ def face_tractions(structure, nodal_force: np.ndarray) -> np.ndarray:
     node is smeared over the cells around it, its total kept. ``nodal_force``: N on the base
     DOFs (owned, flat). Collective."""
     geometry = face_geometry(structure)
-    index_map = structure.base.V.dofmap.index_map
-    n_owned = index_map.size_local
-    force = nodal_force.reshape(-1, 3)
+    n_owned = structure.base.V.dofmap.index_map.size_local
+    force = nodal_force.reshape(-1, 3)[:n_owned]
     out = np.zeros((structure.base.n_owned_cells, 2, 3))
-    traction = geometry.traction
-    for side, nodes in enumerate((structure.bottom_local, structure.top_local)):
+    # both faces in one vector (bottom x, y, z, top x, y, z): each call writes the owned nodes
+    # of each face and the exchange the ghosts, so what it does not write stays zero
+    values = geometry.traction.array.reshape(-1, 6)
+    for side in range(2):
         on_face = geometry.owned_on_face[side]
-        traction.array.fill(0.0)
-        values = traction.array.reshape(-1, 3)
-        values[on_face] = force[:n_owned][on_face] / geometry.areas[side][on_face, None]
-        traction.scatter_forward()
+        values[on_face, 3 * side : 3 * side + 3] = (
+            force[on_face] / geometry.areas[side][on_face, None]
+        )
+    geometry.traction.scatter_forward()
+    for side, nodes in enumerate((structure.bottom_local, structure.top_local)):
         _face_means(nodes, values, out, side)
     return out
 
