@@ -435,3 +435,29 @@ def test_the_recovered_peel_stress_carries_the_hoop_stress_on_the_walls_curvatur
     z = np.cumsum(t) - 0.5 * t - 0.5 * t.sum()
     expected = np.concatenate([[0.0], np.cumsum(t * hoop[0] / (20.0 + z))])
     np.testing.assert_allclose(peel, np.broadcast_to(expected, peel.shape), rtol=1e-3, atol=1e-9)
+
+
+def test_the_weighted_ply_sums_of_curved_cells_equal_their_ply_stresses():
+    """A tube's cells are not prisms (the top face is larger than the bottom one): their
+    weighted sums of ply stresses (``ply_fields.ply_sums``, the interlaminar estimate's rows)
+    go ply by ply through the element kernel, and equal the same sums of ``ply_stresses``
+    (the transverse shears with the elements' shear correction) under a twisting, stretching
+    and bending motion, small and finite kinematics."""
+    from fenics_adaptive.adaptivity.interlaminar import recovery
+    from fenics_adaptive.adaptivity.ply_fields import ply_stresses, ply_sums
+
+    for kinematics in ("small", "finite"):
+        data = _tube_config(orientation="hoop")
+        data["model"]["kinematics"] = kinematics
+        structure = build_structure(parse_config(data), MPI.COMM_SELF)
+        x = structure.X_base
+        u = structure.base.u.x.array.reshape(-1, 3)
+        u[:] = 1e-3 * np.column_stack(
+            [np.sin(x[:, 1]), x[:, 0] * x[:, 2] / 30.0, x[:, 1] ** 2 / 20.0]
+        )
+        sums = recovery(structure, (1, 2)).sums
+        stresses = ply_stresses(structure)
+        expected = np.einsum("rk,ckr->cr", sums.weights, stresses[:, :, sums.components])
+        scale = np.abs(expected).max()
+        assert scale > 0.0 and np.abs(stresses[:, :, [3, 4]]).max() > 0.0
+        np.testing.assert_allclose(ply_sums(structure, sums), expected, rtol=0, atol=1e-12 * scale)

@@ -18,7 +18,9 @@ stresses, so it is computed from a few weighted sums of them per boundary asked 
 from its strain at its bottom and top (``ply_fields.ply_sums``): the cost grows with the
 boundaries estimated (the indicators ask for the delaminable interfaces), not with the plies.
 Each pass over the cells is a numba kernel; the column averages are the only exchanges between
-ranks (two per estimate). ``FaceGeometry`` keeps the reference geometry they read.
+ranks (two per estimate). On a curved shell the plies' stresses are formed (its peel reads them
+on the wall's curvature) and the sums taken from them. ``FaceGeometry`` keeps the reference
+geometry they read.
 """
 
 from __future__ import annotations
@@ -51,7 +53,7 @@ class FaceGeometry:
     traction: la.Vector
     centroids: np.ndarray  # (n_owned_cells, 3) mm
     # (n_owned_cells, 3) curvatures (1/mm) kappa_xx, kappa_yy, kappa_xy of a curved shell's
-    # cells in their frames (``cell_curvatures``); None on a flat mesh
+    # cells in their frames (``cell_curvatures``); None on a flat mesh or shell
     curvatures: np.ndarray | None = None
     # (n_owned_cells, 3, 3) a curved shell's cell frames (``LayeredModel.element_frames``),
     # (0, 3, 3) on a flat mesh
@@ -79,8 +81,10 @@ class FaceGeometry:
             owned.append(on_face[on_face < n_owned])
         centroids = structure.cell_vertices().mean(axis=1)
         curvatures = None
-        if len(frames):
+        if len(frames):  # (a shell flat to round-off, a plate with a hole, has none)
             curvatures = cell_curvatures(structure.cell_vertices(), frames)
+            if np.abs(curvatures).max(initial=0.0) * structure.laminate.thickness < 1e-12:
+                curvatures = None
         return cls(
             d_dx, d_dy, areas, owned, la.vector(index_map, bs=6), centroids, curvatures, frames
         )
@@ -176,9 +180,10 @@ class Recovery:
     sum_l w_jl tau_l, and sum_l w_jl tau_l = -D(Q_j) + c_j D(P_n) with Q_j = sum_l w_jl P_l,
     c_j = sum_l w_jl z_l / h: a second column average of that, per boundary. The profile's
     thickness means (the bubble's scale, ``interlaminar_stresses``) are the same sums at the
-    top, and for the peel once more, U = sum_j w_nj Q_j. Rows of ``sums``: P_j and Q_j for
-    every j in ``levels`` (the boundaries and the top face), then U, each as (xx, yy, xy);
-    then the cell's own resultants sum_k t_k (sigma_zz, tau_xz, tau_yz)_k."""
+    top, and for the peel once more, U = sum_j w_nj Q_j. Rows of ``sums``: P_j for every j
+    in ``levels`` (the boundaries and the top face), then Q_j for every j, then U, each as
+    three rows (xx, yy, xy); then the cell's own resultants sum_k t_k (sigma_zz, tau_xz,
+    tau_yz)_k: 3 (2 L + 1) + 3 rows."""
 
     boundaries: np.ndarray  # (m,) the ply boundaries estimated, sorted
     levels: np.ndarray  # (L,) the boundaries and the top face
@@ -193,9 +198,7 @@ class Recovery:
     def of(cls, thickness: np.ndarray, boundaries) -> Recovery:
         t = np.asarray(thickness, dtype=float)
         n = len(t)
-        boundaries = np.asarray(sorted({int(j) for j in boundaries}), dtype=np.int64)
-        if len(boundaries) and (boundaries[0] < 0 or boundaries[-1] > n):
-            raise ValueError(f"ply boundaries run from 0 to {n}, not {boundaries.tolist()}")
+        boundaries = _boundary_indices(boundaries, n)
         levels = np.union1d(boundaries, [n]).astype(np.int64)
         z = np.concatenate([[0.0], np.cumsum(t)])
         h = z[-1]
@@ -227,10 +230,22 @@ class Recovery:
 _RECOVERIES: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 
+def _boundary_indices(boundaries, n_plies: int) -> np.ndarray:
+    """The ply boundaries asked for, sorted and once each (int64); ValueError for one that is
+    not a whole number from 0 (the bottom face) to ``n_plies`` (the top face)."""
+    asked = np.asarray(list(boundaries), dtype=float).ravel()
+    whole = np.round(asked)
+    if np.any(whole != asked) or np.any((whole < 0) | (whole > n_plies)):
+        raise ValueError(
+            f"ply boundaries are whole numbers from 0 to {n_plies}, not {asked.tolist()}"
+        )
+    return np.unique(whole.astype(np.int64))
+
+
 def recovery(structure, boundaries=None) -> Recovery:
     """The structure's ``Recovery`` at ``boundaries`` (all ply boundaries by default)."""
     n = structure.laminate.n_plies
-    key = tuple(range(n + 1)) if boundaries is None else tuple(sorted({int(j) for j in boundaries}))
+    key = tuple(range(n + 1) if boundaries is None else _boundary_indices(boundaries, n).tolist())
     known = _RECOVERIES.setdefault(structure, {})
     if key not in known:
         known[key] = Recovery.of([p.thickness for p in structure.laminate.plies], key)
@@ -305,38 +320,67 @@ class _Profile:
 
 
 def _recover(structure, rec: Recovery) -> _Profile:
-    """Collective: the recovered profile of every owned cell at ``rec``'s levels."""
-    sums = ply_sums(structure, rec.sums)
+    """Collective: the recovered profile of every owned cell at ``rec``'s levels. On a curved
+    shell (whose cells are not prisms, and whose peel reads the plies' in-plane stresses on
+    the curvatures) the plies' stresses are formed once and both taken from them; elsewhere
+    the elements give the sums directly (``ply_fields.ply_sums``)."""
     geometry, corners = face_geometry(structure), structure.bottom_local
+    hoop = None
+    if geometry.curvatures is None:
+        sums = ply_sums(structure, rec.sums)
+    else:
+        stresses = ply_stresses(structure)
+        weights, components = rec.sums.weights, rec.sums.components
+        sums = np.empty((len(stresses), len(components)))
+        _stress_sums(stresses, weights, components, sums)
+        hoop = _hoop_peel(geometry.curvatures, stresses, rec)
     n_cells, n_levels = len(sums), len(rec.levels)
-    table = _column_averages(structure, sums[:, : 3 * (2 * n_levels + 1)])
+    # (contiguous copies: a kernel's argument types stay the same whatever the cell count)
+    table = _column_averages(structure, np.ascontiguousarray(sums[:, : 3 * (2 * n_levels + 1)]))
     shear = np.empty((n_cells, n_levels, 2))
     lumped = np.empty((n_cells, 2 * (n_levels + 1)))
     _shears(corners, table, geometry.d_dx, geometry.d_dy, rec.heights, rec.shifts, shear, lumped)
     table = _column_averages(structure, lumped)
     peel = np.empty((n_cells, n_levels + 1))
     _peels(corners, table, geometry.d_dx, geometry.d_dy, peel)
-    if geometry.curvatures is not None:
-        peel += _hoop_peel(structure, rec)
-    return _Profile(shear, peel, lumped[:, 2 * n_levels - 2 : 2 * n_levels], sums[:, -3:])
+    if hoop is not None:
+        peel += hoop
+    return _Profile(
+        shear,
+        peel,
+        np.ascontiguousarray(lumped[:, 2 * n_levels - 2 : 2 * n_levels]),
+        np.ascontiguousarray(sums[:, -3:]),
+    )
 
 
-def _hoop_peel(structure, rec: Recovery) -> np.ndarray:
-    """(n_cells, L + 1) what a curved shell's in-plane stresses acting on the curvatures of its
-    mid-surface add to the peel stress at the levels, then to its thickness integral:
-    sum_{k<j} t_k kappa_ab sigma_ab,k, the curvatures (``FaceGeometry.curvatures``) taken to
-    each ply's centre, kappa / (1 + kappa z): a hoop stress on a tube's wall pulls its plies
-    apart or presses them together. From the plies' stresses (a curved shell only)."""
-    kappa = face_geometry(structure).curvatures
+@njit(cache=True)
+def _stress_sums(stresses, weights, components, out):
+    """out[c, r] = sum_k weights[r, k] stresses[c, k, components[r]]: ``PlySums``' rows from
+    the plies' stresses (n_cells, n_plies, 6)."""
+    for c in range(stresses.shape[0]):
+        for r in range(weights.shape[0]):
+            i = components[r]
+            total = 0.0
+            for k in range(stresses.shape[1]):
+                total += weights[r, k] * stresses[c, k, i]
+            out[c, r] = total
+
+
+def _hoop_peel(kappa: np.ndarray, stresses: np.ndarray, rec: Recovery) -> np.ndarray:
+    """(n_cells, L + 1) what a curved shell's in-plane stresses (``stresses``: the plies',
+    ``ply_stresses``) acting on the curvatures of its mid-surface (``kappa``:
+    ``FaceGeometry.curvatures``) add to the peel stress at the levels, then to its thickness
+    integral: sum_{k<j} t_k kappa_ab sigma_ab,k, the curvatures taken to each ply's centre,
+    kappa / (1 + kappa z): a hoop stress on a tube's wall pulls its plies apart or presses
+    them together."""
     t = rec.thickness
     level = np.cumsum(t) - 0.5 * t - 0.5 * t.sum()  # each ply's centre from the mid-surface
-    sigma = ply_stresses(structure)
     per_ply = t * (
-        kappa[:, 0, None] / (1.0 + kappa[:, 0, None] * level) * sigma[:, :, 0]
-        + kappa[:, 1, None] / (1.0 + kappa[:, 1, None] * level) * sigma[:, :, 1]
-        + 2.0 * kappa[:, 2, None] * sigma[:, :, 5]
+        kappa[:, 0, None] / (1.0 + kappa[:, 0, None] * level) * stresses[:, :, 0]
+        + kappa[:, 1, None] / (1.0 + kappa[:, 1, None] * level) * stresses[:, :, 1]
+        + 2.0 * kappa[:, 2, None] * stresses[:, :, 5]
     )
-    partial = np.concatenate([np.zeros((len(sigma), 1)), np.cumsum(per_ply, axis=1)], axis=1)
+    partial = np.concatenate([np.zeros((len(stresses), 1)), np.cumsum(per_ply, axis=1)], axis=1)
     return np.column_stack([partial[:, rec.levels], partial @ rec.trapezoid[-1]])
 
 
@@ -433,7 +477,7 @@ def interlaminar_stresses(
       both faces, 6 (z/h)(1 - z/h), scaled so that the estimate has the cell's mean.
 
     The indicators ask for the delaminable interfaces alone: the cost is in the rows of
-    ``Recovery``, two per boundary. Collective.
+    ``Recovery``, six per boundary. Collective.
     """
     rec = recovery(structure, boundaries)
     profile = _recover(structure, rec)

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import weakref
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 from numba import njit
@@ -439,7 +440,7 @@ class PlySums:
     weights: np.ndarray
     components: np.ndarray
 
-    @property
+    @cached_property
     def key(self) -> bytes:
         """What identifies these rows (the cache key of their matrices)."""
         return self.weights.tobytes() + np.asarray(self.components, np.int64).tobytes()
