@@ -71,8 +71,9 @@ def main() -> None:
     x = structure.cell_vertices()[:, :, 0].mean(axis=1)
     response_force, response_reaction = late_response_errors(structure)
     held = {
-        "x_min": float(x.min()),
-        "x_max": float(x.max()),
+        "x_min": float(x.min(initial=np.inf)),  # (a rank may own no cell)
+        "x_max": float(x.max(initial=-np.inf)),
+        "cells": int(structure.base.n_owned_cells),
         "extra_nodes": structure.extra.n_owned,
         "cohesive": len(structure.cohesive),
         "border": len(structure.border),

@@ -199,6 +199,21 @@ def test_selective_mass_scaling_on_two_ranks_reproduces_the_serial_history(kind,
 
 
 @pytest.mark.mpi
+def test_ranks_that_own_no_cell_take_part_and_reproduce_the_serial_history(tmp_path):
+    """A two-cell adaptive cantilever (manual weak and strong refinement of its tip cell, the
+    interface-stress indicator on) on three ranks: at least one owns no cell, and it still
+    builds its forms (whose coefficients are then empty arrays), refines and estimates with the
+    others; the history equals the serial one."""
+    config = DATA / "mpi_fewer_cells_than_ranks.toml"
+    serial, (whole,) = run_case(config, tmp_path / "serial", 1)
+    parallel, ranks = run_case(config, tmp_path / "parallel", 3)
+    assert whole["cohesive"] > 0 and whole["extra_nodes"] > 0
+    assert sum(r["cells"] for r in ranks) == whole["cells"] == 2
+    assert min(r["cells"] for r in ranks) == 0
+    assert_same_history(serial, parallel)
+
+
+@pytest.mark.mpi
 def test_two_ranks_reproduce_the_serial_history(tmp_path):
     histories = []
     for ranks in (1, 2):
