@@ -109,14 +109,16 @@ def column_counts(comm, base_map, bottom_local: np.ndarray, state: np.ndarray) -
 def border_constraints(
     counts: np.ndarray,
     extra: enr.ExtraNodes,
-    column_top: dict[int, int],
+    top_of: np.ndarray,
     fractions: np.ndarray,
     n_base: int,
     prescribed: np.ndarray,
 ) -> BorderConstraints:
     """The constraints of this rank's extra nodes from the column counts (``column_counts``).
 
-    ``fractions``: thickness fractions of the ply boundaries (0 .. 1, n_plies + 1);
+    ``top_of``: the top base node of each local base node that is a column's bottom
+    (``CellColumnTable.top_of``); ``fractions``: thickness fractions of the ply boundaries
+    (0 .. 1, n_plies + 1);
     ``prescribed``: bool per local extra DOF (owned and ghosts), True where a motion holds it."""
     n_interfaces = extra.n_interfaces
     n_plies = n_interfaces + 1
@@ -163,7 +165,7 @@ def border_constraints(
     lower[has_below] = node(at, below[has_below], lower_set)
     upper = np.empty(len(c), dtype=np.int64)
     at_top = above == n_plies
-    upper[at_top] = [column_top[b] for b in bottom[c[at_top]].tolist()]
+    upper[at_top] = top_of[bottom[c[at_top]]]
     upper[~at_top] = node(c[~at_top], above[~at_top], np.full(int((~at_top).sum()), enr.SET_A))
     s = thickness_weight(np.asarray(fractions, dtype=float), interface[c], below, above)
     weights = np.column_stack([1.0 - s, s])

@@ -424,12 +424,13 @@ def extra_node_prescriptions(
     motions: Sequence[PrescribedMotion],
     base: LayeredModel,
     extra: enr.ExtraNodes,
-    column_top: dict[int, int],
+    top_of: np.ndarray,
     n_interfaces: int,
 ) -> np.ndarray:
     """Collective: motion index (into ``motions``) holding each local extra DOF (owned and
     ghosts), -1 for none: a face motion holds an extra node when both base nodes of its column
-    (``column_top``: top base node of each bottom one) are on that face; a symmetry interface
+    (``top_of``: the top base node of each local bottom one, ``CellColumnTable.top_of``) are
+    on that face; a symmetry interface
     holds u_z of its nodes. The first motion listed wins."""
     prescribed = np.full(3 * extra.n_local, -1, dtype=np.int64)
     if extra.index_map.size_global == 0:  # the same on every rank
@@ -437,11 +438,8 @@ def extra_node_prescriptions(
     n_base = base.V.dofmap.index_map.size_local + base.V.dofmap.index_map.num_ghosts
     keys = np.fromiter(extra.index.keys(), dtype=np.int64, count=len(extra.index))
     local = np.fromiter(extra.index.values(), dtype=np.int64, count=len(extra.index))
-    rest = keys // 2  # (``enrichment.key_parts`` on arrays: the node set is keys % 2)
-    bottom = extra.local_base_nodes(rest // n_interfaces)
-    interface = rest % n_interfaces + 1
-    top_of = np.full(n_base, -1, dtype=np.int64)
-    top_of[np.fromiter(column_top.keys(), np.int64)] = np.fromiter(column_top.values(), np.int64)
+    bottom_global, interface, _ = enr.key_arrays(keys, n_interfaces)
+    bottom = extra.local_base_nodes(bottom_global)
     top = top_of[bottom]
     for m, motion in enumerate(motions):
         if motion.face.startswith("interface"):

@@ -613,7 +613,7 @@ class Structure:
         """Collective: border constraints and prescribed extra DOFs of the current extra nodes,
         handed to the blocks (``LumpedBlocks.rebuild``)."""
         prescribed = extra_node_prescriptions(
-            self.motions, self.base, self.extra, self.column_top, self.refinement.n_interfaces
+            self.motions, self.base, self.extra, self.columns.top_of, self.refinement.n_interfaces
         )
         border = self.border
         if self.extra.index_map.size_global:  # the same on every rank: column_counts is collective
@@ -623,7 +623,7 @@ class Structure:
             border = border_constraints(
                 counts,
                 self.extra,
-                self.column_top,
+                self.columns.top_of,
                 self.laminate.ply_fractions,
                 self.n_base,
                 prescribed >= 0,
