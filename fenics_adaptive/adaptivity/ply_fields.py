@@ -233,10 +233,10 @@ def _ply_kernel(
                     for b in range(4):
                         total += stiffness[k, i, NORMAL[b]] * strain[NORMAL[b]]
                     out[c, k, i] = total
-                yz = root[e, 1] * strain[3]
-                xz = root[e, 0] * strain[4]
-                out[c, k, 3] = root[e, 1] * (stiffness[k, 3, 3] * yz + stiffness[k, 3, 4] * xz)
-                out[c, k, 4] = root[e, 0] * (stiffness[k, 4, 3] * yz + stiffness[k, 4, 4] * xz)
+                for i in (3, 4):  # D C_k (D strain) of the transverse shears
+                    a = stiffness[k, i, 3] * strain[3]
+                    b = stiffness[k, i, 4] * strain[4]
+                    out[c, k, i] = _scaled(i, root[e, 0], root[e, 1], a, b)
             else:
                 for i in range(6):
                     out[c, k, i] = strain[i]
@@ -256,9 +256,10 @@ def _ply_kernel(
 
 @njit(cache=True)
 def _scaled(kind, root_xz, root_yz, a, b):
-    """A ``PlySums`` row's two parts a, b combined with an element's shear factors: a for a
-    normal stress, r_yz^2 a + r_yz r_xz b for tau_yz (``kind`` 3), r_xz r_yz a + r_xz^2 b for
-    tau_xz (4)."""
+    """A transverse shear's two parts a = C[i, 3] gamma_yz, b = C[i, 4] gamma_xz (or a
+    ``PlySums`` row's) combined with an element's shear factors, D C (D strain): r_yz^2 a +
+    r_yz r_xz b for tau_yz (``kind`` 3), r_xz r_yz a + r_xz^2 b for tau_xz (4); a alone for a
+    normal stress."""
     if kind == 3:
         return root_yz * (root_yz * a + root_xz * b)
     if kind == 4:
