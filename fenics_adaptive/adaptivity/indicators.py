@@ -317,7 +317,7 @@ def spread_arrays(
     for _ in range(rings):
         if not summed(structure.comm, [len(cells)])[0]:
             break
-        marks = la.vector(structure.base.V.dofmap.index_map, bs=2 * n_interfaces)
+        marks = face_geometry(structure).sums_vector(structure, 2 * n_interfaces)
         table = marks.array.reshape(-1, 2, n_interfaces)
         table[nodes[cells], (kinds - 1)[:, None], (interfaces - 1)[:, None]] = 1.0
         marks.scatter_reverse(la.InsertMode.add)

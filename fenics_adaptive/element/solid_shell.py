@@ -64,6 +64,7 @@ damaged kernel takes Newton steps until the open points stop changing.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from typing import NamedTuple
 
@@ -93,7 +94,15 @@ _IN_PLANE = {
 
 
 def gauss_legendre_01(n: int) -> tuple[np.ndarray, np.ndarray]:
-    """n-point Gauss-Legendre rule on [0, 1]."""
+    """n-point Gauss-Legendre rule on [0, 1] (points, weights: new arrays, the caller's to
+    change)."""
+    x, w = _gauss_legendre_01(n)
+    return x.copy(), w.copy()
+
+
+@functools.cache
+def _gauss_legendre_01(n: int) -> tuple[np.ndarray, np.ndarray]:
+    # (numpy's leggauss solves an eigenproblem: a refinement asks for its rules a thousand times)
     x, w = np.polynomial.legendre.leggauss(n)
     return 0.5 * (x + 1.0), 0.5 * w
 
