@@ -10,6 +10,7 @@ Usage: python tests/mpi_case.py CONFIG.toml OUT_DIR
 
 import json
 import sys
+import traceback
 
 import numpy as np
 from mpi4py import MPI
@@ -91,4 +92,11 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    try:
+        main()
+    except BaseException:
+        # an error on one rank leaves the others waiting in a collective: end the whole job,
+        # so that the test fails with this traceback instead of at its timeout
+        traceback.print_exc()
+        sys.stderr.flush()
+        MPI.COMM_WORLD.Abort(1)
