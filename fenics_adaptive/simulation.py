@@ -18,12 +18,14 @@ import math
 import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 from mpi4py import MPI
 
 from fenics_adaptive.adaptivity.events import RefinementEvent, note, refine
 from fenics_adaptive.adaptivity.indicators import (
+    IndexHistory,
     default_interval,
     front_distances,
     front_requests,
@@ -290,14 +292,21 @@ def insert_films(structure: Structure, films: Iterable[Delamination]) -> None:
         cohesive.delaminate(np.flatnonzero(at))
 
 
-def indicator_defaults(config: RunConfig, structure: Structure) -> tuple[np.ndarray, float]:
-    """The [indicators] values that depend on the model, the config's where given: the front
-    distance per interface (mm, ``indicators.front_distances``) and the interval between
-    evaluations (s, ``indicators.default_interval``)."""
+class IndicatorTimes(NamedTuple):
+    """The [indicators] values that depend on the model, the config's where given."""
+
+    front: np.ndarray  # mm per interface kept refined around a delamination (front_distances)
+    interval: float  # s between evaluations (default_interval)
+    lead: float | None  # s the look-ahead predicts over (IndexHistory); None: off
+
+
+def indicator_defaults(config: RunConfig, structure: Structure) -> IndicatorTimes:
+    """The [indicators] values that depend on the model (``IndicatorTimes``)."""
     settings = config.indicators
     front = front_distances(structure, config.cohesive, settings.front_distance)
-    interval = settings.interval
-    return front, default_interval(structure) if interval is None else interval
+    interval = default_interval(structure) if settings.interval is None else settings.interval
+    window = config.stabilisation.release_window
+    return IndicatorTimes(front, interval, interval + window if settings.look_ahead else None)
 
 
 class RefinementHook:
@@ -318,8 +327,10 @@ class RefinementHook:
         cohesive = config.cohesive
         self.strengths = (cohesive.N, cohesive.S) if cohesive is not None else None
         # the indicators' defaults that depend on the model, set at their first evaluation
-        self.front: np.ndarray | None = None  # mm per interface (indicators.front_distances)
-        self.interval: float | None = None  # s (indicators.default_interval)
+        self.times: IndicatorTimes | None = None  # the intervals (indicator_defaults)
+        # [indicators] look_ahead: the past interface-stress indices (``IndexHistory``), per
+        # rank, made with the defaults
+        self.index_history: IndexHistory | None = None
         # the started delaminations whose surroundings are refined (``front_requests``'
         # keys): not kept in checkpoints, a restart searches around all of them once
         self.front_known = np.zeros(0, np.int64)
@@ -333,8 +344,10 @@ class RefinementHook:
         self.refinement_seconds = 0.0
 
     def _resolve(self, structure: Structure) -> None:
-        if self.front is None:
-            self.front, self.interval = indicator_defaults(self.config, structure)
+        if self.times is None:
+            self.times = indicator_defaults(self.config, structure)
+        if self.times.lead is not None and self.index_history is None:
+            self.index_history = IndexHistory(self.times.lead)
 
     @property
     def active(self) -> bool:
@@ -352,7 +365,13 @@ class RefinementHook:
             "pending": np.array(self.pending, dtype=np.int64),
             "next_check": self.next_check,
             "python_next_check": self.python_next.copy(),
-        }
+        } | self._history_state()
+
+    def _history_state(self) -> dict[str, np.ndarray]:
+        """The look-ahead's past indices (this rank's cells: a checkpoint is per rank)."""
+        if self.index_history is None:
+            return {}
+        return {f"index_{k}": v for k, v in self.index_history.state().items()}
 
     def restore(self, state: dict[str, np.ndarray]) -> None:
         self.pending = [int(k) for k in state["pending"]]
@@ -366,6 +385,11 @@ class RefinementHook:
                 f"has {len(self.python)}: register the same indicators to restart",
             )
         self.python_next[:] = stored
+        settings = self.config.indicators
+        if "index_lead" in state and settings is not None and settings.look_ahead:
+            self.index_history = IndexHistory.of_state(
+                {k.removeprefix("index_"): v for k, v in state.items() if k.startswith("index_")}
+            )
 
     def __call__(self, t: float, structure: Structure) -> RefinementEvent | None:
         config, settings = self.config, self.config.indicators
@@ -395,16 +419,16 @@ class RefinementHook:
             self._resolve(structure)
             face_force = self.face_force() if self.face_force is not None else None
             requests += indicator_requests(
-                structure, settings, self.strengths, t, reasons, face_force
+                structure, settings, self.strengths, t, reasons, face_force, self.index_history
             )
-            self.next_check = t + self.interval
+            self.next_check = t + self.times.interval
             if settings.spread:
                 around = spread(structure, requests, settings.spread)
                 note(reasons, around, "spread")
                 requests += around
-            if self.front.any():
+            if self.times.front.any():
                 around, front_known = front_requests(
-                    structure, self.front, reasons, self.front_known
+                    structure, self.times.front, reasons, self.front_known
                 )
                 requests += around
             self.evaluations += 1

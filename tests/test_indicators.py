@@ -207,11 +207,27 @@ def test_indicators_run_as_often_as_a_front_could_cross_its_band():
     material = config.laminate.plies[0].material
     expected = 2 * 2 * 0.256 / np.sqrt(material.G12 / material.rho)
     assert ind.default_interval(structure) == pytest.approx(expected, rel=1e-12)
-    front, interval = indicator_defaults(config, structure)
-    assert interval == pytest.approx(expected, rel=1e-12)
-    assert front == pytest.approx(ind.front_distances(structure, config.cohesive))
+    times = indicator_defaults(config, structure)
+    assert times.interval == pytest.approx(expected, rel=1e-12)
+    assert times.front == pytest.approx(ind.front_distances(structure, config.cohesive))
+    assert times.lead == times.interval  # (no ties' release window)
     config = parse_config(tcb(indicators={"interface_stress": 0.9, "interval": 1e-6}))
-    assert indicator_defaults(config, structure)[1] == 1e-6
+    assert indicator_defaults(config, structure).interval == 1e-6
+
+
+def test_the_look_ahead_predicts_over_the_interval_and_the_release_window():
+    """A strong refinement acts once its tie has faded over the release window, and a cell
+    that crosses just after an evaluation waits for the next: the look-ahead's lead is both;
+    off, there is none."""
+    from fenics_adaptive.simulation import indicator_defaults
+
+    data = tcb(indicators={"interface_stress": 0.9, "interval": 1e-6})
+    data["stabilisation"] = {"release_window": 2e-5}
+    config = parse_config(data)
+    structure = build_structure(config)
+    assert indicator_defaults(config, structure).lead == pytest.approx(2.1e-5, rel=1e-15)
+    data["indicators"]["look_ahead"] = False
+    assert indicator_defaults(parse_config(data), structure).lead is None
 
 
 def test_front_rings_are_refused_with_what_replaced_them():
@@ -362,3 +378,34 @@ def test_ply_strains_follow_each_refinement_and_keep_the_unchanged_elements_maps
         from_maps = np.einsum("eai,eai->e", kept.centre_maps, u.reshape(-1, 3)[nodes])
         np.testing.assert_allclose(from_maps, alpha, rtol=1e-12, atol=1e-12 * abs(alpha).max())
         assert len(kept.nodes) > len(before.nodes) or step == 0
+
+
+def test_the_look_ahead_continues_the_rise_of_the_last_lead_time():
+    """predicted(t) = I(t) + max(0, I(t) - I(t - lead)): a steady rise is predicted exactly
+    one lead ahead (I(t - lead) interpolated between evaluations that do not fall on it), a
+    fall predicts the present index, and before one lead has passed the rise is taken from the
+    first evaluation. Its state restores the same predictions; it keeps about lead / interval
+    snapshots."""
+    lead, dt = 1.0, 0.3
+    history = ind.IndexHistory(lead)
+    rate = np.array([[0.1, -0.05]])  # (one cell, two interfaces) per s
+
+    def index(t):
+        return 0.5 + rate * t
+
+    t = 0.0
+    assert history.predict(t, index(t)) == pytest.approx(index(t), abs=1e-15)
+    for _ in range(6):
+        t += dt
+        predicted = history.predict(t, index(t))
+        if t < lead:
+            expected = index(t) + np.maximum(0.0, index(t) - index(0.0))
+        else:
+            expected = np.maximum(index(t + lead), index(t))  # a rise continued, a fall not
+        assert predicted == pytest.approx(expected, abs=1e-14)
+        assert len(history.times) <= lead / dt + 2
+    restored = ind.IndexHistory.of_state(history.state())
+    t += dt
+    assert restored.predict(t, index(t)) == pytest.approx(history.predict(t, index(t)), abs=0)
+    with pytest.raises(ValueError, match="lead"):
+        ind.IndexHistory(-1.0)

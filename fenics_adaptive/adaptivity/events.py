@@ -54,11 +54,12 @@ class Reason:
     """Why a (cell, interface) refined.
 
     indicator: who asked: ``initial``, ``manual``, one of the [indicators] (``ply_failure``,
-        ``interface_stress``, ``matrix_damage``, ``strong_after``), ``spread`` or ``front``
+        ``interface_stress``, ``look_ahead``: the interface stress on its predicted index,
+        ``matrix_damage``, ``strong_after``), ``spread`` or ``front``
         (neighbours added around cells that asked), or a Python indicator's name.
     value: what the indicator measured, compared with its threshold (a Hashin or initiation
-        index, a matrix damage, the time in s since the interface became weak), NaN when it has
-        no value.
+        index, a predicted one, a matrix damage, the time in s since the interface became
+        weak), NaN when it has no value.
     """
 
     indicator: str

@@ -85,7 +85,10 @@ class IndicatorSettings:
     fail refine strongly at that interface, so that the border constraint of the refined
     region never holds the process zone or the stress peak ahead of it. None (the default):
     each interface's own, the process zone length plus two sublaminate thicknesses
-    (``indicators.front_distances``); 0: none."""
+    (``indicators.front_distances``); 0: none. ``look_ahead``: ``interface_stress`` compares
+    its threshold with the index predicted at the end of the time a refinement takes to act
+    (the interval plus the stabilisation's release window) as well, the rise of the last such
+    time continued (``indicators.IndexHistory``)."""
 
     interval: float | None = None  # s
     ply_failure: float | None = None
@@ -94,6 +97,8 @@ class IndicatorSettings:
     spread: int = 0
     strong_after: float | None = None  # s: a weak delaminable interface turns strong this late
     front_distance: float | None = None  # mm, around cohesive elements that have started to fail
+    # interface_stress also on the index predicted one lead time ahead (``IndexHistory``)
+    look_ahead: bool = True
 
 
 @dataclass(frozen=True)

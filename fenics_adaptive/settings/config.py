@@ -1523,6 +1523,7 @@ def _indicators(root: _Root, kind: ModelKind, interfaces: Interfaces) -> Indicat
         spread=table.integer("spread"),
         strong_after=table.number("strong_after"),
         front_distance=table.number("front_distance"),
+        look_ahead=table.boolean("look_ahead"),
     )
     if not interfaces.delaminate:
         for name, used in (

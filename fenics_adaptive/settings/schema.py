@@ -1094,6 +1094,14 @@ SECTIONS: tuple[Section, ...] = (
                 0.0,
                 10.0,
             ),
+            Key(
+                "look_ahead",
+                "bool",
+                "interface_stress also refines where the index predicted one lead time "
+                "(interval + release_window) ahead reaches it: the index's rise over the last "
+                "lead time continued",
+                default=True,
+            ),
             Key("matrix_damage", "bool", "strong next to a cracked ply", default=False),
             Key(
                 "spread",
