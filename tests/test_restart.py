@@ -88,6 +88,34 @@ def test_resumed_history_equals_the_uninterrupted_one(tmp_path):
     assert max(whole["damping_energy"]) > 0.0
 
 
+def opening_tcb(end_time: float, checkpoint_interval: int | None = None) -> dict:
+    """The TCB's arms pulled open, refined by the interface-stress indicator alone with its
+    look-ahead over a release window of 1e-5 s (its lead 1.1e-5 s)."""
+    data = tomllib.loads((DATA / "tcb_adaptive.toml").read_text())
+    del data["interfaces"]["initial"]
+    data["indicators"] = {"interval": 1.0e-6, "interface_stress": 0.5, "front_distance": 0.0}
+    data["stabilisation"] = {"release_window": 1.0e-5}
+    data["solver"]["end_time"] = end_time
+    data["output"].pop("fields_interval", None)
+    if checkpoint_interval is not None:
+        data["output"]["checkpoint_interval"] = checkpoint_interval
+    return data
+
+
+@pytest.mark.slow
+def test_a_restart_keeps_the_look_ahead_s_past_indices(tmp_path):
+    """Split where the look-ahead has a lead's worth of past indices, the restarted run
+    predicts from the checkpoint's and refines the same cells at the same steps: history and
+    refinement log as the uninterrupted run's."""
+    run_quietly(opening_tcb(4.0e-5), tmp_path / "whole")
+    run_quietly(opening_tcb(2.5e-5, checkpoint_interval=100), tmp_path / "split")
+    run_quietly(opening_tcb(4.0e-5), tmp_path / "split", restart=tmp_path / "split")
+    assert_restarted_history(tmp_path / "split", tmp_path / "whole")
+    log = (tmp_path / "whole" / "refinement_log.csv").read_text()
+    assert (tmp_path / "split" / "refinement_log.csv").read_text() == log
+    assert "look_ahead" in log  # (the prediction flagged cells of its own)
+
+
 @pytest.mark.slow
 def test_restart_refuses_another_model_or_rank_count(tmp_path):
     run_quietly(late_refinement(2.0e-5, checkpoint_interval=1000), tmp_path / "a")
