@@ -258,8 +258,10 @@ def _announce(
     if indicators is not None:
         front = indicators["front_distance_mm"]
         at = ", ".join(f"{d:.3g} mm at interface {i}" for i, d in front.items() if d > 0)
+        lead = indicators["look_ahead_s"]
         say(
             f"indicators every {indicators['interval_s']:.3e} s"
+            + (f", interface stresses predicted {lead:.3e} s ahead" if lead else "")
             + (f"; delamination fronts kept refined {at} around" if at else "")
         )
     scaling = summary.get("mass_scaling")

@@ -292,21 +292,27 @@ def insert_films(structure: Structure, films: Iterable[Delamination]) -> None:
         cohesive.delaminate(np.flatnonzero(at))
 
 
-class IndicatorTimes(NamedTuple):
+class IndicatorDefaults(NamedTuple):
     """The [indicators] values that depend on the model, the config's where given."""
 
     front: np.ndarray  # mm per interface kept refined around a delamination (front_distances)
     interval: float  # s between evaluations (default_interval)
-    lead: float | None  # s the look-ahead predicts over (IndexHistory); None: off
+    lead: float | None  # s the look-ahead predicts over (IndexHistory); None: no look-ahead
 
 
-def indicator_defaults(config: RunConfig, structure: Structure) -> IndicatorTimes:
-    """The [indicators] values that depend on the model (``IndicatorTimes``)."""
+def indicator_defaults(config: RunConfig, structure: Structure) -> IndicatorDefaults:
+    """The [indicators] values that depend on the model, the config's where given: the front
+    distance per interface (mm, ``indicators.front_distances``), the interval between
+    evaluations (s, ``indicators.default_interval``) and the look-ahead's lead (s: the interval
+    plus the ties' release window; None without the look-ahead or the interface-stress
+    indicator it predicts for)."""
     settings = config.indicators
     front = front_distances(structure, config.cohesive, settings.front_distance)
     interval = default_interval(structure) if settings.interval is None else settings.interval
-    window = config.stabilisation.release_window
-    return IndicatorTimes(front, interval, interval + window if settings.look_ahead else None)
+    lead = None
+    if settings.look_ahead and settings.interface_stress is not None:
+        lead = interval + config.stabilisation.release_window
+    return IndicatorDefaults(front, interval, lead)
 
 
 class RefinementHook:
@@ -314,7 +320,8 @@ class RefinementHook:
     [[refinement]] entries and its [indicators]; returns the ``RefinementEvent`` of a
     refinement, or None. Decisions are taken on the same steps on every rank (time, or the global
     probe displacement), so the collective refinement is entered by all. Its state (which
-    manual entries are still pending, when the indicators run next) goes into checkpoints."""
+    manual entries are still pending, when the indicators run next, the look-ahead's past
+    indices) goes into checkpoints."""
 
     def __init__(self, config: RunConfig, indicators: Iterable[PythonIndicator] = ()):
         self.config = config
@@ -327,10 +334,11 @@ class RefinementHook:
         cohesive = config.cohesive
         self.strengths = (cohesive.N, cohesive.S) if cohesive is not None else None
         # the indicators' defaults that depend on the model, set at their first evaluation
-        self.times: IndicatorTimes | None = None  # the intervals (indicator_defaults)
+        self.defaults: IndicatorDefaults | None = None
         # [indicators] look_ahead: the past interface-stress indices (``IndexHistory``), per
-        # rank, made with the defaults
+        # rank, made with the defaults (from a checkpoint's ``restored_indices``, if any)
         self.index_history: IndexHistory | None = None
+        self.restored_indices: dict[str, np.ndarray] = {}
         # the started delaminations whose surroundings are refined (``front_requests``'
         # keys): not kept in checkpoints, a restart searches around all of them once
         self.front_known = np.zeros(0, np.int64)
@@ -344,10 +352,10 @@ class RefinementHook:
         self.refinement_seconds = 0.0
 
     def _resolve(self, structure: Structure) -> None:
-        if self.times is None:
-            self.times = indicator_defaults(self.config, structure)
-        if self.times.lead is not None and self.index_history is None:
-            self.index_history = IndexHistory(self.times.lead)
+        if self.defaults is None:
+            self.defaults = indicator_defaults(self.config, structure)
+            if self.defaults.lead is not None:
+                self.index_history = IndexHistory(self.defaults.lead, **self.restored_indices)
 
     @property
     def active(self) -> bool:
@@ -368,10 +376,10 @@ class RefinementHook:
         } | self._history_state()
 
     def _history_state(self) -> dict[str, np.ndarray]:
-        """The look-ahead's past indices (this rank's cells: a checkpoint is per rank)."""
-        if self.index_history is None:
-            return {}
-        return {f"index_{k}": v for k, v in self.index_history.state().items()}
+        """The look-ahead's past indices (this rank's cells: a checkpoint is per rank), or
+        those restored and not yet taken up by an evaluation."""
+        past = self.restored_indices if self.index_history is None else self.index_history.state()
+        return {f"index_{k}": v for k, v in past.items()}
 
     def restore(self, state: dict[str, np.ndarray]) -> None:
         self.pending = [int(k) for k in state["pending"]]
@@ -385,11 +393,11 @@ class RefinementHook:
                 f"has {len(self.python)}: register the same indicators to restart",
             )
         self.python_next[:] = stored
-        settings = self.config.indicators
-        if "index_lead" in state and settings is not None and settings.look_ahead:
-            self.index_history = IndexHistory.of_state(
-                {k.removeprefix("index_"): v for k, v in state.items() if k.startswith("index_")}
-            )
+        # (a checkpoint of a run without the look-ahead has none: it starts afresh)
+        self.restored_indices = {
+            k.removeprefix("index_"): v for k, v in state.items() if k.startswith("index_")
+        }
+        self.defaults, self.index_history = None, None  # (made again at the next evaluation)
 
     def __call__(self, t: float, structure: Structure) -> RefinementEvent | None:
         config, settings = self.config, self.config.indicators
@@ -421,14 +429,14 @@ class RefinementHook:
             requests += indicator_requests(
                 structure, settings, self.strengths, t, reasons, face_force, self.index_history
             )
-            self.next_check = t + self.times.interval
+            self.next_check = t + self.defaults.interval
             if settings.spread:
                 around = spread(structure, requests, settings.spread)
                 note(reasons, around, "spread")
                 requests += around
-            if self.times.front.any():
+            if self.defaults.front.any():
                 around, front_known = front_requests(
-                    structure, self.times.front, reasons, self.front_known
+                    structure, self.defaults.front, reasons, self.front_known
                 )
                 requests += around
             self.evaluations += 1

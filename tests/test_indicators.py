@@ -228,6 +228,8 @@ def test_the_look_ahead_predicts_over_the_interval_and_the_release_window():
     assert indicator_defaults(config, structure).lead == pytest.approx(2.1e-5, rel=1e-15)
     data["indicators"]["look_ahead"] = False
     assert indicator_defaults(parse_config(data), structure).lead is None
+    data["indicators"].update(look_ahead=True, interface_stress=0.0)  # (nothing to predict)
+    assert indicator_defaults(parse_config(data), structure).lead is None
 
 
 def test_front_rings_are_refused_with_what_replaced_them():
@@ -404,8 +406,29 @@ def test_the_look_ahead_continues_the_rise_of_the_last_lead_time():
             expected = np.maximum(index(t + lead), index(t))  # a rise continued, a fall not
         assert predicted == pytest.approx(expected, abs=1e-14)
         assert len(history.times) <= lead / dt + 2
-    restored = ind.IndexHistory.of_state(history.state())
+    restored = ind.IndexHistory(lead, **history.state())
     t += dt
     assert restored.predict(t, index(t)) == pytest.approx(history.predict(t, index(t)), abs=0)
+    # the same time again, or an earlier one (a restored run): its snapshot replaced, in order
+    assert history.predict(t, index(t)) == pytest.approx(np.maximum(index(t + lead), index(t)))
+    history.predict(t - dt, index(t - dt))
+    assert history.times == sorted(history.times) and history.times[-1] == t - dt
     with pytest.raises(ValueError, match="lead"):
         ind.IndexHistory(-1.0)
+
+
+def test_the_look_ahead_does_not_stretch_a_rise_over_a_gap_longer_than_its_lead():
+    """Evaluations further apart than the lead (steps longer than the interval, or no
+    release window): I(t - lead) lies between the last snapshot and now, so a steady rise is
+    still predicted exactly one lead ahead, not the whole gap's rise. Snapshots closer than
+    lead / SNAPSHOTS_PER_LEAD replace the last: their number stays bounded."""
+    lead = 0.1
+    history = ind.IndexHistory(lead)
+    for t in (0.0, 1.0, 2.0):
+        predicted = history.predict(t, np.array([[0.5 * t]]))
+    assert predicted == pytest.approx(0.5 * (2.0 + lead), abs=1e-14)
+    dense = ind.IndexHistory(lead)
+    for t in np.arange(0.0, 1.0, lead / 1000):
+        dense.predict(t, np.array([[t]]))
+    assert len(dense.times) <= ind.SNAPSHOTS_PER_LEAD + 2
+    assert dense.predict(1.0, np.array([[1.0]])) == pytest.approx(1.0 + lead, rel=1e-12)

@@ -54,6 +54,7 @@ from fenics_adaptive.settings.adaptivity import IndicatorSettings
 from fenics_adaptive.settings.kinds import InterfaceState
 
 __all__ = [
+    "SNAPSHOTS_PER_LEAD",
     "ElementData",
     "IndexHistory",
     "default_interval",
@@ -148,6 +149,11 @@ def indicator_requests(
     return requests
 
 
+# the look-ahead keeps its past indices at least lead / this apart (``IndexHistory``): a bound
+# on their number (a long release window with a short interval would keep thousands)
+SNAPSHOTS_PER_LEAD = 32
+
+
 class IndexHistory:
     """The interface-stress initiation index (``initiation_index``, (owned cells, delaminable
     interfaces)) at the past indicator evaluations, for the look-ahead rule (``[indicators]
@@ -160,23 +166,30 @@ class IndexHistory:
     takes to act: the interval between evaluations (a cell that crosses just after one waits for
     the next) plus the stabilisation's release window (the new crack's tie force fades over
     it). A fixed margin below 1 covers a slow rise and misses a fast one (docs/indicators.md:
-    at 0.9 the plate impact's interface 4 refined 6-10 us late, and burst late at a higher
-    force); the prediction follows the loading rate, and without a window it is nearly the
-    present index. I(t - lead) is interpolated linearly in time between the snapshots around
-    it; before the first snapshot the first is taken (a run from rest: predicted = 2 I - I(0)
-    while t < lead). An oscillation of amplitude A can raise the prediction by up to 2 A: on
-    the demos the cells it flagged were flagged without it too, a little later.
+    at 0.9 alone, the plate impact's interface 4 refined late and burst 6-10 us after the
+    layerwise one, at a higher force); with the prediction the margin below 1 is left to cover
+    the estimate's own lag behind the stress it stands for. Without a window the prediction is
+    the index one interval ahead, nearly the present one. I(t - lead) is interpolated linearly
+    in time between the snapshots around it, the present one included; before the first
+    snapshot the first is taken (a run from rest: predicted = 2 I - I(0) while t < lead, a
+    prediction over t, not over a whole lead). An oscillation of amplitude A, or a jump of the
+    estimate (a neighbour's refinement changes the column averages it is recovered from), can
+    raise the prediction by up to 2 A, or the jump, for one lead: on the demos every cell it
+    flagged was flagged without it too, a little later.
 
-    Only the snapshots within the last lead time and one older are kept (about lead / interval
-    + 2 of them). Per owned cell: local to the rank; ``state()`` goes into each rank's
-    checkpoint."""
+    Kept: the snapshots within the last lead time and one older, at least lead /
+    ``SNAPSHOTS_PER_LEAD`` apart (a later one replaces the last where they would be closer).
+    Per owned cell: local to the rank; ``state()`` goes into each rank's checkpoint.
 
-    def __init__(self, lead: float):
+    ``lead``: s. ``times`` (s) and ``snapshots`` ((cells, interfaces) each): a ``state()``'s,
+    to go on from."""
+
+    def __init__(self, lead: float, times=(), snapshots=()):
         if not (math.isfinite(lead) and lead >= 0.0):
             raise ValueError(f"IndexHistory: the lead time must be >= 0 s, not {lead!r}")
         self.lead = lead
-        self.times: list[float] = []
-        self.snapshots: list[np.ndarray] = []
+        self.times: list[float] = [float(x) for x in times]
+        self.snapshots: list[np.ndarray] = [np.array(x, dtype=float) for x in snapshots]
 
     def past(self, t: float) -> np.ndarray | None:
         """The index at time ``t`` (s), interpolated between the snapshots around it (the
@@ -193,38 +206,32 @@ class IndexHistory:
         return (1.0 - w) * self.snapshots[k - 1] + w * self.snapshots[k]
 
     def predict(self, t: float, index: np.ndarray) -> np.ndarray:
-        """The index predicted at t + lead from ``index``, the one at t (s); ``index`` is kept
-        as the snapshot at t."""
+        """The index predicted at t + lead from ``index``, the one at t (s), which is kept as
+        the snapshot at t (replacing any at t or later: a run restored to an earlier time)."""
         index = np.asarray(index, dtype=float)
-        before = self.past(t - self.lead)
-        if before is None:
-            before = index
-        predicted = index + np.maximum(0.0, index - before)
-        if self.times and t <= self.times[-1]:  # (the same time again: replace its snapshot)
-            self.times.pop(), self.snapshots.pop()
-        self.times.append(float(t))
-        self.snapshots.append(index.copy())
-        # what no later call reads: the snapshots before the one at or before t - lead
-        while len(self.times) >= 2 and self.times[1] <= t - self.lead:
-            del self.times[0], self.snapshots[0]
+        times, snapshots = self.times, self.snapshots
+        while times and times[-1] >= t:
+            times.pop()
+            snapshots.pop()
+        if len(times) >= 2 and t - times[-2] < self.lead / SNAPSHOTS_PER_LEAD:
+            times.pop()
+            snapshots.pop()
+        times.append(float(t))
+        snapshots.append(index.copy())
+        # (with the present snapshot in: evaluations further apart than the lead interpolate
+        # between the last one and now, not continue the whole gap's rise over one lead)
+        predicted = index + np.maximum(0.0, index - self.past(t - self.lead))
+        while len(times) >= 2 and times[1] <= t - self.lead:  # what no later call reads
+            del times[0], snapshots[0]
         return predicted
 
     def state(self) -> dict[str, np.ndarray]:
-        """The lead (s), the snapshots' times (s) and the snapshots (n, cells, interfaces)."""
+        """The snapshots' times (s) and the snapshots (n, cells, interfaces)."""
         shape = self.snapshots[0].shape if self.snapshots else (0, 0)
         return {
-            "lead": np.array(self.lead),
             "times": np.array(self.times, dtype=float),
             "snapshots": np.array(self.snapshots, dtype=float).reshape(len(self.times), *shape),
         }
-
-    @classmethod
-    def of_state(cls, state: dict[str, np.ndarray]) -> IndexHistory:
-        """The history ``state()`` gave."""
-        history = cls(float(state["lead"]))
-        history.times = [float(x) for x in state["times"]]
-        history.snapshots = [np.array(x, dtype=float) for x in state["snapshots"]]
-        return history
 
 
 def sublaminate_thicknesses(laminate, delaminate: tuple[int, ...]) -> np.ndarray:
