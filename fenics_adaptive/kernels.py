@@ -45,6 +45,7 @@ KERNEL_MODULES = (
     "fenics_adaptive.model.forms",
     "fenics_adaptive.model.mass_scaling",  # not in the warm-up: compiled as it is built
     "fenics_adaptive.parallel.halo",  # not in the warm-up (one rank): compiled as it is built
+    "fenics_adaptive.parallel.reductions",
     "fenics_adaptive.solver.blocks",
     "fenics_adaptive.solver.guards",
 )

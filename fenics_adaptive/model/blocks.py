@@ -33,6 +33,7 @@ from fenics_adaptive.model.border import (
 )
 from fenics_adaptive.model.forces import ForceContributor
 from fenics_adaptive.parallel.halo import Halo
+from fenics_adaptive.parallel.reductions import dot
 
 
 @dataclass
@@ -255,7 +256,7 @@ class LumpedBlocks:
         local = 0.0
         for block in self.blocks:
             v = block.v.array[: block.n_owned]
-            local += 0.5 * np.dot(block.mass * v, v)
+            local += 0.5 * dot(block.mass * v, v)
         return self.comm.allreduce(local, op=MPI.SUM)
 
     def momentum(self) -> np.ndarray:

@@ -33,6 +33,7 @@ from fenics_adaptive.materials.ply_damage import (
     pack_ply_damage,
 )
 from fenics_adaptive.model.assembly import chunk_bounds
+from fenics_adaptive.parallel.reductions import dot
 
 
 class PlyDamageState:
@@ -228,7 +229,7 @@ class PlyDamageState:
     def _integral(self, slot: int) -> float:
         """A density slot of the state (MPa = mJ/mm^3) times the plies' volumes: mJ, this
         rank."""
-        return float(np.dot(self.damage[:, :, slot].ravel(), self.ply_volumes.ravel()))
+        return dot(self.damage[:, :, slot].ravel(), self.ply_volumes.ravel())
 
     def dissipated_energy(self) -> float:
         """Energy (mJ) the damage (matrix and fibre) of this rank's plies dissipated so far."""

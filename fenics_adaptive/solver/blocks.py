@@ -13,6 +13,7 @@ from numba import njit
 
 from fenics_adaptive.model.mass_scaling import SelectiveMass
 from fenics_adaptive.model.structure import Block
+from fenics_adaptive.parallel.reductions import dot
 
 
 # ------------------------------------------------------------------ per-step kernels
@@ -275,7 +276,7 @@ class BlockState:
         self.v_mid *= 0.5
         np.multiply(self.v_mid, self.v_mid, out=self.shrink)
         self.shrink *= self.m
-        return mean_dt * np.dot(self.damping, self.shrink)
+        return mean_dt * dot(self.damping, self.shrink)
 
     def energies_at_step(self, mean_dt: float, dt: float) -> tuple[float, float]:
         """(kinetic energy, damping work of the update under way up to t_n) in mJ, this block on
@@ -297,7 +298,7 @@ class BlockState:
             np.multiply(self.m, v_next, out=self.grow)
         else:
             self.scaled_mass.multiply(v_next, self.grow)
-        kinetic = 0.5 * np.dot(self.grow, self.shrink)
+        kinetic = 0.5 * dot(self.grow, self.shrink)
         np.add(self.v, v_next, out=self.v_mid)
         self.v_mid *= 0.5
         np.multiply(self.v_mid, mean_dt, out=self.shrink)
@@ -305,4 +306,4 @@ class BlockState:
         self.shrink -= self.grow
         np.multiply(self.v_mid, self.m, out=self.grow)
         self.grow *= self.damping
-        return kinetic, np.dot(self.grow, self.shrink)
+        return kinetic, dot(self.grow, self.shrink)
