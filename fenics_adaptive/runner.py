@@ -474,6 +474,7 @@ def _finish(
                 "indicator_evaluations": cost[0],
                 "indicator_wall_s": cost[1],
                 "refinement_wall_s": cost[2],
+                "reaction_wall_s": comm.allreduce(stats.reaction_seconds, op=MPI.MAX),
             },
             "extra_nodes_at_end": comm.allreduce(structure.extra.n_owned, op=MPI.SUM),
             "cohesive_elements_at_end": comm.allreduce(len(structure.cohesive), op=MPI.SUM),

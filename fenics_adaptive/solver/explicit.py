@@ -150,6 +150,7 @@ class RunStats:
     stable_time_step: float = 0.0
     critical: str = ""
     refinements: int = 0
+    reaction_seconds: float = 0.0  # this rank's wall time in react_to_refinement
     history: list[HistoryRow] = field(default_factory=list)
 
 
@@ -575,7 +576,9 @@ class ExplicitSolver:
             # structure's forces above; the new one starts from its own forces at t_n
             event = self.refiner(s.t, self.structure)
             if event:
+                started = time.perf_counter()
                 self.react_to_refinement(event)
+                self.stats.reaction_seconds += time.perf_counter() - started
         if self._follows_deformation and s.t >= s.next_output - 1e-9 * s.dt:
             self.follow_deformed_step()  # where a history row is due (it waits anyway)
         if s.t >= self._damping_changes:  # a stabilisation window closed: the update from t_n
