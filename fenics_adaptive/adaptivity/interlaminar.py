@@ -381,7 +381,9 @@ def _hoop_peel(kappa: np.ndarray, stresses: np.ndarray, rec: Recovery) -> np.nda
         + 2.0 * kappa[:, 2, None] * stresses[:, :, 5]
     )
     partial = np.concatenate([np.zeros((len(stresses), 1)), np.cumsum(per_ply, axis=1)], axis=1)
-    return np.column_stack([partial[:, rec.levels], partial @ rec.trapezoid[-1]])
+    # (einsum, not a matrix product: numpy's BLAS would wake its thread pool per evaluation)
+    integral = np.einsum("ck,k->c", partial, rec.trapezoid[-1])
+    return np.column_stack([partial[:, rec.levels], integral])
 
 
 def recovered_interface_stresses(structure, boundaries=None) -> np.ndarray:
