@@ -468,6 +468,7 @@ def _finish(
                 "damping_energy_mJ": rows[-1].damping_energy,
                 "dissipated_energy_mJ": rows[-1].dissipated_energy,
                 "refinement_energy_mJ": rows[-1].refinement_energy,
+                "tie_work_mJ": rows[-1].tie_work,
             },
             "refinement_events": stats.refinements,
             "adaptivity_cost": {

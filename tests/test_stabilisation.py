@@ -143,3 +143,21 @@ def test_damping_window_after_weak_refinement():
     data.pop("stabilisation")
     _, undamped = run(data)
     assert undamped.history[-1].damping_energy == 0.0
+
+
+def test_the_ties_work_is_the_external_work_of_an_impact_on_a_clamped_beam():
+    """An impactor on a clamped cantilever refined strongly by the indicators, the new
+    interfaces tied for 1e-5 s: clamps and the impactor put no external work in, so the
+    history's external work is the ties' work alone, which ``tie_work`` books from the pairs'
+    own motion (trapezoidal in both): equal at every row to round-off, and not zero."""
+    import fenics_adaptive as fa
+
+    data = tomllib.loads((DATA / "mpi_one_rank_impact.toml").read_text())
+    data["stabilisation"] = {"release_window": 1.0e-5}
+    data["solver"]["end_time"] = 4.0e-5  # (past the refinement at 2.4e-5 s, its ties open)
+    simulation = fa.Simulation(parse_config(data))
+    simulation.run()
+    rows = simulation.history
+    scale = max(abs(r.impact_work) for r in rows)
+    assert max(abs(r.external_work - r.tie_work) for r in rows) < 1e-10 * scale
+    assert max(abs(r.tie_work) for r in rows) > 1e-4 * scale

@@ -39,13 +39,16 @@ class DampingWindow:
 class Ties:
     """Tie forces on owned extra-node pairs (lower node A, upper node B of a new strong
     interface): +scale(t) T0 on A, -scale(t) T0 on B, scale falling from 1 at ``start`` to 0 at
-    ``start + window``."""
+    ``start + window``. ``last_scale``, ``last_gap``: the scale and u_A - u_B (n, 3) mm at the
+    last force evaluation that booked their work (None before the first)."""
 
     a: np.ndarray  # owned extra local indices
     b: np.ndarray
     force: np.ndarray  # (n, 3) N
     start: float
     window: float
+    last_scale: float = 0.0
+    last_gap: np.ndarray | None = None
 
     def scale(self, t: float) -> float:
         return max(0.0, 1.0 - (t - self.start) / self.window)
@@ -69,6 +72,7 @@ class StabilisationState:
         self.comm = comm
         self.damping_windows: list[DampingWindow] = []
         self.ties: list[Ties] = []
+        self.tie_work = 0.0  # mJ, this rank's: the work the ties did on the structure so far
         self.discard_requests()
 
     def discard_requests(self) -> None:
@@ -113,15 +117,34 @@ class StabilisationState:
             self.ties.append(Ties(a, b, tie_forces(force, mass, a, b), t, settings.release_window))
         self.discard_requests()
 
-    def add_tie_forces(self, t: float, f_ext_extra: np.ndarray) -> None:
+    def add_tie_forces(
+        self, t: float, f_ext_extra: np.ndarray, u_extra: np.ndarray | None = None
+    ) -> None:
         """Add the active tie forces at time t (s) to the extra block's external force (owned
-        DOFs, flat, N); ties released by t are dropped."""
-        self.ties = [tie for tie in self.ties if tie.scale(t) > 0.0]
+        DOFs, flat, N); ties released by t are dropped. With the extra nodes' displacements
+        ``u_extra`` (mm, flat, owned first) the ties' work since the last call is booked in
+        ``tie_work``: 1/2 (s_prev + s) T0 . ((u_A - u_B) - (u_A - u_B)_prev), trapezoidal as
+        the solver's external work, of which it is a part. A tie's force is fixed at the
+        refinement and fades: whatever relative motion the pair then makes, it does work on it,
+        out of the structure where it holds an opening, into it where the pair moves along the
+        force: an artificial constraint's energy (as an hourglass control's), which the history
+        shows (``tie_work``)."""
         f = f_ext_extra.reshape(-1, 3)
+        u = None if u_extra is None else u_extra.reshape(-1, 3)
+        active = []
         for tie in self.ties:
             scale = tie.scale(t)
-            np.add.at(f, tie.a, scale * tie.force)
-            np.subtract.at(f, tie.b, scale * tie.force)
+            if u is not None:
+                gap = u[tie.a] - u[tie.b]
+                if tie.last_gap is not None:
+                    moved = np.sum(tie.force * (gap - tie.last_gap))
+                    self.tie_work += 0.5 * (tie.last_scale + scale) * float(moved)
+                tie.last_scale, tie.last_gap = scale, gap
+            if scale > 0.0:
+                np.add.at(f, tie.a, scale * tie.force)
+                np.subtract.at(f, tie.b, scale * tie.force)
+                active.append(tie)
+        self.ties = active
 
     def active_damping(self, t: float) -> list[DampingWindow]:
         """The damping windows still open at time t (s); closed ones are dropped."""
@@ -137,6 +160,15 @@ class StabilisationState:
             "tie_b": np.concatenate([tie.b for tie in ties] or [np.zeros(0, np.int64)]),
             "tie_force": np.concatenate([tie.force for tie in ties] or [np.zeros((0, 3))]),
             "tie_times": np.array([[tie.start, tie.window] for tie in ties]).reshape(-1, 2),
+            # the last booked scale (NaN: none yet) and gaps, the work so far
+            "tie_last_scale": np.array(
+                [tie.last_scale if tie.last_gap is not None else np.nan for tie in ties]
+            ),
+            "tie_last_gap": np.concatenate(
+                [tie.last_gap if tie.last_gap is not None else tie.force * np.nan for tie in ties]
+                or [np.zeros((0, 3))]
+            ),
+            "tie_work": np.array(self.tie_work),
             "window_counts": np.array([len(w.dofs) for w in windows], dtype=np.int64),
             "window_dofs": np.concatenate([w.dofs for w in windows] or [np.zeros(0, np.int32)]),
             "window_values": np.array([[w.block, w.coefficient, w.until] for w in windows]).reshape(
@@ -151,9 +183,16 @@ class StabilisationState:
             a = state["tie_a"][start : start + n]
             b = state["tie_b"][start : start + n]
             force = state["tie_force"][start : start + n]
-            ties.append(Ties(a, b, force, float(t0), float(window)))
+            tie = Ties(a, b, force, float(t0), float(window))
+            if "tie_last_gap" in state:  # (a checkpoint from before the ties' work: none)
+                scale = state["tie_last_scale"][len(ties)]
+                if np.isfinite(scale):
+                    tie.last_scale = float(scale)
+                    tie.last_gap = np.array(state["tie_last_gap"][start : start + n])
+            ties.append(tie)
             start += n
         self.ties = ties
+        self.tie_work = float(state.get("tie_work", 0.0))
         windows, start = [], 0
         for n, (block, coefficient, until) in zip(
             state["window_counts"], state["window_values"], strict=True

@@ -73,6 +73,7 @@ COLUMN_UNITS = {
     "contact_force": "N",
     "impactor_displacement": "mm",
     "impact_work": "mJ",
+    "tie_work": "mJ",
     "cohesive_dissipation": "mJ",
     "ply_dissipation": "mJ",
     "fibre_dissipation": "mJ",

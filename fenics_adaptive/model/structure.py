@@ -173,7 +173,7 @@ class Structure:
         # the structure's force contributors (model.forces): internal forces, then tie forces
         self.contributors: list[ForceContributor] = [
             *self.internal_forces.contributors,
-            TieForces(self.stabilisation_state),
+            TieForces(self.stabilisation_state, lambda: self.extra.vectors["u"].array),
         ]
         # the selectively scaled mass of the base nodes, if a run asks for it (set by the
         # solver: ``model.mass_scaling.selective_mass``); None: the lumped masses alone

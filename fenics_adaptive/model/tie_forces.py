@@ -5,12 +5,16 @@ Units: N, mm, s, tonne.
 After a strong refinement the structure holds each new node pair together by a tie force that
 it releases linearly to zero (``Structure.start_stabilisation``,
 ``StabilisationState.add_tie_forces``). The tie forces act on the extra nodes as external
-forces; they store no energy. Their state (which pairs, which force, since when) belongs to the
+forces; they store no energy, and the work they do (a part of the external work: an artificial
+constraint's, taken out of the structure as the ties hold what it pulls apart) is the history's
+``tie_work``. Their state (which pairs, which force, since when) belongs to the
 structure's stabilisation state and is checkpointed with it, so this contributor keeps none of
 its own.
 """
 
 from __future__ import annotations
+
+from collections.abc import Callable
 
 import numpy as np
 
@@ -24,10 +28,13 @@ class TieForces(Contributor):
     name = "ties"
     kind = ForceKind.EXTERNAL
 
-    def __init__(self, stabilisation: StabilisationState):
+    def __init__(self, stabilisation: StabilisationState, displacement: Callable[[], np.ndarray]):
+        """``displacement()``: the extra nodes' displacements now (mm, flat, owned first)."""
         self.stabilisation = stabilisation
+        self.displacement = displacement
 
     def add_force(self, t: float, f_base: np.ndarray, f_extra: np.ndarray) -> None:
-        """Add the tie forces at time t (s) into ``f_extra`` (N, owned extra DOFs, flat)."""
+        """Add the tie forces at time t (s) into ``f_extra`` (N, owned extra DOFs, flat) and
+        book their work since the last call."""
         if self.stabilisation.ties:
-            self.stabilisation.add_tie_forces(t, f_extra)
+            self.stabilisation.add_tie_forces(t, f_extra, self.displacement())

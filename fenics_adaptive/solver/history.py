@@ -51,6 +51,9 @@ class HistoryRow:
     # mJ, the work of the rigid bodies' contact forces on the structure since t = 0 (net of
     # what their friction dissipated)
     impact_work: float = 0.0
+    # mJ, the work the tie forces of new strong interfaces did on the structure since t = 0
+    # (a part of external_work: an artificial constraint's, of either sign)
+    tie_work: float = 0.0
     cohesive_dissipation: float = 0.0  # mJ, summed from the cohesive law's damage increments
     ply_dissipation: float = 0.0  # mJ, summed from the ply damage law's increments
     fibre_dissipation: float = 0.0  # mJ, the broken fibres' share of ply_dissipation
@@ -166,6 +169,7 @@ class HistoryRecorder:
             delaminated_area=delaminated,
             time_step=s.dt,
             crack_growth_area=grown,
+            tie_work=total[18],
         )
         for report in hooks(self.contributors, "report"):
             report(row, s.step == 0)
@@ -201,7 +205,8 @@ class HistoryRecorder:
         run's contributors hold, the strain energy of its INTERNAL ones, the structure's solid
         and cohesive energies (``InternalForces.energies``), its cohesive, ply and fibre
         dissipation and eroded energy (``diagnostics.damage_dissipation``), its delaminated and
-        grown areas (``diagnostics.delaminated_areas``)); raises (``guards``) if an element
+        grown areas (``diagnostics.delaminated_areas``), the work of its ties
+        (``StabilisationState.tie_work``)); raises (``guards``) if an element
         inverted or a sum is not finite."""
         base = blocks[0]
         inverted = inversion.check(s.t)
@@ -231,6 +236,7 @@ class HistoryRecorder:
                 *self.structure.internal_forces.local_energies(),
                 *local_damage_dissipation(self.structure),
                 *local_delaminated_areas(self.structure),
+                self.structure.stabilisation_state.tie_work,
             ]
         )
         total = summed(self.comm, local)
