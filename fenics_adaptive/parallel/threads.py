@@ -8,8 +8,8 @@ against MPI's own busy wait. Measured on this project's two-vCPU machines, 4 000
 ranks: a history row 15.2 ms with the default pools, 0.92 ms with one thread per rank (one rank:
 1.45 ms); a 200-step run 1.50 against 1.00 ms per step. So a run on several ranks limits each
 rank's pools to one thread, as PETSc and DOLFINx advise for MPI runs. One rank keeps the
-machine's settings: the time loop makes no BLAS call of its own (its dot products are
-``reductions.dot``, in the rank's thread: a pool woken for a vector of the plate impact's
+machine's settings: the time loop hands the BLAS none of its long vectors (their dot products
+are ``reductions.dot``, in the rank's thread: a pool woken for a vector of the plate impact's
 15 606 DOFs spun against another process on the second core, 7.7 ms a dot).
 """
 
