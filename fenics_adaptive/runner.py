@@ -209,12 +209,12 @@ def _indicator_defaults(config: RunConfig, structure: Structure) -> dict | None:
     """[indicators]' values as the run uses them (``simulation.indicator_defaults``), or None."""
     if config.indicators is None:
         return None
-    times = indicator_defaults(config, structure)
+    defaults = indicator_defaults(config, structure)
     at = structure.interfaces.delaminate
     return {
-        "interval_s": float(times.interval),
-        "look_ahead_s": None if times.lead is None else float(times.lead),
-        "front_distance_mm": {str(i): float(times.front[i - 1]) for i in at},
+        "interval_s": float(defaults.interval),
+        "look_ahead_s": None if defaults.lead is None else float(defaults.lead),
+        "front_distance_mm": {str(i): float(defaults.front[i - 1]) for i in at},
     }
 
 

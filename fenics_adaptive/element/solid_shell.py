@@ -102,7 +102,8 @@ def gauss_legendre_01(n: int) -> tuple[np.ndarray, np.ndarray]:
 
 @functools.cache
 def _gauss_legendre_01(n: int) -> tuple[np.ndarray, np.ndarray]:
-    # (numpy's leggauss solves an eigenproblem: a refinement asks for its rules a thousand times)
+    # (numpy's leggauss solves an eigenproblem: building the plate's rule table and refining it
+    # asked for the rules some 1 100 times)
     x, w = np.polynomial.legendre.leggauss(n)
     return 0.5 * (x + 1.0), 0.5 * w
 

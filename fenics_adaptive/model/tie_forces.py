@@ -6,10 +6,10 @@ After a strong refinement the structure holds each new node pair together by a t
 it releases linearly to zero (``Structure.start_stabilisation``,
 ``StabilisationState.add_tie_forces``). The tie forces act on the extra nodes as external
 forces; they store no energy, and the work they do (a part of the external work: an artificial
-constraint's, taken out of the structure as the ties hold what it pulls apart) is the history's
-``tie_work``. Their state (which pairs, which force, since when) belongs to the
-structure's stabilisation state and is checkpointed with it, so this contributor keeps none of
-its own.
+constraint's, of either sign: a fixed, fading force does work on whatever relative motion its
+pair makes) is the history's ``tie_work``. Their state (which pairs, which force, since when,
+the work so far) belongs to the structure's stabilisation state and is checkpointed with it,
+so this contributor keeps none of its own.
 """
 
 from __future__ import annotations
