@@ -35,6 +35,7 @@ KERNEL_MODULES = (
     "fenics_adaptive.adaptivity.indicators",
     "fenics_adaptive.adaptivity.interlaminar",
     "fenics_adaptive.adaptivity.ply_fields",
+    "fenics_adaptive.adaptivity.stabilisation",
     "fenics_adaptive.element.batched",
     "fenics_adaptive.element.subelement",
     "fenics_adaptive.materials.cohesive",

@@ -9,19 +9,119 @@ refined cells, new strong node pairs); right after it, ``start`` opens the dampi
 sets the tie forces. The solver asks each step for the active windows (``active_damping``) and
 adds the tie forces (``add_tie_forces``). ``state`` / ``restore`` carry the windows and ties
 through a checkpoint (the requests never outlive a step, so they are not part of it).
+
+A tie force stands for the traction the continuous interface carried when it split, which the
+new cohesive element takes over as the tie fades (Menouillard & Belytschko 2010). That traction
+resisted one relative motion of the pair; a fixed force would go on pushing whatever the pair
+then does, and push an interface open once the load on it has turned round (measured: 36.5 mJ
+put into a struck beam whose impactor brought 33.4 mJ). So a tie follows its pair
+(``TieRelease``): full while the pair stays within the cohesive law's onset opening of where it
+was tied, moved against the tie's force (the hand-over to the cohesive element), let go as the
+pair opens on towards the law's final opening (the crack opens under it: the tie softens as the
+interface's own law does) or moves the other way, along the force, by the onset opening (the
+load has turned round: the penalty of the cohesive element or its contact takes over). The
+force then depends on the pair's position alone at a given scale: as the scale falls, a tie
+can put in at most |T0| times half the onset opening per pair.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
 from mpi4py import MPI
+from numba import njit
+
+from fenics_adaptive.settings.materials import P_GIC, P_GIIC, P_KN, P_KS, P_N, P_S
 
 if TYPE_CHECKING:
     from fenics_adaptive.settings.adaptivity import Stabilisation
+
+
+@dataclass(frozen=True)
+class TieRelease:
+    """How far a tied pair may move along its tie's direction before the tie lets go (mm):
+    ``onset``, the cohesive law's onset opening (the larger of N / K_n and S / K_s), and
+    ``final``, its final opening (the larger of 2 GIc / N and 2 GIIc / S). The default, both
+    infinite, is a tie that never lets go (a fixed force that only fades)."""
+
+    onset: float = math.inf
+    final: float = math.inf
+
+    def __post_init__(self) -> None:
+        if not 0.0 < self.onset <= self.final:
+            raise ValueError(f"0 < onset <= final (got {self.onset}, {self.final})")
+
+    @classmethod
+    def of_law(cls, params: np.ndarray | None) -> TieRelease:
+        """The release of ties on interfaces of the cohesive law ``params``
+        (``CohesiveLaw.as_array``; None: no law, ties that never let go)."""
+        if params is None or not params[P_KN] > 0.0:
+            return cls()
+        onset = max(params[P_N] / params[P_KN], params[P_S] / params[P_KS])
+        final = max(2.0 * params[P_GIC] / params[P_N], 2.0 * params[P_GIIC] / params[P_S])
+        return cls(float(onset), float(max(final, onset)))
+
+
+@njit(cache=True)
+def tie_weight(along: float, onset: float, final: float) -> float:
+    """The share (0 to 1) of its force a tie applies when its pair has moved ``along`` (mm)
+    in the force's direction since it was tied: 1 on [-onset, 0]; falling linearly to 0 at
+    -final (the pair opened against the force, as the cohesive law softens) and at +onset
+    (the pair moved the way the force pushes)."""
+    if along > 0.0:
+        return max(0.0, 1.0 - along / onset)
+    if -along <= onset:
+        return 1.0
+    if final > onset:
+        return max(0.0, (final + along) / (final - onset))
+    return 0.0
+
+
+@njit(cache=True)
+def add_tie_group(f, u, a, b, force, scale, onset, final, origin, last_weight, last_gap, booked):
+    """Add the forces of one group of ties at ``scale`` (its fading, 0 to 1) into f (n, 3) N,
+    +w T0 on node a, -w T0 on node b, w = scale x ``tie_weight`` of the pair's motion along
+    T0 (``force`` (n, 3) N) since it was tied, from its gap u_a - u_b (mm) then, ``origin``
+    (n, 3), which a first call (``booked`` False) sets. u (n_nodes, 3) mm; empty: the pairs as
+    tied. With ``booked``, returns the work (mJ) the ties did on the pairs' relative motion
+    since ``last_gap`` at the weights ``last_weight`` of the last call (trapezoidal, as the
+    solver's external work, of which it is a part); both are updated in place."""
+    work = 0.0
+    for i in range(a.shape[0]):
+        ia, ib = a[i], b[i]
+        tx, ty, tz = force[i, 0], force[i, 1], force[i, 2]
+        if u.shape[0] == 0:
+            gx, gy, gz = origin[i, 0], origin[i, 1], origin[i, 2]
+        else:
+            gx = u[ia, 0] - u[ib, 0]
+            gy = u[ia, 1] - u[ib, 1]
+            gz = u[ia, 2] - u[ib, 2]
+            if not booked:
+                origin[i, 0], origin[i, 1], origin[i, 2] = gx, gy, gz
+        size = math.sqrt(tx * tx + ty * ty + tz * tz)
+        along = 0.0
+        if size > 0.0:
+            along = tx * (gx - origin[i, 0]) + ty * (gy - origin[i, 1]) + tz * (gz - origin[i, 2])
+            along /= size
+        weight = scale * tie_weight(along, onset, final)
+        if booked:
+            moved = tx * (gx - last_gap[i, 0]) + ty * (gy - last_gap[i, 1])
+            moved += tz * (gz - last_gap[i, 2])
+            work += 0.5 * (last_weight[i] + weight) * moved
+        last_weight[i] = weight
+        last_gap[i, 0], last_gap[i, 1], last_gap[i, 2] = gx, gy, gz
+        if weight > 0.0:
+            f[ia, 0] += weight * tx
+            f[ia, 1] += weight * ty
+            f[ia, 2] += weight * tz
+            f[ib, 0] -= weight * tx
+            f[ib, 1] -= weight * ty
+            f[ib, 2] -= weight * tz
+    return work
 
 
 @dataclass
@@ -35,20 +135,35 @@ class DampingWindow:
     until: float
 
 
+_AS_TIED = np.zeros((0, 3))  # ``add_tie_group``'s u for pairs where they were tied
+
+
 @dataclass
 class Ties:
     """Tie forces on owned extra-node pairs (lower node A, upper node B of a new strong
-    interface): +scale(t) T0 on A, -scale(t) T0 on B, scale falling from 1 at ``start`` to 0 at
-    ``start + window``. ``last_scale``, ``last_gap``: the scale and u_A - u_B (n, 3) mm at the
-    last force evaluation that booked their work (None before the first)."""
+    interface): +w T0 on A, -w T0 on B, w = scale(t) x the pair's ``tie_weight``, scale falling
+    from 1 at ``start`` to 0 at ``start + window``. ``origin`` (n, 3) mm: each pair's
+    u_A - u_B when tied (set at the first evaluation); ``last_weight`` (n,), ``last_gap``
+    (n, 3) mm: its w and u_A - u_B at the last evaluation that booked their work (``booked``:
+    there was one)."""
 
     a: np.ndarray  # owned extra local indices
     b: np.ndarray
     force: np.ndarray  # (n, 3) N
     start: float
     window: float
-    last_scale: float = 0.0
+    origin: np.ndarray | None = None
+    last_weight: np.ndarray | None = None
     last_gap: np.ndarray | None = None
+    booked: bool = False
+
+    def __post_init__(self) -> None:
+        if self.origin is None:
+            self.origin = np.zeros((len(self.a), 3))
+        if self.last_weight is None:
+            self.last_weight = np.zeros(len(self.a))
+        if self.last_gap is None:
+            self.last_gap = np.zeros((len(self.a), 3))
 
     def scale(self, t: float) -> float:
         return max(0.0, 1.0 - (t - self.start) / self.window)
@@ -67,9 +182,12 @@ class StabilisationState:
     """Damping windows and tie forces of one rank, opened after refinements with the
     parameters of ``settings`` (a ``Stabilisation``)."""
 
-    def __init__(self, settings: Stabilisation, comm: MPI.Comm):
+    def __init__(self, settings: Stabilisation, comm: MPI.Comm, release: TieRelease | None = None):
+        """``release``: how far a tied pair may move before its tie lets go (default: never,
+        ``TieRelease``)."""
         self.settings = settings
         self.comm = comm
+        self.release = release or TieRelease()
         self.damping_windows: list[DampingWindow] = []
         self.ties: list[Ties] = []
         self.tie_work = 0.0  # mJ, this rank's: the work the ties did on the structure so far
@@ -121,28 +239,24 @@ class StabilisationState:
         self, t: float, f_ext_extra: np.ndarray, u_extra: np.ndarray | None = None
     ) -> None:
         """Add the active tie forces at time t (s) to the extra block's external force (owned
-        DOFs, flat, N); ties released by t are dropped. With the extra nodes' displacements
-        ``u_extra`` (mm, flat, owned first) the ties' work since the last call is booked in
-        ``tie_work``: 1/2 (s_prev + s) T0 . ((u_A - u_B) - (u_A - u_B)_prev), trapezoidal as
-        the solver's external work, of which it is a part. A tie's force is fixed at the
-        refinement and fades: whatever relative motion the pair then makes, it does work on it,
-        out of the structure where it holds an opening, into it where the pair moves along the
-        force: an artificial constraint's energy (as an hourglass control's), which the history
-        shows (``tie_work``)."""
+        DOFs, flat, N) at the extra nodes' displacements ``u_extra`` (mm, flat, owned first;
+        None: the pairs as tied, together) and book the ties' work since the last call in
+        ``tie_work`` (``add_tie_group``): an artificial constraint's energy, as an hourglass
+        control's, which the history shows. Ties released by t are dropped."""
         f = f_ext_extra.reshape(-1, 3)
-        u = None if u_extra is None else u_extra.reshape(-1, 3)
+        u = _AS_TIED if u_extra is None else u_extra.reshape(-1, 3)
+        onset, final = self.release.onset, self.release.final
         active = []
         for tie in self.ties:
             scale = tie.scale(t)
-            if u is not None:
-                gap = u[tie.a] - u[tie.b]
-                if tie.last_gap is not None:
-                    moved = np.sum(tie.force * (gap - tie.last_gap))
-                    self.tie_work += 0.5 * (tie.last_scale + scale) * float(moved)
-                tie.last_scale, tie.last_gap = scale, gap
+            work = add_tie_group(
+                f, u, tie.a, tie.b, tie.force, scale, onset, final, tie.origin,
+                tie.last_weight, tie.last_gap, tie.booked and u_extra is not None,
+            )  # fmt: skip
+            if u_extra is not None:
+                self.tie_work += work
+                tie.booked = True
             if scale > 0.0:
-                np.add.at(f, tie.a, scale * tie.force)
-                np.subtract.at(f, tie.b, scale * tie.force)
                 active.append(tie)
         self.ties = active
 
@@ -160,14 +274,12 @@ class StabilisationState:
             "tie_b": np.concatenate([tie.b for tie in ties] or [np.zeros(0, np.int64)]),
             "tie_force": np.concatenate([tie.force for tie in ties] or [np.zeros((0, 3))]),
             "tie_times": np.array([[tie.start, tie.window] for tie in ties]).reshape(-1, 2),
-            # the last booked scale (NaN: none yet) and gaps, the work so far
-            "tie_last_scale": np.array(
-                [tie.last_scale if tie.last_gap is not None else np.nan for tie in ties]
-            ),
-            "tie_last_gap": np.concatenate(
-                [tie.last_gap if tie.last_gap is not None else tie.force * np.nan for tie in ties]
-                or [np.zeros((0, 3))]
-            ),
+            # each pair's last booked weight and gap, whether each group has booked, the
+            # work so far
+            "tie_last_weight": np.concatenate([tie.last_weight for tie in ties] or [np.zeros(0)]),
+            "tie_origin": np.concatenate([tie.origin for tie in ties] or [np.zeros((0, 3))]),
+            "tie_last_gap": np.concatenate([tie.last_gap for tie in ties] or [np.zeros((0, 3))]),
+            "tie_booked": np.array([tie.booked for tie in ties], dtype=bool),
             "tie_work": np.array(self.tie_work),
             "window_counts": np.array([len(w.dofs) for w in windows], dtype=np.int64),
             "window_dofs": np.concatenate([w.dofs for w in windows] or [np.zeros(0, np.int32)]),
@@ -184,10 +296,16 @@ class StabilisationState:
             b = state["tie_b"][start : start + n]
             force = state["tie_force"][start : start + n]
             tie = Ties(a, b, force, float(t0), float(window))
-            if "tie_last_gap" in state:  # (a checkpoint from before the ties' work: none)
+            if "tie_booked" in state:
+                tie.booked = bool(state["tie_booked"][len(ties)])
+                tie.last_weight = np.array(state["tie_last_weight"][start : start + n])
+                tie.last_gap = np.array(state["tie_last_gap"][start : start + n])
+                tie.origin = np.array(state["tie_origin"][start : start + n])
+            elif "tie_last_scale" in state:  # (before the release: one weight, the scale)
                 scale = state["tie_last_scale"][len(ties)]
-                if np.isfinite(scale):
-                    tie.last_scale = float(scale)
+                tie.booked = bool(np.isfinite(scale))
+                if tie.booked:
+                    tie.last_weight = np.full(n, float(scale))
                     tie.last_gap = np.array(state["tie_last_gap"][start : start + n])
             ties.append(tie)
             start += n

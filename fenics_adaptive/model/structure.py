@@ -48,7 +48,12 @@ from dolfinx import fem
 
 from fenics_adaptive.adaptivity import enrichment as enr
 from fenics_adaptive.adaptivity.refinement import RefinementState
-from fenics_adaptive.adaptivity.stabilisation import DampingWindow, StabilisationState, Ties
+from fenics_adaptive.adaptivity.stabilisation import (
+    DampingWindow,
+    StabilisationState,
+    TieRelease,
+    Ties,
+)
 from fenics_adaptive.element.geometry import thickness_weight
 from fenics_adaptive.element.rules import RuleTable
 from fenics_adaptive.element.solid_shell import enhanced_displacement
@@ -118,7 +123,9 @@ class Structure:
         # the ranks are the parallelism: BLAS pools of several ranks on shared cores spin
         # against each other (a history row 15 ms instead of 1 on two ranks)
         one_thread_per_rank(self.comm)
-        self.stabilisation_state = StabilisationState(self.stabilisation, self.comm)
+        self.stabilisation_state = StabilisationState(
+            self.stabilisation, self.comm, TieRelease.of_law(law_params)
+        )
         V = base.V
         self.n_base = V.dofmap.index_map.size_local + V.dofmap.index_map.num_ghosts
         self.X_base = V.tabulate_dof_coordinates()[: self.n_base].copy()

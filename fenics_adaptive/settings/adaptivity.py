@@ -52,7 +52,10 @@ class Stabilisation:
     holds each new node pair together: at the moment of refinement it makes the two nodes
     accelerate together exactly as the continuous interface did (it cancels the jump in
     internal force that splitting causes; Menouillard & Belytschko 2010), and it is released
-    linearly to zero over ``release_window`` (s); 0 inserts the crack abruptly."""
+    linearly to zero over ``release_window`` (s); 0 inserts the crack abruptly. A tie also lets
+    go of a pair that moves on (``adaptivity.stabilisation.TieRelease``): opened against it past
+    the cohesive law's onset opening (released by its final opening), or moved the way it
+    pushes (released within the onset opening), so that it never pushes an interface open."""
 
     damping: float = 0.0
     damping_window: float = 0.0

@@ -1256,7 +1256,8 @@ SECTIONS: tuple[Section, ...] = (
             Key(
                 "release_window",
                 "float",
-                "tie force of a strong refinement released over",
+                "tie force of a strong refinement released over (and let go where its pair "
+                "moves on: past the cohesive law's onset opening)",
                 "s",
                 0.0,
                 0.0,
