@@ -169,26 +169,29 @@ def test_the_ties_work_is_the_external_work_of_an_impact_on_a_clamped_beam():
     scale = max(abs(r.impact_work) for r in rows)
     assert max(abs(r.external_work - r.tie_work) for r in rows) < 1e-10 * scale
     assert max(abs(r.tie_work) for r in rows) > 1e-4 * scale
-    # measured: between -0.024 and +0.012 mJ (its 34.3 mJ of contact work); each pair can
-    # put in at most |T0| onset / 2, a few microjoules here
+    # measured: between -0.033 and +0.009 mJ (its 33.2 mJ of contact work); each pair can
+    # put in at most |T0|^2 / (2 K A), a few microjoules here
     assert max(r.tie_work for r in rows) < 1e-3 * scale
     assert max(abs(r.energy_balance) for r in rows) < 1e-4 * scale
 
 
 def test_a_tie_lets_go_of_a_pair_that_moves_along_its_force_or_opens_past_the_law():
-    """One tied pair (T0 = 10 N along z on node A) moved along z: the tie's share is 1 while
-    the pair moves against the force (A down relative to B) up to the onset opening, falls
-    linearly to 0 at the final opening, and falls to 0 within an onset opening the other way.
-    Its work over a round trip the way the force pushes, at full scale, is |T0| onset / 2 (the
-    ramp's area, trapezoidal and exact at its corners); whatever the path and the fading, the
-    work it puts in stays below that."""
+    """One tied pair (T0 = 10 N along z on node A, an interface area of 0.1 mm^2 at a penalty
+    of 1e5 N/mm^3: its cohesive element carries T0 at an opening of r = 1e-3 mm, the tie's
+    reach) moved along z: the tie's share is 1 while the pair moves against the force (A down
+    relative to B) by up to r, falls linearly to 0 at the law's final opening, and falls to 0
+    within r the other way. Its work over a round trip the way the force pushes, at full scale,
+    is |T0| r / 2 (the ramp's area, trapezoidal and exact at its corners); whatever the path
+    and the fading, the work it puts in stays below that."""
     onset, final = 1.0e-3, 1.0e-2
     state = StabilisationState(Stabilisation(0.0, 0.0, 1.0e-5), MPI.COMM_SELF)
-    state.release = TieRelease(onset, final)
+    state.release = TieRelease(1.0e5, final)
     force = np.array([[0.0, 0.0, 20.0], [0.0, 0.0, 0.0]])  # T0 = (f_A - f_B) / 2, equal masses
     state.request(np.zeros(0, dtype=np.int64))
     state.request_pair(0, 1)
-    state.start(0.0, lambda cells: [], lambda: (force, np.array([1e-9, 1e-9])))
+    area = np.array([0.1, 0.0])  # (B, an upper node, holds none)
+    state.start(0.0, lambda cells: [], lambda: (force, np.array([1e-9, 1e-9]), area))
+    np.testing.assert_allclose(state.ties[0].reach, [onset], rtol=1e-12)
 
     def tie_force(t: float, along: float) -> float:
         """z force on A with the pair moved ``along`` z (mm) relative to where it was tied."""
@@ -224,6 +227,10 @@ def test_the_tie_release_comes_from_the_cohesive_law():
     law = CohesiveLaw(K_n=1.0e5, K_s=5.0e4, N=60.0, S=90.0, GIc=0.3, GIIc=0.9, law="bk",
                       exponent=2.0)  # fmt: skip
     release = TieRelease.of_law(law.as_array())
-    assert release.onset == pytest.approx(max(60.0 / 1.0e5, 90.0 / 5.0e4))
+    assert release.stiffness == 1.0e5  # the stiffer penalty: the reach at most the softer's
     assert release.final == pytest.approx(max(2 * 0.3 / 60.0, 2 * 0.9 / 90.0))
-    assert TieRelease.of_law(None) == TieRelease()  # no law: a tie that never lets go
+    # the opening at which the pair's cohesive element carries the tie's force
+    force = np.array([[3.0, 0.0, 4.0], [0.0, 0.0, 0.0]])
+    np.testing.assert_allclose(release.reach(force, [0.5, 0.5]), [5.0 / 5.0e4, 0.0])
+    assert TieRelease.of_law(None).reach(force, [0.5, 0.5]).tolist() == [np.inf, np.inf]
+    assert np.isinf(release.reach(force, [0.0, 0.0])).all()  # no area: never let go

@@ -128,7 +128,7 @@ def started_stabilisation() -> tuple[StabilisationState, np.ndarray, np.ndarray]
     state.start(
         1.0e-5,
         lambda cells: [np.array([0, 1, 2], np.int32), 3 * cells.astype(np.int32)],
-        lambda: (force, mass),
+        lambda: (force, mass, np.full(6, 0.1)),
     )
     return state, force, mass
 

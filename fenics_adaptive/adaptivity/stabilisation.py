@@ -14,14 +14,17 @@ A tie force stands for the traction the continuous interface carried when it spl
 new cohesive element takes over as the tie fades (Menouillard & Belytschko 2010). That traction
 resisted one relative motion of the pair; a fixed force would go on pushing whatever the pair
 then does, and push an interface open once the load on it has turned round (measured: 36.5 mJ
-put into a struck beam whose impactor brought 33.4 mJ). So a tie follows its pair
-(``TieRelease``): full while the pair stays within the cohesive law's onset opening of where it
-was tied, moved against the tie's force (the hand-over to the cohesive element), let go as the
-pair opens on towards the law's final opening (the crack opens under it: the tie softens as the
-interface's own law does) or moves the other way, along the force, by the onset opening (the
-load has turned round: the penalty of the cohesive element or its contact takes over). The
-force then depends on the pair's position alone at a given scale: as the scale falls, a tie
-can put in at most |T0| times half the onset opening per pair.
+put into a struck beam whose impactor brought 36 mJ). So a tie follows its pair
+(``TieRelease``, ``tie_weight``), over its reach r = |T0| / (K A), the opening at which the
+pair's cohesive element (penalty K, the pair's interface area A) carries the tie's force: full
+while the pair has moved against the force by up to r (the hand-over: as the tie fades the
+cohesive element takes its force over), let go as the pair opens on to the law's final opening
+(the crack opens under it: the tie softens as the interface's own law does) or as it moves by r
+the other way, along the force (the load has turned round: the cohesive element's penalty, or
+its contact, takes over). At a given scale the force then depends on the pair's position alone:
+as the scale falls a tie can put in at most |T0| r / 2 = |T0|^2 / (2 K A) per pair, the energy
+its cohesive element would store under the tie's force, and where it lets go its stiffness is
+at most the cohesive element's own, K A.
 """
 
 from __future__ import annotations
@@ -43,17 +46,20 @@ if TYPE_CHECKING:
 
 @dataclass(frozen=True)
 class TieRelease:
-    """How far a tied pair may move along its tie's direction before the tie lets go (mm):
-    ``onset``, the cohesive law's onset opening (the larger of N / K_n and S / K_s), and
-    ``final``, its final opening (the larger of 2 GIc / N and 2 GIIc / S). The default, both
-    infinite, is a tie that never lets go (a fixed force that only fades)."""
+    """When a tie lets go of its pair, from the cohesive law of the interface it ties:
+    ``stiffness`` (N/mm^3), the law's stiffer penalty, max(K_n, K_s), and ``final`` (mm), its
+    final opening, the larger of 2 GIc / N and 2 GIIc / S. A pair whose lower node holds an
+    interface area A (its share of the cohesive elements around it) is let go of over its
+    reach r = |T0| / (stiffness A), the opening at which its cohesive element carries the tie's
+    force (``reach``, ``tie_weight``). The default, a stiffness of 0, is a tie that never lets
+    go (a fixed force that only fades)."""
 
-    onset: float = math.inf
+    stiffness: float = 0.0
     final: float = math.inf
 
     def __post_init__(self) -> None:
-        if not 0.0 < self.onset <= self.final:
-            raise ValueError(f"0 < onset <= final (got {self.onset}, {self.final})")
+        if not (self.stiffness >= 0.0 and self.final > 0.0):
+            raise ValueError(f"stiffness >= 0, final > 0 (got {self.stiffness}, {self.final})")
 
     @classmethod
     def of_law(cls, params: np.ndarray | None) -> TieRelease:
@@ -61,35 +67,46 @@ class TieRelease:
         (``CohesiveLaw.as_array``; None: no law, ties that never let go)."""
         if params is None or not params[P_KN] > 0.0:
             return cls()
-        onset = max(params[P_N] / params[P_KN], params[P_S] / params[P_KS])
         final = max(2.0 * params[P_GIC] / params[P_N], 2.0 * params[P_GIIC] / params[P_S])
-        return cls(float(onset), float(max(final, onset)))
+        return cls(float(max(params[P_KN], params[P_KS])), float(final))
+
+    def reach(self, force: np.ndarray, area: np.ndarray) -> np.ndarray:
+        """(n,) mm: each tie's reach r = |T0| / (stiffness A) from its force T0 (n, 3) N and
+        its pair's interface area A (n,) mm^2; inf (never let go) without a stiffness or an
+        area."""
+        spring = self.stiffness * np.asarray(area, dtype=float)
+        size = np.linalg.norm(force, axis=1)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return np.where(spring > 0.0, size / spring, np.inf)
 
 
 @njit(cache=True)
-def tie_weight(along: float, onset: float, final: float) -> float:
-    """The share (0 to 1) of its force a tie applies when its pair has moved ``along`` (mm)
-    in the force's direction since it was tied: 1 on [-onset, 0]; falling linearly to 0 at
-    -final (the pair opened against the force, as the cohesive law softens) and at +onset
-    (the pair moved the way the force pushes)."""
+def tie_weight(along: float, reach: float, final: float) -> float:
+    """The share (0 to 1) of its force a tie of ``reach`` r applies when its pair has moved
+    ``along`` (mm) in the force's direction since it was tied: 1 on [-r, 0], the hand-over
+    (the cohesive element takes the force over as the pair opens against it by up to r);
+    falling linearly to 0 at -``final`` as the pair opens on (as the cohesive law softens; at
+    once if r >= final) and at +r, the pair moved the way the force pushes (the load has
+    turned round)."""
     if along > 0.0:
-        return max(0.0, 1.0 - along / onset)
-    if -along <= onset:
+        return max(0.0, 1.0 - along / reach) if reach > 0.0 else 0.0
+    if -along <= reach:
         return 1.0
-    if final > onset:
-        return max(0.0, (final + along) / (final - onset))
+    if final > reach:
+        return max(0.0, (final + along) / (final - reach))
     return 0.0
 
 
 @njit(cache=True)
-def add_tie_group(f, u, a, b, force, scale, onset, final, origin, last_weight, last_gap, booked):
+def add_tie_group(f, u, a, b, force, reach, scale, final, origin, last_weight, last_gap, booked):
     """Add the forces of one group of ties at ``scale`` (its fading, 0 to 1) into f (n, 3) N,
-    +w T0 on node a, -w T0 on node b, w = scale x ``tie_weight`` of the pair's motion along
-    T0 (``force`` (n, 3) N) since it was tied, from its gap u_a - u_b (mm) then, ``origin``
-    (n, 3), which a first call (``booked`` False) sets. u (n_nodes, 3) mm; empty: the pairs as
-    tied. With ``booked``, returns the work (mJ) the ties did on the pairs' relative motion
-    since ``last_gap`` at the weights ``last_weight`` of the last call (trapezoidal, as the
-    solver's external work, of which it is a part); both are updated in place."""
+    +w T0 on node a, -w T0 on node b, w = scale x ``tie_weight`` (of each pair's ``reach``
+    (n,) mm) of the pair's motion along T0 (``force`` (n, 3) N) since it was tied, from its
+    gap u_a - u_b (mm) then, ``origin`` (n, 3), which a first call (``booked`` False) sets.
+    u (n_nodes, 3) mm; empty: the pairs as tied. With ``booked``, returns the work (mJ) the
+    ties did on the pairs' relative motion since ``last_gap`` at the weights ``last_weight``
+    of the last call (trapezoidal, as the solver's external work, of which it is a part); both
+    are updated in place."""
     work = 0.0
     for i in range(a.shape[0]):
         ia, ib = a[i], b[i]
@@ -107,7 +124,7 @@ def add_tie_group(f, u, a, b, force, scale, onset, final, origin, last_weight, l
         if size > 0.0:
             along = tx * (gx - origin[i, 0]) + ty * (gy - origin[i, 1]) + tz * (gz - origin[i, 2])
             along /= size
-        weight = scale * tie_weight(along, onset, final)
+        weight = scale * tie_weight(along, reach[i], final)
         if booked:
             moved = tx * (gx - last_gap[i, 0]) + ty * (gy - last_gap[i, 1])
             moved += tz * (gz - last_gap[i, 2])
@@ -152,12 +169,15 @@ class Ties:
     force: np.ndarray  # (n, 3) N
     start: float
     window: float
+    reach: np.ndarray | None = None  # (n,) mm (``TieRelease.reach``); None: inf, never let go
     origin: np.ndarray | None = None
     last_weight: np.ndarray | None = None
     last_gap: np.ndarray | None = None
     booked: bool = False
 
     def __post_init__(self) -> None:
+        if self.reach is None:
+            self.reach = np.full(len(self.a), np.inf)
         if self.origin is None:
             self.origin = np.zeros((len(self.a), 3))
         if self.last_weight is None:
@@ -213,13 +233,14 @@ class StabilisationState:
         self,
         t: float,
         dofs_of_cells: Callable[[np.ndarray], list[np.ndarray]],
-        extra_force_and_mass: Callable[[], tuple[np.ndarray, np.ndarray]],
+        extra_force_and_mass: Callable[[], tuple[np.ndarray, np.ndarray, np.ndarray]],
     ) -> None:
         """Collective, right after a refinement at time t (s): open the damping window of the
         requested cells' nodes and set the tie forces of the requested pairs.
         ``dofs_of_cells(cells)``: owned DOFs (base block, extra block) of the nodes of owned
         cells (collective); ``extra_force_and_mass()``: the refined structure's internal force
-        less the face loads (n, 3) N and lumped mass (n,) tonne of the owned extra nodes at t
+        less the face loads (n, 3) N, lumped mass (n,) tonne and interface area (n,) mm^2 (the
+        share of the cohesive elements' area around each node) of the owned extra nodes at t
         (collective; called only when some rank has a pair)."""
         settings = self.settings
         if settings.damps and self.comm.allreduce(len(self.new_weak_cells), op=MPI.SUM):
@@ -229,10 +250,12 @@ class StabilisationState:
                 )
         new_pairs = self.comm.allreduce(len(self.new_pairs), op=MPI.SUM)
         if settings.release_window > 0.0 and new_pairs:
-            force, mass = extra_force_and_mass()
+            force, mass, area = extra_force_and_mass()
             pairs = np.array(self.new_pairs, dtype=np.int64).reshape(-1, 2)
             a, b = pairs[:, 0], pairs[:, 1]
-            self.ties.append(Ties(a, b, tie_forces(force, mass, a, b), t, settings.release_window))
+            tied = tie_forces(force, mass, a, b)
+            reach = self.release.reach(tied, area[a])
+            self.ties.append(Ties(a, b, tied, t, settings.release_window, reach))
         self.discard_requests()
 
     def add_tie_forces(
@@ -245,12 +268,12 @@ class StabilisationState:
         control's, which the history shows. Ties released by t are dropped."""
         f = f_ext_extra.reshape(-1, 3)
         u = _AS_TIED if u_extra is None else u_extra.reshape(-1, 3)
-        onset, final = self.release.onset, self.release.final
+        final = self.release.final
         active = []
         for tie in self.ties:
             scale = tie.scale(t)
             work = add_tie_group(
-                f, u, tie.a, tie.b, tie.force, scale, onset, final, tie.origin,
+                f, u, tie.a, tie.b, tie.force, tie.reach, scale, final, tie.origin,
                 tie.last_weight, tie.last_gap, tie.booked and u_extra is not None,
             )  # fmt: skip
             if u_extra is not None:
@@ -276,6 +299,7 @@ class StabilisationState:
             "tie_times": np.array([[tie.start, tie.window] for tie in ties]).reshape(-1, 2),
             # each pair's last booked weight and gap, whether each group has booked, the
             # work so far
+            "tie_reach": np.concatenate([tie.reach for tie in ties] or [np.zeros(0)]),
             "tie_last_weight": np.concatenate([tie.last_weight for tie in ties] or [np.zeros(0)]),
             "tie_origin": np.concatenate([tie.origin for tie in ties] or [np.zeros((0, 3))]),
             "tie_last_gap": np.concatenate([tie.last_gap for tie in ties] or [np.zeros((0, 3))]),
@@ -296,6 +320,8 @@ class StabilisationState:
             b = state["tie_b"][start : start + n]
             force = state["tie_force"][start : start + n]
             tie = Ties(a, b, force, float(t0), float(window))
+            if "tie_reach" in state:  # (before the release: none, ties that never let go)
+                tie.reach = np.array(state["tie_reach"][start : start + n])
             if "tie_booked" in state:
                 tie.booked = bool(state["tie_booked"][len(ties)])
                 tie.last_weight = np.array(state["tie_last_weight"][start : start + n])

@@ -89,20 +89,8 @@ def cohesive_time_step(structure: Structure) -> tuple[float, str]:
     are summed over ranks), so every rank calls it, whatever it holds."""
     params = structure.cohesive.params
     stiffness = max(params[P_KN], params[P_KS])
-    X = structure.gather(structure.cohesive.nodes, "X")
-    areas = quad_areas(X[:, :4, :])
-    # each node's share of the interface area, summed over the elements around it
-    area_base = la.vector(structure.mass_base.index_map, bs=3)
-    area_extra = la.vector(structure.mass_extra.index_map, bs=3)
-    ab, ax = area_base.array.reshape(-1, 3), area_extra.array.reshape(-1, 3)
+    ab, ax = nodal_interface_areas(structure)
     lower = structure.cohesive.nodes[:, :4].ravel()
-    shares = np.repeat(0.25 * areas, 4)
-    is_base = lower < structure.n_base
-    np.add.at(ab[:, 0], lower[is_base], shares[is_base])
-    np.add.at(ax[:, 0], lower[~is_base] - structure.n_base, shares[~is_base])
-    for vector in (area_base, area_extra):
-        vector.scatter_reverse(la.InsertMode.add)
-        vector.scatter_forward()
     upper = structure.cohesive.nodes[:, 4:].ravel()
 
     def nodal(values_base, values_extra, nodes):
@@ -116,7 +104,7 @@ def cohesive_time_step(structure: Structure) -> tuple[float, str]:
     mx = structure.mass_extra.array.reshape(-1, 3)[:, 0]
     steps = cohesive_pair_time_steps(
         stiffness,
-        nodal(ab[:, 0], ax[:, 0], lower),
+        nodal(ab, ax, lower),
         nodal(mb, mx, lower),
         nodal(mb, mx, upper),
     )
@@ -124,3 +112,23 @@ def cohesive_time_step(structure: Structure) -> tuple[float, str]:
         return np.inf, ""
     k = int(np.argmin(steps))
     return float(steps[k]), f"cohesive element {k // 4} (penalty {stiffness:g} N/mm^3)"
+
+
+def nodal_interface_areas(structure: Structure) -> tuple[np.ndarray, np.ndarray]:
+    """Each lower node's share of the area of the cohesive elements around it (mm^2), summed
+    over the elements of all ranks: (base nodes (owned + ghosts), extra nodes (owned +
+    ghosts)), 0 where a node holds none. Collective."""
+    X = structure.gather(structure.cohesive.nodes, "X")
+    areas = quad_areas(X[:, :4, :])
+    area_base = la.vector(structure.mass_base.index_map, bs=3)
+    area_extra = la.vector(structure.mass_extra.index_map, bs=3)
+    ab, ax = area_base.array.reshape(-1, 3), area_extra.array.reshape(-1, 3)
+    lower = structure.cohesive.nodes[:, :4].ravel()
+    shares = np.repeat(0.25 * areas, 4)
+    is_base = lower < structure.n_base
+    np.add.at(ab[:, 0], lower[is_base], shares[is_base])
+    np.add.at(ax[:, 0], lower[~is_base] - structure.n_base, shares[~is_base])
+    for vector in (area_base, area_extra):
+        vector.scatter_reverse(la.InsertMode.add)
+        vector.scatter_forward()
+    return ab[:, 0].copy(), ax[:, 0].copy()

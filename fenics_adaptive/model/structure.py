@@ -73,7 +73,11 @@ from fenics_adaptive.model.loading import (
 from fenics_adaptive.model.mass_scaling import SelectiveMass, adaptive_refused
 from fenics_adaptive.model.ply_damage_state import PlyDamageState
 from fenics_adaptive.model.refined_cells import RefinedCells
-from fenics_adaptive.model.stable_step import cohesive_time_step, stable_time_step
+from fenics_adaptive.model.stable_step import (
+    cohesive_time_step,
+    nodal_interface_areas,
+    stable_time_step,
+)
 from fenics_adaptive.model.tie_forces import TieForces
 from fenics_adaptive.model.topology import CellColumnTable
 from fenics_adaptive.parallel.reductions import summed
@@ -398,16 +402,18 @@ class Structure:
             t, self._nodes_of_cells, lambda: self._extra_force_and_mass(t)
         )
 
-    def _extra_force_and_mass(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+    def _extra_force_and_mass(self, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Collective: the extra nodes' net internal force f_int - f_load (n, 3) N (the face
         loads at time t (s) on them taken off: a node pair on a loaded face moves together
-        under both) and lumped mass (n,) tonne (after the border's transfer), owned nodes, at
-        the current state."""
+        under both), lumped mass (n,) tonne (after the border's transfer) and interface area
+        (n,) mm^2 (``stable_step.nodal_interface_areas``), owned nodes, at the current
+        state."""
         self.internal_force()  # collective (reverse scatters): on every rank
         mass = self.extra_block.mass.reshape(-1, 3)[:, 0]
         n_owned = 3 * len(mass)
         force = self.f_extra.array[:n_owned].reshape(-1, 3)
-        return force - self.loads.extra_force(t, n_owned), mass
+        _, area = nodal_interface_areas(self)
+        return force - self.loads.extra_force(t, n_owned), mass, area[: len(mass)]
 
     def discard_stabilisation_requests(self) -> None:
         """Forget what the last refinement would stabilise (a restart replaying refinements

@@ -54,8 +54,9 @@ class Stabilisation:
     internal force that splitting causes; Menouillard & Belytschko 2010), and it is released
     linearly to zero over ``release_window`` (s); 0 inserts the crack abruptly. A tie also lets
     go of a pair that moves on (``adaptivity.stabilisation.TieRelease``): opened against it past
-    the cohesive law's onset opening (released by its final opening), or moved the way it
-    pushes (released within the onset opening), so that it never pushes an interface open."""
+    its reach, the opening at which the pair's cohesive element carries the tie's force
+    (released by the law's final opening), or moved by its reach the way it pushes, so that it
+    never pushes an interface open."""
 
     damping: float = 0.0
     damping_window: float = 0.0

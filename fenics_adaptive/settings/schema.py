@@ -1257,7 +1257,7 @@ SECTIONS: tuple[Section, ...] = (
                 "release_window",
                 "float",
                 "tie force of a strong refinement released over (and let go where its pair "
-                "moves on: past the cohesive law's onset opening)",
+                "moves on: past the opening its cohesive element carries it at)",
                 "s",
                 0.0,
                 0.0,
