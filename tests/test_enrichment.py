@@ -60,7 +60,7 @@ def test_extra_node_positions_follow_eq_1():
     for key, local in structure.extra.index.items():
         g, interface, _ = enr.key_parts(key, n_if)
         bottom = structure.extra.local_base_node(g)
-        top = structure.column_top[bottom]
+        top = structure.columns.top_of[bottom]
         expected = structure.X_base[bottom] + alpha[interface - 1] * (
             structure.X_base[top] - structure.X_base[bottom]
         )

@@ -414,7 +414,7 @@ def test_cantilever_large_tip_load_matches_elastica():
         bottom_node = structure.extra.local_base_node(g)
         share = fractions[interface]
         f_base[bottom_node] += (1.0 - share) * f_extra[node]
-        f_base[structure.column_top[bottom_node]] += share * f_extra[node]
+        f_base[structure.columns.top_of[bottom_node]] += share * f_extra[node]
     assert np.abs(f_base - f_ufl).max() < 1e-10 * np.abs(f_ufl).max()
     assert structure.internal_forces.energies()[0] == pytest.approx(energy_ufl, rel=1e-12)
 

@@ -152,7 +152,7 @@ class Structure:
         # the columns' arrays as the structure's own (read by indicators, contact, output)
         self.bottom_local, self.top_local = self.columns.bottom_local, self.columns.top_local
         self.bottom_global = self.columns.bottom_global
-        self.original_cell, self.column_top = self.columns.original_cell, self.columns.column_top
+        self.original_cell = self.columns.original_cell
         self.extra = enr.ExtraNodes(self.comm, max(n_interfaces, 1), V.dofmap.index_map)
         # the ply-damage kernel integrates ply by ply: no pre-integrated rule for it
         self.rule_table = RuleTable(

@@ -19,8 +19,8 @@ class CellColumnTable:
     """Bottom and top base nodes of every owned cell of ``base`` (a column of the mesh): local
     (``bottom_local``, ``top_local`` (n_cells, 4) int32), the bottom ones also global
     (``bottom_global``), the original cell numbers (``original_cell``, the same on any number
-    of ranks) and the top node of each bottom one (``column_top``, a dict, and ``top_of``, an
-    array over the local base nodes: -1 for a node that is no column's bottom)."""
+    of ranks) and the top node of each bottom one (``top_of``, over the local base nodes: -1
+    for a node that is no column's bottom)."""
 
     def __init__(self, base: LayeredModel):
         n_cells = base.n_owned_cells
@@ -34,7 +34,6 @@ class CellColumnTable:
         self.original_cell = np.asarray(
             base.mesh.topology.original_cell_index[:n_cells], dtype=np.int64
         )
-        self.column_top = dict(zip(self.bottom_local.ravel(), self.top_local.ravel(), strict=True))
         self.top_of = np.full(self.n_base, -1, dtype=np.int64)
         self.top_of[self.bottom_local.ravel()] = self.top_local.ravel()
 
