@@ -142,8 +142,9 @@ def _record_warm_up(variant: str) -> None:
 
 # A model that reaches every kernel a run of its variant calls, in a few steps: 6 cells of 4
 # plies, interface 2 strong in the first two cells and interface 1 weak in the first from t = 0
-# (subelements, cohesive elements, the border to the unrefined cells), the indicators at every
-# step, a sphere 0.01 mm above the top face. Units: N, mm, s, tonne.
+# (subelements, cohesive elements, the border to the unrefined cells, the ties of the strong
+# pairs), the indicators at every step, a sphere 0.01 mm above the top face. Units: N, mm, s,
+# tonne.
 WARM_UP = {
     "model": {"kind": "adaptive"},
     "mesh": {"length": 3.0, "width": 0.5, "nx": 6, "ny": 1},
@@ -164,6 +165,7 @@ WARM_UP = {
         {"time": 0.0, "interfaces": [1], "kind": "weak", "x_max": 0.5},
     ],
     "indicators": {"interval": 1.0e-9, "ply_failure": 1.0, "interface_stress": 0.9},
+    "stabilisation": {"release_window": 1.0e-7},
     "impactor": {"shape": "sphere", "radius": 2.0, "mass": 1.0e-6,
                  "position": [1.5, 0.25, 3.01], "velocity": [0.0, 0.0, -1000.0]},
     "clamp": [{"face": "x0"}],

@@ -10,7 +10,12 @@ import pytest
 from mpi4py import MPI
 
 from fenics_adaptive.adaptivity import enrichment as enr
-from fenics_adaptive.adaptivity.stabilisation import StabilisationState, TieRelease
+from fenics_adaptive.adaptivity.stabilisation import (
+    ALONG,
+    StabilisationState,
+    TieRelease,
+    tie_weight,
+)
 from fenics_adaptive.settings.adaptivity import Stabilisation
 from fenics_adaptive.settings.config import parse_config
 from fenics_adaptive.settings.kinds import InterfaceState
@@ -149,6 +154,7 @@ def test_damping_window_after_weak_refinement():
     assert undamped.history[-1].damping_energy == 0.0
 
 
+@pytest.mark.slow
 def test_the_ties_work_is_the_external_work_of_an_impact_on_a_clamped_beam():
     """An impactor on a clamped cantilever refined strongly by the indicators, the new
     interfaces tied for 1e-5 s: clamps and the impactor put no external work in, so the
@@ -169,68 +175,92 @@ def test_the_ties_work_is_the_external_work_of_an_impact_on_a_clamped_beam():
     scale = max(abs(r.impact_work) for r in rows)
     assert max(abs(r.external_work - r.tie_work) for r in rows) < 1e-10 * scale
     assert max(abs(r.tie_work) for r in rows) > 1e-4 * scale
-    # measured: between -0.033 and +0.009 mJ (its 33.2 mJ of contact work); each pair can
-    # put in at most |T0|^2 / (2 K A), a few microjoules here
-    assert max(r.tie_work for r in rows) < 1e-3 * scale
+    # measured: between -0.023 and +0.081 mJ (its 33.2 mJ of contact work); each pair can
+    # put in at most 5 K A onset^2, some 0.04 mJ here
+    assert max(r.tie_work for r in rows) < 5e-3 * scale
     assert max(abs(r.energy_balance) for r in rows) < 1e-4 * scale
 
 
 def test_a_tie_lets_go_of_a_pair_that_moves_along_its_force_or_opens_past_the_law():
     """One tied pair (T0 = 10 N along z on node A, an interface area of 0.1 mm^2 at a penalty
     of 1e5 N/mm^3: its cohesive element carries T0 at an opening of r = 1e-3 mm, the tie's
-    reach) moved along z: the tie's share is 1 while the pair moves against the force (A down
-    relative to B) by up to r, falls linearly to 0 at the law's final opening, and falls to 0
-    within r the other way. Its work over a round trip the way the force pushes, at full scale,
-    is |T0| r / 2 (the ramp's area, trapezoidal and exact at its corners); whatever the path
-    and the fading, the work it puts in stays below that."""
-    onset, final = 1.0e-3, 1.0e-2
+    reach; the law's onset 2e-3 mm, its final opening 1e-2 mm), tied with a gap of its own and
+    moved along z: the tie's share is 1 while the pair moves against the force (A down
+    relative to B) by up to r, falls linearly to 0 at the final opening, and falls to 0 over
+    ALONG r the other way. Its work over a round trip the way the force pushes, at full scale,
+    is |T0| ALONG r / 2 taken out and given back (the ramp's area, trapezoidal and exact at
+    its corners); as the tie fades it puts in at most that."""
+    onset, final, reach = 2.0e-3, 1.0e-2, 1.0e-3
     state = StabilisationState(Stabilisation(0.0, 0.0, 1.0e-5), MPI.COMM_SELF)
-    state.release = TieRelease(1.0e5, final)
+    state.release = TieRelease(1.0e5, onset, final)
     force = np.array([[0.0, 0.0, 20.0], [0.0, 0.0, 0.0]])  # T0 = (f_A - f_B) / 2, equal masses
     state.request(np.zeros(0, dtype=np.int64))
     state.request_pair(0, 1)
     area = np.array([0.1, 0.0])  # (B, an upper node, holds none)
     state.start(0.0, lambda cells: [], lambda: (force, np.array([1e-9, 1e-9]), area))
-    np.testing.assert_allclose(state.ties[0].reach, [onset], rtol=1e-12)
+    np.testing.assert_allclose(state.ties[0].reach, [reach], rtol=1e-12)
+    tied_gap = np.array([1.0e-4, -2.0e-4, 3.0e-4])  # u_A - u_B when tied (mm)
 
     def tie_force(t: float, along: float) -> float:
-        """z force on A with the pair moved ``along`` z (mm) relative to where it was tied."""
+        """z force on A with the pair moved ``along`` z (mm) from where it was tied."""
         u = np.zeros(6)
-        u[2] = along  # gap u_A - u_B along T0
+        u[:3] = tied_gap + np.array([0.0, 0.0, along])
         f = np.zeros(6)
         state.add_tie_forces(t, f, u)
+        assert f[:2] == pytest.approx([0.0, 0.0], abs=1e-14)
         return f[2]
 
     assert tie_force(0.0, 0.0) == pytest.approx(10.0)  # (sets the origin, books from here)
+    long = ALONG * reach
     for along, share in [(-0.5e-3, 1.0), (-1.0e-3, 1.0), (-5.5e-3, 0.5), (-1.2e-2, 0.0),
-                         (0.0, 1.0), (0.25e-3, 0.75), (1.0e-3, 0.0), (2.0e-3, 0.0),
-                         (1.0e-3, 0.0), (0.0, 1.0)]:  # fmt: skip
+                         (0.0, 1.0), (0.25 * long, 0.75), (long, 0.0), (2.0 * long, 0.0),
+                         (long, 0.0), (0.0, 1.0)]:  # fmt: skip
         assert tie_force(0.0, along) == pytest.approx(10.0 * share, abs=1e-12)
-    work_out = state.tie_work  # the round trip against the force and back: none in the end
-    assert work_out == pytest.approx(0.0, abs=1e-12)
-    # along the force to 2 onset and back at full scale: out 10 x onset / 2 on the ramp, in
-    # nothing beyond it, back the same: the ramp is conservative at a fixed scale
-    for along in (0.5e-3, 1.0e-3, 2.0e-3):
+    assert state.tie_work == pytest.approx(0.0, abs=1e-12)  # round trips: none in the end
+    # along the force to 2 ALONG r at full scale: in 10 x ALONG r / 2 on the ramp, nothing
+    # beyond it; back the same way out: the ramp is conservative at a fixed scale
+    for along in (0.5 * long, long, 2.0 * long):
         tie_force(0.0, along)
-    assert state.tie_work == pytest.approx(10.0 * onset / 2, rel=1e-12)
-    for along in (1.0e-3, 0.5e-3, 0.0):
+    assert state.tie_work == pytest.approx(10.0 * long / 2, rel=1e-12)
+    # (the force alone, without the displacements: at the last seen position, nothing booked)
+    f = np.zeros(6)
+    state.add_tie_forces(0.0, f)
+    assert f[2] == 0.0 and state.tie_work == pytest.approx(10.0 * long / 2, rel=1e-12)
+    for along in (long, 0.5 * long, 0.0):
         tie_force(0.0, along)
     assert state.tie_work == pytest.approx(0.0, abs=1e-12)
-    # out along the force at full scale, back as the tie fades: it put in the ramp's area and
+    # out along the force at full scale, back as the tie fades: it put the ramp's area in and
     # took back less
-    tie_force(0.0, 1.0e-3)
+    tie_force(0.0, long)
     tie_force(0.5e-5, 0.0)
-    assert 0.0 < state.tie_work <= 10.0 * onset / 2
+    assert 0.0 < state.tie_work <= 10.0 * long / 2
 
 
 def test_the_tie_release_comes_from_the_cohesive_law():
+    """The stiffer penalty, the smaller onset and the larger final opening of the law; the
+    reach is the opening at which the pair's cohesive element carries the tie's force."""
     law = CohesiveLaw(K_n=1.0e5, K_s=5.0e4, N=60.0, S=90.0, GIc=0.3, GIIc=0.9, law="bk",
                       exponent=2.0)  # fmt: skip
     release = TieRelease.of_law(law.as_array())
-    assert release.stiffness == 1.0e5  # the stiffer penalty: the reach at most the softer's
+    assert release.stiffness == 1.0e5
+    assert release.onset == pytest.approx(min(60.0 / 1.0e5, 90.0 / 5.0e4))
     assert release.final == pytest.approx(max(2 * 0.3 / 60.0, 2 * 0.9 / 90.0))
-    # the opening at which the pair's cohesive element carries the tie's force
     force = np.array([[3.0, 0.0, 4.0], [0.0, 0.0, 0.0]])
     np.testing.assert_allclose(release.reach(force, [0.5, 0.5]), [5.0 / 5.0e4, 0.0])
-    assert TieRelease.of_law(None).reach(force, [0.5, 0.5]).tolist() == [np.inf, np.inf]
+    assert np.isinf(TieRelease.of_law(None).reach(force, [0.5, 0.5])).all()  # never let go
     assert np.isinf(release.reach(force, [0.0, 0.0])).all()  # no area: never let go
+
+
+def test_a_tie_above_the_strength_pushes_a_returning_pair_with_the_strength_at_most():
+    """A tie whose reach is twice the law's onset (its force twice what the cohesive element
+    carries before it softens: a crack's tip, an impactor's compression) holds fully against
+    the force; along it, it pushes with half its force at most, falling to 0 over ALONG onset,
+    never stiffer than a tenth of the element (the slope of the ramp)."""
+    onset, final = 1.0e-3, 1.0e-2
+    for along, share in [(-2.0e-3, 1.0), (0.0, 1.0), (1.0e-9, 0.5), (0.5 * ALONG * onset, 0.25),
+                         (ALONG * onset, 0.0)]:  # fmt: skip
+        assert tie_weight(along, 2.0 * onset, onset, final) == pytest.approx(share, abs=1e-6)
+    # the slope of the force along the pair's motion: |T0| share / distance = K A / ALONG
+    k_a = 10.0 / (2.0 * onset)  # the element's K A for |T0| = 10 N and r = 2 onset
+    slope = 10.0 * (0.5 - 0.25) / (0.5 * ALONG * onset)
+    assert slope == pytest.approx(k_a / ALONG, rel=1e-12)

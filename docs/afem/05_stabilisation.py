@@ -210,7 +210,13 @@ for key, A_weak in sorted(index_weak.items()):
 assert checked == 4
 
 # %% [markdown]
-# The tie force then falls linearly: half of it halfway through the window, none at its end.
+# The tie force then falls linearly: half of it halfway through the window, none at its end,
+# with the pair where it was tied (no displacements given: the force alone). In a run the
+# tie also follows its pair (`TieRelease`): it holds while the pair opens against it by up
+# to its reach |T0| / (K A), the opening at which the pair's cohesive element carries it,
+# softens to nothing as the pair opens on to the law's final opening, and lets go of a pair
+# that moves the way it pushes (the load has turned round), so that it never pushes an
+# interface open.
 
 # %%
 for fraction in (0.5, 1.0):

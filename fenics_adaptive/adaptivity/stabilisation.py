@@ -19,12 +19,12 @@ put into a struck beam whose impactor brought 36 mJ). So a tie follows its pair
 pair's cohesive element (penalty K, the pair's interface area A) carries the tie's force: full
 while the pair has moved against the force by up to r (the hand-over: as the tie fades the
 cohesive element takes its force over), let go as the pair opens on to the law's final opening
-(the crack opens under it: the tie softens as the interface's own law does) or as it moves by r
-the other way, along the force (the load has turned round: the cohesive element's penalty, or
-its contact, takes over). At a given scale the force then depends on the pair's position alone:
-as the scale falls a tie can put in at most |T0| r / 2 = |T0|^2 / (2 K A) per pair, the energy
-its cohesive element would store under the tie's force, and where it lets go its stiffness is
-at most the cohesive element's own, K A.
+(the crack opens under it: the tie softens as the interface's own law does). Once the pair
+moves the other way, along the force (the load has turned round), the tie pushes with at most
+what the element carries at its onset and lets go over ten times that opening: it stops short
+of the onset, so the element does not start to soften under it, and its stiffness there is a
+tenth of the element's (the stable step holds). At a given scale the force depends on the
+pair's position alone: as the scale falls a tie can put in at most 5 K A onset^2 per pair.
 """
 
 from __future__ import annotations
@@ -44,22 +44,33 @@ if TYPE_CHECKING:
     from fenics_adaptive.settings.adaptivity import Stabilisation
 
 
+# how much longer than its reach a tie takes to let go of a pair that moves along its force:
+# its stiffness there, s |T0| / (ALONG r) = s K A / ALONG, stays a tenth of its cohesive
+# element's, whose spring the stable step already holds with the safety factor's margin (the
+# pair's eigenvalue rises by at most a tenth: its step by 5 %)
+ALONG = 10.0
+
+
 @dataclass(frozen=True)
 class TieRelease:
-    """When a tie lets go of its pair, from the cohesive law of the interface it ties:
-    ``stiffness`` (N/mm^3), the law's stiffer penalty, max(K_n, K_s), and ``final`` (mm), its
-    final opening, the larger of 2 GIc / N and 2 GIIc / S. A pair whose lower node holds an
-    interface area A (its share of the cohesive elements around it) is let go of over its
-    reach r = |T0| / (stiffness A), the opening at which its cohesive element carries the tie's
-    force (``reach``, ``tie_weight``). The default, a stiffness of 0, is a tie that never lets
-    go (a fixed force that only fades)."""
+    """How a tie lets go of its pair, from the cohesive law of the interface it ties:
+    ``stiffness`` (N/mm^3), the law's stiffer penalty K = max(K_n, K_s), ``onset`` (mm), its
+    smaller onset opening, min(N / K_n, S / K_s), and ``final`` (mm), its larger final
+    opening, max(2 GIc / N, 2 GIIc / S). A pair whose lower node holds an interface area A
+    (its share of the cohesive elements around it) has the reach r = |T0| / (K A), the opening
+    at which its cohesive element carries the tie's force (``reach``, ``tie_weight``). The
+    default, a stiffness of 0, is a tie that never lets go (a fixed force that only fades)."""
 
     stiffness: float = 0.0
+    onset: float = math.inf
     final: float = math.inf
 
     def __post_init__(self) -> None:
-        if not (self.stiffness >= 0.0 and self.final > 0.0):
-            raise ValueError(f"stiffness >= 0, final > 0 (got {self.stiffness}, {self.final})")
+        if not (self.stiffness >= 0.0 and 0.0 < self.onset <= self.final):
+            raise ValueError(
+                f"stiffness >= 0, 0 < onset <= final (got {self.stiffness}, {self.onset}, "
+                f"{self.final})"
+            )
 
     @classmethod
     def of_law(cls, params: np.ndarray | None) -> TieRelease:
@@ -67,12 +78,13 @@ class TieRelease:
         (``CohesiveLaw.as_array``; None: no law, ties that never let go)."""
         if params is None or not params[P_KN] > 0.0:
             return cls()
+        onset = min(params[P_N] / params[P_KN], params[P_S] / params[P_KS])
         final = max(2.0 * params[P_GIC] / params[P_N], 2.0 * params[P_GIIC] / params[P_S])
-        return cls(float(max(params[P_KN], params[P_KS])), float(final))
+        return cls(float(max(params[P_KN], params[P_KS])), float(onset), float(max(final, onset)))
 
     def reach(self, force: np.ndarray, area: np.ndarray) -> np.ndarray:
-        """(n,) mm: each tie's reach r = |T0| / (stiffness A) from its force T0 (n, 3) N and
-        its pair's interface area A (n,) mm^2; inf (never let go) without a stiffness or an
+        """(n,) mm: each tie's reach r = |T0| / (K A) from its force T0 (n, 3) N and its
+        pair's interface area A (n,) mm^2; inf (never let go) without a stiffness or an
         area."""
         spring = self.stiffness * np.asarray(area, dtype=float)
         size = np.linalg.norm(force, axis=1)
@@ -81,29 +93,41 @@ class TieRelease:
 
 
 @njit(cache=True)
-def tie_weight(along: float, reach: float, final: float) -> float:
+def tie_weight(along: float, reach: float, onset: float, final: float) -> float:
     """The share (0 to 1) of its force a tie of ``reach`` r applies when its pair has moved
-    ``along`` (mm) in the force's direction since it was tied: 1 on [-r, 0], the hand-over
-    (the cohesive element takes the force over as the pair opens against it by up to r);
-    falling linearly to 0 at -``final`` as the pair opens on (as the cohesive law softens; at
-    once if r >= final) and at +r, the pair moved the way the force pushes (the load has
-    turned round)."""
+    ``along`` (mm) in the force's direction since it was tied. Against the force (along < 0):
+    1 on [-r, 0], the hand-over (the cohesive element takes the force over as the pair opens
+    against it by up to r), falling linearly to 0 at -``final`` as the pair opens on (the tie
+    softens as the cohesive law does; at once if r >= final). Along the force (the load has
+    turned round): at most what the cohesive element carries at its ``onset``, c = min(1,
+    onset / r), falling linearly to 0 over ``ALONG`` c r: pushing the pair it stops short of
+    the element's onset, and its stiffness is a tenth of the element's. (Past a tie held above
+    the element's strength, at a crack's tip or under an impactor, the share drops from 1 to c
+    as the pair passes where it was tied: the excess is the element's penalty's to carry.)"""
     if along > 0.0:
-        return max(0.0, 1.0 - along / reach) if reach > 0.0 else 0.0
+        if reach <= 0.0:
+            return 0.0
+        held = min(1.0, onset / reach)
+        return held * max(0.0, 1.0 - along / (ALONG * held * reach))
     if -along <= reach:
         return 1.0
     if final > reach:
+        if math.isinf(final):
+            return 1.0
         return max(0.0, (final + along) / (final - reach))
     return 0.0
 
 
 @njit(cache=True)
-def add_tie_group(f, u, a, b, force, reach, scale, final, origin, last_weight, last_gap, booked):
+def add_tie_group(
+    f, u, a, b, force, reach, scale, onset, final, origin, last_weight, last_gap, booked
+):
     """Add the forces of one group of ties at ``scale`` (its fading, 0 to 1) into f (n, 3) N,
     +w T0 on node a, -w T0 on node b, w = scale x ``tie_weight`` (of each pair's ``reach``
     (n,) mm) of the pair's motion along T0 (``force`` (n, 3) N) since it was tied, from its
     gap u_a - u_b (mm) then, ``origin`` (n, 3), which a first call (``booked`` False) sets.
-    u (n_nodes, 3) mm; empty: the pairs as tied. With ``booked``, returns the work (mJ) the
+    u (n_nodes, 3) mm; empty: the forces of the pairs where the last call saw them (as tied
+    before any), nothing booked or kept. With ``booked``, returns the work (mJ) the
     ties did on the pairs' relative motion since ``last_gap`` at the weights ``last_weight``
     of the last call (trapezoidal, as the solver's external work, of which it is a part); both
     are updated in place."""
@@ -111,8 +135,10 @@ def add_tie_group(f, u, a, b, force, reach, scale, final, origin, last_weight, l
     for i in range(a.shape[0]):
         ia, ib = a[i], b[i]
         tx, ty, tz = force[i, 0], force[i, 1], force[i, 2]
-        if u.shape[0] == 0:
-            gx, gy, gz = origin[i, 0], origin[i, 1], origin[i, 2]
+        looked = u.shape[0] == 0  # (the force only: nothing booked, nothing kept)
+        if looked:
+            seen = last_gap if booked else origin
+            gx, gy, gz = seen[i, 0], seen[i, 1], seen[i, 2]
         else:
             gx = u[ia, 0] - u[ib, 0]
             gy = u[ia, 1] - u[ib, 1]
@@ -124,13 +150,14 @@ def add_tie_group(f, u, a, b, force, reach, scale, final, origin, last_weight, l
         if size > 0.0:
             along = tx * (gx - origin[i, 0]) + ty * (gy - origin[i, 1]) + tz * (gz - origin[i, 2])
             along /= size
-        weight = scale * tie_weight(along, reach[i], final)
-        if booked:
+        weight = scale * tie_weight(along, reach[i], onset, final)
+        if booked and not looked:
             moved = tx * (gx - last_gap[i, 0]) + ty * (gy - last_gap[i, 1])
             moved += tz * (gz - last_gap[i, 2])
             work += 0.5 * (last_weight[i] + weight) * moved
-        last_weight[i] = weight
-        last_gap[i, 0], last_gap[i, 1], last_gap[i, 2] = gx, gy, gz
+        if not looked:
+            last_weight[i] = weight
+            last_gap[i, 0], last_gap[i, 1], last_gap[i, 2] = gx, gy, gz
         if weight > 0.0:
             f[ia, 0] += weight * tx
             f[ia, 1] += weight * ty
@@ -152,7 +179,7 @@ class DampingWindow:
     until: float
 
 
-_AS_TIED = np.zeros((0, 3))  # ``add_tie_group``'s u for pairs where they were tied
+_LOOK = np.zeros((0, 3))  # ``add_tie_group``'s u for the forces alone, nothing booked
 
 
 @dataclass
@@ -252,7 +279,7 @@ class StabilisationState:
         if settings.release_window > 0.0 and new_pairs:
             force, mass, area = extra_force_and_mass()
             pairs = np.array(self.new_pairs, dtype=np.int64).reshape(-1, 2)
-            a, b = pairs[:, 0], pairs[:, 1]
+            a, b = np.ascontiguousarray(pairs[:, 0]), np.ascontiguousarray(pairs[:, 1])
             tied = tie_forces(force, mass, a, b)
             reach = self.release.reach(tied, area[a])
             self.ties.append(Ties(a, b, tied, t, settings.release_window, reach))
@@ -263,18 +290,19 @@ class StabilisationState:
     ) -> None:
         """Add the active tie forces at time t (s) to the extra block's external force (owned
         DOFs, flat, N) at the extra nodes' displacements ``u_extra`` (mm, flat, owned first;
-        None: the pairs as tied, together) and book the ties' work since the last call in
-        ``tie_work`` (``add_tie_group``): an artificial constraint's energy, as an hourglass
-        control's, which the history shows. Ties released by t are dropped."""
+        None: the forces at the pairs' last seen positions, nothing booked) and book the ties'
+        work since the last call in ``tie_work`` (``add_tie_group``): an artificial
+        constraint's energy, as an hourglass control's, which the history shows. Ties released
+        by t are dropped."""
         f = f_ext_extra.reshape(-1, 3)
-        u = _AS_TIED if u_extra is None else u_extra.reshape(-1, 3)
-        final = self.release.final
+        u = _LOOK if u_extra is None else u_extra.reshape(-1, 3)
+        onset, final = self.release.onset, self.release.final
         active = []
         for tie in self.ties:
             scale = tie.scale(t)
             work = add_tie_group(
-                f, u, tie.a, tie.b, tie.force, tie.reach, scale, final, tie.origin,
-                tie.last_weight, tie.last_gap, tie.booked and u_extra is not None,
+                f, u, tie.a, tie.b, tie.force, tie.reach, scale, onset, final, tie.origin,
+                tie.last_weight, tie.last_gap, tie.booked,
             )  # fmt: skip
             if u_extra is not None:
                 self.tie_work += work

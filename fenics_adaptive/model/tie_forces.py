@@ -7,7 +7,7 @@ it releases linearly to zero, and sooner where the pair moves on (``TieRelease``
 ``Structure.start_stabilisation``, ``StabilisationState.add_tie_forces``). The tie forces act
 on the extra nodes as external forces; they store no energy, and the work they do (a part of
 the external work: an artificial constraint's, mostly taken out where a tie holds a pair as
-the cohesive element takes over, at most |T0|^2 / (2 K A) put in per pair) is the history's
+the cohesive element takes over, at most 5 K A onset^2 put in per pair) is the history's
 ``tie_work``. Their state (which pairs, which force, since when, the work so far) belongs to
 the structure's stabilisation state and is checkpointed with it, so this contributor keeps
 none of its own.

@@ -55,8 +55,9 @@ class Stabilisation:
     linearly to zero over ``release_window`` (s); 0 inserts the crack abruptly. A tie also lets
     go of a pair that moves on (``adaptivity.stabilisation.TieRelease``): opened against it past
     its reach, the opening at which the pair's cohesive element carries the tie's force
-    (released by the law's final opening), or moved by its reach the way it pushes, so that it
-    never pushes an interface open."""
+    (released by the law's final opening), or moved the way it pushes (then it pushes with at
+    most what the element carries at its onset and lets go before it), so that it never pushes
+    an interface open."""
 
     damping: float = 0.0
     damping_window: float = 0.0
