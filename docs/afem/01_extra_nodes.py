@@ -111,7 +111,7 @@ rows = []
 for key, local in structure.extra.index.items():
     global_bottom, interface, node_set = enr.key_parts(key, n_interfaces)
     bottom = structure.extra.local_base_node(global_bottom)
-    top = structure.column_top[bottom]
+    top = structure.columns.top_of[bottom]
     X_bottom, X_top = structure.X_base[bottom], structure.X_base[top]
     expected = X_bottom + alpha[interface - 1] * (X_top - X_bottom)
     edge = X_top - X_bottom

@@ -194,7 +194,7 @@ def largest_deviation_from_old_field(structure, name, base_values):
     for key, local in structure.extra.index.items():
         global_bottom, interface, _ = enr.key_parts(key, n_interfaces)
         bottom = structure.extra.local_base_node(global_bottom)
-        top = structure.column_top[bottom]
+        top = structure.columns.top_of[bottom]
         old = base_values[bottom] + alpha[interface - 1] * (base_values[top] - base_values[bottom])
         worst = max(worst, np.abs(values[local] - old).max())
     return worst

@@ -181,7 +181,7 @@ by_position = sorted(
 for key, local in by_position:
     global_bottom, _, _ = enr.key_parts(key, n_interfaces)
     bottom = structure.extra.local_base_node(global_bottom)
-    top = structure.column_top[bottom]
+    top = structure.columns.top_of[bottom]
     on_line = 0.5 * (u_base[bottom] + u_base[top])
     difference = np.abs(u_extra[local] - on_line).max()
     x, y = np.abs(X_extra[local, :2])  # abs: print 0.0, not -0.0 from round-off
