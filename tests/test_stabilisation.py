@@ -163,7 +163,7 @@ def test_the_ties_work_is_the_external_work_of_an_impact_on_a_clamped_beam():
     past 0.05 ms, where the load on the interfaces turns round under ties made in compression:
     fixed tie forces pushed the interfaces open there, put 36.5 mJ into the beam (its impactor
     brought 36 mJ) and delaminated 8 mm^2; ties that let go of a pair moving along their force
-    (``TieRelease``) take out a little and put in nothing."""
+    (``TieRelease``) take out a little and put in at most a little."""
     import fenics_adaptive as fa
 
     data = tomllib.loads((DATA / "mpi_one_rank_impact.toml").read_text())

@@ -132,10 +132,10 @@ def add_tie_group(
     of the last call (trapezoidal, as the solver's external work, of which it is a part); both
     are updated in place."""
     work = 0.0
+    looked = u.shape[0] == 0  # (the force only: nothing booked, nothing kept)
     for i in range(a.shape[0]):
         ia, ib = a[i], b[i]
         tx, ty, tz = force[i, 0], force[i, 1], force[i, 2]
-        looked = u.shape[0] == 0  # (the force only: nothing booked, nothing kept)
         if looked:
             seen = last_gap if booked else origin
             gx, gy, gz = seen[i, 0], seen[i, 1], seen[i, 2]
@@ -325,8 +325,8 @@ class StabilisationState:
             "tie_b": np.concatenate([tie.b for tie in ties] or [np.zeros(0, np.int64)]),
             "tie_force": np.concatenate([tie.force for tie in ties] or [np.zeros((0, 3))]),
             "tie_times": np.array([[tie.start, tie.window] for tie in ties]).reshape(-1, 2),
-            # each pair's last booked weight and gap, whether each group has booked, the
-            # work so far
+            # each pair's reach, last booked weight, gap when tied and last booked gap,
+            # whether each group has booked, the work so far
             "tie_reach": np.concatenate([tie.reach for tie in ties] or [np.zeros(0)]),
             "tie_last_weight": np.concatenate([tie.last_weight for tie in ties] or [np.zeros(0)]),
             "tie_origin": np.concatenate([tie.origin for tie in ties] or [np.zeros((0, 3))]),

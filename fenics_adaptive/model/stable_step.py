@@ -89,7 +89,7 @@ def cohesive_time_step(structure: Structure) -> tuple[float, str]:
     are summed over ranks), so every rank calls it, whatever it holds."""
     params = structure.cohesive.params
     stiffness = max(params[P_KN], params[P_KS])
-    ab, ax = nodal_interface_areas(structure)
+    ab, ax = structure.interface_areas()
     lower = structure.cohesive.nodes[:, :4].ravel()
     upper = structure.cohesive.nodes[:, 4:].ravel()
 

@@ -191,6 +191,8 @@ class Structure:
         self.scaled_mass: SelectiveMass | None = None
         # (node arrays' generation, cohesive pairs' stable step and where): ``cohesive_step``
         self._cohesive_step: tuple[int, tuple[float, str]] | None = None
+        # (node arrays' generation, the lower nodes' interface areas): ``interface_areas``
+        self._interface_areas: tuple[int, tuple[np.ndarray, np.ndarray]] | None = None
         self.lumped = LumpedBlocks(
             V, base.mass, self.extra.index_map, loads.fixed, loads.fixed_motion
         )
@@ -299,6 +301,15 @@ class Structure:
             self._cohesive_step = (generation, cohesive_time_step(self))
         return self._cohesive_step[1]
 
+    def interface_areas(self) -> tuple[np.ndarray, np.ndarray]:
+        """Collective: ``stable_step.nodal_interface_areas`` of the structure as it is refined
+        now (base nodes, extra nodes; mm^2), computed once per refinement (the node arrays'
+        generation) for the cohesive step and the ties alike."""
+        generation = self.node_arrays.generation
+        if self._interface_areas is None or self._interface_areas[0] != generation:
+            self._interface_areas = (generation, nodal_interface_areas(self))
+        return self._interface_areas[1]
+
     def stable_time_step(self, current: bool = False) -> tuple[float, str]:
         """Collective: (the stable step (s) of the central-difference scheme, where it is
         attained), reduced over ranks (``model.stable_step.stable_time_step``; ``current``: of
@@ -406,13 +417,12 @@ class Structure:
         """Collective: the extra nodes' net internal force f_int - f_load (n, 3) N (the face
         loads at time t (s) on them taken off: a node pair on a loaded face moves together
         under both), lumped mass (n,) tonne (after the border's transfer) and interface area
-        (n,) mm^2 (``stable_step.nodal_interface_areas``), owned nodes, at the current
-        state."""
+        (n,) mm^2 (``interface_areas``), owned nodes, at the current state."""
         self.internal_force()  # collective (reverse scatters): on every rank
         mass = self.extra_block.mass.reshape(-1, 3)[:, 0]
         n_owned = 3 * len(mass)
         force = self.f_extra.array[:n_owned].reshape(-1, 3)
-        _, area = nodal_interface_areas(self)
+        _, area = self.interface_areas()
         return force - self.loads.extra_force(t, n_owned), mass, area[: len(mass)]
 
     def discard_stabilisation_requests(self) -> None:
