@@ -542,11 +542,16 @@ class Simulation:
         )
         gap = contact.initial_gap()
         if gap <= 0.0:
+            what = "impactor" if body.name == "impactor" else "body"
+            if body.face == "all":
+                where = "touching or inside the structure; move it off along its normal"
+                if body.normal is None:
+                    where = "touching or inside the structure; move it away"
+                raise InputError(f"{contact.key}.position", f"the {what} starts {where}")
             side = "above" if body.face == "top" else "below"
             raise InputError(
                 f"{contact.key}.position",
-                f"the {'impactor' if body.name == 'impactor' else 'body'} starts {-gap:.4g} mm "
-                f"inside the {body.face} face; place it {side}",
+                f"the {what} starts {-gap:.4g} mm inside the {body.face} face; place it {side}",
             )
         return contact
 

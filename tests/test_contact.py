@@ -17,6 +17,9 @@ from fenics_adaptive.solver import explicit
 DATA = Path(__file__).parent / "data"
 
 
+NO_NORMAL = np.zeros(3)  # (a sphere's or a cylinder's: the kernels read a plane's only)
+
+
 def test_penalty_force_points_away_from_the_centre_and_stores_its_energy():
     X = np.array([[0.0, 0.0, 0.5], [0.6, 0.0, 0.3], [0.0, 0.0, 1.0]])  # reference positions
     u = np.array([[0.0, 0.0, 0.4], [0.0, 0.0, 0.5], [0.0, 0.0, 1.0]])  # two end inside R = 1
@@ -26,7 +29,9 @@ def test_penalty_force_points_away_from_the_centre_and_stores_its_energy():
     f = np.ones(9)  # forces already there are added to
     on_body = np.zeros(3)
     active = np.ones(3, dtype=bool)
-    energy = add_penalty_forces(u_flat, nodes, active, X, np.zeros(3), 1.0, -1, 100.0, f, on_body)
+    energy = add_penalty_forces(
+        u_flat, nodes, active, X, np.zeros(3), 1.0, -1, NO_NORMAL, 100.0, f, on_body
+    )
     added = f.reshape(3, 3)[nodes] - 1.0
     np.testing.assert_allclose(added[0], [0.0, 0.0, 100.0 * 0.1])
     assert np.all(added[2] == 0.0)
@@ -36,13 +41,15 @@ def test_penalty_force_points_away_from_the_centre_and_stores_its_energy():
     f_cyl = np.ones(9)
     shifted = X + np.array([0.0, 5.0, 0.0])
     add_penalty_forces(
-        u_flat, nodes, active, shifted, np.zeros(3), 1.0, 1, 100.0, f_cyl, np.zeros(3)
+        u_flat, nodes, active, shifted, np.zeros(3), 1.0, 1, NO_NORMAL, 100.0, f_cyl, np.zeros(3)
     )
     np.testing.assert_allclose(f_cyl, f)
     # a node erosion has freed touches nothing
     f_freed = np.ones(9)
     freed = np.array([False, True, True])
-    add_penalty_forces(u_flat, nodes, freed, X, np.zeros(3), 1.0, -1, 100.0, f_freed, on_body)
+    add_penalty_forces(
+        u_flat, nodes, freed, X, np.zeros(3), 1.0, -1, NO_NORMAL, 100.0, f_freed, on_body
+    )
     assert np.all(f_freed == 1.0) and np.all(on_body == 0.0)
 
 

@@ -42,11 +42,11 @@ def slide_one_node(path_x, depth: float):
         last = x
         f, total = np.zeros(3), np.zeros(3)
         active = np.ones(len(nodes), dtype=bool)
-        add_penalty_forces(u, nodes, active, X, centre, RADIUS, 0, PENALTY, f, total)
+        add_penalty_forces(u, nodes, active, X, centre, RADIUS, 0, np.zeros(3), PENALTY, f, total)
         normal = -f[2]
         springs, dissipated = add_friction_forces(
-            u, nodes, active, X, centre, moved, RADIUS, 0, PENALTY, MU, previous, traction, f,
-            total,
+            u, nodes, active, X, centre, moved, RADIUS, 0, np.zeros(3), PENALTY, MU, previous,
+            traction, f, total,
         )  # fmt: skip
         np.testing.assert_allclose(total, -f, rtol=0, atol=1e-15)  # the body's reaction
         out.append((f[0], normal, springs, dissipated))

@@ -90,7 +90,7 @@ def test_interface_states_are_the_ints_of_the_state_arrays():
         (Kinematics, ["small", "finite"]),
         (MixedModeLaw, ["bk", "power"]),
         (MotionKind, ["displacement", "velocity"]),
-        (ImpactorShape, ["sphere", "cylinder"]),
+        (ImpactorShape, ["sphere", "cylinder", "plane"]),
     ],
 )
 def test_string_kinds_equal_their_toml_strings(kind, strings):

@@ -1,14 +1,23 @@
-"""Rigid bodies in penalty contact with the top or bottom face, with Coulomb friction if asked:
-an impactor, the rollers and noses of a bending or fracture test (``settings.loads.RigidBody``).
+"""Rigid bodies in penalty contact with the top or bottom face, or with every node, with Coulomb
+friction if asked: an impactor, the rollers and noses of a bending or fracture test, the platen
+of a crush test (``settings.loads.RigidBody``).
 
-A body is a sphere of radius R about its centre c, or a cylinder of radius R whose axis runs
-along x or y through c. Each node of its face (base nodes: refinement never moves the top and
-bottom faces) at x = X + u gets the penalty force
+A body is a sphere of radius R about its centre c, a cylinder of radius R whose axis runs
+along x or y through c, or a plane through c with the unit normal n (pointing to the
+structure). Each node of its face (base nodes: refinement never moves the top and bottom
+faces) at x = X + u gets the penalty force
 
     g = dist(x, body) - R,   f = k <-g> n,   n = unit vector from the centre (axis) to x,
 
-and the body gets -sum f. Without friction the contact is conservative: the penalty springs
-store 1/2 k g^2.
+(a plane: g = (x - c) . n, its own n) and the body gets -sum f. Without friction the contact
+is conservative: the penalty springs store 1/2 k g^2. A body on face "all" (a platen on the
+edge of a plate, the end of a tube) touches every owned base node, and the extra nodes of
+refined cells that are free (a node bound to the border of a refined region follows its
+masters, which the body touches), found again after each refinement; its default penalty
+takes the stiffest modulus (an edge is pressed along the plies) and the lightest node a
+refinement can make (a column's share of its thinnest ply). Friction is not offered there
+(the extra nodes have no tangential springs), nor are the extra nodes' contact forces in the
+indicators' face tractions.
 
 Friction (``friction`` = mu > 0; ``add_friction_forces``): Coulomb's law with a regularised
 stick, as penalty codes do (LS-DYNA's contacts, Abaqus/Explicit's penalty friction): a node in
@@ -68,34 +77,45 @@ from fenics_adaptive.parallel.reductions import summed
 from fenics_adaptive.settings.kinds import ImpactorShape, RigidMotion
 from fenics_adaptive.settings.loads import Impactor, RigidBody
 
+PLANE_AXIS = -2  # ``axis`` of a plane in the kernels (a sphere: -1; a cylinder: 0 or 1)
+
 
 @njit(cache=True, inline="always")
-def _offset(u, k, X, i, centre, axis):
-    """(dx, dy, dz, distance) from the body's centre (a sphere, ``axis`` -1) or axis (a
-    cylinder along x, 0, or y, 1) to the node at X[i] + u[k : k + 3]: the one geometry of the
-    contact, for its normal and its friction alike."""
+def _offset(u, k, X, i, centre, axis, radius, normal):
+    """(dx, dy, dz, distance, gap): the vector from the body's centre (a sphere, ``axis`` -1)
+    or axis (a cylinder along x, 0, or y, 1) to the node at X[i] + u[k : k + 3], its length
+    and the gap (mm, < 0 in contact) distance - radius; for a plane (``PLANE_AXIS``) its unit
+    ``normal``, length 1 and the signed distance from the plane. The one geometry of the
+    contact, for its normal and its friction alike: (dx, dy, dz) / distance is the normal."""
+    if axis == PLANE_AXIS:
+        gap = (
+            (X[i, 0] + u[k] - centre[0]) * normal[0]
+            + (X[i, 1] + u[k + 1] - centre[1]) * normal[1]
+            + (X[i, 2] + u[k + 2] - centre[2]) * normal[2]
+        )
+        return normal[0], normal[1], normal[2], 1.0, gap
     dx = 0.0 if axis == 0 else X[i, 0] + u[k] - centre[0]
     dy = 0.0 if axis == 1 else X[i, 1] + u[k + 1] - centre[1]
     dz = X[i, 2] + u[k + 2] - centre[2]
-    return dx, dy, dz, np.sqrt(dx * dx + dy * dy + dz * dz)
+    distance = np.sqrt(dx * dx + dy * dy + dz * dz)
+    return dx, dy, dz, distance, distance - radius
 
 
 @njit(cache=True)
-def add_penalty_forces(u, nodes, active, X, centre, radius, axis, penalty, f, total):
+def add_penalty_forces(u, nodes, active, X, centre, radius, axis, normal, penalty, f, total):
     """Add the contact forces on the face nodes ``nodes`` (reference positions X (n, 3), mm;
     displacements in the flat u, x y z interleaved) into the flat f (N) and put their
     reaction on the body into total (3,); returns the penalty energy (mJ). ``active`` (n,)
     bool: the nodes that can touch (False: erosion has removed every element holding it).
-    ``axis``: -1 for a sphere, 0 or 1 for a cylinder along x or y. One pass: gather, penalty,
-    scatter."""
+    ``axis``: -1 for a sphere, 0 or 1 for a cylinder along x or y, ``PLANE_AXIS`` for a plane
+    of unit ``normal`` (3,) (read for a plane only). One pass: gather, penalty, scatter."""
     total[:] = 0.0
     energy = 0.0
     for i in range(nodes.shape[0]):
         if not active[i]:
             continue
         k = 3 * nodes[i]
-        dx, dy, dz, distance = _offset(u, k, X, i, centre, axis)
-        gap = distance - radius
+        dx, dy, dz, distance, gap = _offset(u, k, X, i, centre, axis, radius, normal)
         if gap >= 0.0 or distance == 0.0:
             continue
         magnitude = -penalty * gap / distance
@@ -119,6 +139,7 @@ def add_friction_forces(
     moved,
     radius,
     axis,
+    normal,
     penalty,
     friction,
     previous,
@@ -146,8 +167,7 @@ def add_friction_forces(
     dissipated = 0.0
     for i in range(nodes.shape[0]):
         k = 3 * nodes[i]
-        dx, dy, dz, distance = _offset(u, k, X, i, centre, axis)
-        gap = distance - radius
+        dx, dy, dz, distance, gap = _offset(u, k, X, i, centre, axis, radius, normal)
         # the node's slide relative to the body since the last call (scalars: no allocation)
         x, y, z = X[i, 0] + u[k], X[i, 1] + u[k + 1], X[i, 2] + u[k + 2]
         sx = x - previous[i, 0] - moved[0]
@@ -210,19 +230,33 @@ class Contact(Contributor):
     def on(cls, body: RigidBody | Impactor, structure) -> Contact:
         body = _as_body(body)
         base = structure.base
-        nodes = face_nodes(base, body.face)  # collective
-        owned = nodes[nodes < base.V.dofmap.index_map.size_local]
+        n_owned = base.V.dofmap.index_map.size_local
+        every = body.face == "all"
+        if every:  # every owned base node (both faces, and a layerwise mesh's inner layers)
+            owned = np.arange(n_owned, dtype=np.int64)
+        else:
+            nodes = face_nodes(base, body.face)  # collective
+            owned = nodes[nodes < n_owned]
         X = structure.X_base[owned]
         # the mean area of the face's facets over all ranks: one penalty for the whole face,
         # as in serial (of the face it touches: a curved shell's layers differ in area)
-        _, _, facets = face_facets(base, body.face)
+        _, _, facets = face_facets(base, "top" if every else body.face)
         local = np.array([quad_areas(facets).sum(), len(facets)])
         total, n_facets = structure.comm.allreduce(local, op=MPI.SUM)
         area = total / n_facets
-        C33 = max(p.material.stiffness()[2, 2] for p in structure.laminate.plies)
-        mass = structure.mass_base.array[3 * owned]
+        plies = structure.laminate.plies
         h = structure.laminate.thickness
-        contact = cls(body, structure.comm, owned, X, mass, area, C33, h, structure.base.u.x)
+        mass = structure.mass_base.array[3 * owned]
+        if every:
+            # a platen may press on an edge, along the fibres: the stiffest modulus; and on the
+            # lightest node a refinement can make, a column's share of its thinnest ply
+            modulus = max(float(np.max(np.diag(p.material.stiffness())[:3])) for p in plies)
+            mass = mass * min(1.0, min(p.thickness for p in plies) / h)
+        else:
+            modulus = max(p.material.stiffness()[2, 2] for p in plies)
+        contact = cls(body, structure.comm, owned, X, mass, area, modulus, h, structure.base.u.x)
+        if every:
+            contact.structure = structure
         if structure.erosion:
             contact.watch_erosion(structure)
         return contact
@@ -267,7 +301,6 @@ class Contact(Contributor):
         self.previous_centre = self.centre.copy()  # at the last add_force
         self.previous_force = np.zeros(3)
         self.moved = np.zeros(3)  # mm: c_n+1 - c_n at the last add_force
-        self.z0 = float(self.centre[2])  # mm: the centre's height at t = 0
         # whether add_force sums the force over the ranks every step (else on output steps:
         # the module docstring); the lever sets it for its saddle
         self.every_step = self.free
@@ -289,7 +322,22 @@ class Contact(Contributor):
         self.friction_energy = 0.0  # mJ: over all ranks if every_step, else this rank's
         self._request = MPI.REQUEST_NULL  # the reduction of ``totals`` under way, if any
         self._taken = True  # ``totals`` of the last add_force are in force, energy, acceleration
-        self.axis = -1 if body.shape == ImpactorShape.SPHERE else "xy".index(body.axis)
+        if body.shape == ImpactorShape.PLANE:
+            self.axis = PLANE_AXIS
+        else:
+            self.axis = -1 if body.shape == ImpactorShape.SPHERE else "xy".index(body.axis)
+        self.normal = np.array(body.normal if body.normal is not None else (0.0, 0.0, 0.0))
+        self.direction = body.direction  # of the history's force and displacement
+        self.z0 = float(self.direction @ self.centre)  # mm: the centre along it at t = 0
+        # face "all": the structure whose free extra nodes (of refined cells, owned, not bound
+        # to a border) the body touches too, as found at its node arrays' ``generation``
+        self.structure = None
+        self.generation = -1
+        self.extra_nodes = np.zeros(0, np.int64)
+        self.extra_X = np.zeros((0, 3))
+        self.extra_active = np.zeros(0, dtype=bool)
+        self.extra_u = None  # the extra nodes' displacement vector (replaced by a refinement)
+        self.extra_total = np.zeros(3)
         # the face nodes that can touch: erosion releases those it has left without elements
         # (``watch_erosion``)
         self.active = np.ones(len(self.nodes), dtype=bool)
@@ -326,9 +374,13 @@ class Contact(Contributor):
     def initial_gap(self) -> float:
         """Collective: the smallest gap (mm) between the body and its undeformed face."""
         dx = self.X - self.centre
-        if self.axis >= 0:
-            dx[:, self.axis] = 0.0
-        local = float(np.min(np.linalg.norm(dx, axis=1))) if len(self.X) else np.inf
+        if self.axis == PLANE_AXIS:
+            distance = dx @ self.normal
+        else:
+            if self.axis >= 0:
+                dx[:, self.axis] = 0.0
+            distance = np.linalg.norm(dx, axis=1)
+        local = float(np.min(distance)) if len(self.X) else np.inf
         return self.comm.allreduce(local, op=MPI.MIN) - self.body.radius
 
     def largest_stable_penalty(self, dt: float, element_step: float) -> float:
@@ -369,15 +421,15 @@ class Contact(Contributor):
         factor, s); the body's height taken as its reference."""
         self.limit_penalty(dt)
         self.check_penalty(dt, element_step)
-        self.z0 = float(self.body.position[2])
+        self.z0 = float(self.direction @ np.asarray(self.body.position, dtype=float))
 
     def add_force(self, t: float, f_base: np.ndarray, f_extra: np.ndarray) -> None:
         """Add the contact forces (N) at the current displacement into ``f_base`` (owned base
         DOFs, flat) at the face's DOFs; also the body's force, the acceleration of a free body
         and the work of a driven one's drive. Collective if ``every_step``: the sum over the
         ranks is started here and completed by ``finish`` (or by whoever waits on
-        ``pending_request``). ``f_extra`` is not touched (the top and bottom faces have no extra
-        nodes)."""
+        ``pending_request``). ``f_extra`` (owned extra DOFs) gets the forces on the free
+        extra nodes of a body on face "all" (the top and bottom faces have none)."""
         self.finish()  # the last evaluation's, if nothing read it (a refinement evaluates twice)
         self.totals[3] = add_penalty_forces(
             self.displacement.array,
@@ -387,10 +439,28 @@ class Contact(Contributor):
             self.centre,
             self.body.radius,
             self.axis,
+            self.normal,
             self.penalty,
             f_base,
             self.totals[:3],
         )
+        if self.structure is not None:
+            self._find_extra_nodes()
+            if len(self.extra_nodes):
+                self.totals[3] += add_penalty_forces(
+                    self.extra_u.array,
+                    self.extra_nodes,
+                    self.extra_active,
+                    self.extra_X,
+                    self.centre,
+                    self.body.radius,
+                    self.axis,
+                    self.normal,
+                    self.penalty,
+                    f_extra,
+                    self.extra_total,
+                )
+                self.totals[:3] += self.extra_total
         if self.friction > 0.0:
             self._add_friction(f_base)
         self.totals[4] = self.friction_local
@@ -399,6 +469,23 @@ class Contact(Contributor):
             self._request = self.comm.Iallreduce(MPI.IN_PLACE, self.totals, op=MPI.SUM)
         else:
             self.finish()
+
+    def _find_extra_nodes(self) -> None:
+        """The owned extra nodes a body on face "all" touches, found again after each
+        refinement: those not bound to the border of a refined region (a bound node follows
+        its masters, which the body touches themselves)."""
+        structure = self.structure
+        generation = structure.node_arrays.generation
+        if generation == self.generation:
+            return
+        self.generation = generation
+        bound = np.unique(structure.border.dofs // 3) - structure.n_base  # local extra nodes
+        free = np.setdiff1d(np.arange(structure.extra.n_owned), bound).astype(np.int64)
+        self.extra_nodes = free
+        self.extra_u = structure.extra.vectors["u"]
+        X = structure.extra.vectors["X"].array.reshape(-1, 3)
+        self.extra_X = np.ascontiguousarray(X[free])
+        self.extra_active = np.ones(len(free), dtype=bool)
 
     def _add_friction(self, f_base: np.ndarray) -> None:
         """The friction forces at the current state into ``f_base`` and the body's force;
@@ -418,6 +505,7 @@ class Contact(Contributor):
             self.slid,
             self.body.radius,
             self.axis,
+            self.normal,
             self.penalty,
             self.friction,
             self.previous,
@@ -498,8 +586,9 @@ class Contact(Contributor):
         return self.total_energy() if self.comm.rank == 0 else 0.0
 
     def report(self, row, first: bool) -> None:
-        """Collective: the body's force on the structure's opposite (N, z: the force the
-        structure applies to it), its z displacement (mm) and the energy it gave since t = 0
+        """Collective: the body's force on the structure's opposite (N, along ``direction``: z,
+        or into the structure for a plane; the force the structure applies to it), its
+        displacement along the same (mm) and the energy it gave since t = 0
         (mJ, added to ``impact_work``: the work of the contact forces on the structure, net
         of what friction dissipated, which has its column ``<name>_friction_energy``) into a
         history row; ``first``: the row at t = 0."""
@@ -508,12 +597,13 @@ class Contact(Contributor):
         if first:
             self.initial = self.total_energy()
             self.initial_penalty = penalty
-        displacement = float(self.centre[2] - self.z0)
+        displacement = float(self.direction @ self.centre - self.z0)
+        along = float(self.direction @ force)
         if self.body.name == "impactor":
-            row.contact_force = float(force[2])
+            row.contact_force = along
             row.impactor_displacement = displacement
         else:
-            row.bodies[f"{self.body.name}_force"] = float(force[2])
+            row.bodies[f"{self.body.name}_force"] = along
             row.bodies[f"{self.body.name}_displacement"] = displacement
         if self.friction > 0.0:
             row.bodies[f"{self.body.name}_friction_energy"] = friction

@@ -1408,8 +1408,23 @@ def _rigid_bodies(root: _Root) -> tuple[RigidBody, ...]:
             if table.has(key) and key not in allowed:
                 raise InputError(table.key(key), f"does not apply to a {motion} body")
         shape = ImpactorShape(table.choice("shape"))
-        if shape == ImpactorShape.SPHERE and table.has("axis"):
-            raise InputError(table.key("axis"), "a sphere has no axis (only a cylinder has)")
+        if shape != ImpactorShape.CYLINDER and table.has("axis"):
+            raise InputError(table.key("axis"), f"a {shape} has no axis (only a cylinder has)")
+        plane = shape == ImpactorShape.PLANE
+        for key, needed in (("radius", not plane), ("normal", plane)):
+            if needed and not table.has(key):
+                raise InputError(table.key(key), f"missing (a {shape} needs its {key})")
+            if table.has(key) and not needed:
+                raise InputError(table.key(key), f"does not apply to a {shape}")
+        normal = table.numbers("normal")
+        if normal is not None and not any(normal):
+            raise InputError(table.key("normal"), "is the zero vector: give the plane's normal")
+        if table.number("friction") > 0.0 and table.choice("face") == "all":
+            raise InputError(
+                table.key("friction"),
+                'friction on face = "all" is not supported yet (the extra nodes of refined cells '
+                'carry no tangential springs): use face = "top" or "bottom", or no friction',
+            )
         amplitude = Amplitude.constant(1.0)
         if motion == RigidMotion.PRESCRIBED:
             if table.has("velocity") == table.has("displacement"):
@@ -1423,7 +1438,7 @@ def _rigid_bodies(root: _Root) -> tuple[RigidBody, ...]:
             RigidBody(
                 name=name,
                 shape=shape,
-                radius=table.number("radius"),
+                radius=table.number("radius") if table.has("radius") else 0.0,
                 position=table.numbers("position"),
                 face=table.choice("face"),
                 motion=motion,
@@ -1434,6 +1449,7 @@ def _rigid_bodies(root: _Root) -> tuple[RigidBody, ...]:
                 amplitude=amplitude,
                 penalty=table.number("penalty"),
                 friction=table.number("friction"),
+                normal=normal,
             )
         )
     return tuple(bodies)

@@ -106,10 +106,12 @@ class Profile(StrEnum):
 
 class ImpactorShape(StrEnum):
     """``[impactor]`` and ``[[rigid]] shape``: a sphere, or a cylinder (its axis along y for
-    the impactor, along ``axis`` for a rigid body)."""
+    the impactor, along ``axis`` for a rigid body), or (a rigid body only) a plane through its
+    position with a unit ``normal`` (the platen of a crush test)."""
 
     SPHERE = "sphere"
     CYLINDER = "cylinder"
+    PLANE = "plane"
 
 
 class RigidMotion(StrEnum):

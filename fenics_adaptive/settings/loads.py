@@ -193,10 +193,12 @@ def clamp(face: str) -> list[PrescribedMotion]:
 @dataclass(frozen=True)
 class RigidBody:
     """A rigid loading body ([[rigid]], or the [impactor]): a sphere of ``radius`` (mm) about
-    its centre, or a cylinder of ``radius`` whose axis runs along ``axis`` ("x" or "y")
-    through the centre, in penalty contact with the nodes of ``face`` ("top" or "bottom"),
-    with Coulomb ``friction`` (the coefficient; 0: frictionless). ``position`` (mm): the
-    centre at t = 0. ``motion``:
+    its centre, a cylinder of ``radius`` whose axis runs along ``axis`` ("x" or "y") through
+    the centre, or a plane through the centre with the unit ``normal`` (pointing from the
+    plane to the structure; ``radius`` 0), in penalty contact with the nodes of ``face``
+    ("top", "bottom", or "all": every node of the laminate, extra nodes included), with
+    Coulomb ``friction`` (the coefficient; 0: frictionless). ``position`` (mm): the centre at
+    t = 0. ``motion``:
 
     - FIXED: held there (a support);
     - PRESCRIBED: moved by ``displacement`` (mm, vector) x amplitude(t), or by ``velocity``
@@ -221,14 +223,37 @@ class RigidBody:
     amplitude: Amplitude = field(default_factory=lambda: Amplitude.constant(1.0))
     penalty: float | None = None
     friction: float = 0.0
+    normal: tuple[float, float, float] | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "shape", ImpactorShape(self.shape))  # frozen: set once, here
         object.__setattr__(self, "motion", RigidMotion(self.motion))
         if not (self.friction >= 0.0 and math.isfinite(self.friction)):
             raise ValueError(f"a friction coefficient is finite and >= 0 (got {self.friction})")
-        if self.face not in ("top", "bottom") or self.axis not in ("x", "y"):
-            raise ValueError("a rigid body touches the top or bottom face; its axis is x or y")
+        if self.face not in ("top", "bottom", "all") or self.axis not in ("x", "y"):
+            raise ValueError(
+                "a rigid body touches the top face, the bottom face or all nodes; "
+                "its axis is x or y"
+            )
+        plane = self.shape == ImpactorShape.PLANE
+        if plane != (self.normal is not None):
+            raise ValueError("a plane (and only a plane) has a normal")
+        if plane:
+            n = np.asarray(self.normal, dtype=float)
+            length = float(np.linalg.norm(n))
+            if not (math.isfinite(length) and length > 0.0):
+                raise ValueError(f"a plane's normal must be a nonzero vector (got {self.normal})")
+            object.__setattr__(self, "normal", tuple(float(x) for x in n / length))
+        elif not (self.radius > 0.0 and math.isfinite(self.radius)):
+            raise ValueError(f"a sphere's or cylinder's radius must be > 0 mm (got {self.radius})")
+
+    @property
+    def direction(self) -> np.ndarray:
+        """(3,) the unit vector its history columns take the force and the displacement along:
+        z for a sphere or a cylinder, into the structure (minus the normal) for a plane."""
+        if self.normal is None:
+            return np.array([0.0, 0.0, 1.0])
+        return -np.asarray(self.normal, dtype=float)
 
     @property
     def path(self) -> tuple[float, float, float]:

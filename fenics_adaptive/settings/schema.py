@@ -1137,7 +1137,7 @@ SECTIONS: tuple[Section, ...] = (
                 "shape",
                 "choice",
                 "sphere, or cylinder with its axis along y",
-                choices=tuple(ImpactorShape),
+                choices=(ImpactorShape.SPHERE, ImpactorShape.CYLINDER),
             ),
             _length("radius", "radius"),
             Key("mass", "float", "mass", "tonne", REQUIRED, 0.0, 1e6, open_min=True),
@@ -1178,22 +1178,40 @@ SECTIONS: tuple[Section, ...] = (
             Key(
                 "shape",
                 "choice",
-                "sphere, or cylinder with its axis along axis",
+                "sphere, cylinder with its axis along axis, or plane with its normal",
                 choices=tuple(ImpactorShape),
             ),
             Key("axis", "choice", "a cylinder's axis", default="y", choices=("x", "y")),
-            _length("radius", "radius"),
+            _length("radius", "sphere, cylinder: radius", OPTIONAL),
+            Key(
+                "normal",
+                "floats",
+                "plane: [nx, ny, nz], its normal, pointing from the plane to the structure "
+                "(scaled to length 1)",
+                "",
+                OPTIONAL,
+                -1e6,
+                1e6,
+                length=3,
+            ),
             Key(
                 "position",
                 "floats",
-                "[x, y, z] of the centre (a point of the axis) at t = 0",
+                "[x, y, z] of the centre (a point of the axis; a point of the plane) at t = 0",
                 "mm",
                 REQUIRED,
                 -MAX_LENGTH,
                 MAX_LENGTH,
                 length=3,
             ),
-            Key("face", "choice", "the face it may touch", choices=("top", "bottom")),
+            Key(
+                "face",
+                "choice",
+                "the face it may touch: top, bottom, or all (every node of the laminate: both "
+                "faces, the layers between, the extra nodes of refined cells; a platen on the "
+                "edge of a plate or the end of a tube)",
+                choices=("top", "bottom", "all"),
+            ),
             Key(
                 "motion",
                 "choice",

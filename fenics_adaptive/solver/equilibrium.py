@@ -202,7 +202,7 @@ class StaticSystem:
         self.fixed_values = np.array([structure.motions[m].displacement(t) for m in motions])
         self.slaves = np.asarray(structure.border.dofs, dtype=np.int64)
         self.free = np.setdiff1d(np.arange(self.n), np.concatenate([self.fixed, self.slaves]))
-        self._contact_force = [np.zeros(self.n_base_dofs), np.zeros(0)]
+        self._contact_force = [np.zeros(self.n_base_dofs), np.zeros(self.n - self.n_base_dofs)]
         # the values at t, which ``scale`` takes a share of (the bodies' travel from their start)
         self._full = (self.f_ext.copy(), self.fixed_values.copy(),
                       [(c.origin.copy(), c.centre - c.origin) for c in self.contacts])  # fmt: skip
@@ -211,7 +211,9 @@ class StaticSystem:
         self._probing = None  # ``_pattern``, made at the first tangent
         # mm: the largest Newton step when rigid bodies act (a share of the thinnest of the
         # laminate and the bodies)
-        sizes = [structure.laminate.thickness, *(c.body.radius for c in self.contacts)]
+        # (a plane has no radius)
+        radii = [c.body.radius for c in self.contacts if c.body.radius > 0.0]
+        sizes = [structure.laminate.thickness, *radii]
         self.step_limit = STEP_LIMIT * min(sizes)
 
     def largest_travel(self) -> float:
@@ -245,9 +247,11 @@ class StaticSystem:
         """The rigid bodies' forces on the nodes (N, combined) at the structure's displacement."""
         out = np.zeros(self.n)
         for contact in self.contacts:
-            self._contact_force[0].fill(0.0)
+            for part in self._contact_force:
+                part.fill(0.0)
             contact.add_force(self.t, *self._contact_force)
             out[: self.n_base_dofs] += self._contact_force[0]
+            out[self.n_base_dofs :] += self._contact_force[1]  # (a body on every node)
         return out
 
     def resisting_force(self, u: np.ndarray) -> np.ndarray:
