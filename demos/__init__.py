@@ -19,6 +19,7 @@ NAMES = (
     "four_point_bending",
     "plate_impact",
     "tube_crush",
+    "tube_impact",
     "crash_impact",
     "esl_vs_lw",
     "fracture_tests",

@@ -22,9 +22,8 @@ and the energy it put in against its travel, the delaminated area, the cost) and
 delaminated area and the wall time. About a minute on 2 cores. Units: N, mm, s, tonne (mJ).
 
 What it shows and what it does not: the tube does not fold or break (no fibre failure, no
-self-contact; progressive crushing is out of scope), the run stops at a set depth. The pole
-presses the tube sideways rather than a rigid plate hitting its end, because rigid bodies are
-spheres and cylinders touching the top or bottom face: no rigid plane yet.
+self-contact; progressive crushing is out of scope), the run stops at a set depth. A rigid
+plate striking a tube's end is ``demos/tube_impact.py``.
 """
 
 import json

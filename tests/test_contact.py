@@ -18,6 +18,7 @@ DATA = Path(__file__).parent / "data"
 
 
 NO_NORMAL = np.zeros(3)  # (a sphere's or a cylinder's: the kernels read a plane's only)
+ONES = np.ones(3)  # each node's spring weight
 
 
 def test_penalty_force_points_away_from_the_centre_and_stores_its_energy():
@@ -30,7 +31,7 @@ def test_penalty_force_points_away_from_the_centre_and_stores_its_energy():
     on_body = np.zeros(3)
     active = np.ones(3, dtype=bool)
     energy = add_penalty_forces(
-        u_flat, nodes, active, X, np.zeros(3), 1.0, -1, NO_NORMAL, 100.0, f, on_body
+        u_flat, nodes, active, X, np.zeros(3), 1.0, -1, NO_NORMAL, 100.0, ONES, f, on_body
     )
     added = f.reshape(3, 3)[nodes] - 1.0
     np.testing.assert_allclose(added[0], [0.0, 0.0, 100.0 * 0.1])
@@ -41,14 +42,15 @@ def test_penalty_force_points_away_from_the_centre_and_stores_its_energy():
     f_cyl = np.ones(9)
     shifted = X + np.array([0.0, 5.0, 0.0])
     add_penalty_forces(
-        u_flat, nodes, active, shifted, np.zeros(3), 1.0, 1, NO_NORMAL, 100.0, f_cyl, np.zeros(3)
-    )
+        u_flat, nodes, active, shifted, np.zeros(3), 1.0, 1, NO_NORMAL, 100.0, ONES, f_cyl,
+        np.zeros(3),
+    )  # fmt: skip
     np.testing.assert_allclose(f_cyl, f)
     # a node erosion has freed touches nothing
     f_freed = np.ones(9)
     freed = np.array([False, True, True])
     add_penalty_forces(
-        u_flat, nodes, freed, X, np.zeros(3), 1.0, -1, NO_NORMAL, 100.0, f_freed, on_body
+        u_flat, nodes, freed, X, np.zeros(3), 1.0, -1, NO_NORMAL, 100.0, ONES, f_freed, on_body
     )
     assert np.all(f_freed == 1.0) and np.all(on_body == 0.0)
 

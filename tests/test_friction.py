@@ -42,7 +42,9 @@ def slide_one_node(path_x, depth: float):
         last = x
         f, total = np.zeros(3), np.zeros(3)
         active = np.ones(len(nodes), dtype=bool)
-        add_penalty_forces(u, nodes, active, X, centre, RADIUS, 0, np.zeros(3), PENALTY, f, total)
+        add_penalty_forces(
+            u, nodes, active, X, centre, RADIUS, 0, np.zeros(3), PENALTY, np.ones(1), f, total
+        )
         normal = -f[2]
         springs, dissipated = add_friction_forces(
             u, nodes, active, X, centre, moved, RADIUS, 0, np.zeros(3), PENALTY, MU, previous,

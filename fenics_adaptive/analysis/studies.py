@@ -11,8 +11,8 @@ Studies (``STUDIES``):
 - ``four_point_bending``: ``demos/four_point_bending.toml`` (the stabilised adaptive run): the
   layerwise reference, adaptive unstabilised, adaptive;
 - ``plate_impact``: ``demos/plate_impact.toml`` (the adaptive run): ESL, adaptive, layerwise;
-  ``tube_crush`` (``demos/tube_crush.toml``) and ``crash_impact`` (``demos/crash_impact.toml``)
-  alike;
+  ``tube_crush`` (``demos/tube_crush.toml``), ``tube_impact`` (``demos/tube_impact.toml``) and
+  ``crash_impact`` (``demos/crash_impact.toml``) alike;
 - ``fracture_tests``: the DCB of ``demos/fracture_tests.toml``, the ENF of
   ``demos/fracture_tests_enf.toml`` and the MMB of ``demos/fracture_tests_mmb.toml`` (the
   layerwise runs; ``mmb_mixity`` makes the MMB's other mixities): layerwise, adaptive (the
@@ -42,6 +42,7 @@ TCB_LATE_OPENING = 0.005  # mm: the paper's late refinement, past the cohesive i
 FOUR_POINT_BENDING_RUNS = ("reference", "adaptive_unstabilised", "adaptive")
 PLATE_IMPACT_RUNS = ("esl", "adaptive", "layerwise")
 TUBE_CRUSH_RUNS = PLATE_IMPACT_RUNS  # derived alike: ``plate_impact_variant``
+TUBE_IMPACT_RUNS = PLATE_IMPACT_RUNS  # likewise
 CRASH_IMPACT_RUNS = PLATE_IMPACT_RUNS  # likewise
 FRACTURE_RUNS = ("layerwise", "adaptive")
 
@@ -167,7 +168,8 @@ def four_point_bending_variant(base: dict, name: str) -> dict:
 
 def plate_impact_variant(base: dict, name: str) -> dict:
     """One run of the plate-impact study (``PLATE_IMPACT_RUNS``) from ``base``, the config of the
-    adaptive run; the tube crush study's alike (``TUBE_CRUSH_RUNS``, a tube's config).
+    adaptive run; the tube crush and tube impact studies' alike (``TUBE_CRUSH_RUNS``,
+    ``TUBE_IMPACT_RUNS``, a tube's config).
 
     Parameters:
         base: the config as a TOML table (``demos/plate_impact.toml``).
@@ -440,6 +442,7 @@ STUDIES: dict[str, Study] = {
     "four_point_bending": Study(FOUR_POINT_BENDING_RUNS, four_point_bending_variant),
     "plate_impact": Study(PLATE_IMPACT_RUNS, plate_impact_variant),
     "tube_crush": Study(TUBE_CRUSH_RUNS, plate_impact_variant),
+    "tube_impact": Study(TUBE_IMPACT_RUNS, plate_impact_variant),
     "crash_impact": Study(CRASH_IMPACT_RUNS, plate_impact_variant),
     "fracture_tests": Study(FRACTURE_RUNS, fracture_variant),
 }

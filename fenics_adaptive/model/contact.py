@@ -13,10 +13,13 @@ faces) at x = X + u gets the penalty force
 is conservative: the penalty springs store 1/2 k g^2. A body on face "all" (a platen on the
 edge of a plate, the end of a tube) touches every owned base node, and the extra nodes of
 refined cells that are free (a node bound to the border of a refined region follows its
-masters, which the body touches), found again after each refinement; its default penalty
-takes the stiffest modulus (an edge is pressed along the plies) and the lightest node a
-refinement can make (a column's share of its thinnest ply). Friction is not offered there
-(the extra nodes have no tangential springs), nor are the extra nodes' contact forces in the
+masters, which the body touches), found again after each refinement. There k is the penalty
+of a face node of an unrefined column, and each node's spring is k m / m_face, m its lumped
+mass: the springs of a column add up to the same stiffness however it is split (ESL, refined,
+layerwise), as its masses do, every node has the same contact frequency, and a refinement
+moves springs between the nodes of a column as it moves mass. Its default penalty takes the
+stiffest modulus (an edge is pressed along the plies). Friction is not offered there (the
+extra nodes have no tangential springs), nor are the extra nodes' contact forces in the
 indicators' face tractions.
 
 Friction (``friction`` = mu > 0; ``add_friction_forces``): Coulomb's law with a regularised
@@ -102,13 +105,17 @@ def _offset(u, k, X, i, centre, axis, radius, normal):
 
 
 @njit(cache=True)
-def add_penalty_forces(u, nodes, active, X, centre, radius, axis, normal, penalty, f, total):
+def add_penalty_forces(
+    u, nodes, active, X, centre, radius, axis, normal, penalty, weights, f, total
+):
     """Add the contact forces on the face nodes ``nodes`` (reference positions X (n, 3), mm;
     displacements in the flat u, x y z interleaved) into the flat f (N) and put their
     reaction on the body into total (3,); returns the penalty energy (mJ). ``active`` (n,)
     bool: the nodes that can touch (False: erosion has removed every element holding it).
     ``axis``: -1 for a sphere, 0 or 1 for a cylinder along x or y, ``PLANE_AXIS`` for a plane
-    of unit ``normal`` (3,) (read for a plane only). One pass: gather, penalty, scatter."""
+    of unit ``normal`` (3,) (read for a plane only). Node i's spring is ``penalty`` (N/mm)
+    times ``weights[i]`` (1 on a face; on every node, its share of a column's mass). One
+    pass: gather, penalty, scatter."""
     total[:] = 0.0
     energy = 0.0
     for i in range(nodes.shape[0]):
@@ -118,14 +125,15 @@ def add_penalty_forces(u, nodes, active, X, centre, radius, axis, normal, penalt
         dx, dy, dz, distance, gap = _offset(u, k, X, i, centre, axis, radius, normal)
         if gap >= 0.0 or distance == 0.0:
             continue
-        magnitude = -penalty * gap / distance
+        stiffness = penalty * weights[i]
+        magnitude = -stiffness * gap / distance
         f[k] += magnitude * dx
         f[k + 1] += magnitude * dy
         f[k + 2] += magnitude * dz
         total[0] -= magnitude * dx
         total[1] -= magnitude * dy
         total[2] -= magnitude * dz
-        energy += 0.5 * penalty * gap * gap
+        energy += 0.5 * stiffness * gap * gap
     return energy
 
 
@@ -239,24 +247,31 @@ class Contact(Contributor):
             owned = nodes[nodes < n_owned]
         X = structure.X_base[owned]
         # the mean area of the face's facets over all ranks: one penalty for the whole face,
-        # as in serial (of the face it touches: a curved shell's layers differ in area)
-        _, _, facets = face_facets(base, "top" if every else body.face)
-        local = np.array([quad_areas(facets).sum(), len(facets)])
-        total, n_facets = structure.comm.allreduce(local, op=MPI.SUM)
-        area = total / n_facets
+        # as in serial (of the face it touches: a curved shell's layers differ in area; on
+        # every node, the mean of the two faces', a curved shell's mid-surface)
+        faces = ("top", "bottom") if every else (body.face,)
+        local = np.zeros(2 * len(faces))
+        for k, face in enumerate(faces):
+            _, _, facets = face_facets(base, face)
+            local[2 * k : 2 * k + 2] = quad_areas(facets).sum(), len(facets)
+        sums = structure.comm.allreduce(local, op=MPI.SUM)
+        area = float(np.mean(sums[0::2] / sums[1::2]))
         plies = structure.laminate.plies
         h = structure.laminate.thickness
         mass = structure.mass_base.array[3 * owned]
         if every:
-            # a platen may press on an edge, along the fibres: the stiffest modulus; and on the
-            # lightest node a refinement can make, a column's share of its thinnest ply
+            # a platen may press on an edge, along the fibres: the stiffest modulus; each
+            # node's spring in proportion to its mass (``follow_refinement``), so that every
+            # node has the frequency of a face node of an unrefined column of mass 2 m_face
             modulus = max(float(np.max(np.diag(p.material.stiffness())[:3])) for p in plies)
-            mass = mass * min(1.0, min(p.thickness for p in plies) / h)
+            face_mass = 0.5 * area * sum(p.material.rho * p.thickness for p in plies)
+            mass = np.full(len(owned), face_mass)
         else:
             modulus = max(p.material.stiffness()[2, 2] for p in plies)
         contact = cls(body, structure.comm, owned, X, mass, area, modulus, h, structure.base.u.x)
         if every:
             contact.structure = structure
+            contact.face_mass = face_mass
         if structure.erosion:
             contact.watch_erosion(structure)
         return contact
@@ -332,7 +347,10 @@ class Contact(Contributor):
         # face "all": the structure whose free extra nodes (of refined cells, owned, not bound
         # to a border) the body touches too, as found at its node arrays' ``generation``
         self.structure = None
+        self.face_mass = 0.0  # tonne: a face node's mass in an unrefined column (face "all")
         self.generation = -1
+        self.weights = np.ones(len(self.nodes))  # of each node's spring (``add_penalty_forces``)
+        self.extra_weights = np.zeros(0)
         self.extra_nodes = np.zeros(0, np.int64)
         self.extra_X = np.zeros((0, 3))
         self.extra_active = np.zeros(0, dtype=bool)
@@ -431,6 +449,8 @@ class Contact(Contributor):
         ``pending_request``). ``f_extra`` (owned extra DOFs) gets the forces on the free
         extra nodes of a body on face "all" (the top and bottom faces have none)."""
         self.finish()  # the last evaluation's, if nothing read it (a refinement evaluates twice)
+        if self.structure is not None:
+            self.follow_refinement()
         self.totals[3] = add_penalty_forces(
             self.displacement.array,
             self.nodes,
@@ -441,11 +461,11 @@ class Contact(Contributor):
             self.axis,
             self.normal,
             self.penalty,
+            self.weights,
             f_base,
             self.totals[:3],
         )
         if self.structure is not None:
-            self._find_extra_nodes()
             if len(self.extra_nodes):
                 self.totals[3] += add_penalty_forces(
                     self.extra_u.array,
@@ -457,6 +477,7 @@ class Contact(Contributor):
                     self.axis,
                     self.normal,
                     self.penalty,
+                    self.extra_weights,
                     f_extra,
                     self.extra_total,
                 )
@@ -470,10 +491,13 @@ class Contact(Contributor):
         else:
             self.finish()
 
-    def _find_extra_nodes(self) -> None:
-        """The owned extra nodes a body on face "all" touches, found again after each
-        refinement: those not bound to the border of a refined region (a bound node follows
-        its masters, which the body touches themselves)."""
+    def follow_refinement(self) -> None:
+        """A body on face "all", after each refinement (at its first evaluation since): the
+        owned extra nodes it touches, those not bound to the border of a refined region (a
+        bound node follows its masters, which the body touches themselves), and every node's
+        spring weight m / m_face, m its lumped mass now (the border's transfer made): the
+        springs of a column then add up to the same stiffness whatever splits it (an ESL
+        column, a refined one, a layerwise one), as its masses do."""
         structure = self.structure
         generation = structure.node_arrays.generation
         if generation == self.generation:
@@ -486,6 +510,8 @@ class Contact(Contributor):
         X = structure.extra.vectors["X"].array.reshape(-1, 3)
         self.extra_X = np.ascontiguousarray(X[free])
         self.extra_active = np.ones(len(free), dtype=bool)
+        self.weights = structure.base_block.mass[3 * self.nodes] / self.face_mass
+        self.extra_weights = structure.extra_block.mass[3 * free] / self.face_mass
 
     def _add_friction(self, f_base: np.ndarray) -> None:
         """The friction forces at the current state into ``f_base`` and the body's force;
