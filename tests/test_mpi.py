@@ -526,6 +526,40 @@ def test_a_tube_crushed_sideways_on_two_ranks_reproduces_the_serial_history(tmp_
 
 
 @pytest.mark.mpi
+def test_a_tube_struck_by_a_tilted_plate_on_two_ranks_reproduces_the_serial_history(tmp_path):
+    """A rigid plane on every node (``face = "all"``) pressing a tube's end, tilted 10
+    degrees: the indicators refine under it on both ranks, and the plane touches the extra
+    nodes of the refined cells on the rank that owns them, its springs weighted by the nodes'
+    masses summed over the ranks."""
+    data = {
+        "model": {"kind": "adaptive"},
+        "mesh": {"kind": "tube", "radius": 10.0, "length": 30.0, "n_around": 16, "n_along": 12},
+        "materials": {"im7": {"E1": 171420.0, "E2": 9080.0, "G12": 5290.0, "nu12": 0.32,
+                              "nu23": 0.5, "rho": 1.59e-9}},
+        "laminate": {"material": "im7", "ply_thickness": 0.25,
+                     "angles": [0, 90, 0, 90, 90, 0, 90, 0]},
+        "interfaces": {"delaminate": [2, 6]},
+        "cohesive": {"K_n": 1.0e5, "K_s": 1.0e5, "N": 30.0, "S": 45.0, "GIc": 0.28,
+                     "GIIc": 0.79, "law": "bk", "exponent": 2.1},
+        "indicators": {},
+        "clamp": [{"face": "x0"}],
+        "rigid": [{"name": "plate", "shape": "plane", "normal": [-1.0, 0.0, -0.17633],
+                   "position": [30.01, 0.0, 11.0], "face": "all", "motion": "prescribed",
+                   "velocity": [-5000.0, 0.0, 0.0], "rise_time": 2.0e-5, "profile": "smooth"}],
+        "solver": {"end_time": 1.2e-4},
+        "output": {"interval": 5.0e-6, "displacement_face": "x1", "reaction_face": "x0",
+                   "component": "x"},
+    }  # fmt: skip
+    config = tmp_path / "tube.toml"
+    config.write_text(toml_text(data))
+    serial, (whole,) = run_case(config, tmp_path / "serial", 1)
+    parallel, ranks = run_case(config, tmp_path / "parallel", 2)
+    assert whole["cohesive"] > 0 and max(serial["plate_force"]) > 100.0
+    assert sum(r["cohesive"] > 0 for r in ranks) == 2, ranks  # refined on both ranks
+    assert_same_history(serial, parallel)
+
+
+@pytest.mark.mpi
 def test_a_perforated_plate_on_two_ranks_reproduces_the_serial_run(tmp_path):
     """tests/data/perforation.toml: fibres break and elements erode across the partition
     (DOLFINx cuts the plate through its centre, under the sphere), contact lets go of the face

@@ -17,10 +17,12 @@ masters, which the body touches), found again after each refinement. There k is 
 of a face node of an unrefined column, and each node's spring is k m / m_face, m its lumped
 mass: the springs of a column add up to the same stiffness however it is split (ESL, refined,
 layerwise), as its masses do, every node has the same contact frequency, and a refinement
-moves springs between the nodes of a column as it moves mass. Its default penalty takes the
-stiffest modulus (an edge is pressed along the plies). Friction is not offered there (the
-extra nodes have no tangential springs), nor are the extra nodes' contact forces in the
-indicators' face tractions.
+moves springs between the nodes of a column as it moves mass (the penetrations differ
+through the thickness, so the springs' energy changes: that change is booked as refinement
+energy, ``refinement_energy`` of the history, so that the energy balance stays closed). Its
+default penalty takes the stiffest modulus (an edge is pressed along the plies). Friction is
+not offered there (the extra nodes have no tangential springs), nor are the extra nodes'
+contact forces in the indicators' face tractions.
 
 Friction (``friction`` = mu > 0; ``add_friction_forces``): Coulomb's law with a regularised
 stick, as penalty codes do (LS-DYNA's contacts, Abaqus/Explicit's penalty friction): a node in
@@ -356,6 +358,11 @@ class Contact(Contributor):
         self.extra_active = np.zeros(0, dtype=bool)
         self.extra_u = None  # the extra nodes' displacement vector (replaced by a refinement)
         self.extra_total = np.zeros(3)
+        # mJ, this rank's: the penalty energy of the last evaluation, and the changes of it a
+        # refinement made by moving springs between the nodes of a column (split by it: the
+        # penetrations differ through the thickness), booked as refinement energy
+        self.penalty_local = 0.0
+        self.refinement_local = 0.0
         # the face nodes that can touch: erosion releases those it has left without elements
         # (``watch_erosion``)
         self.active = np.ones(len(self.nodes), dtype=bool)
@@ -449,9 +456,8 @@ class Contact(Contributor):
         ``pending_request``). ``f_extra`` (owned extra DOFs) gets the forces on the free
         extra nodes of a body on face "all" (the top and bottom faces have none)."""
         self.finish()  # the last evaluation's, if nothing read it (a refinement evaluates twice)
-        if self.structure is not None:
-            self.follow_refinement()
-        self.totals[3] = add_penalty_forces(
+        refined = self.structure is not None and self.follow_refinement()
+        energy = add_penalty_forces(
             self.displacement.array,
             self.nodes,
             self.active,
@@ -467,7 +473,7 @@ class Contact(Contributor):
         )
         if self.structure is not None:
             if len(self.extra_nodes):
-                self.totals[3] += add_penalty_forces(
+                energy += add_penalty_forces(
                     self.extra_u.array,
                     self.extra_nodes,
                     self.extra_active,
@@ -482,6 +488,10 @@ class Contact(Contributor):
                     self.extra_total,
                 )
                 self.totals[:3] += self.extra_total
+            if refined:  # at the state of the last evaluation, springs moved between nodes
+                self.refinement_local += energy - self.penalty_local
+        self.penalty_local = energy
+        self.totals[3] = energy
         if self.friction > 0.0:
             self._add_friction(f_base)
         self.totals[4] = self.friction_local
@@ -491,17 +501,19 @@ class Contact(Contributor):
         else:
             self.finish()
 
-    def follow_refinement(self) -> None:
+    def follow_refinement(self) -> bool:
         """A body on face "all", after each refinement (at its first evaluation since): the
         owned extra nodes it touches, those not bound to the border of a refined region (a
         bound node follows its masters, which the body touches themselves), and every node's
         spring weight m / m_face, m its lumped mass now (the border's transfer made): the
         springs of a column then add up to the same stiffness whatever splits it (an ESL
-        column, a refined one, a layerwise one), as its masses do."""
+        column, a refined one, a layerwise one), as its masses do. Returns whether the springs
+        changed since an earlier evaluation (not at the first one, nor at a restart's)."""
         structure = self.structure
         generation = structure.node_arrays.generation
         if generation == self.generation:
-            return
+            return False
+        first = self.generation < 0
         self.generation = generation
         bound = np.unique(structure.border.dofs // 3) - structure.n_base  # local extra nodes
         free = np.setdiff1d(np.arange(structure.extra.n_owned), bound).astype(np.int64)
@@ -512,6 +524,7 @@ class Contact(Contributor):
         self.extra_active = np.ones(len(free), dtype=bool)
         self.weights = structure.base_block.mass[3 * self.nodes] / self.face_mass
         self.extra_weights = structure.extra_block.mass[3 * free] / self.face_mass
+        return not first
 
     def _add_friction(self, f_base: np.ndarray) -> None:
         """The friction forces at the current state into ``f_base`` and the body's force;
@@ -637,6 +650,8 @@ class Contact(Contributor):
             row.impact_work += self.initial - self.total_energy() - friction
         else:
             row.impact_work += drive_work - (penalty - self.initial_penalty) - friction
+        if self.structure is not None:  # (the same on every rank: a body on face "all")
+            row.refinement_energy += summed(self.comm, np.array([self.refinement_local]))[0]
 
     def suspect(self) -> str:
         return (
@@ -662,6 +677,10 @@ class Contact(Contributor):
             "friction_started": np.array(self.friction_started),
             "friction_local": np.array(self.friction_local),
             "active": self.active.copy(),
+            "refinement_energy": np.array(self.refinement_local),
+            # the default penalty is capped for the step a run starts with; a restart after a
+            # refinement starts with a shorter step, and would cap it higher
+            "penalty": np.array(self.penalty),
         }
 
     def restore(self, state: dict) -> None:
@@ -685,3 +704,7 @@ class Contact(Contributor):
             self.friction_local = float(state["friction_local"])
         if "active" in state:  # checkpoints before erosion had every node active
             self.active[:] = state["active"]
+        self.refinement_local = float(state.get("refinement_energy", 0.0))
+        if "penalty" in state:  # (checkpoints before it kept the penalty a restart chose)
+            self.penalty = float(state["penalty"])
+        self.generation = -1  # (the springs found again at the next evaluation, not booked)
