@@ -198,6 +198,9 @@ def interlaminar_estimate(structure, system, solution) -> np.ndarray:
     if system.contacts:
         system.set_displacement(solution.u)
         face_force += system.contact_force()[:n_base_dofs]
+        for contact in system.contacts:  # (a body on every node presses edges too)
+            if contact.every_node:
+                contact.take_out_of(face_force)
     return interlaminar_stresses(structure, system.t, face_force=face_force)
 
 
@@ -270,10 +273,9 @@ def _history_row(config, system, solution, contacts) -> tuple[HistoryRow, np.nda
         # Clapeyron again: a driven body gives half its force times its travel, less what its
         # penalty spring keeps
         row.impact_work += -0.5 * float(force @ moved) - penalty
-        row.bodies[f"{contact.body.name}_force"] = float(force[2])
-        row.bodies[f"{contact.body.name}_displacement"] = float(
-            contact.centre[2] - contact.origin[2]
-        )
+        # along the body's direction (z; a plane's minus its normal), as the explicit history
+        row.bodies[f"{contact.body.name}_force"] = float(contact.direction @ force)
+        row.bodies[f"{contact.body.name}_displacement"] = float(contact.direction @ moved)
     return row, reaction
 
 

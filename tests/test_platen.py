@@ -13,6 +13,7 @@ of a crush test.
 from __future__ import annotations
 
 import copy
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -24,6 +25,7 @@ from fenics_adaptive.model.contact import PLANE_AXIS, add_penalty_forces
 from fenics_adaptive.settings.config import parse_config
 from fenics_adaptive.static_runner import static_config
 
+DATA = Path(__file__).parent / "data"
 LENGTH = 30.0  # mm, the tube's
 GAP = 1.0e-3  # mm between the plane and the tube's end at t = 0
 
@@ -86,8 +88,8 @@ def _tube(kind: str) -> dict:
 
 
 def test_a_plane_crushing_a_tube_carries_its_membrane_stiffness(tmp_path):
-    """Static: the plane's force (along its direction into the tube) equals the clamped end's
-    reaction, and the membrane stiffness E_x A / L of the faceted wall (as
+    """Static: the plane's force (the tube pushing it back, along minus its normal) equals the
+    clamped end's reaction, and the membrane stiffness E_x A / L of the faceted wall (as
     ``test_shell.test_tube_compression_carries_the_membrane_stiffness``, +0.16 % of the ends'
     Poisson restraint) times the end's shortening; the plane moved its 0.021 mm."""
     data = _tube("esl")
@@ -97,6 +99,9 @@ def test_a_plane_crushing_a_tube_carries_its_membrane_stiffness(tmp_path):
     shortening = -summary["final"]["displacement_mm"]
     assert force[0] > 100.0 and abs(force[1]) < 1e-9 * force[0] and abs(force[2]) < 1e-9 * force[0]
     assert reaction == pytest.approx(force[0], rel=1e-6)  # the clamp pushes along +x too
+    history = read_history(tmp_path / "static" / "history.csv")  # along minus the normal
+    assert history["platen_force"][-1] == pytest.approx(force[0], rel=1e-12)
+    assert history["platen_displacement"][-1] == pytest.approx(-0.021, rel=1e-12)
     ply = PROTOTYPE_PLY
     nu21 = ply["nu12"] * ply["E2"] / ply["E1"]
     Q11, Q22 = ply["E1"] / (1 - ply["nu12"] * nu21), ply["E2"] / (1 - ply["nu12"] * nu21)
@@ -219,3 +224,43 @@ def test_refinement_under_a_plane_books_the_springs_it_moves_and_restarts(tmp_pa
     rows = {k: np.asarray(v) for k, v in read_history(tmp_path / "whole" / "history.csv").items()}
     assert rows["refinement_energy"].min() < -5.0  # springs moved, booked
     assert np.abs(rows["energy_balance"]).max() < 1e-3 * rows["impact_work"].max()
+
+
+def test_a_plane_lets_go_of_the_extra_nodes_erosion_has_freed():
+    """tests/data/perforation.toml refined strongly at its middle interface from the start,
+    under a plane on every node: with the four cells around the plate's centre eroded, the
+    extra nodes of their shared column leave the contact (no element holds them), the other
+    extra nodes stay, and a refinement's new extra nodes do not bring the freed ones back."""
+    import tomllib
+
+    from fenics_adaptive.materials import ply_damage as pd
+    from fenics_adaptive.model.contact import Contact
+    from fenics_adaptive.simulation import build_structure
+
+    data = tomllib.loads((DATA / "perforation.toml").read_text())
+    data["model"]["kind"] = "adaptive"
+    data["interfaces"] = {"delaminate": [2], "initial": "strong"}
+    data["cohesive"] = {"K_n": 1.0e5, "K_s": 1.0e5, "N": 60.0, "S": 90.0, "GIc": 0.28,
+                        "GIIc": 0.79, "law": "bk", "exponent": 2.1}  # fmt: skip
+    data.pop("impactor")
+    data["rigid"] = [{"name": "platen", "shape": "plane", "normal": [0.0, 0.0, -1.0],
+                      "position": [5.0, 5.0, 1.01], "face": "all", "motion": "fixed"}]  # fmt: skip
+    config = parse_config(data)
+    structure = build_structure(config)
+    contact = Contact.on(config.rigid_bodies[0], structure)
+    contact.watch_erosion(structure)  # (as Contact.on does on an eroding structure)
+    f_base = np.zeros(structure.base.u.x.array.shape)
+    f_extra = np.zeros(structure.extra.vectors["u"].array.shape)
+    contact.add_force(0.0, f_base, f_extra)  # (finds the extra nodes)
+    X = contact.extra_X
+    centre = np.flatnonzero(np.all(np.isclose(X[:, :2], [5.0, 5.0]), axis=1))
+    cells = np.flatnonzero(
+        np.all(np.abs(structure.cell_vertices().mean(axis=1)[:, :2] - 5.0) < 0.5, axis=1)
+    )
+    assert len(centre) == 2 and len(cells) == 4  # the pair of the split interface
+    structure.damage_state[cells, :, pd.S_DF] = 1.0
+    contact.release()
+    assert np.flatnonzero(~contact.extra_active).tolist() == centre.tolist()
+    contact.generation = -2  # as after a refinement: the extra nodes found again
+    contact.add_force(0.0, f_base, f_extra)
+    assert np.flatnonzero(~contact.extra_active).tolist() == centre.tolist()

@@ -17,12 +17,15 @@ masters, which the body touches), found again after each refinement. There k is 
 of a face node of an unrefined column, and each node's spring is k m / m_face, m its lumped
 mass: the springs of a column add up to the same stiffness however it is split (ESL, refined,
 layerwise), as its masses do, every node has the same contact frequency, and a refinement
-moves springs between the nodes of a column as it moves mass (the penetrations differ
-through the thickness, so the springs' energy changes: that change is booked as refinement
-energy, ``refinement_energy`` of the history, so that the energy balance stays closed). Its
-default penalty takes the stiffest modulus (an edge is pressed along the plies). Friction is
-not offered there (the extra nodes have no tangential springs), nor are the extra nodes'
-contact forces in the indicators' face tractions.
+moves springs between the nodes of a column as it moves mass. The springs' stiffness, not
+their force: where the penetration varies through the thickness (a tilted plate), splitting a
+column changes its contact force and the springs' energy at once; that change is booked as
+refinement energy (``refinement_energy`` of the history), so that the energy balance stays
+closed. Its default penalty takes the stiffest modulus (an edge is pressed along the plies)
+and is capped for the in-plane step of the mesh, the same in every model. Friction is not
+offered there (the extra nodes have no tangential springs), and its forces are no face
+tractions to the indicators (``ExplicitSolver.face_force``: an end or an edge is pressed).
+Erosion releases its extra nodes as it does the base nodes.
 
 Friction (``friction`` = mu > 0; ``add_friction_forces``): Coulomb's law with a regularised
 stick, as penalty codes do (LS-DYNA's contacts, Abaqus/Explicit's penalty friction): a node in
@@ -47,8 +50,9 @@ scheme's O(dt^2) error.
 As a force contributor (``model.forces``, kind CONTACT) a body adds its forces on its face's
 DOFs, moves itself (``advance``), reports into the history (the [impactor]: ``contact_force``,
 ``impactor_displacement``; a [[rigid]] body: ``<name>_force`` and ``<name>_displacement``, z
-components; a body with friction ``<name>_friction_energy``; every body adds to
-``impact_work``) and keeps its state for checkpoints.
+components, a plane's along minus its normal; a body with friction
+``<name>_friction_energy``; every body adds to ``impact_work``) and keeps its state for
+checkpoints.
 
 Ranks: a body's force and penalty energy are sums over the ranks' face nodes. A free body
 (whose motion needs its force) and the lever's saddle (whose force the lever passes on to the
@@ -68,6 +72,8 @@ Units: N, mm, s, tonne.
 """
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 from dolfinx import la
@@ -253,9 +259,13 @@ class Contact(Contributor):
         # every node, the mean of the two faces', a curved shell's mid-surface)
         faces = ("top", "bottom") if every else (body.face,)
         local = np.zeros(2 * len(faces))
+        shortest = np.inf  # mm: the shortest edge of the faces' facets (face "all")
         for k, face in enumerate(faces):
             _, _, facets = face_facets(base, face)
             local[2 * k : 2 * k + 2] = quad_areas(facets).sum(), len(facets)
+            if every and len(facets):  # (tensor order: edges 0-1, 2-3, 0-2, 1-3)
+                edges = facets[:, [1, 3, 2, 3]] - facets[:, [0, 2, 0, 1]]
+                shortest = min(shortest, float(np.linalg.norm(edges, axis=2).min()))
         sums = structure.comm.allreduce(local, op=MPI.SUM)
         area = float(np.mean(sums[0::2] / sums[1::2]))
         plies = structure.laminate.plies
@@ -268,12 +278,16 @@ class Contact(Contributor):
             modulus = max(float(np.max(np.diag(p.material.stiffness())[:3])) for p in plies)
             face_mass = 0.5 * area * sum(p.material.rho * p.thickness for p in plies)
             mass = np.full(len(owned), face_mass)
+            speed = max(math.sqrt(np.max(np.diag(p.material.stiffness())[:3]) / p.material.rho)
+                        for p in plies)  # fmt: skip
+            plane_step = structure.comm.allreduce(shortest, op=MPI.MIN) / speed
         else:
             modulus = max(p.material.stiffness()[2, 2] for p in plies)
         contact = cls(body, structure.comm, owned, X, mass, area, modulus, h, structure.base.u.x)
         if every:
             contact.structure = structure
             contact.face_mass = face_mass
+            contact.plane_step = plane_step
         if structure.erosion:
             contact.watch_erosion(structure)
         return contact
@@ -350,6 +364,9 @@ class Contact(Contributor):
         # to a border) the body touches too, as found at its node arrays' ``generation``
         self.structure = None
         self.face_mass = 0.0  # tonne: a face node's mass in an unrefined column (face "all")
+        # s: the step the faces' in-plane size allows (shortest edge over the fastest wave),
+        # the same in every model of one mesh: what a face "all" default penalty is capped for
+        self.plane_step: float | None = None
         self.generation = -1
         self.weights = np.ones(len(self.nodes))  # of each node's spring (``add_penalty_forces``)
         self.extra_weights = np.zeros(0)
@@ -367,6 +384,10 @@ class Contact(Contributor):
         # (``watch_erosion``)
         self.active = np.ones(len(self.nodes), dtype=bool)
         self._carriers = None  # -> (n_local,) elements of all ranks holding each base node
+        # face "all" with erosion: -> (n_owned extra,) the same for the extra nodes, and the
+        # owned extra nodes released so far (by owned index: a refinement keeps those)
+        self._extra_carriers = None
+        self.extra_released = np.zeros(0, dtype=bool)
 
     def watch_erosion(self, structure) -> None:
         """Collective: from now on ``release`` lets go of the face nodes erosion leaves without
@@ -381,6 +402,18 @@ class Contact(Contributor):
             return counts.array
 
         self._carriers = carriers
+        if self.structure is None:
+            return
+        structure = self.structure
+
+        def extra_carriers() -> np.ndarray:  # (of the extra nodes as they are now)
+            extra = structure.extra
+            counts = la.vector(extra.index_map, bs=1)
+            counts.array[:] = damage.extra_node_carriers(n_base, extra.n_local)
+            counts.scatter_reverse(la.InsertMode.add)
+            return counts.array[: extra.n_owned]
+
+        self._extra_carriers = extra_carriers
 
     def release(self) -> None:
         """Collective: stop contact at the face nodes that no element of any rank holds any
@@ -395,6 +428,19 @@ class Contact(Contributor):
         # (the friction kernel lets a released node's tangential spring go, booking its
         # energy as dissipated)
         self.active &= self._carriers()[self.nodes] > 0
+        if self._extra_carriers is not None:  # a body on every node: the extra nodes too
+            carriers = self._extra_carriers()
+            self._grow_released(len(carriers))
+            self.extra_released[: len(carriers)] |= carriers == 0
+            self.extra_active = ~self.extra_released[self.extra_nodes]
+
+    def _grow_released(self, n_owned: int) -> None:
+        """``extra_released`` for ``n_owned`` owned extra nodes (a refinement appends new
+        owned nodes after the old ones, whose indices it keeps)."""
+        if len(self.extra_released) < n_owned:
+            grown = np.zeros(n_owned, dtype=bool)
+            grown[: len(self.extra_released)] = self.extra_released
+            self.extra_released = grown
 
     def initial_gap(self) -> float:
         """Collective: the smallest gap (mm) between the body and its undeformed face."""
@@ -433,10 +479,16 @@ class Contact(Contributor):
                 "(omit it for the default)",
             )
 
-    def limit_penalty(self, dt: float) -> None:
-        """Cap the default penalty for the time step dt (an explicit penalty is kept and
-        checked by the caller)."""
-        cap = 0.05 * self.node_mass_min * (2.0 / dt) ** 2
+    def limit_penalty(self, dt: float, element_step: float | None = None) -> None:
+        """Cap the default penalty for the time step dt (s) (an explicit penalty is kept and
+        checked by the caller). On face "all" the cap is for the in-plane step
+        (``plane_step``), not the run's: the same default in an ESL, an adaptive and a
+        layerwise model of one mesh (whose steps differ with their layers' thickness), and
+        below the stable limit at dt (``element_step``: the element limit, s) too."""
+        step = dt if self.plane_step is None else self.plane_step
+        cap = 0.05 * self.node_mass_min * (2.0 / step) ** 2
+        if self.plane_step is not None and element_step is not None:
+            cap = min(cap, 0.5 * self.largest_stable_penalty(dt, element_step))
         if self.body.penalty is None:
             self.penalty = min(self.natural_penalty, cap)
 
@@ -444,7 +496,7 @@ class Contact(Contributor):
         """At the start of a run with the time step dt (s): the default penalty capped, an
         explicit one checked (``element_step``: the structure's stable step without the safety
         factor, s); the body's height taken as its reference."""
-        self.limit_penalty(dt)
+        self.limit_penalty(dt, element_step)
         self.check_penalty(dt, element_step)
         self.z0 = float(self.direction @ np.asarray(self.body.position, dtype=float))
 
@@ -501,6 +553,31 @@ class Contact(Contributor):
         else:
             self.finish()
 
+    @property
+    def every_node(self) -> bool:
+        """Whether the body touches every node (face "all"): edges and ends, not only faces."""
+        return self.body.face == "all"
+
+    def take_out_of(self, out: np.ndarray) -> None:
+        """Subtract this body's forces on the base nodes at the current displacement from
+        ``out`` (N, owned base DOFs, flat): what a body on every node presses is an edge or
+        an end as well as a face, and the indicators read only face loads as face tractions
+        (``ExplicitSolver.face_force``)."""
+        add_penalty_forces(
+            self.displacement.array,
+            self.nodes,
+            self.active,
+            self.X,
+            self.centre,
+            self.body.radius,
+            self.axis,
+            self.normal,
+            -self.penalty,
+            self.weights,
+            out,
+            self.extra_total,  # (scratch: the body's own totals are not touched)
+        )
+
     def follow_refinement(self) -> bool:
         """A body on face "all", after each refinement (at its first evaluation since): the
         owned extra nodes it touches, those not bound to the border of a refined region (a
@@ -521,7 +598,8 @@ class Contact(Contributor):
         self.extra_u = structure.extra.vectors["u"]
         X = structure.extra.vectors["X"].array.reshape(-1, 3)
         self.extra_X = np.ascontiguousarray(X[free])
-        self.extra_active = np.ones(len(free), dtype=bool)
+        self._grow_released(structure.extra.n_owned)
+        self.extra_active = ~self.extra_released[free]
         self.weights = structure.base_block.mass[3 * self.nodes] / self.face_mass
         self.extra_weights = structure.extra_block.mass[3 * free] / self.face_mass
         return not first
@@ -626,11 +704,13 @@ class Contact(Contributor):
 
     def report(self, row, first: bool) -> None:
         """Collective: the body's force on the structure's opposite (N, along ``direction``: z,
-        or into the structure for a plane; the force the structure applies to it), its
-        displacement along the same (mm) and the energy it gave since t = 0
-        (mJ, added to ``impact_work``: the work of the contact forces on the structure, net
-        of what friction dissipated, which has its column ``<name>_friction_energy``) into a
-        history row; ``first``: the row at t = 0."""
+        or minus the normal for a plane, from the structure towards the plane; the force the
+        structure applies to it, positive as it pushes a plane back), its displacement along
+        the same (mm; a plane moving into the structure has a negative one) and the energy it
+        gave since t = 0 (mJ, added to ``impact_work``: the work of the contact forces on the
+        structure, net of what friction dissipated, which has its column
+        ``<name>_friction_energy``, and of the spring energy refinements moved, which goes
+        with ``refinement_energy``) into a history row; ``first``: the row at t = 0."""
         force, penalty, drive_work, friction = self.totals_over_ranks()
         self.release()
         if first:
@@ -678,6 +758,7 @@ class Contact(Contributor):
             "friction_local": np.array(self.friction_local),
             "active": self.active.copy(),
             "refinement_energy": np.array(self.refinement_local),
+            "extra_released": self.extra_released.copy(),
             # the default penalty is capped for the step a run starts with; a restart after a
             # refinement starts with a shorter step, and would cap it higher
             "penalty": np.array(self.penalty),
@@ -705,6 +786,7 @@ class Contact(Contributor):
         if "active" in state:  # checkpoints before erosion had every node active
             self.active[:] = state["active"]
         self.refinement_local = float(state.get("refinement_energy", 0.0))
-        if "penalty" in state:  # (checkpoints before it kept the penalty a restart chose)
+        self.extra_released = np.array(state.get("extra_released", ()), dtype=bool)
+        if "penalty" in state and self.body.penalty is None:  # (an explicit one: the config's)
             self.penalty = float(state["penalty"])
         self.generation = -1  # (the springs found again at the next evaluation, not booked)

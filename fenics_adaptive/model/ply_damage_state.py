@@ -226,6 +226,13 @@ class PlyDamageState:
         held = nodes[~self.eroded(cells, self._spans)].ravel()
         return np.bincount(held[held < n_base], minlength=n_base)
 
+    def extra_node_carriers(self, n_base: int, n_extra: int) -> np.ndarray:
+        """(n_extra,) int: for each local extra node (owned and ghost; combined index n_base +
+        its own), how many of this rank's elements hold it and have not eroded."""
+        nodes, _, cells = self.elements[:3]
+        held = nodes[~self.eroded(cells, self._spans)].ravel()
+        return np.bincount(held[held >= n_base] - n_base, minlength=n_extra)[:n_extra]
+
     def _integral(self, slot: int) -> float:
         """A density slot of the state (MPa = mJ/mm^3) times the plies' volumes: mJ, this
         rank."""

@@ -235,6 +235,9 @@ class RigidBody:
                 "a rigid body touches the top face, the bottom face or all nodes; "
                 "its axis is x or y"
             )
+        if self.face == "all" and self.friction > 0.0:
+            raise ValueError("friction on face 'all' is not supported yet (no tangential springs "
+                             "on the extra nodes)")  # fmt: skip
         plane = self.shape == ImpactorShape.PLANE
         if plane != (self.normal is not None):
             raise ValueError("a plane (and only a plane) has a normal")
@@ -250,7 +253,9 @@ class RigidBody:
     @property
     def direction(self) -> np.ndarray:
         """(3,) the unit vector its history columns take the force and the displacement along:
-        z for a sphere or a cylinder, into the structure (minus the normal) for a plane."""
+        z for a sphere or a cylinder, minus the normal for a plane (from the structure towards
+        the plane: its force positive as the structure pushes it back, its travel into the
+        structure negative)."""
         if self.normal is None:
             return np.array([0.0, 0.0, 1.0])
         return -np.asarray(self.normal, dtype=float)

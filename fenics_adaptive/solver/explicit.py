@@ -72,6 +72,7 @@ from mpi4py import MPI
 
 from fenics_adaptive.adaptivity.events import RefinementEvent
 from fenics_adaptive.errors import InputError
+from fenics_adaptive.model.contact import Contact
 from fenics_adaptive.model.forces import ForceContributor
 from fenics_adaptive.model.loading import on_top_or_bottom
 from fenics_adaptive.model.mass_scaling import adaptive_refused, selective_mass
@@ -342,7 +343,8 @@ class ExplicitSolver:
         """N, the forces from outside on the top and bottom faces at t_n, besides the face
         loads, on the base DOFs (owned, flat): the reactions of the prescribed motions of those
         faces (``top``, ``bottom``, or an edge of theirs such as ``top&x0``) and the CONTACT
-        contributors' forces (an impactor). Into ``out`` if given, else a new array."""
+        contributors' forces (an impactor; not a rigid body on every node, which presses edges
+        and ends). Into ``out`` if given, else a new array."""
         base = self.blocks[0]
         out = np.zeros(base.block.n_owned) if out is None else out
         out[:] = 0.0
@@ -353,6 +355,9 @@ class ExplicitSolver:
         contact = self.forces.contact_force
         if contact is not None:
             out += contact[0]
+            for body in self.forces.contact:  # (a body on every node presses edges too)
+                if isinstance(body, Contact) and body.every_node:
+                    body.take_out_of(out)
         return out
 
     @property

@@ -64,7 +64,8 @@ class HistoryRow:
     state_energy_balance: float = 0.0
     crack_growth_area: float = 0.0  # mm^2, failed cohesive elements outside the insert films
     # per [[rigid]] body: "<name>_force" (N, z, the force the structure applies to it) and
-    # "<name>_displacement" (mm, z, of its centre since t = 0); with friction
+    # "<name>_displacement" (mm, z, of its centre since t = 0), a plane's along minus its
+    # normal (``RigidBody.direction``); with friction
     # "<name>_friction_energy" (mJ, dissipated since t = 0)
     bodies: dict[str, float] = field(default_factory=dict)
 
