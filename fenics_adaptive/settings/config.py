@@ -1475,6 +1475,8 @@ def _lever(root: _Root, bodies: tuple[RigidBody, ...], faces: list[str]) -> Leve
     if not named:
         known = ", ".join(body.name for body in bodies) or "none"
         raise InputError(table.key("saddle"), f"{saddle!r} is no [[rigid]] body (known: {known})")
+    if named[0].shape == ImpactorShape.PLANE:
+        raise InputError(f"rigid.{saddle}.shape", "the lever's saddle is a sphere or a cylinder")
     if named[0].motion != RigidMotion.LEVER:
         raise InputError(
             f"rigid.{saddle}.motion",
