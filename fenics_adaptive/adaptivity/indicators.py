@@ -353,12 +353,16 @@ def front_requests(
     state = structure.interface_state
     centroids = face_geometry(structure).centroids
     cells, interfaces, rows = element_data(structure).cohesive_rows.T
-    hit = (distances[interfaces - 1] > 0.0) & (structure.cohesive.damage[rows].max(axis=1) > 0.0)
+    damaged = structure.cohesive.damage[rows].max(axis=1) > 0.0
+    # (the few damaged elements first: the set operations then run on them, not on all)
+    candidates = np.flatnonzero((distances[interfaces - 1] > 0.0) & damaged)
+    cells, interfaces = cells[candidates], interfaces[candidates]
     n = state.shape[1] + 1
     keys = cells * n + interfaces
     known = np.zeros(0, np.int64) if known is None else known
-    hit &= ~np.isin(keys, known, assume_unique=True)
-    known = np.union1d(known, keys[hit]).astype(np.int64)
+    hit = ~np.isin(keys, known, assume_unique=True)
+    if hit.any():
+        known = np.union1d(known, keys[hit]).astype(np.int64)
     started = {int(i): cells[hit & (interfaces == i)] for i in np.unique(interfaces[hit])}
     # every rank takes part, whatever it holds: the interfaces in order, one gather each
     everywhere = structure.comm.allgather(sorted(started))
