@@ -403,6 +403,69 @@ FIGURES = {
 }
 
 
+def tube_config(kind: str = "esl", **mesh) -> dict:
+    """A [0/90]s tube of the prototype ply (R 20 mm, 30 mm long, 12 x 4 cells) clamped at x0
+    and pushed 0.02 mm along its axis at x1, as a config table; ``mesh`` keys replace the
+    [mesh] table's."""
+    data = {
+        "model": {"kind": kind},
+        "mesh": {"kind": "tube", "radius": 20.0, "length": 30.0, "n_around": 12, "n_along": 4},
+        "materials": {"cfrp": dict(PROTOTYPE_PLY)},
+        "laminate": {"material": "cfrp", "ply_thickness": 0.25, "angles": [0, 90, 90, 0]},
+        "clamp": [{"face": "x0"}],
+        "prescribed": [
+            {"face": "x1", "component": "x", "displacement": -0.02, "rise_time": 5.0e-5}
+        ],
+        "solver": {"end_time": 6.0e-5},
+        "output": {
+            "interval": 1.0e-5,
+            "displacement_face": "x1",
+            "reaction_face": "x0",
+            "component": "x",
+        },
+    }
+    data["mesh"].update(mesh)
+    return data
+
+
+def with_cohesive_interface(data: dict, initial: str | None) -> dict:
+    """``data`` (a ``tube_config``) with interface 2 delaminable, refined from the start as
+    ``initial`` says (None: as the model is), and its cohesive law."""
+    data["interfaces"] = {"delaminate": [2]}
+    if initial:
+        data["interfaces"]["initial"] = initial
+    data["cohesive"] = {"K_n": 1.0e5, "K_s": 1.0e5, "N": 20.0, "S": 40.0, "GIc": 0.4,
+                        "GIIc": 1.0, "law": "bk", "exponent": 2.0}  # fmt: skip
+    return data
+
+
+def im7_tube(end_time: float = 1.0e-4) -> dict:
+    """A small adaptive [0/90]2s IM7 tube (R 10 mm, 30 mm long, 16 x 12 cells) clamped at x0,
+    interfaces 2 and 6 delaminable, the indicators at their defaults, struck at its x1 end by
+    a plate tilted 10 degrees (a plane on every node, driven at 5 m/s): the indicators refine
+    the rim under it, and each refinement moves contact springs between the nodes of the
+    columns it splits."""
+    return {
+        "model": {"kind": "adaptive"},
+        "mesh": {"kind": "tube", "radius": 10.0, "length": 30.0, "n_around": 16, "n_along": 12},
+        "materials": {"im7": {"E1": 171420.0, "E2": 9080.0, "G12": 5290.0, "nu12": 0.32,
+                              "nu23": 0.5, "rho": 1.59e-9}},
+        "laminate": {"material": "im7", "ply_thickness": 0.25,
+                     "angles": [0, 90, 0, 90, 90, 0, 90, 0]},
+        "interfaces": {"delaminate": [2, 6]},
+        "cohesive": {"K_n": 1.0e5, "K_s": 1.0e5, "N": 30.0, "S": 45.0, "GIc": 0.28,
+                     "GIIc": 0.79, "law": "bk", "exponent": 2.1},
+        "indicators": {},
+        "clamp": [{"face": "x0"}],
+        "rigid": [{"name": "plate", "shape": "plane", "normal": [-1.0, 0.0, -0.17633],
+                   "position": [30.01, 0.0, 11.0], "face": "all", "motion": "prescribed",
+                   "velocity": [-5000.0, 0.0, 0.0], "rise_time": 2.0e-5, "profile": "smooth"}],
+        "solver": {"end_time": end_time},
+        "output": {"interval": 5.0e-6, "displacement_face": "x1", "reaction_face": "x0",
+                   "component": "x"},
+    }  # fmt: skip
+
+
 def run_quietly(data: dict, out: Path, restart: Path | None = None) -> dict:
     """Run a config table into the folder ``out`` (from the checkpoint ``restart`` if given),
     without progress or log lines; returns the summary."""

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from helpers import thin_pulled_beam, thin_tcb_layerwise, toml_text
+from helpers import im7_tube, thin_pulled_beam, thin_tcb_layerwise, toml_text
 
 from fenics_adaptive.io.output import COLUMN_UNITS, body_unit, read_history
 from fenics_adaptive.io.refinement_log import read_log as read_refinement_log
@@ -497,25 +497,23 @@ def test_a_tube_crushed_sideways_on_two_ranks_reproduces_the_serial_history(tmp_
     it, the indicators refining under it (the cells' frames, the interface stress recovered
     with the wall's curvature, contact on the outer face, extra nodes and cohesive elements on
     both ranks)."""
-    data = {
-        "model": {"kind": "adaptive"},
-        "mesh": {"kind": "tube", "radius": 10.0, "length": 30.0, "n_around": 16, "n_along": 12},
-        "materials": {"im7": {"E1": 171420.0, "E2": 9080.0, "G12": 5290.0, "nu12": 0.32,
-                              "nu23": 0.5, "rho": 1.59e-9}},
-        "laminate": {"material": "im7", "ply_thickness": 0.25,
-                     "angles": [0, 90, 0, 90, 90, 0, 90, 0]},
-        "interfaces": {"delaminate": [2, 6]},
-        "cohesive": {"K_n": 1.0e5, "K_s": 1.0e5, "N": 30.0, "S": 45.0, "GIc": 0.28,
-                     "GIIc": 0.79, "law": "bk", "exponent": 2.1},
-        "indicators": {},
-        "clamp": [{"face": "x0"}, {"face": "x1"}],
-        "rigid": [{"name": "pole", "shape": "cylinder", "axis": "y", "radius": 4.0,
-                   "position": [15.0, 0.0, 15.05], "face": "top", "motion": "prescribed",
-                   "velocity": [0.0, 0.0, -5000.0], "rise_time": 2.0e-5, "profile": "smooth"}],
-        "solver": {"end_time": 1.5e-4},
-        "output": {"interval": 5.0e-6, "displacement_face": "top", "reaction_face": "x0",
-                   "component": "z"},
-    }  # fmt: skip
+    data = im7_tube(end_time=1.5e-4)
+    data["clamp"] = [{"face": "x0"}, {"face": "x1"}]
+    data["rigid"] = [
+        {
+            "name": "pole",
+            "shape": "cylinder",
+            "axis": "y",
+            "radius": 4.0,
+            "position": [15.0, 0.0, 15.05],
+            "face": "top",
+            "motion": "prescribed",
+            "velocity": [0.0, 0.0, -5000.0],
+            "rise_time": 2.0e-5,
+            "profile": "smooth",
+        }
+    ]
+    data["output"].update(displacement_face="top", component="z")  # fmt: skip
     config = tmp_path / "tube.toml"
     config.write_text(toml_text(data))
     serial, (whole,) = run_case(config, tmp_path / "serial", 1)
@@ -531,25 +529,7 @@ def test_a_tube_struck_by_a_tilted_plate_on_two_ranks_reproduces_the_serial_hist
     degrees: the indicators refine under it on both ranks, and the plane touches the extra
     nodes of the refined cells on the rank that owns them, its springs weighted by the nodes'
     masses summed over the ranks."""
-    data = {
-        "model": {"kind": "adaptive"},
-        "mesh": {"kind": "tube", "radius": 10.0, "length": 30.0, "n_around": 16, "n_along": 12},
-        "materials": {"im7": {"E1": 171420.0, "E2": 9080.0, "G12": 5290.0, "nu12": 0.32,
-                              "nu23": 0.5, "rho": 1.59e-9}},
-        "laminate": {"material": "im7", "ply_thickness": 0.25,
-                     "angles": [0, 90, 0, 90, 90, 0, 90, 0]},
-        "interfaces": {"delaminate": [2, 6]},
-        "cohesive": {"K_n": 1.0e5, "K_s": 1.0e5, "N": 30.0, "S": 45.0, "GIc": 0.28,
-                     "GIIc": 0.79, "law": "bk", "exponent": 2.1},
-        "indicators": {},
-        "clamp": [{"face": "x0"}],
-        "rigid": [{"name": "plate", "shape": "plane", "normal": [-1.0, 0.0, -0.17633],
-                   "position": [30.01, 0.0, 11.0], "face": "all", "motion": "prescribed",
-                   "velocity": [-5000.0, 0.0, 0.0], "rise_time": 2.0e-5, "profile": "smooth"}],
-        "solver": {"end_time": 1.2e-4},
-        "output": {"interval": 5.0e-6, "displacement_face": "x1", "reaction_face": "x0",
-                   "component": "x"},
-    }  # fmt: skip
+    data = im7_tube(end_time=1.2e-4)
     config = tmp_path / "tube.toml"
     config.write_text(toml_text(data))
     serial, (whole,) = run_case(config, tmp_path / "serial", 1)

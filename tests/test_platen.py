@@ -17,7 +17,14 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from helpers import PROTOTYPE_PLY, assert_restarted_history, run_quietly
+from helpers import (
+    PROTOTYPE_PLY,
+    assert_restarted_history,
+    im7_tube,
+    run_quietly,
+    tube_config,
+    with_cohesive_interface,
+)
 
 from fenics_adaptive.errors import InputError
 from fenics_adaptive.io.output import read_history
@@ -58,33 +65,23 @@ def test_the_plane_pushes_along_its_normal_and_stores_its_energy():
 
 
 def _tube(kind: str) -> dict:
-    return {
-        "model": {"kind": kind},
-        "mesh": {"kind": "tube", "radius": 20.0, "length": LENGTH, "n_around": 12, "n_along": 4},
-        "materials": {"cfrp": dict(PROTOTYPE_PLY)},
-        "laminate": {"material": "cfrp", "ply_thickness": 0.25, "angles": [0, 90, 90, 0]},
-        "clamp": [{"face": "x0"}],
-        "rigid": [
-            {
-                "name": "platen",
-                "shape": "plane",
-                "normal": [-2.0, 0.0, 0.0],  # (scaled to 1)
-                "position": [LENGTH + GAP, 0.0, 0.0],
-                "face": "all",
-                "motion": "prescribed",
-                "displacement": [-0.021, 0.0, 0.0],
-                "rise_time": 5.0e-5,
-                "penalty": 2.0e4,
-            }
-        ],
-        "solver": {"end_time": 6.0e-5},
-        "output": {
-            "interval": 1.0e-5,
-            "displacement_face": "x1",
-            "reaction_face": "x0",
-            "component": "x",
-        },
-    }
+    """``helpers.tube_config`` pushed by a plane on every node at its x1 end instead."""
+    data = tube_config(kind)
+    data.pop("prescribed")
+    data["rigid"] = [
+        {
+            "name": "platen",
+            "shape": "plane",
+            "normal": [-2.0, 0.0, 0.0],  # (scaled to 1)
+            "position": [LENGTH + GAP, 0.0, 0.0],
+            "face": "all",
+            "motion": "prescribed",
+            "displacement": [-0.021, 0.0, 0.0],
+            "rise_time": 5.0e-5,
+            "penalty": 2.0e4,
+        }
+    ]
+    return data
 
 
 def test_a_plane_crushing_a_tube_carries_its_membrane_stiffness(tmp_path):
@@ -115,22 +112,13 @@ def test_a_plane_crushing_a_tube_carries_its_membrane_stiffness(tmp_path):
     assert 0.021 - GAP - shortening == pytest.approx(force[0] / (12 * 2.0e4), rel=0.01)
 
 
-def _cohesive(data: dict, initial: str | None) -> dict:
-    data["interfaces"] = {"delaminate": [2]}
-    if initial:
-        data["interfaces"]["initial"] = initial
-    data["cohesive"] = {"K_n": 1.0e5, "K_s": 1.0e5, "N": 20.0, "S": 40.0, "GIc": 0.4,
-                        "GIIc": 1.0, "law": "bk", "exponent": 2.0}  # fmt: skip
-    return data
-
-
 def test_a_plane_on_a_tube_refined_from_the_start_is_the_plane_on_the_layerwise_tube(tmp_path):
     """Explicit: the plane presses the tube's end, the adaptive tube's extra nodes there
     included; refined strongly from t = 0 it gives the layerwise tube's history to round-off
     (force on the plane, reaction, energies), and the plane's force is the reaction once the
     tube's waves have settled into the quasi-static share."""
-    adaptive = _cohesive(_tube("adaptive"), "strong")
-    layerwise = _cohesive(_tube("layerwise"), None)
+    adaptive = with_cohesive_interface(_tube("adaptive"), "strong")
+    layerwise = with_cohesive_interface(_tube("layerwise"), None)
     layerwise["mesh"]["layers"] = [2, 2]
     run_quietly(adaptive, tmp_path / "adaptive")
     run_quietly(layerwise, tmp_path / "layerwise")
@@ -182,38 +170,13 @@ def test_the_impactor_is_no_plane():
     assert error.value.key == "impactor.shape"
 
 
-def _tilted_tube() -> dict:
-    """A small [0/90]2s tube whose end a plate tilted 10 degrees presses: the indicators
-    refine the rim under it, and each refinement moves contact springs between the nodes of
-    the columns it splits."""
-    return {
-        "model": {"kind": "adaptive"},
-        "mesh": {"kind": "tube", "radius": 10.0, "length": 30.0, "n_around": 16, "n_along": 12},
-        "materials": {"im7": {"E1": 171420.0, "E2": 9080.0, "G12": 5290.0, "nu12": 0.32,
-                              "nu23": 0.5, "rho": 1.59e-9}},
-        "laminate": {"material": "im7", "ply_thickness": 0.25,
-                     "angles": [0, 90, 0, 90, 90, 0, 90, 0]},
-        "interfaces": {"delaminate": [2, 6]},
-        "cohesive": {"K_n": 1.0e5, "K_s": 1.0e5, "N": 30.0, "S": 45.0, "GIc": 0.28,
-                     "GIIc": 0.79, "law": "bk", "exponent": 2.1},
-        "indicators": {},
-        "clamp": [{"face": "x0"}],
-        "rigid": [{"name": "plate", "shape": "plane", "normal": [-1.0, 0.0, -0.17633],
-                   "position": [30.01, 0.0, 11.0], "face": "all", "motion": "prescribed",
-                   "velocity": [-5000.0, 0.0, 0.0], "rise_time": 2.0e-5, "profile": "smooth"}],
-        "solver": {"end_time": 1.0e-4},
-        "output": {"interval": 5.0e-6, "displacement_face": "x1", "reaction_face": "x0",
-                   "component": "x"},
-    }  # fmt: skip
-
-
 def test_refinement_under_a_plane_books_the_springs_it_moves_and_restarts(tmp_path):
     """Refining a column under the plate moves its springs to the new nodes (tens of mJ here:
     the plate's rim contact is concentrated): booked as refinement energy, the energy balance
     stays closed (it was -20 mJ without); a run stopped half-way and restarted from its
     checkpoint gives the uninterrupted history (the springs found again, the booked energy
     kept)."""
-    whole = _tilted_tube()
+    whole = im7_tube()
     first = copy.deepcopy(whole)
     first["solver"]["end_time"] = 5.0e-5
     first["output"]["checkpoint_interval"] = 300

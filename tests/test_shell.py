@@ -23,7 +23,7 @@ import numpy as np
 import pytest
 from fenics_adaptive.meshes import shell, surface
 from fenics_adaptive.meshes.beam import layered_mesh
-from helpers import DATA, PROTOTYPE_PLY, run_quietly
+from helpers import DATA, PROTOTYPE_PLY, run_quietly, tube_config, with_cohesive_interface
 
 from fenics_adaptive.analysis.obstacle_course import pinched_cylinder, scordelis_lo
 from fenics_adaptive.errors import InputError
@@ -153,34 +153,12 @@ def test_a_flat_shell_is_the_plate_and_a_rotated_one_turns_its_answer():
     )
 
 
-def _tube_config(kind: str = "esl", **mesh) -> dict:
-    data = {
-        "model": {"kind": kind},
-        "mesh": {"kind": "tube", "radius": 20.0, "length": 30.0, "n_around": 12, "n_along": 4},
-        "materials": {"cfrp": dict(PROTOTYPE_PLY)},
-        "laminate": {"material": "cfrp", "ply_thickness": 0.25, "angles": [0, 90, 90, 0]},
-        "clamp": [{"face": "x0"}],
-        "prescribed": [
-            {"face": "x1", "component": "x", "displacement": -0.02, "rise_time": 5.0e-5}
-        ],
-        "solver": {"end_time": 6.0e-5},
-        "output": {
-            "interval": 1.0e-5,
-            "displacement_face": "x1",
-            "reaction_face": "x0",
-            "component": "x",
-        },
-    }
-    data["mesh"].update(mesh)
-    return data
-
-
 @pytest.mark.parametrize("kinematics", ["small", "finite"])
 def test_kernels_equal_the_forms_on_curved_cells(kinematics):
     """The batched numba kernel (every solid element's production force) and the UFL form
     (static solves) take the strain in the same cell frames: equal forces on a tube's
     twisted, stretched and bent cells."""
-    data = _tube_config(orientation="hoop")
+    data = tube_config(orientation="hoop")
     data["model"]["kinematics"] = kinematics
     structure = build_structure(parse_config(data), MPI.COMM_SELF)
     x = structure.X_base
@@ -200,7 +178,7 @@ def test_a_msh_file_of_a_generated_surface_gives_the_generated_shell(tmp_path):
     normals) and read back as [mesh] kind = "file": the same static answer to round-off."""
     panel = {"kind": "panel", "radius": 30.0, "length": 20.0, "angle": 60.0,
              "n_around": 6, "n_along": 4}  # fmt: skip
-    data = _tube_config()
+    data = tube_config()
     data["mesh"] = panel
     data["clamp"] = [{"face": "x0"}]
     data["prescribed"] = [{"face": "x1", "component": "z", "displacement": -0.05,
@@ -266,22 +244,13 @@ def test_pinched_cylinder_converges_monotonically():
 
 
 # ------------------------------------------------------------------ runs and the config
-def _cohesive(data: dict, initial: str | None) -> dict:
-    data["interfaces"] = {"delaminate": [2]}
-    if initial:
-        data["interfaces"]["initial"] = initial
-    data["cohesive"] = {"K_n": 1.0e5, "K_s": 1.0e5, "N": 20.0, "S": 40.0, "GIc": 0.4,
-                        "GIIc": 1.0, "law": "bk", "exponent": 2.0}  # fmt: skip
-    return data
-
-
 @pytest.mark.slow
 def test_a_tube_refined_from_the_start_is_the_layerwise_tube(tmp_path):
     """Axial compression of a [0/90]s tube: the adaptive model refined strongly from t = 0 and
     the layerwise model of two sublaminates, joined by cohesive elements, give the same
     history (the cells' frames go into the subelements and the layerwise cells alike)."""
-    adaptive = _cohesive(_tube_config("adaptive"), "strong")
-    layerwise = _cohesive(_tube_config("layerwise"), None)
+    adaptive = with_cohesive_interface(tube_config("adaptive"), "strong")
+    layerwise = with_cohesive_interface(tube_config("layerwise"), None)
     layerwise["mesh"]["layers"] = [2, 2]
     run_quietly(adaptive, tmp_path / "adaptive")
     run_quietly(layerwise, tmp_path / "layerwise")
@@ -298,7 +267,7 @@ def test_tube_compression_carries_the_membrane_stiffness():
     cells around, each as thick as the laminate: A = 12 2 R sin(15 deg) t), to the 0.2 % the
     clamped ends' Poisson restraint adds (measured: +0.16 %; at 48 cells around, +0.2 % of
     the round tube's)."""
-    config = parse_config(_tube_config())
+    config = parse_config(tube_config())
     structure = build_structure(config, MPI.COMM_SELF)
     model = structure.base
     solve_static(model, config.motions, structure.loads, config.solver.end_time)
@@ -318,21 +287,21 @@ def test_tube_compression_carries_the_membrane_stiffness():
 
 
 def test_config_mesh_kinds_and_their_refusals(tmp_path):
-    config = parse_config(_tube_config())
+    config = parse_config(tube_config())
     assert config.mesh.shell.edges == ("x0", "x1")
     assert "x0_layer0" in config.face_names
-    bad = _tube_config(nx=4)
+    bad = tube_config(nx=4)
     with pytest.raises(InputError, match=r"mesh\.nx: not a key of kind = \"tube\""):
         parse_config(bad)
-    missing = _tube_config()
+    missing = tube_config()
     del missing["mesh"]["radius"]
     with pytest.raises(InputError, match=r"mesh\.radius: missing"):
         parse_config(missing)
-    wrong_face = _tube_config()
+    wrong_face = tube_config()
     wrong_face["clamp"] = [{"face": "y0"}]
     with pytest.raises(InputError, match="unknown face 'y0'"):
         parse_config(wrong_face)
-    holed = copy.deepcopy(_tube_config())
+    holed = copy.deepcopy(tube_config())
     holed["mesh"] = {"kind": "plate_with_hole", "length": 50.0, "width": 20.0,
                      "hole_radius": 12.0, "size": 2.0}  # fmt: skip
     holed["clamp"] = [{"face": "x0"}]
@@ -343,7 +312,7 @@ def test_config_mesh_kinds_and_their_refusals(tmp_path):
     holed["mesh"]["orientation"] = "hoop"
     with pytest.raises(InputError, match="orientation: not a key"):
         parse_config(holed)
-    no_file = _tube_config()
+    no_file = tube_config()
     no_file["mesh"] = {"kind": "file", "file": str(tmp_path / "none.msh")}
     with pytest.raises(InputError, match=r"mesh\.file: .* is not a file"):
         parse_config(no_file)
@@ -360,7 +329,7 @@ def test_hoop_runs_around_the_profile_and_cells_turn_to_the_projected_direction(
     """A hat's hoop direction is around its profile on the crown, the webs and the flanges
     alike (axis x the normal); a surface to which the default direction (x) is normal takes
     global z projected, and its cells' xi turns to it too (the frames' one rule)."""
-    data = _tube_config()
+    data = tube_config()
     data["mesh"] = {"kind": "hat", "length": 20.0, "width": 10.0, "height": 6.0, "flange": 4.0,
                     "size": 2.0, "n_along": 4, "orientation": "hoop"}  # fmt: skip
     structure = build_structure(parse_config(data), MPI.COMM_SELF)
@@ -381,25 +350,25 @@ def test_hoop_runs_around_the_profile_and_cells_turn_to_the_projected_direction(
 
 
 def test_shell_inputs_refused_where_they_would_do_nothing_or_harm(tmp_path):
-    symmetric = _cohesive(_tube_config("layerwise"), None)
+    symmetric = with_cohesive_interface(tube_config("layerwise"), None)
     symmetric["mesh"]["layers"] = [2, 2]
     symmetric["interfaces"] = {"symmetry": [2]}
     with pytest.raises(InputError, match=r"interfaces\.symmetry: .*shell"):
         parse_config(symmetric)
-    film = _cohesive(_tube_config("adaptive"), None)
+    film = with_cohesive_interface(tube_config("adaptive"), None)
     film["delamination"] = [{"interface": 2, "x_min": 100.0, "x_max": 120.0}]
     with pytest.raises(InputError, match=r"delamination\[0\]: its region holds no cell"):
         build_structure(parse_config(film), MPI.COMM_SELF)
     reserved = tmp_path / "reserved.geo"
     reserved.write_text((DATA / "shell_strip.geo").read_text().replace('"right"', '"top"'))
-    data = _tube_config()
+    data = tube_config()
     data["mesh"] = {"kind": "file", "file": str(reserved)}
     data["clamp"] = [{"face": "left"}]
     data["prescribed"] = []
     data["output"]["displacement_face"] = "left"
     with pytest.raises(InputError, match="may not be called 'top'"):
         parse_config(data)
-    too_few = _tube_config(n_around=2)
+    too_few = tube_config(n_around=2)
     with pytest.raises(InputError, match="at least 3 cells around"):
         parse_config(too_few)
     # a surface the extrusion cannot serve: an input error naming the quadrilateral
@@ -421,7 +390,7 @@ def test_the_recovered_peel_stress_carries_the_hoop_stress_on_the_walls_curvatur
     from fenics_adaptive.adaptivity.interlaminar import face_geometry, recovered_interface_stresses
     from fenics_adaptive.adaptivity.ply_fields import ply_stresses
 
-    structure = build_structure(parse_config(_tube_config(n_around=64, n_along=4)), MPI.COMM_SELF)
+    structure = build_structure(parse_config(tube_config(n_around=64, n_along=4)), MPI.COMM_SELF)
     kappa = face_geometry(structure).curvatures
     np.testing.assert_allclose(kappa[:, 1], 1 / 20.0, rtol=2e-3)  # the faceted ring: 64 cells
     np.testing.assert_allclose(kappa[:, [0, 2]], 0.0, atol=1e-12)
@@ -447,7 +416,7 @@ def test_the_weighted_ply_sums_of_curved_cells_equal_their_ply_stresses():
     from fenics_adaptive.adaptivity.ply_fields import ply_stresses, ply_sums
 
     for kinematics in ("small", "finite"):
-        data = _tube_config(orientation="hoop")
+        data = tube_config(orientation="hoop")
         data["model"]["kinematics"] = kinematics
         structure = build_structure(parse_config(data), MPI.COMM_SELF)
         x = structure.X_base
