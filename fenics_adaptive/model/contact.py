@@ -509,36 +509,10 @@ class Contact(Contributor):
         extra nodes of a body on face "all" (the top and bottom faces have none)."""
         self.finish()  # the last evaluation's, if nothing read it (a refinement evaluates twice)
         refined = self.structure is not None and self.follow_refinement()
-        energy = add_penalty_forces(
-            self.displacement.array,
-            self.nodes,
-            self.active,
-            self.X,
-            self.centre,
-            self.body.radius,
-            self.axis,
-            self.normal,
-            self.penalty,
-            self.weights,
-            f_base,
-            self.totals[:3],
-        )
+        energy = self._springs(self.penalty, f_base, self.totals[:3])
         if self.structure is not None:
             if len(self.extra_nodes):
-                energy += add_penalty_forces(
-                    self.extra_u.array,
-                    self.extra_nodes,
-                    self.extra_active,
-                    self.extra_X,
-                    self.centre,
-                    self.body.radius,
-                    self.axis,
-                    self.normal,
-                    self.penalty,
-                    self.extra_weights,
-                    f_extra,
-                    self.extra_total,
-                )
+                energy += self._springs(self.penalty, f_extra, self.extra_total, extra=True)
                 self.totals[:3] += self.extra_total
             if refined:  # at the state of the last evaluation, springs moved between nodes
                 self.refinement_local += energy - self.penalty_local
@@ -563,19 +537,34 @@ class Contact(Contributor):
         ``out`` (N, owned base DOFs, flat): what a body on every node presses is an edge or
         an end as well as a face, and the indicators read only face loads as face tractions
         (``ExplicitSolver.face_force``)."""
-        add_penalty_forces(
-            self.displacement.array,
-            self.nodes,
-            self.active,
-            self.X,
+        # (the opposite springs; extra_total as scratch: the body's own totals are not touched)
+        self._springs(-self.penalty, out, self.extra_total)
+
+    def _springs(
+        self, penalty: float, f: np.ndarray, total: np.ndarray, extra: bool = False
+    ) -> float:
+        """``add_penalty_forces`` of the body's base nodes, or its ``extra`` nodes, with
+        ``penalty`` (N/mm) into f (flat, N) and their reaction on the body into ``total``
+        (3,); returns the penalty energy (mJ)."""
+        if extra:
+            u, nodes, active, X = self.extra_u, self.extra_nodes, self.extra_active, self.extra_X
+            weights = self.extra_weights
+        else:
+            u, nodes, active, X = self.displacement, self.nodes, self.active, self.X
+            weights = self.weights
+        return add_penalty_forces(
+            u.array,
+            nodes,
+            active,
+            X,
             self.centre,
             self.body.radius,
             self.axis,
             self.normal,
-            -self.penalty,
-            self.weights,
-            out,
-            self.extra_total,  # (scratch: the body's own totals are not touched)
+            penalty,
+            weights,
+            f,
+            total,
         )
 
     def follow_refinement(self) -> bool:
