@@ -35,8 +35,6 @@ layerwise plates as their fibres break (README); the balance from the work
 (``energy_balance``), which checks the time integration, stays within 1 mJ.
 """
 
-import json
-import tomllib
 from pathlib import Path
 
 import matplotlib
@@ -52,12 +50,12 @@ from fenics_adaptive.analysis.studies import (
     chosen_runs,
     demo_parser,
     plate_impact_variant,
+    run_study,
+    study_base,
+    write_summary,
 )
 from fenics_adaptive.errors import script_main
 from fenics_adaptive.io.cscan import delaminated_area_per_interface, interface_damage, plot_cscan
-from fenics_adaptive.io.output import json_safe, read_history
-from fenics_adaptive.runner import execute
-from fenics_adaptive.settings.config import parse_config
 from fenics_adaptive.settings.kinds import InterfaceState
 
 HERE = Path(__file__).parent
@@ -154,29 +152,20 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> None:
     )
     args = parser.parse_args(argv)
     runs = chosen_runs(parser, args.runs, CRASH_IMPACT_RUNS)
-    base = tomllib.loads(Path(args.config).read_text())
-    if args.end_time is not None:
-        base["solver"]["end_time"] = args.end_time
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
+    base, out = study_base(args)
 
     results, histories, maps, refined = {}, {}, {}, {}
-    for name in runs:
-        print(f"--- {name}")
-        config = parse_config(plate_impact_variant(base, name), source=f"crash_impact [{name}]")
-        summary, structure = execute(config, out / name, overwrite=args.overwrite)
-        histories[name] = read_history(out / name / "history.csv")
-        results[name] = facts(structure, summary, histories[name], base["impactor"])
+    study = run_study(base, runs, plate_impact_variant, out, args.overwrite, "crash_impact")
+    for name, summary, structure, history in study:
+        histories[name] = history
+        results[name] = facts(structure, summary, history, base["impactor"])
         maps[name] = interface_damage(structure)
         cells = (structure.interface_state != InterfaceState.NONE).any(axis=1)
         refined[name] = structure.X_base[structure.bottom_local[cells]].mean(axis=1)[:, :2]
     add_ratios_to_layerwise(results, ("peak_contact_force_N", "energy_absorbed_mJ", "wall_time_s"))
     plot(histories, results, out / "crash_impact.png")
     plot_cscan(maps, refined, (base["mesh"]["length"], base["mesh"]["width"]), out / "cscan.png")
-    summary = {"units": "N, mm, s, tonne (mJ, mm/s)", "runs": results}
-    text = json.dumps(json_safe(summary), indent=2)  # NaN ratios as "nan": valid JSON
-    (out / "summary.json").write_text(text + "\n")
-    print(text)
+    print(write_summary(out, results, "N, mm, s, tonne (mJ, mm/s)"))
 
     # the check: every run kept its energy balance from the work (1 % of the impact energy)
     # and from the states (2.5 %: the materials' books), fibres broke (in the full runs, in

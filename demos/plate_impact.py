@@ -23,8 +23,6 @@ interface, refined fraction and wall time of each run. About 3 min on 2 cores (m
 layerwise reference). Units: N, mm, s, tonne (energy mJ).
 """
 
-import json
-import tomllib
 from pathlib import Path
 
 import matplotlib
@@ -39,12 +37,12 @@ from fenics_adaptive.analysis.studies import (
     chosen_runs,
     demo_parser,
     plate_impact_variant,
+    run_study,
+    study_base,
+    write_summary,
 )
 from fenics_adaptive.errors import script_main
 from fenics_adaptive.io.cscan import delaminated_area_per_interface, interface_damage, plot_cscan
-from fenics_adaptive.io.output import read_history
-from fenics_adaptive.runner import execute
-from fenics_adaptive.settings.config import parse_config
 from fenics_adaptive.settings.kinds import InterfaceState
 
 HERE = Path(__file__).parent
@@ -110,21 +108,13 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> None:
     parser = demo_parser(prog, __doc__, HERE / "plate_impact.toml", "results/plate_impact", RUNS)
     args = parser.parse_args(argv)
     runs = chosen_runs(parser, args.runs, RUNS)
-    base = tomllib.loads(Path(args.config).read_text())
-    if args.end_time is not None:
-        base["solver"]["end_time"] = args.end_time
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
+    base, out = study_base(args)
 
     results, histories, maps, refined = {}, {}, {}, {}
-    for name in runs:
-        print(f"--- {name}")
-        config = parse_config(
-            plate_impact_variant(base, name), source=f"plate_impact.toml [{name}]"
-        )
-        summary, structure = execute(config, out / name, overwrite=args.overwrite)
-        histories[name] = read_history(out / name / "history.csv")
-        results[name] = facts(structure, summary, histories[name])
+    study = run_study(base, runs, plate_impact_variant, out, args.overwrite, "plate_impact.toml")
+    for name, summary, structure, history in study:
+        histories[name] = history
+        results[name] = facts(structure, summary, history)
         maps[name] = interface_damage(structure)
         cells = (structure.interface_state != InterfaceState.NONE).any(axis=1)
         refined[name] = structure.X_base[structure.bottom_local[cells]].mean(axis=1)[:, :2]
@@ -141,9 +131,7 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> None:
     plot_histories(histories, results, out / "plate_impact.png")
     size = (base["mesh"]["length"], base["mesh"]["width"])
     plot_cscan(maps, refined, size, out / "cscan.png")
-    summary = {"units": "N, mm, s, tonne (mJ)", "runs": results}
-    (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
-    print(json.dumps(summary, indent=2))
+    print(write_summary(out, results, "N, mm, s, tonne (mJ)"))
 
 
 if __name__ == "__main__":

@@ -29,8 +29,6 @@ moving. There is no self-contact and no contact with eroded debris, so the folds
 a progressively crushed tube are out of scope.
 """
 
-import json
-import tomllib
 from pathlib import Path
 
 import matplotlib
@@ -46,11 +44,11 @@ from fenics_adaptive.analysis.studies import (
     chosen_runs,
     demo_parser,
     plate_impact_variant,
+    run_study,
+    study_base,
+    write_summary,
 )
 from fenics_adaptive.errors import script_main
-from fenics_adaptive.io.output import json_safe, read_history
-from fenics_adaptive.runner import execute
-from fenics_adaptive.settings.config import parse_config
 from fenics_adaptive.settings.kinds import InterfaceState
 
 HERE = Path(__file__).parent
@@ -119,29 +117,19 @@ def main(argv: list[str] | None = None, prog: str = PROG) -> None:
     )
     args = parser.parse_args(argv)
     runs = chosen_runs(parser, args.runs, TUBE_IMPACT_RUNS)
-    base = tomllib.loads(Path(args.config).read_text())
-    if args.end_time is not None:
-        base["solver"]["end_time"] = args.end_time
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
+    base, out = study_base(args)
 
     results, histories = {}, {}
-    for name in runs:
-        print(f"--- {name}")
-        source = f"tube_impact.toml [{name}]"
-        config = parse_config(plate_impact_variant(base, name), source=source)
-        summary, structure = execute(config, out / name, overwrite=args.overwrite)
-        histories[name] = read_history(out / name / "history.csv")
-        results[name] = facts(structure, summary, histories[name])
+    study = run_study(base, runs, plate_impact_variant, out, args.overwrite, "tube_impact.toml")
+    for name, summary, structure, history in study:
+        histories[name] = history
+        results[name] = facts(structure, summary, history)
     add_ratios_to_layerwise(
         results,
         ("peak_force_N", "mean_force_N", "energy_given_mJ", "dissipated_energy_mJ", "wall_time_s"),
     )
     plot(histories, results, out / "tube_impact.png")
-    summary = {"units": "N, mm, s, tonne (mJ)", "runs": results}
-    text = json.dumps(json_safe(summary), indent=2)  # NaN ratios as "nan": valid JSON
-    (out / "summary.json").write_text(text + "\n")
-    print(text)
+    print(write_summary(out, results, "N, mm, s, tonne (mJ)"))
 
     # the check: every run kept its energy balance (1 % of what the plate gave), and what the
     # tube dissipated is no more than the plate gave it

@@ -20,7 +20,8 @@ Studies (``STUDIES``):
   delaminating interface.
 
 A variant never changes its ``base``: it works on a deep copy. ``demo_parser`` and
-``chosen_runs`` are the command line the demos share.
+``chosen_runs`` are the command line the demos share, ``study_base``, ``run_study`` and
+``write_summary`` the rest of their mains.
 """
 
 from __future__ import annotations
@@ -28,13 +29,18 @@ from __future__ import annotations
 import argparse
 import copy
 import itertools
+import json
 import math
-from collections.abc import Callable
+import tomllib
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
 from fenics_adaptive.analysis import lefm
+from fenics_adaptive.io.output import json_safe, read_history
+from fenics_adaptive.runner import execute
 from fenics_adaptive.settings.config import parse_config
 
 TCB_RUNS = ("reference", "refined_from_start", "adaptive", "late", "late_stabilised")
@@ -85,6 +91,43 @@ def chosen_runs(parser: argparse.ArgumentParser, given: str, runs: tuple[str, ..
     if unknown:
         parser.error(f"--runs: unknown {', '.join(unknown)} (runs: {', '.join(runs)})")
     return chosen
+
+
+def study_base(args: argparse.Namespace) -> tuple[dict, Path]:
+    """A study demo's base config table (``--config``, its end time replaced by
+    ``--end-time``, s, if given) and its output folder (``--out``, made if missing)."""
+    base = tomllib.loads(Path(args.config).read_text())
+    if args.end_time is not None:
+        base["solver"]["end_time"] = args.end_time
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    return base, out
+
+
+def run_study(
+    base: dict,
+    runs: list[str],
+    make_variant: Callable[[dict, str], dict],
+    out: Path,
+    overwrite: bool,
+    label: str,
+) -> Iterator[tuple[str, dict, object, dict]]:
+    """Run each of ``runs`` (``make_variant(base, run)``, its messages naming it
+    ``label [run]``) into ``out / run``; yields (run, its summary, its structure at the end,
+    its history as ``io.output.read_history`` gives it)."""
+    for name in runs:
+        print(f"--- {name}")
+        config = parse_config(make_variant(base, name), source=f"{label} [{name}]")
+        summary, structure = execute(config, out / name, overwrite=overwrite)
+        yield name, summary, structure, read_history(out / name / "history.csv")
+
+
+def write_summary(out: Path, results: dict, units: str) -> str:
+    """Write ``results`` (run name -> its numbers) with their ``units`` to
+    ``out / summary.json`` (NaN as "nan": valid JSON); returns the text."""
+    text = json.dumps(json_safe({"units": units, "runs": results}), indent=2)
+    (out / "summary.json").write_text(text + "\n")
+    return text
 
 
 def tcb_variant(base: dict, name: str) -> dict:
