@@ -138,6 +138,7 @@ def bench_kernels(n_cells: int, repeat: int) -> list[dict]:
     update; the first two also without the enhanced thickness strain, for its cost.
     Integration-point updates per second per core."""
     rows = [row for model in ELASTIC_VARIANTS for row in _elastic_rows(n_cells, repeat, model)]
+    rows += _curved_rows(n_cells, repeat)
     # ply damage integrates ply by ply: two points per ply (exact bending, the default) and one
     for points, label in ((2, ""), (1, ", 1 point per ply")):
         data = beam_config(n_cells, ply_damage=True)
@@ -204,6 +205,50 @@ def _elastic_rows(n_cells: int, repeat: int, variant: str) -> list[dict]:
         repeat,
     )
     rows.append(_kernel_row(f"numba kernel, elastic{label}", n, median, first))
+    return rows
+
+
+def tube_cells(n_cells: int, n_around: int = 72, radius: float = 10.0) -> np.ndarray:
+    """Vertices (n, 8, 3) of about ``n_cells`` cells of a 2 mm tube wall, ``n_around`` round
+    (their directors turn by 360 / n_around degrees across a cell), 0.9 mm long."""
+    n_along = max(n_cells // n_around, 1)
+    xi, eta, zeta = (np.array([(k >> b) & 1 for k in range(8)], float) for b in range(3))
+    i, j = np.divmod(np.arange(n_along * n_around), n_around)
+    theta = (j[:, None] + eta) * 2.0 * np.pi / n_around
+    r = radius - 1.0 + 2.0 * zeta
+    return np.stack([0.9 * (i[:, None] + xi), r * np.sin(theta), r * np.cos(theta)], axis=-1)
+
+
+def _curved_rows(n_cells: int, repeat: int) -> list[dict]:
+    """The numba elastic kernel on a tube's cells (8 plies, the default rule, in their frames):
+    with the thickness strain sampled on their bent vertical edges, and on the same cells with
+    parallel vertical edges (no correction): what the correction costs."""
+    structure = build_structure(parse_config(beam_config(8)))
+    rules = structure.subelements.rules
+    rule = structure.rule_table.index(0, structure.laminate.n_plies)
+    bent = tube_cells(n_cells)
+    parallel = bent.copy()
+    parallel[:, 4:] = bent[:, :4] + (bent[:, 4:] - bent[:, :4]).mean(axis=1)[:, None, :]
+    n = len(bent)
+    cells = SubelementSet(
+        np.arange(8 * n, dtype=np.int32).reshape(n, 8),
+        np.full(n, rule, dtype=np.int64),
+        rules,
+        frames=np.tile(np.eye(3), (n, 1, 1)),  # a shell's frames: turned, here by nothing
+    )
+    u = np.random.default_rng(0).normal(scale=1e-3, size=(8 * n, 3))
+    f = np.zeros((8 * n, 3))
+    none = np.zeros((0, 3))
+    rows = []
+    for X, label in ((bent, "bent 5 degrees"), (parallel, "parallel")):
+        X_base = X.reshape(-1, 3)
+        median, first = timed(
+            lambda X_base=X_base: add_subelement_forces(cells, X_base, none, u, none, f, none),
+            repeat,
+        )
+        rows.append(
+            _kernel_row(f"numba kernel, elastic, tube cells, directors {label}", n, median, first)
+        )
     return rows
 
 

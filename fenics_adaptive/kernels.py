@@ -36,6 +36,7 @@ KERNEL_MODULES = (
     "fenics_adaptive.adaptivity.interlaminar",
     "fenics_adaptive.adaptivity.ply_fields",
     "fenics_adaptive.adaptivity.stabilisation",
+    "fenics_adaptive.element.assumed_strain",
     "fenics_adaptive.element.batched",
     "fenics_adaptive.element.subelement",
     "fenics_adaptive.materials.cohesive",

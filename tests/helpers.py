@@ -26,6 +26,7 @@ from fenics_adaptive.meshes import esl_mesh
 
 from fenics_adaptive.element import solid_shell
 from fenics_adaptive.element import subelement as se
+from fenics_adaptive.element.assumed_strain import cells_with_bent_directors
 from fenics_adaptive.materials.laminate import Laminate, Ply, PlyMaterial
 from fenics_adaptive.model.forms import CondensedThicknessStrain, LayeredModel, build_model
 
@@ -180,6 +181,11 @@ class SingleCell:
         self.dofs = self.V.dofmap.cell_dofs(0)  # node of local vertex k, block size 3
         self.u = fem.Function(self.V)
         self.v = ufl.TestFunction(self.V)
+        # the edge-sampled thickness strain where the directors bend, as the models mark it
+        self.bent = None
+        if cells_with_bent_directors(X[None])[0]:
+            self.bent = fem.Function(fem.functionspace(self.mesh, ("DG", 0)))
+            self.bent.x.array[:] = 1.0
 
     def set_displacement(self, U: np.ndarray) -> None:
         self.u.x.array.reshape(-1, 3)[self.dofs] = U
@@ -192,7 +198,9 @@ class SingleCell:
     def force(self, laminate: Laminate, ppp: int, U: np.ndarray):
         self.set_displacement(U)
         groups = solid_shell.ply_groups(laminate, ppp)
-        return self.assemble(solid_shell.internal_force_form(self.u, self.v, groups))
+        return self.assemble(
+            solid_shell.internal_force_form(self.u, self.v, groups, bent=self.bent)
+        )
 
     def lumped_mass(self, laminate: Laminate) -> np.ndarray:
         groups = solid_shell.ply_groups(laminate, 1)
@@ -212,10 +220,10 @@ class EnhancedCell:
         self.field = fem.Function(A)
         groups = solid_shell.energy_groups(laminate, ppp, preintegrate=preintegrate)
         self.energy = solid_shell.strain_energy_form(
-            self.cell.u, groups, kinematics=kinematics, enhanced=self.field
+            self.cell.u, groups, kinematics=kinematics, enhanced=self.field, bent=self.cell.bent
         )
         self.condensed = CondensedThicknessStrain(
-            self.energy, self.field, self.cell.u, self.cell.V, np.array([0])
+            self.energy, self.field, self.cell.u, self.cell.V, np.array([0]), bent=self.cell.bent
         )
 
     def force(self, U: np.ndarray) -> tuple[np.ndarray, float]:

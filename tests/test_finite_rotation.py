@@ -80,9 +80,9 @@ def ufl_force(cell: SingleCell, laminate: Laminate, ppp: int, U: np.ndarray):
     cell.set_displacement(U)
     groups = solid_shell.ply_groups(laminate, ppp)
     force = cell.assemble(
-        solid_shell.internal_force_form(cell.u, cell.v, groups, kinematics="finite")
+        solid_shell.internal_force_form(cell.u, cell.v, groups, kinematics="finite", bent=cell.bent)
     )
-    energy = solid_shell.strain_energy_form(cell.u, groups, kinematics="finite")
+    energy = solid_shell.strain_energy_form(cell.u, groups, kinematics="finite", bent=cell.bent)
     return force, fem.assemble_scalar(fem.form(energy))
 
 

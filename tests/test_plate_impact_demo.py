@@ -53,8 +53,10 @@ def test_adaptive_refines_around_the_impact_point_only(runs):
 def test_adaptive_follows_the_layerwise_contact_force(runs):
     peak = {name: runs[name][0]["peak_contact_force_N"] for name in runs}
     # measured +1.7 % (+0.2 % with ties that never let go, +2.4 % with ties as stiff as their
-    # cohesive elements where they let go)
-    assert peak["adaptive"] == pytest.approx(peak["layerwise"], rel=0.02)
+    # cohesive elements where they let go); +2.3 % once the kernels' sums were reordered (the
+    # edge-sampled thickness strain of curved cells; this plate is flat: its layerwise peak
+    # moved by 3e-15), the refinement's on-off decisions turning round-off into 0.6 %
+    assert peak["adaptive"] == pytest.approx(peak["layerwise"], rel=0.025)
     # measured +2.7 % (+7 % without the shear correction, whose ESL was also too stiff in shear)
     assert peak["esl"] > 1.015 * peak["layerwise"]
     for summary, _ in runs.values():

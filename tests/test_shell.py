@@ -234,12 +234,15 @@ def test_scordelis_lo_roof_converges_to_the_reference():
 
 @pytest.mark.slow
 def test_pinched_cylinder_converges_monotonically():
-    """Reference 1.8248e-5: monotone from 4 x 4, within 2 % at 32 x 32 (measured 0.095, 0.465,
-    0.900, 0.986 of it at 4, 8, 16, 32: membrane and trapezoidal locking of the faceted
-    one-cell-thick shell on coarse meshes; 16 x 16 misses the issue's 2 %)."""
+    """Reference 1.8248e-5: monotone from 4 x 4, within 2 % at 32 x 32 (measured 0.188, 0.661,
+    0.923, 0.987 of it at 4, 8, 16, 32 with the edge-sampled thickness strain; 0.093, 0.462,
+    0.898, 0.986 without it, its trapezoidal locking; what is left at 16 x 16 is the membrane
+    locking of bilinear cells: MITC4 shells reach 0.929 there (Ko, Lee and Bathe 2017), and
+    16 x 16 misses the issue's 2 %)."""
     ratios = [pinched_cylinder(n) for n in (4, 8, 16, 32)]
     assert all(a < b for a, b in itertools.pairwise(ratios))
-    assert ratios[2] > 0.88
+    assert ratios[0] > 0.15
+    assert ratios[2] > 0.915
     assert ratios[3] == pytest.approx(1.0, abs=0.02)
 
 

@@ -19,8 +19,14 @@ from functools import cached_property
 import numpy as np
 from numba import njit
 
+from fenics_adaptive.element.assumed_strain import (
+    cell_strain_coefficients,
+    directors_bend,
+    edge_sampled_strain,
+)
 from fenics_adaptive.element.solid_shell import NORMAL  # a monoclinic ply couples these
 from fenics_adaptive.element.subelement import (
+    _monomials,
     element_rotation,
     gather_nodes,
     to_rotated_frame,
@@ -84,8 +90,9 @@ def _ply_kernel(
     """The small strain (Voigt, engineering shears) at the in-plane centre of every ply of every
     element, at the ply's mid-thickness, with the element's enhanced thickness strain
     alpha g(zeta) / |det J| (alpha its parameter at the in-plane centre, the map
-    ``centre_maps[e]`` (``ElementData.centre_maps``) of its nodes' displacements), and what
-    ``mode`` makes of it:
+    ``centre_maps[e]`` (``ElementData.centre_maps``) of its nodes' displacements) and, where
+    its directors bend, its edge-sampled thickness strain (``element.assumed_strain``), and
+    what ``mode`` makes of it:
 
     - ``STRAINS``: the strain into out[cell, ply];
     - ``STRESSES``: the ply's stress D C_k (D strain) into out[cell, ply] (``stiffness``
@@ -114,6 +121,7 @@ def _ply_kernel(
     more than the ply's arithmetic.)"""
     n_base = X_base.shape[0]
     X, u, u_global = np.empty((8, 3)), np.empty((8, 3)), np.empty((8, 3))
+    monomials = np.empty((2, 8, 3))
     parts = np.empty((2, 3, 5))  # (X, u), component, (d_xi bottom, top, d_eta bottom, top, d_zeta)
     J, G, Jinv, grad = np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3))
     ends = np.empty((2, 3, 3))
@@ -137,6 +145,13 @@ def _ply_kernel(
         for a in range(8):
             for i in range(3):
                 alpha += centre_maps[e, a, i] * u[a, i]
+        # the edge-sampled thickness strain on the axis, where the directors bend
+        _monomials(X, monomials[0])
+        _monomials(u, monomials[1])
+        sampled = 0.0
+        if directors_bend(monomials[0]):
+            s55, s57, s77, s66, s67 = cell_strain_coefficients(monomials[0], monomials[1], False)
+            sampled = edge_sampled_strain(s55, s57, s77, s66, s67, 0.5, 0.5)
         parts[:] = 0.0
         for a in range(8):
             s_xi = 1.0 if a & 1 else -1.0
@@ -210,6 +225,14 @@ def _ply_kernel(
             strain[3] = grad[1, 2] + grad[2, 1]
             strain[4] = grad[0, 2] + grad[2, 0]
             strain[5] = grad[0, 1] + grad[1, 0]
+            if sampled != 0.0:  # bent directors; Jinv is this point's (or, a prism's, the same)
+                k0, k1, k2 = Jinv[2, 0], Jinv[2, 1], Jinv[2, 2]
+                strain[0] += sampled * k0 * k0
+                strain[1] += sampled * k1 * k1
+                strain[2] += sampled * k2 * k2
+                strain[3] += 2.0 * sampled * k1 * k2
+                strain[4] += 2.0 * sampled * k0 * k2
+                strain[5] += 2.0 * sampled * k0 * k1
             if ends_only:  # (normal strains, then the shears, as the rows take them)
                 for q in range(4):
                     both[4 * point + q] = strain[NORMAL[q]]

@@ -35,6 +35,15 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from fenics_adaptive.element.assumed_strain import (
+    DIRECTOR_TOLERANCE,
+    corrected_strain,
+    correction_forces,
+    edge_sampled_strain,
+    strain_coefficients,
+    stress_on_director,
+    work_weights,
+)
 from fenics_adaptive.element.subelement import (
     KERNEL_OPTIONS,
     TERM_NORMAL,
@@ -62,8 +71,14 @@ _N = 9  # 6 rows: sum of zeta P, columns 0 and 1 (``subelement._add_point_moment
 _MC = 15  # 9 + 6 rows: the same two moments of the enhanced mode's stress per unit alpha
 _R = 30  # the enhanced strain's residual at alpha = 0
 _H = 31  # its stiffness
-_E = 32  # strain energy of the element (not zeroed per line)
-_ROWS = 33
+_T = 32  # sum of w |det J| sigma : k k, the work-conjugate of the edge-sampled dE
+_TC = 33  # its part per unit alpha
+_E = 34  # strain energy of the element (not zeroed per line, nor are the rows below)
+_DE = 35  # dE of the line (``assumed_strain``; zero in a lane whose directors are parallel)
+_S = 36  # 5 rows: the cell's strain coefficients (``assumed_strain``), zero where not bent
+_W = 41  # 6 rows: the cell's work weights
+_BENT = 47  # 1.0 in a lane whose directors bend
+_ROWS = 48
 
 
 def lane_order(rule_of_element: np.ndarray) -> np.ndarray:
@@ -219,14 +234,18 @@ def _add_moments(acc, row, P, z, w):
 
 
 @njit(inline="always")
-def _normal_point_lanes(line, acc, z, weight, wg, C, finite, nw):
+def _normal_point_lanes(line, acc, z, weight, wg, C, finite, bent, nw):
     """One point of a "normal" line in every lane: its energy, its P moments and the enhanced
-    strain's residual, stiffness and moments (``element_force_kernel``'s normal branch)."""
+    strain's residual, stiffness and moments (``element_force_kernel``'s normal branch);
+    ``bent``: with the edge-sampled thickness strain (rows _DE, _T, _TC)."""
     C00, C01, C02, C05, C11, C12, C15, C22, C25, C55 = C
     for w in range(nw):
         det, K = _inverse3(_lane_matrix(line, 0, z, w))
         H = _matmul3(_lane_matrix(line, 2, z, w), K)
-        exx, eyy, ezz, _, _, gxy = _strain(H, finite)
+        strain = _strain(H, finite)
+        if bent:
+            strain = corrected_strain(strain, acc[_DE * LANES + w], K)
+        exx, eyy, ezz, _, _, gxy = strain
         wd = weight * abs(det)
         sxx = C00 * exx + C01 * eyy + C02 * ezz + C05 * gxy
         syy = C01 * exx + C11 * eyy + C12 * ezz + C15 * gxy
@@ -239,39 +258,149 @@ def _normal_point_lanes(line, acc, z, weight, wg, C, finite, nw):
         acc[_H * LANES + w] += wg * wg * C22 / wd
         Pc = _normal_stress_map(wg * C02, wg * C12, wg * C22, wg * C25, K)
         _add_moments(acc, _MC, _first_piola(Pc, H, finite), z, w)
+        if bent:
+            acc[_T * LANES + w] += stress_on_director(P, K)
+            acc[_TC * LANES + w] += stress_on_director(Pc, K)
 
 
 @njit(cache=True, **KERNEL_OPTIONS)
-def _normal_points(line, acc, z, weight, wg, C, finite, nw):
-    """``_normal_point_lanes`` with ``finite`` made a constant (one vector loop each)."""
+def _normal_points(line, acc, z, weight, wg, C, finite, bent, nw):
+    """``_normal_point_lanes`` with ``finite`` and ``bent`` made constants (one vector loop
+    each)."""
     if finite:
-        _normal_point_lanes(line, acc, z, weight, wg, C, True, nw)
+        if bent:
+            _normal_point_lanes(line, acc, z, weight, wg, C, True, True, nw)
+        else:
+            _normal_point_lanes(line, acc, z, weight, wg, C, True, False, nw)
+    elif bent:
+        _normal_point_lanes(line, acc, z, weight, wg, C, False, True, nw)
     else:
-        _normal_point_lanes(line, acc, z, weight, wg, C, False, nw)
+        _normal_point_lanes(line, acc, z, weight, wg, C, False, False, nw)
 
 
 @njit(inline="always")
-def _shear_point_lanes(line, acc, z, weight, c_xz, c_yz, c_cross, finite, nw):
+def _shear_point_lanes(line, acc, z, weight, c_xz, c_yz, c_cross, finite, bent, nw):
     """One point of a transverse shear line in every lane (``element_force_kernel``)."""
     for w in range(nw):
         det, K = _inverse3(_lane_matrix(line, 0, z, w))
         H = _matmul3(_lane_matrix(line, 2, z, w), K)
-        _, _, _, gyz, gxz, _ = _strain(H, finite)
+        strain = _strain(H, finite)
+        if bent:
+            strain = corrected_strain(strain, acc[_DE * LANES + w], K)
+        _, _, _, gyz, gxz, _ = strain
         wd = weight * abs(det)
         sxz = c_xz * gxz + c_cross * gyz
         syz = c_yz * gyz + c_cross * gxz
         acc[_E * LANES + w] += 0.5 * wd * (sxz * gxz + syz * gyz)
         P = _shear_stress_map(wd * syz, wd * sxz, K)
         _add_moments(acc, _M, _first_piola(P, H, finite), z, w)
+        if bent:
+            acc[_T * LANES + w] += stress_on_director(P, K)
 
 
 @njit(cache=True, **KERNEL_OPTIONS)
-def _shear_points(line, acc, z, weight, c_xz, c_yz, c_cross, finite, nw):
-    """``_shear_point_lanes`` with ``finite`` made a constant."""
+def _shear_points(line, acc, z, weight, c_xz, c_yz, c_cross, finite, bent, nw):
+    """``_shear_point_lanes`` with ``finite`` and ``bent`` made constants."""
     if finite:
-        _shear_point_lanes(line, acc, z, weight, c_xz, c_yz, c_cross, True, nw)
+        if bent:
+            _shear_point_lanes(line, acc, z, weight, c_xz, c_yz, c_cross, True, True, nw)
+        else:
+            _shear_point_lanes(line, acc, z, weight, c_xz, c_yz, c_cross, True, False, nw)
+    elif bent:
+        _shear_point_lanes(line, acc, z, weight, c_xz, c_yz, c_cross, False, True, nw)
     else:
-        _shear_point_lanes(line, acc, z, weight, c_xz, c_yz, c_cross, False, nw)
+        _shear_point_lanes(line, acc, z, weight, c_xz, c_yz, c_cross, False, False, nw)
+
+
+@njit(cache=True, **KERNEL_OPTIONS)
+def _bent_lanes(bx, bu, acc, finite, nw):
+    """Mark the lanes whose directors bend (row _BENT; ``assumed_strain.directors_bend``), set
+    their strain coefficients (rows _S, zero in the other lanes) and zero their work weights;
+    returns whether any lane bends."""
+    any_bent = False
+    half = 0.5 if finite else 0.0
+    for w in range(nw):
+        bend = 0.0
+        size = 0.0
+        for i in range(3):
+            for m in (5, 6, 7):
+                value = bx[(m * 3 + i) * LANES + w]
+                bend += value * value
+            size += bx[(12 + i) * LANES + w] * bx[(12 + i) * LANES + w]
+        bent = bend > DIRECTOR_TOLERANCE * DIRECTOR_TOLERANCE * size
+        acc[_BENT * LANES + w] = 1.0 if bent else 0.0
+        any_bent = any_bent or bent
+        for c in range(5):
+            acc[(_S + c) * LANES + w] = 0.0
+        for c in range(6):
+            acc[(_W + c) * LANES + w] = 0.0
+        if bent:
+            for i in range(3):
+                b5 = bu[(15 + i) * LANES + w]
+                b6 = bu[(18 + i) * LANES + w]
+                b7 = bu[(21 + i) * LANES + w]
+                c = strain_coefficients(
+                    bx[(15 + i) * LANES + w] + half * b5,
+                    bx[(18 + i) * LANES + w] + half * b6,
+                    bx[(21 + i) * LANES + w] + half * b7,
+                    b5,
+                    b6,
+                    b7,
+                )
+                for k in range(5):
+                    acc[(_S + k) * LANES + w] += c[k]
+    return any_bent
+
+
+@njit(cache=True, **KERNEL_OPTIONS)
+def _line_strains(acc, xi, eta, nw):
+    """dE of the line (xi, eta) in every lane (row _DE) from the strain coefficients."""
+    for w in range(nw):
+        acc[_DE * LANES + w] = edge_sampled_strain(
+            acc[_S * LANES + w],
+            acc[(_S + 1) * LANES + w],
+            acc[(_S + 2) * LANES + w],
+            acc[(_S + 3) * LANES + w],
+            acc[(_S + 4) * LANES + w],
+            xi,
+            eta,
+        )
+
+
+@njit(cache=True, **KERNEL_OPTIONS)
+def _line_weights(acc, xi, eta, nw):
+    """Add the line's work weights (its T, row _T) to the cell's (rows _W), in the lanes whose
+    directors bend (in the others T is the stress's work on a dE that is not there)."""
+    for w in range(nw):
+        weights = work_weights(acc[_T * LANES + w] * acc[_BENT * LANES + w], xi, eta)
+        for c in range(6):
+            acc[(_W + c) * LANES + w] += weights[c]
+
+
+@njit(cache=True, **KERNEL_OPTIONS)
+def _add_correction_forces(bx, bu, acc, forces, finite, nw):
+    """The cells' forces through dE into the monomial derivatives ``forces``
+    (``assumed_strain.correction_forces``; the current director under finite strain)."""
+    full = 1.0 if finite else 0.0
+    for i in range(3):
+        for w in range(nw):
+            W = (
+                acc[_W * LANES + w],
+                acc[(_W + 1) * LANES + w],
+                acc[(_W + 2) * LANES + w],
+                acc[(_W + 3) * LANES + w],
+                acc[(_W + 4) * LANES + w],
+                acc[(_W + 5) * LANES + w],
+            )
+            f5, f6, f7 = correction_forces(
+                bx[(15 + i) * LANES + w] + full * bu[(15 + i) * LANES + w],
+                bx[(18 + i) * LANES + w] + full * bu[(18 + i) * LANES + w],
+                bx[(21 + i) * LANES + w] + full * bu[(21 + i) * LANES + w],
+                W,
+            )
+            forces[(15 + i) * LANES + w] += f5
+            forces[(18 + i) * LANES + w] += f6
+            forces[(21 + i) * LANES + w] += f7
 
 
 @njit(cache=True, **KERNEL_OPTIONS)
@@ -286,6 +415,7 @@ def _condense(acc, nw):
             acc[_E * LANES + w] -= 0.5 * r * r / h
             for c in range(15):
                 acc[(_M + c) * LANES + w] += alpha * acc[(_MC + c) * LANES + w]
+            acc[_T * LANES + w] += alpha * acc[_TC * LANES + w]
 
 
 @njit(cache=True, **KERNEL_OPTIONS)
@@ -366,6 +496,7 @@ def add_subelement_forces(
         _gather_monomials(element_nodes, order, first, nw, n_base, u_base, u_extra, frames, bu)
         forces[:] = 0.0
         acc[_E * LANES :] = 0.0
+        bent = _bent_lanes(bx, bu, acc, finite, nw)
         p = rule_offsets[rule]
         stop = rule_offsets[rule + 1]
         while p < stop:
@@ -375,6 +506,8 @@ def add_subelement_forces(
             eta = positions[q, 1]
             _fill_lines(bx, bu, xi, eta, line, nw)
             acc[: _E * LANES] = 0.0
+            if bent:
+                _line_strains(acc, xi, eta, nw)
             term = terms[p]
             for pp in range(p, end):
                 k = ply_of_point[pp]
@@ -392,16 +525,22 @@ def add_subelement_forces(
                         stiffness[k, 5, 5],
                     )
                     wg = weights[pp] * enhanced_mode[pp]
-                    _normal_points(line, acc, zeta[pp], weights[pp], wg, C, finite, nw)
+                    _normal_points(line, acc, zeta[pp], weights[pp], wg, C, finite, bent, nw)
                 else:
                     c_xz = stiffness[k, 4, 4] if term == TERM_SHEAR_XZ else 0.0
                     c_yz = stiffness[k, 3, 3] if term == TERM_SHEAR_YZ else 0.0
                     c_cross = stiffness[k, 3, 4] if term == TERM_SHEAR_CROSS else 0.0
-                    _shear_points(line, acc, zeta[pp], weights[pp], c_xz, c_yz, c_cross, finite, nw)
+                    _shear_points(
+                        line, acc, zeta[pp], weights[pp], c_xz, c_yz, c_cross, finite, bent, nw
+                    )
             if term == TERM_NORMAL:
                 _condense(acc, nw)
             _add_line_moments(acc, forces, xi, eta, nw)
+            if bent:
+                _line_weights(acc, xi, eta, nw)
             p = end
+        if bent:
+            _add_correction_forces(bx, bu, acc, forces, finite, nw)
         _vertex_forces(forces, nw)
         _scatter_forces(element_nodes, order, first, nw, n_base, forces, frames, f_base, f_extra)
         for w in range(nw):

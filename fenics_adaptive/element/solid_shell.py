@@ -60,6 +60,10 @@ numba kernels fold the condensation into their one pass over a line (a few multi
 point); the UFL forms assemble the residual r of every line once per force evaluation
 (``model.forms``). With matrix cracks the thickness stress is piecewise linear in alpha, and the
 damaged kernel takes Newton steps until the open points stop changing.
+
+Curved cells (trapezoidal locking). Where a cell's vertical edges are not parallel, its thickness
+strain is taken on those edges and interpolated between them (``element.assumed_strain``,
+``thickness_strain_correction`` here, the marker ``bent`` of ``strain_energy_form``).
 """
 
 from __future__ import annotations
@@ -443,6 +447,48 @@ def voigt_strain(
     raise ValueError(f"kinematics must be one of {', '.join(KINEMATICS)} (got {kinematics!r})")
 
 
+def _edge_distances(points: np.ndarray) -> tuple[float, float]:
+    """(xi (1 - xi), eta (1 - eta)) shared by every point (n, >= 2) of a term's rule (the
+    selective rule's points sit on the 2 x 2 Gauss lines and the mid-lines, where they are
+    1/6 and 1/4): the weights of ``assumed_strain``'s correction on that term's points."""
+    c = points[:, :2] * (1.0 - points[:, :2])
+    if np.ptp(c, axis=0).max() > 1e-12:
+        raise ValueError("the term's points do not share xi (1 - xi) and eta (1 - eta)")
+    return float(c[0, 0]), float(c[0, 1])
+
+
+def thickness_strain_correction(
+    u: ufl.core.expr.Expr,
+    c_xi: float,
+    c_eta: float,
+    kinematics: str = "small",
+    frame: ufl.core.expr.Expr | None = None,
+) -> ufl.core.expr.Expr:
+    """The Voigt strain (engineering shears) that sampling the thickness strain on the cell's
+    vertical edges adds at points with xi (1 - xi) = ``c_xi``, eta (1 - eta) = ``c_eta``:
+    dE k (x) k (``element.assumed_strain``; there the numba kernels' copy), in the global
+    frame or the cell's ``frame``. The reference derivatives of the directors and of u,zeta are
+    taken as physical gradients times the Jacobian's columns."""
+    mesh = ufl.domain.extract_unique_domain(u)
+    J = ufl.Jacobian(mesh)
+
+    def along(f, r):  # d f / d X_r of a vector field f
+        return ufl.grad(f) * J[:, r]
+
+    A = J[:, 2]  # the reference director X,zeta
+    b = ufl.grad(u) * J[:, 2]  # u,zeta
+    b_xi, b_eta = along(b, 0), along(b, 1)
+    dE = c_xi * ufl.dot(along(A, 0), b_xi) + c_eta * ufl.dot(along(A, 1), b_eta)
+    if kinematics == Kinematics.FINITE:
+        dE += 0.5 * (c_xi * ufl.dot(b_xi, b_xi) + c_eta * ufl.dot(b_eta, b_eta))
+    k = ufl.JacobianInverse(mesh)[2, :]  # grad zeta
+    if frame is not None:
+        k = frame * k
+    return dE * ufl.as_vector(
+        [k[0] ** 2, k[1] ** 2, k[2] ** 2, 2 * k[1] * k[2], 2 * k[0] * k[2], 2 * k[0] * k[1]]
+    )
+
+
 class SeparateKernels:
     """Hands every custom-quadrature integral its own subdomain id, hence its own FFCx kernel.
 
@@ -486,6 +532,7 @@ def strain_energy_form(
     kinematics: str = "small",
     enhanced: ufl.Coefficient | None = None,
     frame: ufl.Coefficient | None = None,
+    bent: ufl.Coefficient | None = None,
 ) -> ufl.Form:
     """Strain energy (N mm) of the layered solid-shell with the selective (ANS) rule over
     ``cells`` (default: all owned cells), as a UFL form in the displacement ``u``. The internal
@@ -496,27 +543,40 @@ def strain_energy_form(
     alpha(xi, eta) g(zeta) per cell (``enhanced_nodal_map``), whose value / |det J| is added
     to the thickness strain (the enhanced assumed strain; its parameters are condensed by the
     caller); None: the compatible strain alone. ``frame``: a curved shell's cell frames (a DG0
-    3 x 3 function, rows e1, e2, e3), in which the strain is taken; None: the global frame."""
+    3 x 3 function, rows e1, e2, e3), in which the strain is taken; None: the global frame.
+    ``bent``: a DG0 marker, 1 on the cells whose directors bend, where the thickness strain is
+    sampled on the vertical edges (``element.assumed_strain``), 0 elsewhere; None: nowhere."""
     mesh = u.function_space.mesh
     kernels = kernels if kernels is not None else SeparateKernels(mesh)
     cells = cells if cells is not None else owned_cells(mesh)
     energy = 0
-    eps = voigt_strain(u, kinematics, frame)
-    e_zz = eps[2]
-    if enhanced is not None:
-        e_zz = e_zz + enhanced / abs(ufl.JacobianDeterminant(mesh))
-    e_normal = ufl.as_vector([eps[0], eps[1], e_zz, eps[5]])  # NORMAL's components
+    compatible = voigt_strain(u, kinematics, frame)
+
+    def strain(rule):  # the strain on the points of a term's rule
+        if bent is None:
+            return compatible
+        c_xi, c_eta = _edge_distances(rule[0])
+        return compatible + bent * thickness_strain_correction(u, c_xi, c_eta, kinematics, frame)
+
     for group in groups:
         C = group.stiffness
         check_monoclinic(C)
         C_normal = ufl.as_matrix(C[np.ix_(NORMAL, NORMAL)].tolist())
         rules = {term: group.rules[term if selective else "normal"] for term in TERMS}
+        eps = strain(rules["normal"])
+        e_zz = eps[2]
+        if enhanced is not None:
+            e_zz = e_zz + enhanced / abs(ufl.JacobianDeterminant(mesh))
+        e_normal = ufl.as_vector([eps[0], eps[1], e_zz, eps[5]])  # NORMAL's components
         energy += (
             0.5 * ufl.dot(e_normal, C_normal * e_normal) * kernels.measure(*rules["normal"], cells)
         )
+        eps = strain(rules["shear_xz"])
         energy += 0.5 * C[XZ, XZ] * eps[XZ] ** 2 * kernels.measure(*rules["shear_xz"], cells)
+        eps = strain(rules["shear_yz"])
         energy += 0.5 * C[YZ, YZ] * eps[YZ] ** 2 * kernels.measure(*rules["shear_yz"], cells)
         if C[XZ, YZ] != 0.0:
+            eps = strain(rules["shear_cross"])
             energy += C[XZ, YZ] * eps[XZ] * eps[YZ] * kernels.measure(*rules["shear_cross"], cells)
     return energy
 
@@ -529,10 +589,11 @@ def internal_force_form(
     cells: np.ndarray | None = None,
     selective: bool = True,
     kinematics: str = "small",
+    bent: ufl.Coefficient | None = None,
 ) -> ufl.Form:
     """Internal force f_int(u) . v (N mm for a virtual displacement v); nonlinear in u for
-    ``kinematics="finite"``."""
-    energy = strain_energy_form(u, groups, kernels, cells, selective, kinematics)
+    ``kinematics="finite"``; ``bent`` as ``strain_energy_form`` takes it."""
+    energy = strain_energy_form(u, groups, kernels, cells, selective, kinematics, bent=bent)
     return ufl.derivative(energy, u, v)
 
 

@@ -30,7 +30,8 @@ Conventions (the same as ``solid_shell`` and ``timestep.reference_gradients``):
     term 3 "shear_cross"  1x1            C[3, 4] g_xz g_yz
 
   times w |det J|, J = dx/d(xi, eta, zeta) (abs, as UFL does); the force is the gradient of the
-  total with respect to the nodal displacements.
+  total with respect to the nodal displacements. On a cell whose vertical edges are not
+  parallel, e carries the thickness strain sampled on those edges (``assumed_strain``).
 
 How the kernel is organised (for speed). The trilinear map is written in monomials,
 x = sum_m b_m xi^(m & 1) eta^((m >> 1) & 1) zeta^((m >> 2) & 1) (b = Moebius transform of the
@@ -58,6 +59,15 @@ import numpy as np
 from numba import njit
 
 from fenics_adaptive.element import solid_shell
+from fenics_adaptive.element.assumed_strain import (
+    add_correction_forces,
+    cell_strain_coefficients,
+    corrected_strain,
+    directors_bend,
+    edge_sampled_strain,
+    stress_on_director,
+    work_weights,
+)
 from fenics_adaptive.materials.ply_damage import (
     P_C22,
     RESIDUAL,
@@ -669,6 +679,12 @@ def _element_force_kinematics(
         for i in range(3):
             f_out[a, i] = 0.0
     energy = 0.0
+    # the edge-sampled thickness strain of a cell with bent directors (``assumed_strain``):
+    # its strain gains dE k k (already in ``maps`` when given), its stress does work T dE
+    bent = directors_bend(bx)
+    s55, s57, s77, s66, s67 = cell_strain_coefficients(bx, bu, finite)
+    W = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)  # the cell's work weights
+    dE = 0.0
     p = start
     while p < stop:
         end = _line_end(position_of_point, p, stop)
@@ -676,6 +692,9 @@ def _element_force_kinematics(
         xi = positions[q, 0]
         eta = positions[q, 1]
         _fill_line(bx, bu, xi, eta, line)
+        if bent:
+            dE = edge_sampled_strain(s55, s57, s77, s66, s67, xi, eta)
+        T = 0.0  # sum over the line of w |det J| sigma : k k
         term = terms[p]
         # sums over the line of P = w |det J| sigma J^-T (F S J^-T if finite) and of zeta P
         m = (0.0,) * 9
@@ -687,11 +706,14 @@ def _element_force_kinematics(
             # C[:, 2] alpha g / |det J|, adds alpha (mc, nc) to the line's moments
             r = 0.0
             h = 0.0
+            Tc = 0.0  # T per unit alpha
             mc = (0.0,) * 9
             nc = (0.0,) * 6
             for pp in range(p, end):
                 z = zeta[pp]
                 wd, K, H, strain = _point_kinematics(line, z, weights[pp], maps, pp - start, finite)
+                if bent and maps is None:
+                    strain = corrected_strain(strain, dE, K)
                 exx, eyy, ezz, _, _, gxy = strain
                 k = ply_of_point[pp]
                 sxx = stiffness[k, 0, 0] * exx + stiffness[k, 0, 1] * eyy
@@ -714,34 +736,35 @@ def _element_force_kinematics(
                     sxy -= scale * opening[k, 5]
                     density -= 0.5 * scale * s22
                 energy += wd * density
-                P = _first_piola(
-                    _normal_stress_map(wd * sxx, wd * syy, wd * szz, wd * sxy, K), H, finite
-                )
-                m, n = _add_point_moments(m, n, P, z)
+                P = _normal_stress_map(wd * sxx, wd * syy, wd * szz, wd * sxy, K)
+                if bent:
+                    T += stress_on_director(P, K)
+                m, n = _add_point_moments(m, n, _first_piola(P, H, finite), z)
                 if maps is None:  # the damaged kernel condenses its strains in ``maps``
                     wg = weights[pp] * enhanced_mode[pp]
                     r += wg * szz
                     h += wg * wg * stiffness[k, 2, 2] / wd
-                    Pc = _first_piola(
-                        _normal_stress_map(
-                            wg * stiffness[k, 0, 2],
-                            wg * stiffness[k, 1, 2],
-                            wg * stiffness[k, 2, 2],
-                            wg * stiffness[k, 5, 2],
-                            K,
-                        ),
-                        H,
-                        finite,
+                    Pc = _normal_stress_map(
+                        wg * stiffness[k, 0, 2],
+                        wg * stiffness[k, 1, 2],
+                        wg * stiffness[k, 2, 2],
+                        wg * stiffness[k, 5, 2],
+                        K,
                     )
-                    mc, nc = _add_point_moments(mc, nc, Pc, z)
+                    if bent:
+                        Tc += stress_on_director(Pc, K)
+                    mc, nc = _add_point_moments(mc, nc, _first_piola(Pc, H, finite), z)
             if h > 0.0:
                 alpha = -r / h
                 energy -= 0.5 * r * r / h  # alpha r + 1/2 alpha^2 h
                 m, n = _add_scaled_moments(m, n, alpha, mc, nc)
+                T += alpha * Tc
         else:
             for pp in range(p, end):
                 z = zeta[pp]
                 wd, K, H, strain = _point_kinematics(line, z, weights[pp], maps, pp - start, finite)
+                if bent and maps is None:
+                    strain = corrected_strain(strain, dE, K)
                 _, _, _, gyz, gxz, _ = strain
                 k = ply_of_point[pp]
                 c_xz = stiffness[k, 4, 4] if term == TERM_SHEAR_XZ else 0.0
@@ -750,10 +773,17 @@ def _element_force_kinematics(
                 sxz = c_xz * gxz + c_cross * gyz
                 syz = c_yz * gyz + c_cross * gxz
                 energy += 0.5 * wd * (sxz * gxz + syz * gyz)
-                P = _first_piola(_shear_stress_map(wd * syz, wd * sxz, K), H, finite)
-                m, n = _add_point_moments(m, n, P, z)
+                P = _shear_stress_map(wd * syz, wd * sxz, K)
+                if bent:
+                    T += stress_on_director(P, K)
+                m, n = _add_point_moments(m, n, _first_piola(P, H, finite), z)
         _add_line_moments(f_out, xi, eta, m, n)
+        if bent:
+            w = work_weights(T, xi, eta)
+            W = (W[0] + w[0], W[1] + w[1], W[2] + w[2], W[3] + w[3], W[4] + w[4], W[5] + w[5])
         p = end
+    if bent:
+        add_correction_forces(f_out, bx, bu, W, finite)
     # back to the vertices: f_a = sum over m containing a of (-1)^|m - a| F_m (transposed
     # butterfly)
     for d in range(3):
@@ -961,6 +991,7 @@ def enhanced_parameter_maps(
         stop = rule_offsets[rule_of_element[e] + 1]
         _monomials(X_all[e], work[0])
         _monomials(zero, work[1])
+        bent = directors_bend(work[0])
         for k in range(out.shape[1]):
             for a in range(8):
                 for i in range(3):
@@ -975,6 +1006,7 @@ def enhanced_parameter_maps(
                 eta = positions[q, 1]
                 _fill_line(work[0], work[1], xi, eta, line)
                 h = 0.0
+                Tc = 0.0  # the residual's part through the edge-sampled thickness strain
                 m = (0.0,) * 9
                 n = (0.0,) * 6
                 for pp in range(p, end):
@@ -991,10 +1023,13 @@ def enhanced_parameter_maps(
                         K,
                     )
                     m, n = _add_point_moments(m, n, P, z)
+                    Tc += stress_on_director(P, K)
                 for a in range(8):
                     for i in range(3):
                         f[a, i] = 0.0
                 _add_line_moments(f, xi, eta, m, n)
+                if bent:
+                    add_correction_forces(f, work[0], work[1], work_weights(Tc, xi, eta), False)
                 for d in range(3):
                     bit = 1 << d
                     for c in range(8):
@@ -1105,22 +1140,30 @@ N_MAPS = 16
 
 @njit(inline="always", **KERNEL_OPTIONS)
 def _point_maps(X, u, start, stop, zeta, weights, position_of_point, positions, work, line, maps):
-    """w |det J|, J^-1 and the compatible small strain of every point of one element (points
-    start:stop) into ``maps`` (column p - start; layout at ``N_MAPS``)."""
+    """w |det J|, J^-1 and the small strain of every point of one element (points start:stop)
+    into ``maps`` (column p - start; layout at ``N_MAPS``): the compatible strain, with the
+    edge-sampled thickness strain where the directors bend (``assumed_strain``)."""
     bx = work[0]
     bu = work[1]
     _monomials(X, bx)
     _monomials(u, bu)
+    bent = directors_bend(bx)
+    s55, s57, s77, s66, s67 = cell_strain_coefficients(bx, bu, False)
+    dE = 0.0
     p = start
     while p < stop:
         end = _line_end(position_of_point, p, stop)
         q = position_of_point[p]
         _fill_line(bx, bu, positions[q, 0], positions[q, 1], line)
+        if bent:
+            dE = edge_sampled_strain(s55, s57, s77, s66, s67, positions[q, 0], positions[q, 1])
         # a vectorised loop into contiguous rows
         for pp in range(p, end):
             z = zeta[pp]
             det, K = _inverse_jacobian(line, z)
             strain = _strain(_matmul3(_displacement_gradient(line, z), K), False)
+            if bent:
+                strain = corrected_strain(strain, dE, K)
             row = pp - start
             maps[0, row] = weights[pp] * abs(det)
             for a in range(9):

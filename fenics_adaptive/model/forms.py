@@ -25,6 +25,7 @@ from mpi4py import MPI
 from numba import njit
 
 from fenics_adaptive.element import solid_shell
+from fenics_adaptive.element.assumed_strain import cells_with_bent_directors
 from fenics_adaptive.element.subelement import (
     concatenate_rules,
     enhanced_parameter_maps,
@@ -65,6 +66,7 @@ class CompiledForms:
     layer_of_subdomain: list[tuple[int, int]]
     field: fem.Function | None
     frame: fem.Function | None = None  # the cells' frames on a curved shell (DG0, 3 x 3)
+    bent: fem.Function | None = None  # 1 on the cells whose directors bend (DG0)
 
 
 @dataclass
@@ -155,7 +157,7 @@ class LayeredModel:
             compiled.subdomains[k] = (subdomain_id, self.ufl_cells[layer])
         subdomains = {fem.IntegralType.cell: list(compiled.subdomains)}
         coefficients = {self.u: self.u}
-        for extra in (compiled.field, compiled.frame):
+        for extra in (compiled.field, compiled.frame, compiled.bent):
             if extra is not None:
                 coefficients[extra] = extra
         self.force_form, self.energy_form = (
@@ -164,14 +166,19 @@ class LayeredModel:
         )
         field = compiled.field
         self.packed = PackedDisplacement(
-            [self.force_form, self.energy_form], self.u, self.V, field, compiled.frame
+            [self.force_form, self.energy_form],
+            self.u,
+            self.V,
+            field,
+            compiled.frame,
+            compiled.bent,
         )
         self.enhanced = None
         if field is not None:
             cells = np.concatenate(self.ufl_cells) if self.ufl_cells else np.zeros(0, np.int32)
             maps = None if self.finite else self.enhanced_parameter_maps()[cells]
             self.enhanced = CondensedThicknessStrain(
-                self.energy_ufl, field, self.u, self.V, cells, maps, compiled.frame
+                self.energy_ufl, field, self.u, self.V, cells, maps, compiled.frame, compiled.bent
             )
 
     def _form_key(self) -> tuple:
@@ -195,6 +202,7 @@ class LayeredModel:
         if self.enhanced_strain:
             field = fem.Function(fem.functionspace(self.mesh, ("DG", 1)), name="enhanced_zz")
         frame = self.frame_function()
+        bent = self.bent_function()
         energy = 0
         layer_of_subdomain = []
         factors = self.shear_factors()
@@ -204,7 +212,7 @@ class LayeredModel:
             groups = solid_shell.energy_groups(laminate, self.points_per_ply, k, self.preintegrate)
             first = len(kernels.subdomains)
             energy += solid_shell.strain_energy_form(
-                self.u, groups, kernels, cells, self.selective, self.kinematics, field, frame
+                self.u, groups, kernels, cells, self.selective, self.kinematics, field, frame, bent
             )
             layer_of_subdomain += [(i, layer) for i, _ in kernels.subdomains[first:]]
         self.energy_ufl = energy
@@ -217,6 +225,7 @@ class LayeredModel:
             layer_of_subdomain=layer_of_subdomain,
             field=field,
             frame=frame,
+            bent=bent,
         )
 
     @property
@@ -251,6 +260,13 @@ class LayeredModel:
         self.forms_ready()
         return self._compiled.frame
 
+    @property
+    def bent(self) -> fem.Function | None:
+        """The compiled forms' marker of the cells whose directors bend (``bent_function``), or
+        None."""
+        self.forms_ready()
+        return self._compiled.bent
+
     def frame_function(self) -> fem.Function | None:
         """The cells' frames as the UFL forms read them: a DG0 3 x 3 function (None on a flat
         mesh)."""
@@ -263,6 +279,20 @@ class LayeredModel:
         frame.x.array.reshape(-1, 9)[dofs] = frames.reshape(-1, 9)
         return frame
 
+    def bent_function(self) -> fem.Function | None:
+        """The UFL forms' marker of the cells whose directors bend (a DG0 function, 1 there and
+        0 elsewhere; ``element.assumed_strain``), or None where no cell of any rank has them
+        (the meshes' flat cells: the forms then leave the correction out, and compile as
+        before)."""
+        X = self.mesh.geometry.x[self.mesh.geometry.dofmaps[0]]  # every local cell
+        bent = cells_with_bent_directors(X)
+        if not self.comm.allreduce(bool(bent.any()), op=MPI.LOR):
+            return None
+        space = fem.functionspace(self.mesh, ("DG", 0))
+        marker = fem.Function(space, name="bent_directors")
+        marker.x.array[space.dofmap.list[: len(bent), 0]] = bent.astype(np.float64)
+        return marker
+
     def reference_geometry_changed(self) -> None:
         """Call after moving the mesh's reference nodes (``mesh.geometry.x``): the small-strain
         enhanced parameter maps are computed from it once (``enhanced_parameter_maps``) and
@@ -271,8 +301,8 @@ class LayeredModel:
         self._enhanced_maps = None
         self._cell_time_steps = None
         self._frames = None
-        if self.curved:  # the forms' frame function holds the frames of the old geometry
-            self._compiled = None
+        # the forms' frames and marker of bent cells are the old geometry's
+        self._compiled = None
         self.set_ufl_cells(self.ufl_cells)
 
     def enhanced_parameter_maps(self) -> np.ndarray:
@@ -510,7 +540,8 @@ class PackedDisplacement:
     """The constants and the packed coefficients of the model's forms (force, energy), kept
     between steps: the displacement u and, with the enhanced thickness strain, its per-cell
     ``field`` (a scalar DG Q1 function), and on a curved shell the cells' ``frame`` (a DG0
-    3 x 3 function that never changes: packed once).
+    3 x 3 function) and the marker of its ``bent`` cells (DG0), which never change: packed
+    once.
 
     DOLFINx packs every coefficient of every integral on each assembly call. The forms have
     several integrals over the same cells (one kernel per custom quadrature rule, see
@@ -522,10 +553,10 @@ class PackedDisplacement:
 
     The layout is DOLFINx's: per cell, the coefficients in the form's order, each in its cell
     dofmap order, block-unrolled (u: the 8 nodes, 3 components each; the field: its 8 cell
-    values; the frame: its 9 entries). ``tests/test_model.py`` checks it against
-    ``fem.pack_coefficients``; this class does not call that at set-up, because it packs every
-    integral at once (100 MiB for a 40 000-cell ESL plate, 400 MiB for its layerwise model)
-    and the freed memory stays with the process."""
+    values; the frame: its 9 entries; the bent cells' marker: 1). ``tests/test_model.py``
+    checks it against ``fem.pack_coefficients``; this class does not call that at set-up,
+    because it packs every integral at once (100 MiB for a 40 000-cell ESL plate, 400 MiB for
+    its layerwise model) and the freed memory stays with the process."""
 
     def __init__(
         self,
@@ -534,12 +565,13 @@ class PackedDisplacement:
         V: fem.FunctionSpace,
         field: fem.Function | None = None,
         frame: fem.Function | None = None,
+        bent: fem.Function | None = None,
     ):
         if V.dofmap.index_map_bs != 3 or V.dofmap.list.shape[1] != 8:
             raise ValueError("PackedDisplacement: expected a 3-component P1 space on hexahedra")
         self.u = u.x.array
         self.field = None if field is None else field.x.array
-        known = [u, field, frame]
+        known = [u, field, frame, bent]
         cell = fem.IntegralType.cell
         # per set of cells and layout: u's cell dofs, the packed array, the field's unrolled
         # cell dofs and offset (or None)
@@ -577,7 +609,7 @@ class PackedDisplacement:
                         dofs = _unrolled_dofs(known[k], cells)
                         if k == 1:
                             field_slot = (dofs, int(offsets[position]))
-                        else:  # the frame: fixed, packed here once
+                        else:  # the frame or the bent cells' marker: fixed, packed once
                             _gather_field(known[k].x.array, dofs, packed, int(offsets[position]))
                     groups[signature] = (cell_dofs, packed, field_slot)
                 coeffs[(cell, i)] = groups[signature][1]
@@ -677,6 +709,7 @@ class CondensedThicknessStrain:
         cells: np.ndarray,
         linear_maps: np.ndarray | None = None,
         frame: fem.Function | None = None,
+        bent: fem.Function | None = None,
     ):
         A = field.function_space
         self.field = field
@@ -702,7 +735,7 @@ class CondensedThicknessStrain:
         )
         self.h = hessian.array[self.cell_dofs] @ self.T  # (n, 4)
         self.residual = np.zeros(A.dofmap.index_map.size_local + A.dofmap.index_map.num_ghosts)
-        self.packed = PackedDisplacement([self.residual_form], u, V, frame=frame)
+        self.packed = PackedDisplacement([self.residual_form], u, V, frame=frame, bent=bent)
 
     def condense(self) -> None:
         """alpha of every cell from the current displacement, and the field's values from it."""

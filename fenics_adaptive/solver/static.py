@@ -39,7 +39,13 @@ def stiffness_matrix(model: LayeredModel) -> PETSc.Mat:
         return K
     if enhanced.linear_maps is not None:  # the assembled condensation knows h
         enhanced = CondensedThicknessStrain(
-            model.energy_ufl, enhanced.field, model.u, model.V, enhanced.cells, frame=model.frame
+            model.energy_ufl,
+            enhanced.field,
+            model.u,
+            model.V,
+            enhanced.cells,
+            frame=model.frame,
+            bent=model.bent,
         )
     A = enhanced.field.function_space
     K_ua = fem_petsc.assemble_matrix(
