@@ -147,9 +147,9 @@ def _ply_kernel(
                 alpha += centre_maps[e, a, i] * u[a, i]
         # the edge-sampled thickness strain on the axis, where the directors bend
         _monomials(X, monomials[0])
-        _monomials(u, monomials[1])
         sampled = 0.0
         if directors_bend(monomials[0]):
+            _monomials(u, monomials[1])
             s55, s57, s77, s66, s67 = cell_strain_coefficients(monomials[0], monomials[1], False)
             sampled = edge_sampled_strain(s55, s57, s77, s66, s67, 0.5, 0.5)
         parts[:] = 0.0

@@ -682,7 +682,9 @@ def _element_force_kinematics(
     # the edge-sampled thickness strain of a cell with bent directors (``assumed_strain``):
     # its strain gains dE k k (already in ``maps`` when given), its stress does work T dE
     bent = directors_bend(bx)
-    s55, s57, s77, s66, s67 = cell_strain_coefficients(bx, bu, finite)
+    s55 = s57 = s77 = s66 = s67 = 0.0
+    if bent:
+        s55, s57, s77, s66, s67 = cell_strain_coefficients(bx, bu, finite)
     W = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)  # the cell's work weights
     dE = 0.0
     p = start
@@ -1148,7 +1150,9 @@ def _point_maps(X, u, start, stop, zeta, weights, position_of_point, positions, 
     _monomials(X, bx)
     _monomials(u, bu)
     bent = directors_bend(bx)
-    s55, s57, s77, s66, s67 = cell_strain_coefficients(bx, bu, False)
+    s55 = s57 = s77 = s66 = s67 = 0.0
+    if bent:
+        s55, s57, s77, s66, s67 = cell_strain_coefficients(bx, bu, False)
     dE = 0.0
     p = start
     while p < stop:
