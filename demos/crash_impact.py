@@ -46,10 +46,12 @@ import matplotlib.pyplot as plt
 
 from fenics_adaptive.analysis.studies import (
     CRASH_IMPACT_RUNS,
+    MODEL_STYLES,
     add_ratios_to_layerwise,
     chosen_runs,
     demo_parser,
     plate_impact_variant,
+    plot_cost,
     run_study,
     study_base,
     write_summary,
@@ -60,11 +62,6 @@ from fenics_adaptive.settings.kinds import InterfaceState
 
 HERE = Path(__file__).parent
 PROG = "demos/crash_impact.py"  # the name its messages and --help give
-STYLES = {
-    "esl": dict(color="tab:gray", lw=1.2, ls="--"),
-    "adaptive": dict(color="tab:blue", lw=1.5),
-    "layerwise": dict(color="k", lw=2.0, alpha=0.7),
-}
 # where the energy the sphere lost went, in the order the bars stack
 MECHANISMS = ("fibres", "matrix", "delamination", "friction", "eroded", "plate")
 COLOURS = ("tab:red", "tab:orange", "tab:purple", "tab:olive", "tab:brown", "0.7")
@@ -119,7 +116,7 @@ def plot(histories: dict, results: dict, path: Path) -> None:
     force, energy, cost = axes
     for name, h in histories.items():
         travel = -np.array(h["impactor_displacement"])
-        force.plot(travel, h["contact_force"], label=name, **STYLES[name])
+        force.plot(travel, h["contact_force"], label=name, **MODEL_STYLES[name])
     force.set_xlabel("sphere travel (mm)")
     force.set_ylabel("contact force (N)")
     force.set_title("contact force")
@@ -136,11 +133,7 @@ def plot(histories: dict, results: dict, path: Path) -> None:
     energy.set_ylabel("energy (mJ)")
     energy.set_title("where the sphere's energy went")
     energy.legend(fontsize=7, loc="upper left")
-    walls = [results[n]["wall_time_s"] for n in names]
-    bars = cost.bar(names, walls, color=[STYLES[n]["color"] for n in names])
-    cost.bar_label(bars, labels=[f"{w:.0f} s" for w in walls])
-    cost.set_ylabel("wall time (s)")
-    cost.set_title("cost of the run")
+    plot_cost(cost, results, CRASH_IMPACT_RUNS, ".0f")
     fig.suptitle("rigid sphere through a clamped [0/45/90/-45]s IM7/8552 plate, 6.25 J")
     fig.savefig(path, dpi=150)
     plt.close(fig)

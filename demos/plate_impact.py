@@ -33,10 +33,12 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 
 from fenics_adaptive.analysis.studies import (
+    MODEL_STYLES,
     PLATE_IMPACT_RUNS,
     chosen_runs,
     demo_parser,
     plate_impact_variant,
+    plot_cost,
     run_study,
     study_base,
     write_summary,
@@ -48,11 +50,6 @@ from fenics_adaptive.settings.kinds import InterfaceState
 HERE = Path(__file__).parent
 PROG = "demos/plate_impact.py"  # the name its messages and --help give
 RUNS = PLATE_IMPACT_RUNS
-STYLES = {
-    "esl": dict(color="tab:gray", lw=1.2, ls="--"),
-    "adaptive": dict(color="tab:blue", lw=1.5),
-    "layerwise": dict(color="k", lw=2.0, alpha=0.7),
-}
 
 
 def facts(structure, summary: dict, history: dict) -> dict:
@@ -78,9 +75,9 @@ def plot_histories(histories: dict, results: dict, path: Path) -> None:
     force, displacement, energy, cost = axes.ravel()
     for name, h in histories.items():
         t = 1e3 * np.array(h["time"])
-        force.plot(t, h["contact_force"], label=name, **STYLES[name])
-        displacement.plot(t, h["impactor_displacement"], label=name, **STYLES[name])
-        energy.plot(t, h["energy_balance"], label=f"{name}: balance", **STYLES[name])
+        force.plot(t, h["contact_force"], label=name, **MODEL_STYLES[name])
+        displacement.plot(t, h["impactor_displacement"], label=name, **MODEL_STYLES[name])
+        energy.plot(t, h["energy_balance"], label=f"{name}: balance", **MODEL_STYLES[name])
     force.set_xlabel("time (ms)")
     force.set_ylabel("contact force (N)")
     force.set_title("contact force")
@@ -90,12 +87,7 @@ def plot_histories(histories: dict, results: dict, path: Path) -> None:
     energy.set_xlabel("time (ms)")
     energy.set_ylabel("energy balance error (mJ)")
     energy.set_title("kin + int + damp - ext - impact work - refinement")
-    names = [n for n in RUNS if n in results and "wall_time_s" in results[n]]
-    walls = [results[n]["wall_time_s"] for n in names]
-    bars = cost.bar(names, walls, color=[STYLES[n]["color"] for n in names])
-    cost.bar_label(bars, labels=[f"{w:.0f} s" for w in walls])
-    cost.set_ylabel("wall time (s)")
-    cost.set_title("cost of the run")
+    plot_cost(cost, results, RUNS, ".0f")
     for ax in (force, displacement, energy):
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)

@@ -36,11 +36,13 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 
 from fenics_adaptive.analysis.studies import (
+    MODEL_STYLES,
     TUBE_CRUSH_RUNS,
     add_ratios_to_layerwise,
     chosen_runs,
     demo_parser,
     plate_impact_variant,
+    plot_cost,
     run_study,
     study_base,
     write_summary,
@@ -50,11 +52,6 @@ from fenics_adaptive.settings.kinds import InterfaceState
 
 HERE = Path(__file__).parent
 PROG = "demos/tube_crush.py"  # the name its messages and --help give
-STYLES = {
-    "esl": dict(color="tab:gray", lw=1.2, ls="--"),
-    "adaptive": dict(color="tab:blue", lw=1.5),
-    "layerwise": dict(color="k", lw=2.0, alpha=0.7),
-}
 
 
 def absorbed(history: dict) -> np.ndarray:
@@ -85,9 +82,9 @@ def plot(histories: dict, results: dict, path: Path) -> None:
     force, energy, area, cost = axes.ravel()
     for name, h in histories.items():
         depth = -np.array(h["pole_displacement"])
-        force.plot(depth, h["pole_force"], label=name, **STYLES[name])
-        energy.plot(depth, absorbed(h), label=name, **STYLES[name])
-        area.plot(depth, h["delaminated_area"], label=name, **STYLES[name])
+        force.plot(depth, h["pole_force"], label=name, **MODEL_STYLES[name])
+        energy.plot(depth, absorbed(h), label=name, **MODEL_STYLES[name])
+        area.plot(depth, h["delaminated_area"], label=name, **MODEL_STYLES[name])
     for ax, ylabel, title in (
         (force, "pole force (N)", "force"),
         (energy, "energy absorbed (mJ)", "the pole's work"),
@@ -98,12 +95,7 @@ def plot(histories: dict, results: dict, path: Path) -> None:
         ax.set_title(title)
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
-    names = [n for n in TUBE_CRUSH_RUNS if n in results]
-    walls = [results[n]["wall_time_s"] for n in names]
-    bars = cost.bar(names, walls, color=[STYLES[n]["color"] for n in names])
-    cost.bar_label(bars, labels=[f"{w:.1f} s" for w in walls])
-    cost.set_ylabel("wall time (s)")
-    cost.set_title("cost of the run")
+    plot_cost(cost, results, TUBE_CRUSH_RUNS, ".1f")
     fig.suptitle("[0/90]2s tube, R 15 mm, crushed sideways by a rigid pole at 5 m/s")
     fig.savefig(path, dpi=150)
     plt.close(fig)

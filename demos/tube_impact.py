@@ -39,11 +39,13 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 
 from fenics_adaptive.analysis.studies import (
+    MODEL_STYLES,
     TUBE_IMPACT_RUNS,
     add_ratios_to_layerwise,
     chosen_runs,
     demo_parser,
     plate_impact_variant,
+    plot_cost,
     run_study,
     study_base,
     write_summary,
@@ -53,11 +55,6 @@ from fenics_adaptive.settings.kinds import InterfaceState
 
 HERE = Path(__file__).parent
 PROG = "demos/tube_impact.py"  # the name its messages and --help give
-STYLES = {
-    "esl": dict(color="tab:gray", lw=1.2, ls="--"),
-    "adaptive": dict(color="tab:blue", lw=1.5),
-    "layerwise": dict(color="k", lw=2.0, alpha=0.7),
-}
 
 
 def facts(structure, summary: dict, history: dict) -> dict:
@@ -87,9 +84,11 @@ def plot(histories: dict, results: dict, path: Path) -> None:
     for name, h in histories.items():
         travel = -np.array(h["plate_displacement"])
         time = 1e6 * np.array(h["time"])
-        force.plot(travel, 1e-3 * np.array(h["plate_force"]), label=name, **STYLES[name])
-        given.plot(time, 1e-3 * np.array(h["impact_work"]), label=name, **STYLES[name])
-        dissipated.plot(time, 1e-3 * np.array(h["dissipated_energy"]), label=name, **STYLES[name])
+        force.plot(travel, 1e-3 * np.array(h["plate_force"]), label=name, **MODEL_STYLES[name])
+        given.plot(time, 1e-3 * np.array(h["impact_work"]), label=name, **MODEL_STYLES[name])
+        dissipated.plot(
+            time, 1e-3 * np.array(h["dissipated_energy"]), label=name, **MODEL_STYLES[name]
+        )
     for ax, xlabel, ylabel, title in (
         (force, "plate travel (mm)", "plate force (kN)", "force on the plate"),
         (given, "time (µs)", "energy (J)", "energy the plate gave the tube"),
@@ -100,12 +99,7 @@ def plot(histories: dict, results: dict, path: Path) -> None:
         ax.set_title(title)
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
-    names = [n for n in TUBE_IMPACT_RUNS if n in results]
-    walls = [results[n]["wall_time_s"] for n in names]
-    bars = cost.bar(names, walls, color=[STYLES[n]["color"] for n in names])
-    cost.bar_label(bars, labels=[f"{w:.1f} s" for w in walls])
-    cost.set_ylabel("wall time (s)")
-    cost.set_title("cost of the run")
+    plot_cost(cost, results, TUBE_IMPACT_RUNS, ".1f")
     fig.suptitle("[0/90]2s tube, R 10 mm, hit on its end by a 0.5 kg plate at 10 m/s, 10° tilted")
     fig.savefig(path, dpi=150)
     plt.close(fig)

@@ -237,6 +237,26 @@ def plate_impact_variant(base: dict, name: str) -> dict:
     return data
 
 
+# the line style of each model in the ESL / adaptive / layerwise studies' figures
+MODEL_STYLES = {
+    "esl": dict(color="tab:gray", lw=1.2, ls="--"),
+    "adaptive": dict(color="tab:blue", lw=1.5),
+    "layerwise": dict(color="k", lw=2.0, alpha=0.7),
+}
+
+
+def plot_cost(ax, results: dict[str, dict], runs: tuple[str, ...], fmt: str = ".0f") -> None:
+    """The wall time (s) of each of ``runs`` that ``results`` holds with one, as bars on the
+    matplotlib axes ``ax``, labelled with ``fmt``, in the models' colours
+    (``MODEL_STYLES``)."""
+    names = [n for n in runs if n in results and "wall_time_s" in results[n]]
+    walls = [results[n]["wall_time_s"] for n in names]
+    bars = ax.bar(names, walls, color=[MODEL_STYLES[n]["color"] for n in names])
+    ax.bar_label(bars, labels=[f"{w:{fmt}} s" for w in walls])
+    ax.set_ylabel("wall time (s)")
+    ax.set_title("cost of the run")
+
+
 def add_ratios_to_layerwise(results: dict[str, dict], keys: tuple[str, ...]) -> None:
     """Give every run of a study's ``results`` (run name -> its numbers) but the layerwise one
     ``<key>_relative_to_layerwise`` for each of ``keys``: its value over the layerwise run's
