@@ -301,7 +301,8 @@ def test_the_estimate_equals_its_ply_by_ply_statement_on_a_refined_plate():
     under a random motion, face load and face forces, it equals ``reference_estimate``, the
     recovery written out ply by ply, to round-off; the estimate at some boundaries equals those
     rows of the whole profile; the elements' sums taken ply by ply equal those from the ends
-    of their axes."""
+    of their axes; and the shapes kept per element give, bit for bit, what their vertices
+    give."""
     from fenics_adaptive.adaptivity import interlaminar as il
     from fenics_adaptive.adaptivity import ply_fields as pf
     from fenics_adaptive.settings.kinds import InterfaceState
@@ -347,3 +348,13 @@ def test_the_estimate_equals_its_ply_by_ply_statement_on_a_refined_plate():
     sums = il.recovery(structure, (2, 4, 6)).sums
     by_ends, by_ply = pf.ply_sums(structure, sums), pf.ply_sums(structure, sums, per_ply=True)
     np.testing.assert_allclose(by_ends, by_ply, rtol=0, atol=1e-12 * np.abs(by_ply).max())
+    # the elements' shapes kept since they were made (``ElementData.geometry``) give what their
+    # coordinates give, bit for bit
+    elements = pf.element_data(structure)
+    kept, elements.geometry = elements.geometry, pf._NO_GEOMETRY
+    try:
+        formed = pf.ply_sums(structure, sums), pf.ply_stresses(structure)
+    finally:
+        elements.geometry = kept
+    assert np.array_equal(formed[0], by_ends)
+    assert np.array_equal(formed[1], pf.ply_stresses(structure))

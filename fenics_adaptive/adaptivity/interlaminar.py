@@ -430,6 +430,14 @@ def _face_means(nodes, values, out, side):
             )
 
 
+@njit(cache=True)
+def _per_area(force, nodes, areas, values, side):
+    """values[node, 3 side : 3 side + 3] = force[node] / areas[node] for the ``nodes``."""
+    for node in nodes:
+        for i in range(3):
+            values[node, 3 * side + i] = force[node, i] / areas[node]
+
+
 def face_tractions(structure, nodal_force: np.ndarray) -> np.ndarray:
     """(n_cells, 2, 3): the traction (N/mm^2 = MPa, global axes) that nodal forces on the
     bottom (0) and top (1) faces apply to each owned cell, the mean over the face's four
@@ -444,10 +452,7 @@ def face_tractions(structure, nodal_force: np.ndarray) -> np.ndarray:
     # of each face and the exchange the ghosts, so what it does not write stays zero
     values = geometry.traction.array.reshape(-1, 6)
     for side in range(2):
-        on_face = geometry.owned_on_face[side]
-        values[on_face, 3 * side : 3 * side + 3] = (
-            force[on_face] / geometry.areas[side][on_face, None]
-        )
+        _per_area(force, geometry.owned_on_face[side], geometry.areas[side], values, side)
     geometry.traction.scatter_forward()
     for side, nodes in enumerate((structure.bottom_local, structure.top_local)):
         _face_means(nodes, values, out, side)

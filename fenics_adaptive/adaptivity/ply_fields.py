@@ -63,6 +63,78 @@ STRAINS, STRESSES, SUMS = 0, 1, 2
 PRISM_TOLERANCE = 1.0e-12
 
 
+# the columns of ``_element_geometry``'s rows: J^-1 (row by row), |det J|, prism, bends
+G_DET, G_PRISM, G_BENDS = 9, 10, 11
+GEOMETRY_WIDTH = 12
+
+
+@njit(cache=True)
+def _axis_parts(values, out):
+    """out (3, 5): the derivatives of the trilinear interpolant of ``values`` (8, 3) on the
+    element's axis, per component: d/d xi on the bottom and top faces, d/d eta on the bottom
+    and top faces, d/d zeta (which does not vary along the axis)."""
+    out[:] = 0.0
+    for a in range(8):
+        s_xi = 0.5 if a & 1 else -0.5
+        s_eta = 0.5 if (a >> 1) & 1 else -0.5
+        top = (a >> 2) & 1
+        s_zeta = 0.25 if top else -0.25
+        for i in range(3):
+            value = values[a, i]
+            out[i, top] += s_xi * value
+            out[i, 2 + top] += s_eta * value
+            out[i, 4] += s_zeta * value
+
+
+@njit(cache=True)
+def _prism_inverse(parts, J, Jinv):
+    """det J, and J (3 x 3) and J^-1 into ``J``, ``Jinv``, of an element whose coordinates'
+    ``_axis_parts`` are ``parts``, if it is a prism (its top face's edges equal its bottom
+    face's to ``PRISM_TOLERANCE`` of its size, the round-off of a mesh's coordinates); 0.0
+    (and J, Jinv untouched) otherwise."""
+    size = 0.0
+    for i in range(3):
+        size = max(size, abs(parts[i, 0]) + abs(parts[i, 2]) + abs(parts[i, 4]))
+    for i in range(3):
+        if (
+            abs(parts[i, 0] - parts[i, 1]) > PRISM_TOLERANCE * size
+            or abs(parts[i, 2] - parts[i, 3]) > PRISM_TOLERANCE * size
+        ):
+            return 0.0
+    for i in range(3):
+        J[i, 0] = parts[i, 0]
+        J[i, 1] = parts[i, 2]
+        J[i, 2] = parts[i, 4]
+    return _inverse_3x3(J, Jinv)
+
+
+@njit(cache=True)
+def _element_geometry(X_base, X_extra, nodes, frames, todo, geometry):
+    """geometry[e] for the elements ``todo``: what ``_ply_kernel`` reads of each element's
+    shape (vertices ``nodes[e]``, in its frame ``frames[e]`` on a curved shell): J^-1 on its
+    axis and |det J| if it is a prism (``_prism_inverse``), whether it is one, whether
+    its directors bend (``assumed_strain.directors_bend``)."""
+    n_base = X_base.shape[0]
+    X, b = np.empty((8, 3)), np.empty((8, 3))
+    parts = np.empty((3, 5))
+    J, Jinv = np.empty((3, 3)), np.empty((3, 3))
+    for e in todo:
+        gather_nodes(nodes[e], n_base, X_base, X_extra, X)
+        if frames.shape[0] > 0:
+            turn_rows(frames[e], X, False)
+        _axis_parts(X, parts)
+        det = _prism_inverse(parts, J, Jinv)
+        geometry[e, :] = 0.0
+        if det != 0.0:
+            for i in range(3):
+                for r in range(3):
+                    geometry[e, 3 * i + r] = Jinv[i, r]
+            geometry[e, G_DET] = abs(det)
+            geometry[e, G_PRISM] = 1.0
+        _monomials(X, b)
+        geometry[e, G_BENDS] = 1.0 if directors_bend(b) else 0.0
+
+
 @njit(cache=True)
 def _ply_kernel(
     X_base,
@@ -77,6 +149,7 @@ def _ply_kernel(
     root,
     corotational,
     frames,
+    geometry,
     mode,
     stiffness,
     out,
@@ -111,7 +184,9 @@ def _ply_kernel(
     kernel computes it (``subelement.element_rotation``): the displacement there, and alpha
     from it. ``frames`` (n_elements, 3, 3): on a curved shell, each element's frame, in which
     its strain is taken (``subelement.add_damaged_subelement_forces``); (0, 3, 3): the global
-    frame.
+    frame. ``geometry`` (n_elements, ``GEOMETRY_WIDTH``): what each element's shape alone decides
+    (``_element_geometry``), which only the co-rotated frame changes; (0, ``GEOMETRY_WIDTH``):
+    formed here from the coordinates (the co-rotated frame's).
 
     On the element's axis (xi = eta = 1/2) the trilinear shape functions' in-plane derivatives
     are (1 - zeta) times the bottom face's plus zeta times the top face's, and the thickness
@@ -122,7 +197,7 @@ def _ply_kernel(
     n_base = X_base.shape[0]
     X, u, u_global = np.empty((8, 3)), np.empty((8, 3)), np.empty((8, 3))
     monomials = np.empty((2, 8, 3))
-    parts = np.empty((2, 3, 5))  # (X, u), component, (d_xi bottom, top, d_eta bottom, top, d_zeta)
+    parts = np.zeros((2, 3, 5))  # (X, u), component, (d_xi bottom, top, d_eta bottom, top, d_zeta)
     J, G, Jinv, grad = np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3))
     ends = np.empty((2, 3, 3))
     strain = np.empty(6)
@@ -130,8 +205,14 @@ def _ply_kernel(
     both = np.empty(12)
     R = np.eye(3)
     n_rows = kinds.shape[0]
+    known = geometry.shape[0] > 0
     for e in range(nodes.shape[0]):
-        gather_nodes(nodes[e], n_base, X_base, X_extra, X)
+        # a prism without bent directors needs its coordinates only for what ``geometry`` holds
+        prism = known and geometry[e, G_PRISM] != 0.0
+        bends = known and geometry[e, G_BENDS] != 0.0
+        coordinates = not prism or bends
+        if coordinates:
+            gather_nodes(nodes[e], n_base, X_base, X_extra, X)
         if corotational:
             gather_nodes(nodes[e], n_base, u_base, u_extra, u_global)
             element_rotation(X, u_global, R)
@@ -139,53 +220,41 @@ def _ply_kernel(
         else:
             gather_nodes(nodes[e], n_base, u_base, u_extra, u)
         if frames.shape[0] > 0:
-            turn_rows(frames[e], X, False)
+            if coordinates:
+                turn_rows(frames[e], X, False)
             turn_rows(frames[e], u, False)
         alpha = 0.0
         for a in range(8):
             for i in range(3):
                 alpha += centre_maps[e, a, i] * u[a, i]
-        # the edge-sampled thickness strain on the axis, where the directors bend
-        _monomials(X, monomials[0])
-        sampled = 0.0
-        if directors_bend(monomials[0]):
-            _monomials(u, monomials[1])
-            s55, s57, s77, s66, s67 = cell_strain_coefficients(monomials[0], monomials[1], False)
-            sampled = edge_sampled_strain(s55, s57, s77, s66, s67, 0.5, 0.5)
-        parts[:] = 0.0
-        for a in range(8):
-            s_xi = 1.0 if a & 1 else -1.0
-            s_eta = 1.0 if (a >> 1) & 1 else -1.0
-            top = (a >> 2) & 1
-            s_zeta = 1.0 if top else -1.0
-            for i in range(3):
-                for f in range(2):
-                    value = X[a, i] if f == 0 else u[a, i]
-                    parts[f, i, top] += 0.5 * s_xi * value
-                    parts[f, i, 2 + top] += 0.5 * s_eta * value
-                    parts[f, i, 4] += 0.25 * s_zeta * value
+        sampled = 0.0  # the edge-sampled thickness strain on the axis, where the directors bend
+        if coordinates:
+            _monomials(X, monomials[0])
+            if bends or (not known and directors_bend(monomials[0])):
+                _monomials(u, monomials[1])
+                s55, s57, s77, s66, s67 = cell_strain_coefficients(
+                    monomials[0], monomials[1], False
+                )
+                sampled = edge_sampled_strain(s55, s57, s77, s66, s67, 0.5, 0.5)
+            _axis_parts(X, parts[0])
+        _axis_parts(u, parts[1])
         first, stop = plies[e, 0], plies[e, 1]
         bottom, top_f = fractions[first], fractions[stop]
-        # a prism (top face a translate of the bottom one, to round-off of the coordinates): J
-        # does not vary along the axis, and grad u = G J^-1 is linear in zeta there: two
-        # products per element
-        size = 0.0
-        for i in range(3):
-            size = max(size, abs(parts[0, i, 0]) + abs(parts[0, i, 2]) + abs(parts[0, i, 4]))
-        prism = True
-        for i in range(3):
-            if (
-                abs(parts[0, i, 0] - parts[0, i, 1]) > PRISM_TOLERANCE * size
-                or abs(parts[0, i, 2] - parts[0, i, 3]) > PRISM_TOLERANCE * size
-            ):
-                prism = False
+        # a prism (top face a translate of the bottom one): J does not vary along the axis,
+        # and grad u = G J^-1 is linear in zeta there: two products per element
         enhanced = 0.0  # alpha / |det J| of the element (a prism) or of the ply
+        if known:
+            if prism:
+                for i in range(3):
+                    for r in range(3):
+                        Jinv[i, r] = geometry[e, 3 * i + r]
+                enhanced = alpha / geometry[e, G_DET]
+        else:
+            det = _prism_inverse(parts[0], J, Jinv)
+            prism = det != 0.0
+            if prism:
+                enhanced = alpha / abs(det)
         if prism:
-            for i in range(3):
-                J[i, 0] = parts[0, i, 0]
-                J[i, 1] = parts[0, i, 2]
-                J[i, 2] = parts[0, i, 4]
-            enhanced = alpha / abs(_inverse_3x3(J, Jinv))
             for f in range(2):  # grad u on the bottom (0) and top (1) face
                 for i in range(3):
                     g0, g1, g2 = parts[1, i, f], parts[1, i, 2 + f], parts[1, i, 4]
@@ -324,6 +393,7 @@ class ElementData:
     cohesive_rows: np.ndarray  # (m, 3) cell, interface, damage row (``Structure.damage_rows``)
     fractions: np.ndarray  # (n_plies + 1,) the ply boundaries' height in the laminate, 0 to 1
     frames: np.ndarray  # (n_elements, 3, 3) on a curved shell, (0, 3, 3) flat (``element_frames``)
+    geometry: np.ndarray  # (n_elements, GEOMETRY_WIDTH) ``_element_geometry``
     patterns: np.ndarray  # (n_patterns, 2) the distinct (first ply, stop ply) of the elements
     pattern: np.ndarray  # (n_elements,) each element's row of ``patterns``
     # ``ply_sums``' matrices by ``PlySums.key``, for these elements' patterns
@@ -341,13 +411,23 @@ class ElementData:
         n_plies = structure.laminate.n_plies
         keys = (cells * (n_plies + 1) + plies[:, 0]) * (n_plies + 1) + plies[:, 1]
         centre_maps = np.empty((len(nodes), 8, 3))
+        geometry = np.empty((len(nodes), GEOMETRY_WIDTH))
         todo = np.ones(len(nodes), dtype=bool)
         if previous is not None and len(previous.keys):
             order = np.argsort(previous.keys)
             at = np.minimum(np.searchsorted(previous.keys, keys, sorter=order), len(order) - 1)
             todo = previous.keys[order[at]] != keys
             centre_maps[~todo] = previous.centre_maps[order[at[~todo]]]
+            geometry[~todo] = previous.geometry[order[at[~todo]]]
         frames = structure.base.element_frames(cells)
+        _element_geometry(
+            structure.X_base,
+            structure.extra.vectors["X"].array.reshape(-1, 3),
+            nodes,
+            frames,
+            np.flatnonzero(todo),
+            geometry,
+        )
         X = structure.gather(nodes[todo], "X")
         if len(frames):  # the maps of the displacement in each element's frame
             X = np.einsum("eij,eaj->eai", frames[todo], X)
@@ -371,6 +451,7 @@ class ElementData:
             ).reshape(-1, 3),
             np.asarray(structure.laminate.ply_fractions, dtype=float),
             frames,
+            geometry,
             patterns.reshape(-1, 2).astype(np.int64),
             pattern.reshape(-1).astype(np.int64),
             range_matrices={} if previous is None else previous.range_matrices,
@@ -387,6 +468,9 @@ def element_data(structure) -> ElementData:
     if data is None or data.subelements is not structure.refined_cells.subelements:
         data = _ELEMENTS[structure] = ElementData.of(structure, data)
     return data
+
+
+_NO_GEOMETRY = np.zeros((0, GEOMETRY_WIDTH))
 
 
 def _run_kernel(structure, mode: int, out=None, sums_args=None) -> None:
@@ -412,6 +496,8 @@ def _run_kernel(structure, mode: int, out=None, sums_args=None) -> None:
         data.shear_roots,
         structure.base.finite,  # the damaged kernel's co-rotated frame (and objective)
         data.frames,
+        # (the co-rotated frame moves the element: its shape is formed there)
+        _NO_GEOMETRY if structure.base.finite else data.geometry,
         mode,
         data.stiffness,
         out,
