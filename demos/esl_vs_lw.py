@@ -86,8 +86,9 @@ What it shows:
 - deflection and in-plane stresses: the ESL element is within about 1.5 % of LW (a little
   too stiff: its transverse shear strain is constant through the thickness, with no shear
   correction);
-- interlaminar stresses, constitutive (a): useless. tau_xz is constant within each ply (a third
-  below the peak for ``[0]8``) and sigma_zz, made by the thickness strain and Poisson coupling
+- interlaminar stresses, constitutive (a): tau_xz is constant within each ply, each ply's the
+  laminate's mean over it (``materials.laminate.ply_shear_factors``), so the interfaces read
+  the plies' means, and sigma_zz, made by the thickness strain and Poisson coupling
   rather than by the load, is off by 40-50 % of its peak (by more than its own size, with the
   wrong sign in the upper plies, with the compatible thickness strain alone);
 - recovered from equilibrium (b): within about 2 % of LW at every interface for all three

@@ -97,9 +97,10 @@ def errors(results, layup, model, against="errors_vs_lw"):
 def test_recovered_interlaminar_stresses_match_lw_constitutive_ones_do_not(results, layup):
     constitutive = errors(results, layup, "esl_constitutive")
     recovered = errors(results, layup, "esl_recovered")
-    # constant transverse shear strain through the thickness: off by a fifth to a third of the
-    # peak (18-36 %)
-    assert constitutive["tau_xz_interfaces"] > 0.15
+    # one transverse shear strain through the thickness, but each ply carrying its share of
+    # the laminate's shear flow (materials.laminate.ply_shear_factors): ply means, taken to the
+    # interfaces, within 2-19 % of the peak (18-36 % with one factor for every ply)
+    assert constitutive["tau_xz_interfaces"] < 0.2
     assert recovered["tau_xz_interfaces"] < 0.02
     # sigma_zz from the thickness strain and Poisson coupling, not from the load: 41-48 % of
     # its peak off (more than 100 % with the compatible thickness strain alone)

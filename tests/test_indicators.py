@@ -63,10 +63,10 @@ def test_recovered_transverse_shear_matches_beam_theory(angles):
     peak = np.abs(expected).max()
     assert peak == pytest.approx(3 / (2 * 4.0), rel=0.02) or angles != [0] * 8
     assert np.abs(tau - expected).max() < 0.03 * peak
-    # the constitutive shear of the ESL element is nearly constant through the thickness:
-    # what the recovery is for
+    # each ply of the ESL element carries its share of the laminate's shear flow
+    # (``materials.laminate.ply_shear_factors``): beam theory's over the ply
     constitutive = ind.ply_stresses(structure)[mid_span, :, 4].mean(axis=0)
-    assert np.ptp(constitutive) < 0.35 * peak
+    assert np.abs(constitutive - 0.5 * (expected[1:] + expected[:-1])).max() < 0.04 * peak
     # no peel stress in a tip-loaded cantilever away from its ends
     assert np.abs(recovered[mid_span, :, 0]).max() < 0.02 * peak
 

@@ -222,20 +222,30 @@ def test_a_run_refines_from_the_opened_end_of_the_tcb():
 
 @pytest.mark.parametrize("shear_correction", [True, False])
 def test_the_plies_carry_the_shear_force_the_element_carries(shear_correction):
-    """The ply stresses (``ply_stresses``) of an ESL cantilever under a top pressure q
-    integrate through the thickness to the shear force of equilibrium, V(x) = q b x (free end
-    at x = 0), to 1e-9 at the cell centres: the element carries k G gamma in each ply, and so
-    do they (with the factor left out they summed to V / k, 1.19 V here)."""
+    """The stresses conjugate to the element's strain, the ply stresses (``ply_stresses``)
+    times their shear scales (``ply_shear_scale``), of an ESL cantilever under a top pressure
+    q integrate through the thickness to the shear force of equilibrium, V(x) = q b x (free
+    end at x = 0), to 1e-9 at the cell centres; the plies' own stresses, each its share of
+    the laminate's shear flow, to V times one factor (the root of int g^2 / G over its ply
+    means' sum, ``materials.laminate.ply_shear_factors``), the same in every cell, between 1
+    and 1.05 (1 without the correction)."""
     angles = [0.0, 90.0, 0.0, 90.0, 90.0, 0.0, 90.0, 0.0]
     load = [{"face": "top", "force": [0.0, 0.0, -10.0], "curve": [[0.0, 1.0]]}]
     esl = beam("esl", angles, [], load, length=20.0, nx=40, shear_correction=shear_correction)
     stresses = ind.ply_stresses(esl)
+    conjugate = stresses * ind.ply_shear_scale(esl)
     thickness = np.full(len(angles), 0.25)
     x = centres(esl)
     away = (x > 4.0) & (x < 16.0)  # away from the free end and the clamp
-    shear_force = np.einsum("k,ck->c", thickness, stresses[:, :, 4]) * 2.0  # N, width 2 mm
     q_b = 10.0 / 20.0  # N/mm: the pressure's resultant per length
+    shear_force = np.einsum("k,ck->c", thickness, conjugate[:, :, 4]) * 2.0  # N, width 2 mm
     np.testing.assert_allclose(shear_force[away], q_b * x[away], rtol=1e-9)
+    plies = np.einsum("k,ck->c", thickness, stresses[:, :, 4])[away] * 2.0 / (q_b * x[away])
+    np.testing.assert_allclose(plies, plies[0], rtol=1e-9)
+    if shear_correction:
+        assert 1.0 < plies[0] < 1.05
+    else:
+        assert plies[0] == pytest.approx(1.0, rel=1e-9)
 
 
 def reference_estimate(structure, face_force: np.ndarray) -> np.ndarray:
@@ -289,7 +299,9 @@ def reference_estimate(structure, face_force: np.ndarray) -> np.ndarray:
         return np.einsum("k,ck...->c...", t, 0.5 * (f[:, 1:] + f[:, :-1]))
 
     bubble = 6.0 * zr * (1.0 - zr)
-    own = np.einsum("k,ckm->cm", t, stresses[:, :, [2, 4, 3]])
+    # the element's own shear force: the stress conjugate to its strain, D C (D eps)
+    conjugate = stresses * ind.ply_shear_scale(structure)
+    own = np.einsum("k,ckm->cm", t, conjugate[:, :, [2, 4, 3]])
     missing = (own - integral(profile)) / integral(bubble[None, :])[:, None]
     return profile + missing[:, None, :] * bubble[None, :, None]
 

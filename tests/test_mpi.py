@@ -94,10 +94,15 @@ def test_events_on_one_rank_reproduce_the_serial_history(case, tmp_path):
         for run in ("serial", "parallel")
     ]
     assert len(logs[0]) > 0
-    exact, close = [0, 1, 4, 5, 6], [2, 3, 7]  # time, cell, interface, state, indicator
+    exact, close = [0, 1, 4, 5, 6], [2, 3]  # time, cell, interface, state, indicator; x, y
     assert [[r[k] for k in exact] for r in logs[0]] == [[r[k] for k in exact] for r in logs[1]]
     a, b = ([[r[k] for k in close] for r in log] for log in logs)
     np.testing.assert_allclose(a, b, rtol=1e-10, atol=1e-10)
+    # the indicator's value: a matrix damage in the step it starts amplifies round-off some
+    # 1e5 times (the impact's serial run alone, its velocity changed by 1.7e-13 of itself,
+    # logs 0.0107746 with 5.7e-8 of it changed)
+    a, b = ([r[7] for r in log] for log in logs)
+    np.testing.assert_allclose(a, b, rtol=1e-6, atol=1e-10)
 
 
 @pytest.mark.mpi

@@ -9,7 +9,13 @@ from helpers import tip_loaded_cantilever_error
 
 from fenics_adaptive.element import solid_shell
 from fenics_adaptive.element.rules import RuleTable
-from fenics_adaptive.materials.laminate import Laminate, PlyMaterial, shear_correction_factors
+from fenics_adaptive.materials.laminate import (
+    Laminate,
+    PlyMaterial,
+    ply_shear_factors,
+    reduced_plane_stress_stiffness,
+    shear_correction_factors,
+)
 
 PLY = PlyMaterial("ply", E1=1.0e5, E2=1.0e4, G12=5.0e3, nu12=0.25, nu23=0.25, rho=1.6e-9, G23=4e3)
 ISOTROPIC = PlyMaterial("iso", E1=7.0e4, E2=7.0e4, G12=7.0e4 / 2.6, nu12=0.3, nu23=0.3, rho=2.7e-9)
@@ -75,26 +81,71 @@ def test_every_span_of_every_laminate_gets_a_factor_in_0_1_tending_to_1_when_thi
 
 
 def test_the_ufl_form_and_the_numba_rule_carry_the_same_factors():
+    """Every span's numba rule scales the weights of each ply's shear points by that ply's
+    factors (``ply_shear_factors``; 1 for a one-ply element, which keeps the ply's moduli), as
+    the UFL form's ply groups of the same laminate do."""
     laminate = Laminate.from_angles(PLY, [0.0, 45.0, 90.0, -45.0], 0.25)
     table, plain = RuleTable(laminate, 2), RuleTable(laminate, 2, shear_correction=False)
+    codes = {t: solid_shell.TERMS.index(t) for t in solid_shell.TERMS}
     for first, stop in table.spans:
-        # spans of several plies carry the span's factors, a one-ply element the ply's moduli
-        k_xz, k_yz = shear_correction_factors(laminate, first, stop) if stop - first > 1 else (1, 1)
+        m = ply_shear_factors(laminate, first, stop)
+        if stop - first == 1:
+            np.testing.assert_array_equal(m, 1.0)
         rule, reference = table.rule(first, stop), plain.rule(first, stop)
         ratio = rule.weights / reference.weights
-        codes = {t: solid_shell.TERMS.index(t) for t in solid_shell.TERMS}
-        expected = {"normal": 1.0, "shear_xz": k_xz, "shear_yz": k_yz,
-                    "shear_cross": np.sqrt(k_xz * k_yz)}  # fmt: skip
+        m_xz, m_yz = m[rule.ply_of_point, 0], m[rule.ply_of_point, 1]
+        expected = {"normal": 1.0, "shear_xz": m_xz, "shear_yz": m_yz,
+                    "shear_cross": np.sqrt(m_xz * m_yz)}  # fmt: skip
         for term, value in expected.items():
-            np.testing.assert_allclose(ratio[rule.terms == codes[term]], value, rtol=1e-13)
-    groups = solid_shell.ply_groups(laminate, 2, shear_correction_factors(laminate))
+            at = rule.terms == codes[term]
+            np.testing.assert_allclose(ratio[at], np.broadcast_to(value, at.shape)[at], rtol=1e-13)
+    m = ply_shear_factors(laminate, 0, 4)
+    groups = solid_shell.ply_groups(laminate, 2, m)
     plain_groups = solid_shell.ply_groups(laminate, 2)
-    k_xz, _ = shear_correction_factors(laminate)
     for group, reference in zip(groups, plain_groups, strict=True):
+        (ply,) = group.ply_indices  # (four plies of four orientations: one each)
         np.testing.assert_allclose(
-            group.rules["shear_xz"][1], k_xz * reference.rules["shear_xz"][1], rtol=1e-13
+            group.rules["shear_xz"][1], m[ply, 0] * reference.rules["shear_xz"][1], rtol=1e-13
         )
         np.testing.assert_array_equal(group.rules["normal"][1], reference.rules["normal"][1])
+
+
+def test_the_plies_share_the_elements_shear_stiffness_as_the_laminate_distributes_its_stress():
+    """``ply_shear_factors``: on random laminates and spans, the plies' factors keep the
+    element's shear stiffness, sum t_k G_k m_k = k sum t_k G_k (``shear_correction_factors``),
+    and each ply's stress under a constant strain, G_k sqrt(m_k) gamma, is proportional to
+    the ply's mean of the laminate's exact shear stress distribution, computed here apart by
+    integrating the equilibrium d tau / dz = -d sigma_x / dx of a beam bent in x (y) ply by
+    ply on a fine grid (the trapezoidal rule, within each ply)."""
+    rng = np.random.default_rng(11)
+    for _ in range(10):
+        n = int(rng.integers(2, 9))
+        laminate = Laminate.from_angles(PLY, rng.choice([0.0, 45.0, -45.0, 90.0], n), 0.2)
+        first = int(rng.integers(0, n - 1))
+        stop = int(rng.integers(first + 2, n + 1))
+        m = ply_shear_factors(laminate, first, stop)
+        k = np.array(shear_correction_factors(laminate, first, stop))
+        t = np.array([p.thickness for p in laminate.plies])[first:stop]
+        C = np.array(laminate.ply_stiffnesses())[first:stop]
+        G = np.column_stack([C[:, 4, 4], C[:, 3, 3]])  # xz, yz
+        np.testing.assert_allclose((t[:, None] * G * m).sum(0), k * (t[:, None] * G).sum(0))
+        for d, component in enumerate((0, 1)):  # bending in x (tau_xz), in y (tau_yz)
+            Q = np.array([reduced_plane_stress_stiffness(c)[component, component]
+                          for c in laminate.ply_stiffnesses()])  # fmt: skip
+            z = np.concatenate([[0.0], np.cumsum([p.thickness for p in laminate.plies])])
+            neutral = np.sum(Q * np.diff(z**2) / 2) / np.sum(Q * np.diff(z))
+            tau, means = 0.0, []  # tau at the ply's bottom; its mean over each ply
+            for j in range(n):
+                s_ = np.linspace(z[j], z[j + 1], 401)
+                integrand = Q[j] * (neutral - s_)
+                profile = tau + np.concatenate(
+                    [[0.0], np.cumsum(0.5 * (integrand[1:] + integrand[:-1]) * np.diff(s_))]
+                )
+                means.append(np.trapezoid(profile, s_) / (z[j + 1] - z[j]))
+                tau = profile[-1]
+            means = np.array(means[first:stop])
+            stress = G[:, d] * np.sqrt(m[:, d])
+            np.testing.assert_allclose(stress / stress.sum(), means / means.sum(), rtol=1e-5)
 
 
 def cantilever_error(angles: list[float], slenderness: float, correction: bool) -> float:

@@ -25,7 +25,7 @@ from fenics_adaptive.element.subelement import CORNERS, pack_rule, sublaminate_p
 from fenics_adaptive.element.timestep import characteristic_lengths, hexahedron_volumes
 from fenics_adaptive.errors import InputError
 from fenics_adaptive.materials import ply_damage as pd
-from fenics_adaptive.materials.laminate import Laminate, Ply, element_shear_factors
+from fenics_adaptive.materials.laminate import Laminate, Ply, ply_shear_factors
 from fenics_adaptive.model.assembly import CohesiveSet, add_subelement_forces
 from fenics_adaptive.model.ply_damage_state import PlyDamageState
 from fenics_adaptive.settings.adaptivity import Interfaces, Stabilisation
@@ -82,7 +82,7 @@ def test_rule_table_gives_each_span_its_rule(points_per_ply):
     table = RuleTable(LAMINATE, points_per_ply)
     n = LAMINATE.n_plies
     shear_factors = {
-        (a, b): element_shear_factors(LAMINATE, a, b) for a in range(n) for b in range(a + 1, n + 1)
+        (a, b): ply_shear_factors(LAMINATE, a, b) for a in range(n) for b in range(a + 1, n + 1)
     }
     assert table.spans == [(a, b) for a in range(n) for b in range(a + 1, n + 1)]
     stiffness = np.array(LAMINATE.ply_stiffnesses())

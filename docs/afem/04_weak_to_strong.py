@@ -219,7 +219,10 @@ assert np.abs(weak["momentum"] - start["momentum"]).max() < 1e-13 * momentum_sca
 # (`materials.laminate.element_shear_factors`: the span's share of the laminate's exact shear
 # flow, stored with the exact complementary energy). The eight-ply cell has $k = 5/6$, a
 # homogeneous section's; each two-ply subelement has the factor of where it sits in that flow
-# (nearer 1 in the middle, where the flow hardly varies). The uniform shear $g$ of this state
+# (nearer 1 in the middle, where the flow hardly varies). Within an element each ply takes its
+# own share of the flow (`materials.laminate.ply_shear_factors`), which add up to that factor:
+# a strain constant through the element stores what the factor says. The uniform shear $g$ of
+# this state
 # then stores $	frac12 g^2 G_{13} A \sum_i k_i h_i$ instead of $	frac12 g^2 G_{13} A\, k\, h$
 # over the refined area $A$: more, because the subelements may follow the flow the cell had to
 # average (by Cauchy-Schwarz, $\sum_i k_i h_i \ge k h$ for any split). We compute the change by

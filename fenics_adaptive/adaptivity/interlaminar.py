@@ -33,7 +33,12 @@ import numpy as np
 from dolfinx import la
 from numba import njit
 
-from fenics_adaptive.adaptivity.ply_fields import PlySums, ply_stresses, ply_sums
+from fenics_adaptive.adaptivity.ply_fields import (
+    PlySums,
+    ply_shear_scale,
+    ply_stresses,
+    ply_sums,
+)
 from fenics_adaptive.element.geometry import quad_areas
 
 
@@ -183,7 +188,8 @@ class Recovery:
     top, and for the peel once more, U = sum_j w_nj Q_j. Rows of ``sums``: P_j for every j
     in ``levels`` (the boundaries and the top face), then Q_j for every j, then U, each as
     three rows (xx, yy, xy); then the cell's own resultants sum_k t_k (sigma_zz, tau_xz,
-    tau_yz)_k: 3 (2 L + 1) + 3 rows."""
+    tau_yz)_k, the shears those conjugate to the element's strain (``PlySums.forces``: their
+    sum is its shear force): 3 (2 L + 1) + 3 rows."""
 
     boundaries: np.ndarray  # (m,) the ply boundaries estimated, sorted
     levels: np.ndarray  # (L,) the boundaries and the top face
@@ -214,11 +220,13 @@ class Recovery:
         in_plane = [*partial[levels], *second[levels], w[n] @ second]
         weights = [row for f in in_plane for row in (f, f, f)] + [t, t, t]
         components = [i for _ in in_plane for i in (0, 1, 5)] + [2, 4, 3]
+        forces = np.zeros(len(components), dtype=bool)
+        forces[-2:] = True  # the element's own shear force
         return cls(
             boundaries,
             levels,
             np.searchsorted(levels, boundaries),
-            PlySums(np.array(weights), np.array(components, dtype=np.int64)),
+            PlySums(np.array(weights), np.array(components, dtype=np.int64), forces),
             t,
             w,
             z[levels] / h,
@@ -333,6 +341,12 @@ def _recover(structure, rec: Recovery) -> _Profile:
         weights, components = rec.sums.weights, rec.sums.components
         sums = np.empty((len(stresses), len(components)))
         _stress_sums(stresses, weights, components, sums)
+        forces = rec.sums.force_rows
+        if forces.any():  # D C (D eps): the plies' stresses times their shear scales
+            part = np.empty((len(stresses), int(forces.sum())))
+            conjugate = stresses * ply_shear_scale(structure)
+            _stress_sums(conjugate, weights[forces], components[forces], part)
+            sums[:, forces] = part
         hoop = _hoop_peel(geometry.curvatures, stresses, rec)
     n_cells, n_levels = len(sums), len(rec.levels)
     # (contiguous copies: a kernel's argument types stay the same whatever the cell count)

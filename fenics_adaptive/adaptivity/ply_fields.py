@@ -168,9 +168,10 @@ def _ply_kernel(
     what ``mode`` makes of it:
 
     - ``STRAINS``: the strain into out[cell, ply];
-    - ``STRESSES``: the ply's stress D C_k (D strain) into out[cell, ply] (``stiffness``
-      (n_plies, 6, 6), monoclinic; D the element's shear scale, ``root`` (n_elements, 2) its
-      sqrt k_xz, sqrt k_yz: ``ply_stresses``);
+    - ``STRESSES``: the ply's stress C_k (D strain) into out[cell, ply] (``stiffness``
+      (n_plies, 6, 6), monoclinic; D the shear scale of the ply in its element, ``root``
+      (n_patterns, n_plies, 2) sqrt m_xz, sqrt m_yz of each ply in each element's ply range
+      ``pattern[e]`` (``materials.laminate.ply_shear_factors``): ``ply_stresses``);
     - ``SUMS``: sums[cell, r] += sum_k w_rk sigma_k[i_r] over the element's plies
       (``PlySums``). Along the axis of a prism the strain is linear in zeta, eps = (1 - zeta)
       eps_bottom + zeta eps_top, so each row is fixed coefficients of the element's ply range
@@ -178,7 +179,8 @@ def _ply_kernel(
       zeta = 0 and 1; otherwise (or with ``per_ply``) of each ply (``of_ply[k]``) on that
       ply's strain. A normal stress row (``kinds[r]`` 0) reads the normal strains; a
       transverse shear row (3: tau_yz, 4: tau_xz) gamma_yz and gamma_xz apart, scaled by the
-      element's shear factors (``_scaled``).
+      ply's shear factors in the element (``_scaled``; a force row, ``PlySums.forces``,
+      once more).
 
     ``corotational`` (finite kinematics): in the element's co-rotated frame, as the damaged
     kernel computes it (``subelement.element_rotation``): the displacement there, and alpha
@@ -263,6 +265,7 @@ def _ply_kernel(
         ends_only = mode == SUMS and prism and not per_ply  # the strain at zeta = 0 and 1
         span = 1.0 / (top_f - bottom)
         c = cells[e]
+        p = pattern[e]
         points = 2 if ends_only else stop - first
         for point in range(points):
             k = first + point
@@ -317,7 +320,7 @@ def _ply_kernel(
                     else:
                         a = of_ply[k, r, 0] * strain[3]
                         b = of_ply[k, r, 1] * strain[4]
-                        sums[c, r] += _scaled(kinds[r], root[e, 0], root[e, 1], a, b)
+                        sums[c, r] += _scaled(kinds[r], root[p, k, 0], root[p, k, 1], a, b)
             elif mode == STRESSES:  # monoclinic plies: the normal and transverse shear parts
                 for a in range(4):
                     i = NORMAL[a]
@@ -325,15 +328,14 @@ def _ply_kernel(
                     for b in range(4):
                         total += stiffness[k, i, NORMAL[b]] * strain[NORMAL[b]]
                     out[c, k, i] = total
-                for i in (3, 4):  # D C_k (D strain) of the transverse shears
+                for i in (3, 4):  # C_k (D strain) of the transverse shears
                     a = stiffness[k, i, 3] * strain[3]
                     b = stiffness[k, i, 4] * strain[4]
-                    out[c, k, i] = _scaled(i, root[e, 0], root[e, 1], a, b)
+                    out[c, k, i] = _scaled(i, root[p, k, 0], root[p, k, 1], a, b)
             else:
                 for i in range(6):
                     out[c, k, i] = strain[i]
         if ends_only:
-            p = pattern[e]
             for r in range(n_rows):
                 if kinds[r] == 0:
                     total = 0.0
@@ -343,30 +345,38 @@ def _ply_kernel(
                 else:
                     a = of_pattern[p, r, 0] * both[8] + of_pattern[p, r, 1] * both[9]
                     b = of_pattern[p, r, 2] * both[10] + of_pattern[p, r, 3] * both[11]
-                    sums[c, r] += _scaled(kinds[r], root[e, 0], root[e, 1], a, b)
+                    sums[c, r] += a + b  # (the plies' shear scales are in the coefficients)
+
+
+# a transverse shear row of ``PlySums.forces``: its kind is the component plus this
+FORCE_ROW = 10
 
 
 @njit(cache=True)
 def _scaled(kind, root_xz, root_yz, a, b):
     """A transverse shear's two parts a = C[i, 3] gamma_yz, b = C[i, 4] gamma_xz (or a
-    ``PlySums`` row's) combined with an element's shear factors, D C (D strain): r_yz^2 a +
-    r_yz r_xz b for tau_yz (``kind`` 3), r_xz r_yz a + r_xz^2 b for tau_xz (4); a alone for a
-    normal stress."""
-    if kind == 3:
+    ``PlySums`` row's) with the ply's shear scales, C (D strain): r_yz a + r_xz b for
+    tau_yz (``kind`` 3) and tau_xz (4); D C (D strain) for a force row (``FORCE_ROW`` + 3,
+    + 4: times r_yz, r_xz once more); a alone for a normal stress."""
+    if kind == 3 or kind == 4:
+        return root_yz * a + root_xz * b
+    if kind == 3 + FORCE_ROW:
         return root_yz * (root_yz * a + root_xz * b)
-    if kind == 4:
+    if kind == 4 + FORCE_ROW:
         return root_xz * (root_yz * a + root_xz * b)
     return a
 
 
 @njit(cache=True)
-def _shear_scale(cells, plies, root, scale):
-    """scale[cell, ply, 3 (yz), 4 (xz)] = root[e, 1], root[e, 0] for the plies [first, stop)
-    of every element e (``ply_shear_scale``); the rest of ``scale`` untouched."""
+def _shear_scale(cells, plies, pattern, root, scale):
+    """scale[cell, ply, 3 (yz), 4 (xz)] = root[p, ply, 1], root[p, ply, 0] for the plies
+    [first, stop) of every element e of ply range p = ``pattern[e]`` (``ply_shear_scale``);
+    the rest of ``scale`` untouched."""
     for e in range(cells.shape[0]):
+        p = pattern[e]
         for ply in range(plies[e, 0], plies[e, 1]):
-            scale[cells[e], ply, 3] = root[e, 1]
-            scale[cells[e], ply, 4] = root[e, 0]
+            scale[cells[e], ply, 3] = root[p, ply, 1]
+            scale[cells[e], ply, 4] = root[p, ply, 0]
 
 
 @dataclass
@@ -375,7 +385,7 @@ class ElementData:
     only when it refines: the elements (``Structure.elements``), the map from each one's
     nodal displacements (8, 3) to its enhanced thickness strain parameter at the in-plane
     centre (the mean of its four lines' small-strain maps, undamaged:
-    ``RuleTable.enhanced_parameter_maps``), the square roots of its shear correction factors, the
+    ``RuleTable.enhanced_parameter_maps``), the square roots of its plies' shear factors, the
     plies' stiffnesses, where each (cell, interface) keeps its cohesive damage, and the distinct
     ply ranges of the elements (``ply_sums`` makes a matrix per range).
     ``subelements``: the structure's ``SubelementSet`` they were made for (a refinement makes
@@ -388,7 +398,8 @@ class ElementData:
     plies: np.ndarray
     keys: np.ndarray
     centre_maps: np.ndarray  # (n_elements, 8, 3) mm^3 / mm
-    shear_roots: np.ndarray  # (n_elements, 2) sqrt k_xz, sqrt k_yz of each element
+    # (n_patterns, n_plies, 2) sqrt m_xz, sqrt m_yz of each ply in each ply range
+    shear_roots: np.ndarray
     stiffness: np.ndarray  # (n_plies, 6, 6) MPa, shell frame
     cohesive_rows: np.ndarray  # (m, 3) cell, interface, damage row (``Structure.damage_rows``)
     fractions: np.ndarray  # (n_plies + 1,) the ply boundaries' height in the laminate, 0 to 1
@@ -433,7 +444,6 @@ class ElementData:
             X = np.einsum("eij,eaj->eai", frames[todo], X)
         maps = table.enhanced_parameter_maps(X, plies[todo])
         centre_maps[todo] = maps.mean(axis=1)
-        root = np.sqrt(table.shear_factors(plies))  # (n_elements, 2)
         stiffness = np.array(structure.laminate.ply_stiffnesses()).reshape(n_plies, 6, 6)
         ranges, pattern = np.unique(plies[:, 0] * (n_plies + 1) + plies[:, 1], return_inverse=True)
         patterns = np.column_stack(np.divmod(ranges, n_plies + 1))
@@ -444,7 +454,7 @@ class ElementData:
             plies,
             keys,
             centre_maps,
-            np.ascontiguousarray(root),
+            _shear_roots(table, patterns.reshape(-1, 2), n_plies),
             stiffness,
             np.array(
                 [(c, i, row) for (c, i), row in structure.damage_rows.items()], dtype=np.int64
@@ -456,6 +466,15 @@ class ElementData:
             pattern.reshape(-1).astype(np.int64),
             range_matrices={} if previous is None else previous.range_matrices,
         )
+
+
+def _shear_roots(table, patterns: np.ndarray, n_plies: int) -> np.ndarray:
+    """(n_patterns, n_plies, 2) sqrt m_xz, sqrt m_yz of each ply in the rule of each ply range
+    (first, stop) of ``patterns`` (``RuleTable.ply_shear_factors``; 1 outside the range)."""
+    roots = np.ones((len(patterns), n_plies, 2))
+    for p, (first, stop) in enumerate(patterns.tolist()):
+        roots[p, first:stop] = np.sqrt(table.ply_shear_factors(first, stop))
+    return roots
 
 
 # per structure (weakly held): its ElementData until it refines
@@ -523,20 +542,21 @@ def ply_strains(structure) -> np.ndarray:
 
 def ply_shear_scale(structure) -> np.ndarray:
     """(n_owned_cells, n_plies, 6) Voigt factors D that give each ply the stress its element
-    carries, sigma = D C (D epsilon): 1 but for the transverse shears, sqrt k_yz and sqrt k_xz
-    of the element holding the ply (its shear correction, ``RuleTable.shear_factors``; the
-    stress whose work with the strain is the element's energy, a ply's transverse shear not
-    coupling to its other strains)."""
+    carries, sigma = C (D epsilon): 1 but for the transverse shears, sqrt m_yz and sqrt m_xz
+    of the ply in the element holding it (its share of the laminate's shear flow,
+    ``RuleTable.ply_shear_factors``: on the rules that go ply by ply, the element's energy is
+    that of the strain D epsilon, a ply's transverse shear not coupling to its other
+    strains; a pre-integrated rule carries their mean)."""
     data = element_data(structure)
     scale = np.ones((structure.base.n_owned_cells, structure.laminate.n_plies, 6))
-    _shear_scale(data.cells, data.plies.astype(np.int64), data.shear_roots, scale)
+    _shear_scale(data.cells, data.plies.astype(np.int64), data.pattern, data.shear_roots, scale)
     return scale
 
 
 def ply_stresses(structure) -> np.ndarray:
     """(n_owned_cells, n_plies, 6) shell-frame stress (MPa) at each ply's mid-point, as the
-    element holding the ply carries it (its transverse shear with the element's shear
-    correction, ``ply_shear_scale``): sigma = D C (D strain)."""
+    element holding the ply carries it (its transverse shears its share of the laminate's
+    shear flow, ``ply_shear_scale``): sigma = C (D strain)."""
     shape = (structure.base.n_owned_cells, structure.laminate.n_plies, 6)
     return _ply_field(structure, True, np.zeros(shape))
 
@@ -545,15 +565,29 @@ def ply_stresses(structure) -> np.ndarray:
 class PlySums:
     """Rows of weighted sums of every cell's ply-centre stresses, sum_k w_rk sigma_k[i_r]
     (``ply_sums``): ``weights`` (n_rows, n_plies), e.g. ply thicknesses in mm for resultants
-    (N/mm), and ``components`` (n_rows,) the Voigt component i_r of each row."""
+    (N/mm), and ``components`` (n_rows,) the Voigt component i_r of each row. ``forces``
+    (n_rows,) bool, default none: transverse shear rows of the stress conjugate to the
+    element's strain, D C (D eps), instead of the ply's C (D eps) (``ply_stresses``): its
+    thickness integral is the element's shear force, where the plies' stresses, each the
+    laminate's share over the ply, sum to a little more (``materials.laminate
+    .ply_shear_factors``: by the root of the ratio of int g^2 / G to its ply means' sum)."""
 
     weights: np.ndarray
     components: np.ndarray
+    forces: np.ndarray | None = None
+
+    @cached_property
+    def force_rows(self) -> np.ndarray:
+        """(n_rows,) bool: ``forces``, or none."""
+        if self.forces is None:
+            return np.zeros(len(self.components), dtype=bool)
+        return np.asarray(self.forces, dtype=bool)
 
     @cached_property
     def key(self) -> bytes:
         """What identifies these rows (the cache key of their matrices)."""
-        return self.weights.tobytes() + np.asarray(self.components, np.int64).tobytes()
+        components = np.asarray(self.components, np.int64).tobytes()
+        return self.weights.tobytes() + components + self.force_rows.tobytes()
 
 
 def _sum_matrices(data: ElementData, sums: PlySums) -> tuple:
@@ -563,7 +597,8 @@ def _sum_matrices(data: ElementData, sums: PlySums) -> tuple:
     w_rk C_k[i, 3], w_rk C_k[i, 4] (on gamma_yz, gamma_xz). Of a ply range [first, stop)
     (an element's): the sums of its plies' with weights 1 - zeta_k on the bottom strains and
     zeta_k on the top ones; a shear row's four: on gamma_yz bottom, top, gamma_xz bottom,
-    top. Each range's are made once (``ElementData.range_matrices``)."""
+    top, with each ply's shear scales in the range (``ElementData.shear_roots``). Each range's
+    are made once (``ElementData.range_matrices``)."""
     known = data.range_matrices
     if sums.key not in known:
         stiffness = data.stiffness
@@ -572,6 +607,8 @@ def _sum_matrices(data: ElementData, sums: PlySums) -> tuple:
         for r, i in enumerate(kinds):
             if i in (3, 4):
                 of_ply[:, r, :2] = sums.weights[r][:, None] * stiffness[:, i, 3:5]
+                if sums.force_rows[r]:
+                    kinds[r] = i + FORCE_ROW
             else:
                 of_ply[:, r, :] = sums.weights[r][:, None] * stiffness[:, i, list(NORMAL)]
                 kinds[r] = 0
@@ -583,8 +620,16 @@ def _sum_matrices(data: ElementData, sums: PlySums) -> tuple:
         if (sums.key, first, stop) not in known:
             k = np.arange(first, stop)
             zeta = (0.5 * (f[k] + f[k + 1]) - f[first]) * (1.0 / (f[stop] - f[first]))
-            low = np.einsum("k,krq->rq", 1.0 - zeta, of_ply[first:stop])
-            high = np.einsum("k,krq->rq", zeta, of_ply[first:stop])
+            # a shear row's plies with their shear scales in this range, C (D strain)
+            # (``_scaled``): ply k's tau reads gamma_yz times r_yzk, gamma_xz times r_xzk
+            root = data.shear_roots[p, first:stop]  # (plies, (xz, yz))
+            scaled = of_ply[first:stop].copy()
+            scaled[:, shear, 0] *= root[:, 1, None]
+            scaled[:, shear, 1] *= root[:, 0, None]
+            for r in np.flatnonzero(kinds >= FORCE_ROW):  # D C (D eps): once more
+                scaled[:, r, :2] *= root[:, 1 if kinds[r] == 3 + FORCE_ROW else 0, None]
+            low = np.einsum("k,krq->rq", 1.0 - zeta, scaled)
+            high = np.einsum("k,krq->rq", zeta, scaled)
             matrix = np.zeros((len(kinds), 8))
             matrix[~shear, :4], matrix[~shear, 4:] = low[~shear], high[~shear]
             matrix[shear, 0:4:2], matrix[shear, 1:4:2] = low[shear, :2], high[shear, :2]

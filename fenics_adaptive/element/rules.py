@@ -28,6 +28,7 @@ from fenics_adaptive.materials.laminate import (
     Laminate,
     bending_about_neutral_plane,
     element_shear_factors,
+    ply_shear_factors,
 )
 
 # A one-ply (sub)element with one Gauss point through its thickness bends with zero energy (an
@@ -47,9 +48,9 @@ class RuleTable:
     """Packed rules of all spans [first, stop) of the plies of ``laminate``, in the order
     (0, 1), (0, 2), ..., (0, n), (1, 2), ... (``spans``); ``points_per_ply``: Gauss points
     through each ply of spans of more than one ply; ``shear_correction``: each span's transverse
-    shear correction from the whole laminate's shear distribution
-    (``materials.laminate.element_shear_factors``: spans of several plies; (1, 1) for one ply
-    and without), and
+    shear correction from the whole laminate's shear distribution, ply by ply
+    (``materials.laminate.ply_shear_factors``: spans of several plies; 1 for one ply and
+    without), and
     ``enhanced_strain``: the enhanced assumed thickness strain, ``preintegrate``: the spans'
     pre-integrated through-thickness rules where ``solid_shell.thickness_rule`` takes them
     (not for the ply-damage kernel, which needs its points ply by ply), all as the UFL forms of
@@ -80,8 +81,10 @@ class RuleTable:
         # rule index and fastest wave speed (mm/s) of each span, for whole arrays of spans
         self._rule_of_plies = np.full((n + 1, n + 1), -1, dtype=np.int64)
         self._speed_of_plies = np.zeros((n + 1, n + 1))
-        # (k_xz, k_yz) of each span: what its rule scales the transverse shear by
+        # (k_xz, k_yz) of each span: its elements' shear stiffness over the plies' moduli
         self._shear_of_plies = np.ones((n + 1, n + 1, 2))
+        # (m_xz, m_yz) of each ply of each span (``ply_shear_factors``)
+        self._ply_shear: dict[tuple[int, int], np.ndarray] = {}
         for first in range(n):
             for stop in range(first + 1, n + 1):
                 zeta = sublaminate_ply_zeta(fractions, first, stop)
@@ -89,8 +92,11 @@ class RuleTable:
                 self._speed_of_plies[first, stop] = ply_speeds[first:stop].max()
                 self.spans.append((first, stop))
                 points = points_through_ply(stop - first, points_per_ply)
-                factors = element_shear_factors(laminate, first, stop, shear_correction)
-                self._shear_of_plies[first, stop] = factors
+                self._shear_of_plies[first, stop] = element_shear_factors(
+                    laminate, first, stop, shear_correction
+                )
+                factors = ply_shear_factors(laminate, first, stop, shear_correction)
+                self._ply_shear[first, stop] = factors
                 self.rules.append(
                     pack_rule(
                         zeta, stiffness[first:stop], points, factors, enhanced_strain, preintegrate
@@ -133,6 +139,12 @@ class RuleTable:
         of ``plies`` (n, 2) [first, stop) carries (``element_shear_factors``)."""
         plies = np.asarray(plies, dtype=np.int64).reshape(-1, 2)
         return self._shear_of_plies[plies[:, 0], plies[:, 1]]
+
+    def ply_shear_factors(self, first: int, stop: int) -> np.ndarray:
+        """(stop - first, 2) the factors (m_xz, m_yz) on the transverse shear stiffness of each
+        ply in the rule of the span [first, stop) (``materials.laminate.ply_shear_factors``)."""
+        self.index(first, stop)  # (refuses a span that is not one)
+        return self._ply_shear[first, stop].copy()
 
     def wave_speed(self, plies: np.ndarray) -> np.ndarray:
         """Fastest dilatational wave speed (mm/s) of the plies of each span of ``plies``."""

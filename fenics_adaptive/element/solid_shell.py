@@ -306,27 +306,54 @@ class PlyGroup:
     mass_weights: np.ndarray
 
 
-def shear_weights(shear_factors: tuple[float, float]) -> dict[str, float]:
-    """The factor on the weights of each energy term for transverse shear correction factors
-    (k_xz, k_yz) (``materials.laminate.shear_correction_factors``): scaling the points' weights
-    scales the term's energy exactly as scaling C_55, C_44 (and C_45 by sqrt(k_xz k_yz)) would,
-    in the elastic and the damaged kernels alike, and leaves the point-averaged strains as
-    they are."""
-    k_xz, k_yz = shear_factors
-    return {
-        "normal": 1.0,
-        "shear_xz": float(k_xz),
-        "shear_yz": float(k_yz),
-        "shear_cross": float(np.sqrt(k_xz * k_yz)),
-    }
+def per_ply_shear_factors(shear_factors, n_plies: int) -> np.ndarray:
+    """(n_plies, 2) transverse shear factors (m_xz, m_yz) per ply from ``shear_factors``: None
+    (1), one pair (k_xz, k_yz) for every ply alike, or (n_plies, 2)."""
+    if shear_factors is None:
+        return np.ones((n_plies, 2))
+    m = np.asarray(shear_factors, dtype=np.float64)
+    if m.shape == (2,):
+        return np.tile(m, (n_plies, 1))
+    if m.shape != (n_plies, 2):
+        raise ValueError(f"shear_factors: expected (2,) or ({n_plies}, 2), got {m.shape}")
+    return m
+
+
+def shear_weights(ply_factors: np.ndarray) -> np.ndarray:
+    """(n_plies, 4) the factors on the weights of each ply's points in each energy term
+    (``TERMS`` order) for its transverse shear factors ``ply_factors`` (n_plies, 2: m_xz,
+    m_yz; ``materials.laminate.ply_shear_factors``): 1, m_xz, m_yz, sqrt(m_xz m_yz). Scaling
+    a point's weights scales its energy exactly as scaling C_55, C_44 (and C_45) there by
+    them would, in the elastic and the damaged kernels alike, and leaves the point-averaged
+    strains as they are."""
+    m = np.asarray(ply_factors, dtype=np.float64).reshape(-1, 2)
+    return np.column_stack([np.ones(len(m)), m[:, 0], m[:, 1], np.sqrt(m[:, 0] * m[:, 1])])
+
+
+def span_shear_weights(
+    ply_factors: np.ndarray, ply_bounds: np.ndarray, ply_stiffness: np.ndarray
+) -> np.ndarray:
+    """(4,) ``shear_weights`` of a whole span whose points belong to no ply (the
+    pre-integrated rule): of its plies' factors ``ply_factors`` (n, 2) the means weighted by
+    the plies' thickness (``ply_bounds`` (n, 2)) times shear modulus (``ply_stiffness``
+    (n, 6, 6)): the factor that gives the span the same shear stiffness (the element's
+    correction k, ``materials.laminate.element_shear_factors``)."""
+    m = np.asarray(ply_factors, dtype=np.float64).reshape(-1, 2)
+    bounds = np.asarray(ply_bounds, dtype=np.float64)
+    C = np.asarray(ply_stiffness, dtype=np.float64)
+    t = bounds[:, 1] - bounds[:, 0]
+    G = np.column_stack([C[:, XZ, XZ], C[:, YZ, YZ]]) * t[:, None]
+    k = (G * m).sum(axis=0) / G.sum(axis=0)
+    return shear_weights(k[None, :])[0]
 
 
 def ply_groups(
-    laminate: Laminate, points_per_ply: int, shear_factors: tuple[float, float] = (1.0, 1.0)
+    laminate: Laminate, points_per_ply: int, shear_factors: np.ndarray | None = None
 ) -> list[PlyGroup]:
     """The plies of an element of ``laminate`` grouped by stiffness, each with its rules;
-    ``shear_factors``: (k_xz, k_yz) on its transverse shear terms (``shear_weights``)."""
-    factor = shear_weights(shear_factors)
+    ``shear_factors``: each ply's (m_xz, m_yz) on its transverse shear terms
+    (``per_ply_shear_factors``, ``shear_weights``)."""
+    factors = shear_weights(per_ply_shear_factors(shear_factors, laminate.n_plies))
     fractions = laminate.ply_fractions
     keys: dict[tuple, list[int]] = {}
     for k, ply in enumerate(laminate.plies):
@@ -338,7 +365,7 @@ def ply_groups(
         for k in indices:
             for term, (p, w) in ply_rules(fractions[k], fractions[k + 1], points_per_ply).items():
                 rules[term][0].append(p)
-                rules[term][1].append(w)
+                rules[term][1].append(factors[k, TERMS.index(term)] * w)
             p, w = mass_rule(fractions[k], fractions[k + 1])
             mass_points.append(p)
             mass_weights.append(w)
@@ -348,9 +375,7 @@ def ply_groups(
                 stiffness=ply.stiffness(),
                 rho=ply.material.rho,
                 ply_indices=tuple(indices),
-                rules={
-                    t: (np.vstack(p), factor[t] * np.concatenate(w)) for t, (p, w) in rules.items()
-                },
+                rules={t: (np.vstack(p), np.concatenate(w)) for t, (p, w) in rules.items()},
                 mass_points=np.vstack(mass_points),
                 mass_weights=np.concatenate(mass_weights),
             )
@@ -370,13 +395,15 @@ class StiffnessGroup:
 def energy_groups(
     laminate: Laminate,
     points_per_ply: int,
-    shear_factors: tuple[float, float] = (1.0, 1.0),
+    shear_factors: np.ndarray | None = None,
     preintegrate: bool = False,
 ) -> list[StiffnessGroup]:
     """The strain energy's stiffness groups of an element of ``laminate`` under the
     through-thickness rule ``thickness_rule`` chooses (``preintegrate``, ``points_per_ply``):
     one group per pre-integrated point, or the plies grouped by stiffness (``ply_groups``);
-    ``shear_factors`` (k_xz, k_yz) on the transverse shear terms."""
+    ``shear_factors``: each ply's (m_xz, m_yz) on the transverse shear terms
+    (``per_ply_shear_factors``; pre-integrated: their span mean, ``span_shear_weights``)."""
+    shear_factors = per_ply_shear_factors(shear_factors, laminate.n_plies)
     C = np.array(laminate.ply_stiffnesses())
     f = laminate.ply_fractions
     rule = thickness_rule(np.column_stack([f[:-1], f[1:]]), C, points_per_ply, preintegrate)
@@ -385,14 +412,14 @@ def energy_groups(
             StiffnessGroup(g.stiffness, g.rules)
             for g in ply_groups(laminate, points_per_ply, shear_factors)
         ]
-    factor = shear_weights(shear_factors)
+    factor = span_shear_weights(shear_factors, np.column_stack([f[:-1], f[1:]]), C)
     groups = []
     for p in range(len(rule.zeta)):
         rules = term_rules(rule.zeta[p : p + 1], rule.weights[p : p + 1])
         groups.append(
             StiffnessGroup(
                 stiffness=rule.stiffness[rule.stiffness_of_point[p]],
-                rules={t: (points, factor[t] * w) for t, (points, w) in rules.items()},
+                rules={t: (points, factor[TERMS.index(t)] * w) for t, (points, w) in rules.items()},
             )
         )
     return groups

@@ -176,7 +176,7 @@ def pack_rule(
     ply_zeta: np.ndarray,
     ply_stiffness: np.ndarray,
     points_per_ply: int,
-    shear_factors: tuple[float, float] = (1.0, 1.0),
+    shear_factors=None,
     enhanced: bool = False,
     preintegrate: bool = False,
 ) -> PackedRule:
@@ -192,9 +192,10 @@ def pack_rule(
     pre-integrated points instead where ``solid_shell.thickness_rule`` takes them (then
     ``stiffness`` holds their three stiffnesses, and ``ply_of_point`` indexes those, not plies).
     Per ply, the points are those of ``solid_shell.ply_rules``, ply by ply, and ply k uses
-    ``stiffness[k]``. ``shear_factors``: the (sub)element's transverse
-    shear correction (k_xz, k_yz), on the weights of its shear terms
-    (``solid_shell.shear_weights``). ``enhanced``: the enhanced assumed thickness strain
+    ``stiffness[k]``. ``shear_factors``: each ply's transverse shear factors (m_xz, m_yz;
+    ``materials.laminate.ply_shear_factors``; ``solid_shell.per_ply_shear_factors``), on the
+    weights of its points' shear terms (``solid_shell.shear_weights``; pre-integrated, their
+    span mean). ``enhanced``: the enhanced assumed thickness strain
     (``solid_shell`` module docstring), condensed by the kernels line by line."""
     bounds = _ply_bounds(ply_zeta)
     C = np.ascontiguousarray(ply_stiffness, dtype=np.float64)
@@ -209,13 +210,18 @@ def pack_rule(
     position_index = {(xi, eta): q for q, (xi, eta) in enumerate(IN_PLANE_POSITIONS)}
     through = solid_shell.thickness_rule(bounds, C, int(points_per_ply), preintegrate)
     points, weights, terms, plies = [], [], [], []
-    factor = solid_shell.shear_weights(shear_factors)
+    m = solid_shell.per_ply_shear_factors(shear_factors, len(bounds))
+    if through.preintegrated:  # (a point belongs to no ply)
+        factor = np.tile(solid_shell.span_shear_weights(m, bounds, ply_stiffness), (3, 1))
+    else:
+        factor = solid_shell.shear_weights(m)
     for term, (p, w) in solid_shell.term_rules(through.zeta, through.weights).items():
-        points.append(p)
-        weights.append(factor[term] * w)
-        terms.append(np.full(len(w), TERM_CODES[term], dtype=np.int64))
         # term_rules lists each through-thickness point's in-plane points together
-        plies.append(np.repeat(through.stiffness_of_point, len(w) // len(through.zeta)))
+        of_point = np.repeat(through.stiffness_of_point, len(w) // len(through.zeta))
+        points.append(p)
+        weights.append(factor[of_point, TERM_CODES[term]] * w)
+        terms.append(np.full(len(w), TERM_CODES[term], dtype=np.int64))
+        plies.append(of_point)
     C = np.ascontiguousarray(through.stiffness)
     points = np.vstack(points)
     position_of_point = np.array(
@@ -1295,8 +1301,8 @@ def _fibre_energy(k, j, stiffness, normal_energy, strains, volumes, root_xz, roo
     """Strain energy density (MPa) of rule-local ply j (ply k of the rule) of one element: the
     mean of its "normal" term's (``_ply_normal_energies``) plus that of its mean transverse
     shears (which the rule samples at their own points; a ply's stiffness couples them with
-    nothing else) with the element's shear correction (``root_xz``, ``root_yz``: the square
-    roots of its factors). ``strains``, ``volumes``: as ``_ply_means`` left them. The mean of
+    nothing else) with the ply's shear factors in the element (``root_xz``, ``root_yz``: their
+    square roots). ``strains``, ``volumes``: as ``_ply_means`` left them. The mean of
     the energy, not the energy of the mean strain: fibre damage scales every point of the ply,
     so that it releases this (a ply bent within its thickness holds more than its mean strain
     says)."""
@@ -1514,17 +1520,25 @@ def _element_force_damaged(
     grown = 0.0
     for j in range(n_local):
         k = k0 + j
+        # the ply's stress is that of its strain with the transverse shears its element's
+        # energy carries: the shear terms' weights hold the ply's shear factors m
+        # (solid_shell.shear_weights), so the shear strains times sqrt(m) (the ply's share of
+        # the laminate's shear flow, materials.laminate.ply_shear_factors); a one-ply
+        # element has none (its volumes' ratio is 1 but for the in-plane rules' |det J|)
+        root_xz = root_yz = 1.0
+        if n_local > 1:
+            root_xz = math.sqrt(volumes[j, 1] / volumes[j, 0])
+            root_yz = math.sqrt(volumes[j, 2] / volumes[j, 0])
         for a in range(6):
             s = 0.0
             for b in range(6):
-                s += strain_to_stress[k, a, b] * strains[j, b]
+                e = strains[j, b]
+                if b == 3:
+                    e *= root_yz
+                elif b == 4:
+                    e *= root_xz
+                s += strain_to_stress[k, a, b] * e
             sigma[a] = s
-        # the transverse shear the element's energy carries: its shear terms' weights hold
-        # the shear correction k (solid_shell.shear_weights), so the strains times sqrt(k)
-        root_xz = math.sqrt(volumes[j, 1] / volumes[j, 0])
-        root_yz = math.sqrt(volumes[j, 2] / volumes[j, 0])
-        s23_corrected = sigma[3] + strain_to_stress[k, 3, 3] * (root_yz - 1.0) * strains[j, 3]
-        s23_corrected += strain_to_stress[k, 3, 4] * (root_xz - 1.0) * strains[j, 4]
         energy_density = 0.0  # the fibres' energy release rate needs it
         if fibres and ply_params[k, F_GFT] > 0.0:  # the ply's, its fibres intact: / share kept
             energy_density = _fibre_energy(
@@ -1533,9 +1547,7 @@ def _element_force_damaged(
         d_old = state[j, S_D]
         d_fibre_old = state[j, S_DF]
         if update:
-            ply_damage_update(
-                sigma, s23_corrected, energy_density, ply_params[k], band_width[j], state[j]
-            )
+            ply_damage_update(sigma, energy_density, ply_params[k], band_width[j], state[j])
         # the ply's strain is used: its growth instead (matrix, fibre)
         strains[j, 1] = state[j, S_DF] - d_fibre_old
         strains[j, 0] = state[j, S_D] - d_old + strains[j, 1]

@@ -40,7 +40,6 @@ from fenics_adaptive.adaptivity.indicators import (
     ply_failure_indices,
     ply_shear_scale,
     ply_strains,
-    to_material_frame,
 )
 from fenics_adaptive.element.geometry import slab_vertices, thickness_weight
 from fenics_adaptive.errors import InputError, shared_errors
@@ -522,20 +521,13 @@ class PlyWriter(SeriesWriter):
     @staticmethod
     def _ply_stresses(structure, plies, damage: np.ndarray | None) -> np.ndarray:
         """Material-frame stress (MPa) of every (cell, ply) as its element carries it: the
-        damaged secant stress of the strain (``damage``: the state, or None), the transverse
-        shears with the element's shear correction (``ply_shear_scale``, applied in the shell
-        frame, where it is defined)."""
-        scale = ply_shear_scale(structure)
-        strains = scale * ply_strains(structure)
+        damaged secant stress of the strain (``damage``: the state, or None) with the transverse
+        shears the ply carries in its element (``ply_shear_scale``, applied in the shell frame,
+        where they are defined), as the ply damage law sees it."""
+        strains = ply_shear_scale(structure) * ply_strains(structure)
         if damage is None:
-            stress = nominal_ply_stresses(strains, plies)
-        else:
-            stress = nominal_ply_stresses(strains, plies, damage[:, :, S_D], damage[:, :, S_DF])
-        if np.all(scale == 1.0):
-            return stress
-        angles = np.array([p.angle for p in plies])
-        shell = scale * to_material_frame(stress, -angles)  # rotated back into the shell frame
-        return to_material_frame(shell, angles)
+            return nominal_ply_stresses(strains, plies)
+        return nominal_ply_stresses(strains, plies, damage[:, :, S_D], damage[:, :, S_DF])
 
     def write(self, t: float) -> None:
         s = self.structure

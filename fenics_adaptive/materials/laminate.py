@@ -253,7 +253,8 @@ def element_shear_factors(
     ``shear_correction_factors`` for a span of several plies, (1, 1) for a single ply or
     without ``shear_correction``.
 
-    The one rule for the UFL forms (``model.forms.LayeredModel``) and the numba rules
+    The element's shear stiffness; its plies share it as ``ply_shear_factors`` says, the one
+    rule for the UFL forms (``model.forms.LayeredModel``) and the numba rules
     (``element.rules.RuleTable``). A one-ply element is a 3D solid layer: the layerwise
     reference keeps the plies' own shear moduli (a constant transverse shear passes the patch
     test exactly), and refined-from-start stays equal to it."""
@@ -293,6 +294,17 @@ def shear_correction_factors(
     Returns:
         (k_xz, k_yz), each in (0, 1].
     """
+    share, energy, G, h = _span_shear_distribution(laminate, first, stop)
+    k = share.sum(axis=1) ** 2 / ((G * h).sum(axis=1) * energy.sum(axis=1))
+    return float(k[0]), float(k[1])
+
+
+def _span_shear_distribution(
+    laminate: Laminate, first: int, stop: int | None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Of the plies [first, stop) of ``laminate``, per direction (xz, yz) and ply: int g dz
+    and int g^2 / G dz over the ply (mm, mm / MPa; g of ``shear_correction_factors``), the
+    shear modulus G (MPa) and the thickness (mm): four (2, stop - first) arrays."""
     stop = laminate.n_plies if stop is None else stop
     if not 0 <= first < stop <= laminate.n_plies:
         raise ValueError(f"no ply span [{first}, {stop}) in a laminate of {laminate.n_plies} plies")
@@ -301,8 +313,10 @@ def shear_correction_factors(
     stiffness = [ply.stiffness() for ply in laminate.plies]
     # 3 Gauss points per ply integrate g^2 (a quartic within a ply) exactly
     x, w = np.polynomial.legendre.leggauss(3)
-    factors = []
-    for modulus, z_n, D, shear in zip(moduli, neutral, bending, (4, 3), strict=True):
+    n = stop - first
+    share, energy, moduli_out = np.zeros((2, n)), np.zeros((2, n)), np.zeros((2, n))
+    directions = zip(moduli, neutral, bending, (4, 3), strict=True)
+    for d, (modulus, z_n, D, shear) in enumerate(directions):
         G = np.array([C[shear, shear] for C in stiffness])
 
         def primitive(k: int, s: np.ndarray, E=modulus, z_n=z_n) -> np.ndarray:
@@ -312,11 +326,43 @@ def shear_correction_factors(
         g_bottom = (
             np.concatenate([[0.0], np.cumsum([primitive(k, z[k + 1]) for k in range(len(h))])]) / D
         )
-        share = energy = 0.0
-        for k in range(first, stop):
+        for j, k in enumerate(range(first, stop)):
             s = z[k] + 0.5 * h[k] * (x + 1)
             g = g_bottom[k] + primitive(k, s) / D
-            share += 0.5 * h[k] * np.sum(w * g)
-            energy += 0.5 * h[k] * np.sum(w * g**2) / G[k]
-        factors.append(share**2 / (np.sum(G[first:stop] * h[first:stop]) * energy))
-    return factors[0], factors[1]
+            share[d, j] = 0.5 * h[k] * np.sum(w * g)
+            energy[d, j] = 0.5 * h[k] * np.sum(w * g**2) / G[k]
+        moduli_out[d] = G[first:stop]
+    return share, energy, moduli_out, np.broadcast_to(h[first:stop], (2, n)).copy()
+
+
+def ply_shear_factors(
+    laminate: Laminate, first: int, stop: int, shear_correction: bool = True
+) -> np.ndarray:
+    """(stop - first, 2): the factors m_k (xz, yz) on the transverse shear stiffness of each
+    ply k of a (sub)element spanning plies [first, stop) of ``laminate``, so that its plies'
+    shear stresses follow the laminate's distribution (the laminated shell theory of
+    ``shear_correction_factors``) while the element keeps the shear stiffness that
+    ``element_shear_factors`` gives it.
+
+    The element's transverse shear strain gamma is constant through its thickness; ply k
+    carries G_k m_k gamma with m_k = c (g_k / G_k)^2, g_k the ply's mean of the laminate's
+    shear distribution g (``shear_correction_factors``), so that each ply's stress is
+    proportional to g_k: near zero in the outer plies of a bent laminate, largest near its
+    neutral plane (with k G_k, every ply would carry the same stress times its modulus: an
+    outer 90-degree ply of a cross-ply beam in the shear span would see the mean shear stress
+    of the section, and crack in shear where the layerwise model's does not). c is set by
+    sum_k t_k G_k m_k = k sum_k t_k G_k: the element's shear stiffness is unchanged. A single
+    ply, or no ``shear_correction``: 1.
+    """
+    if not shear_correction or stop - first == 1:
+        if not 0 <= first < stop <= laminate.n_plies:
+            raise ValueError(
+                f"no ply span [{first}, {stop}) in a laminate of {laminate.n_plies} plies"
+            )
+        return np.ones((stop - first, 2))
+    share, energy, G, h = _span_shear_distribution(laminate, first, stop)
+    k = share.sum(axis=1) ** 2 / ((G * h).sum(axis=1) * energy.sum(axis=1))
+    mean = share / h
+    shape = (mean / G) ** 2
+    c = k * (G * h).sum(axis=1) / (G * h * shape).sum(axis=1)
+    return (c[:, None] * shape).T

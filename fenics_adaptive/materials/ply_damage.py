@@ -136,10 +136,13 @@ sqrt(y_n y_{n+1}), equal to it on a proportional path (consistent, second order 
 It is the law's, at the ply-mean strain; the element, which softens every point of the ply with
 the one d, releases sum_points 1/2 eps_p.A.eps_p dd >= that (see ``subelement``: strain
 gradients within a damaging ply); the energy balances built from the work and from the states
-differ by that excess. The element's transverse shear energy carries its shear correction k
-(``solid_shell.shear_weights``: k times that of the sampled strain), so the law's transverse
-shear term takes the s23 of that energy (``ply_damage_update``'s ``s23_corrected``), not
-G23 gamma_23: else it books 1 / k times what the element releases in that mode.
+differ by that excess. The element's transverse shear energy carries each ply's shear factor
+m (``solid_shell.shear_weights``: m times that of the sampled strain; ``materials.laminate
+.ply_shear_factors``: the plies' shares of the laminate's shear flow), so the law takes the
+ply's stress of its strain with the shear strains times sqrt(m): its failure indices see the
+ply's share of the shear flow (an outer ply of a bent ESL cell little, as in the
+laminate), and its energy release rate what the element releases (with G23 gamma_23 it would
+book 1 / m times that).
 """
 
 from __future__ import annotations
@@ -458,17 +461,15 @@ def _softened(y, y0, G, band_width):
 
 
 @njit(cache=True, inline="always", error_model="numpy")
-def ply_damage_update(sigma, s23_corrected, energy_density, params, band_width, state):
+def ply_damage_update(sigma, energy_density, params, band_width, state):
     """Update one ply's damage state (N_STATE,) in place from its effective material-frame
-    stress ``sigma`` (6,) = C0 eps and strain energy density ``energy_density`` = psi_m
+    stress ``sigma`` (6,) = C0 eps (in an element of several plies, eps with the transverse
+    shears its energy carries: ``subelement``) and strain energy density
+    ``energy_density`` = psi_m
     (MPa; read only with fibre damage: 1/2 eps.C(d).eps at the matrix damage d of before the
     update, at a point, the mean of it over the ply's points in the element kernels);
     ``params`` is its ply_params_row,
     ``band_width`` (2,) its l_c across and along the fibres (mm, BAND_MATRIX, BAND_FIBRE).
-    ``s23_corrected``: the transverse shear stress s23 (MPa) the element's energy carries, of
-    its transverse shear strains with the element's shear correction (``solid_shell
-    .shear_weights``: the energy of the sampled strain times k; sigma[3] at a point): the
-    energy release rate takes it, the failure indices sigma's.
     Returns True if the crack is open (s22 > 0): the kernels then degrade with both
     degradation matrices, else with the shear one only. The recorded indices are those of the
     nominal stress C(d) eps (equal to the effective one while d = 0): once the matrix has
@@ -477,7 +478,7 @@ def ply_damage_update(sigma, s23_corrected, energy_density, params, band_width, 
     s22 = sigma[1]
     crack_open = s22 > 0.0
     y_normal = s22 * s22 / (2.0 * params[P_C22]) if crack_open else 0.0
-    y_shear = sigma[5] * sigma[5] / (2.0 * params[P_G12]) + s23_corrected * s23_corrected / (
+    y_shear = sigma[5] * sigma[5] / (2.0 * params[P_G12]) + sigma[3] * sigma[3] / (
         2.0 * params[P_G23]
     )
     y = y_normal + y_shear
@@ -590,7 +591,7 @@ def material_point_update(
     matrix = damaged_material_stiffness(material, state[S_D], bool(effective[1] > 0.0))
     psi_m = 0.5 * float(eps @ matrix @ eps)  # the fibres' energy release rate
     crack_open = ply_damage_update(
-        effective, effective[3], psi_m, ply_params_row(material, failure), bands, state
+        effective, psi_m, ply_params_row(material, failure), bands, state
     )
     sigma = damaged_material_stiffness(material, state[S_D], bool(crack_open)) @ eps
     sigma *= 1.0 - (1.0 - RESIDUAL) * state[S_DF]

@@ -32,7 +32,7 @@ from fenics_adaptive.element.subelement import (
     pack_rule,
 )
 from fenics_adaptive.element.timestep import characteristic_lengths
-from fenics_adaptive.materials.laminate import Laminate, element_shear_factors
+from fenics_adaptive.materials.laminate import Laminate, ply_shear_factors
 from fenics_adaptive.meshes.beam import BeamMesh
 from fenics_adaptive.meshes.shell import ShellMesh
 from fenics_adaptive.settings.kinds import Kinematics
@@ -87,7 +87,8 @@ class LayeredModel:
     force_form: fem.Form | None = None
     energy_form: fem.Form | None = None
     kinematics: str = "small"  # "small" | "finite" (solid_shell.KINEMATICS)
-    # transverse shear correction of each layer's elements (laminate.element_shear_factors)
+    # transverse shear correction of each layer's elements, ply by ply
+    # (laminate.ply_shear_factors)
     shear_correction: bool = True
     # the enhanced assumed thickness strain (no Poisson thickness locking), condensed per cell
     enhanced_strain: bool = True
@@ -346,14 +347,14 @@ class LayeredModel:
         """The whole laminate, all layers' plies bottom to top."""
         return Laminate(tuple(p for layer in self.layer_laminates for p in layer.plies))
 
-    def shear_factors(self) -> list[tuple[float, float]]:
-        """(k_xz, k_yz) of each layer's elements: the whole laminate's shear distribution over
-        the layer's plies (``materials.laminate.element_shear_factors``: (1, 1) for a one-ply
-        layer or without ``shear_correction``)."""
+    def shear_factors(self) -> list[np.ndarray]:
+        """(n_plies, 2) each ply's (m_xz, m_yz) of each layer's elements: the whole laminate's
+        shear distribution over the layer's plies (``materials.laminate.ply_shear_factors``:
+        1 for a one-ply layer or without ``shear_correction``)."""
         laminate, first, out = self.laminate, 0, []
         for layer in self.layer_laminates:
             stop = first + layer.n_plies
-            out.append(element_shear_factors(laminate, first, stop, self.shear_correction))
+            out.append(ply_shear_factors(laminate, first, stop, self.shear_correction))
             first = stop
         return out
 
@@ -456,8 +457,8 @@ def build_model(
     """``selective=False`` gives the plain fully integrated hexahedron (locks; for comparison).
     ``kinematics``: "small" (linear strain) or "finite" (total Lagrangian, Green-Lagrange).
     ``shear_correction``: the laminate's transverse shear correction on each layer's elements
-    of several plies (``materials.laminate.element_shear_factors``); off, the constant shear
-    strain of the element carries the plies' full shear moduli. ``enhanced_strain``: the
+    of several plies, ply by ply (``materials.laminate.ply_shear_factors``); off, the constant
+    shear strain of the element carries the plies' full shear moduli. ``enhanced_strain``: the
     enhanced assumed thickness strain (``solid_shell`` module docstring); off, the element has
     Poisson thickness locking in bending (kept for comparison). ``preintegrate``: each layer's
     plies pre-integrated onto three points through the thickness where
