@@ -27,7 +27,6 @@ from fenics_adaptive.element.subelement import (
 from fenics_adaptive.materials.laminate import (
     Laminate,
     bending_about_neutral_plane,
-    element_shear_factors,
     ply_shear_factors,
 )
 
@@ -81,8 +80,6 @@ class RuleTable:
         # rule index and fastest wave speed (mm/s) of each span, for whole arrays of spans
         self._rule_of_plies = np.full((n + 1, n + 1), -1, dtype=np.int64)
         self._speed_of_plies = np.zeros((n + 1, n + 1))
-        # (k_xz, k_yz) of each span: its elements' shear stiffness over the plies' moduli
-        self._shear_of_plies = np.ones((n + 1, n + 1, 2))
         # (m_xz, m_yz) of each ply of each span (``ply_shear_factors``)
         self._ply_shear: dict[tuple[int, int], np.ndarray] = {}
         for first in range(n):
@@ -92,9 +89,6 @@ class RuleTable:
                 self._speed_of_plies[first, stop] = ply_speeds[first:stop].max()
                 self.spans.append((first, stop))
                 points = points_through_ply(stop - first, points_per_ply)
-                self._shear_of_plies[first, stop] = element_shear_factors(
-                    laminate, first, stop, shear_correction
-                )
                 factors = ply_shear_factors(laminate, first, stop, shear_correction)
                 self._ply_shear[first, stop] = factors
                 self.rules.append(
@@ -133,12 +127,6 @@ class RuleTable:
         """(n, 4) the enhanced thickness strain parameters alpha (mm^3) of displacements ``u``
         (n, 8, 3; mm) (``enhanced_parameter_maps``)."""
         return np.einsum("ekai,eai->ek", self.enhanced_parameter_maps(X, plies), u)
-
-    def shear_factors(self, plies: np.ndarray) -> np.ndarray:
-        """(n, 2) transverse shear correction factors (k_xz, k_yz) that the rule of each span
-        of ``plies`` (n, 2) [first, stop) carries (``element_shear_factors``)."""
-        plies = np.asarray(plies, dtype=np.int64).reshape(-1, 2)
-        return self._shear_of_plies[plies[:, 0], plies[:, 1]]
 
     def ply_shear_factors(self, first: int, stop: int) -> np.ndarray:
         """(stop - first, 2) the factors (m_xz, m_yz) on the transverse shear stiffness of each
