@@ -259,12 +259,15 @@ def element_shear_factors(
     reference keeps the plies' own shear moduli (a constant transverse shear passes the patch
     test exactly), and refined-from-start stays equal to it."""
     if not shear_correction or stop - first == 1:
-        if not 0 <= first < stop <= laminate.n_plies:
-            raise ValueError(
-                f"no ply span [{first}, {stop}) in a laminate of {laminate.n_plies} plies"
-            )
+        _check_span(laminate, first, stop)
         return 1.0, 1.0
     return shear_correction_factors(laminate, first, stop)
+
+
+def _check_span(laminate: Laminate, first: int, stop: int) -> None:
+    """Refuse (ValueError) a span [first, stop) that is not one of ``laminate``'s plies."""
+    if not 0 <= first < stop <= laminate.n_plies:
+        raise ValueError(f"no ply span [{first}, {stop}) in a laminate of {laminate.n_plies} plies")
 
 
 def shear_correction_factors(
@@ -294,9 +297,14 @@ def shear_correction_factors(
     Returns:
         (k_xz, k_yz), each in (0, 1].
     """
-    share, energy, G, h = _span_shear_distribution(laminate, first, stop)
-    k = share.sum(axis=1) ** 2 / ((G * h).sum(axis=1) * energy.sum(axis=1))
+    k = _correction(*_span_shear_distribution(laminate, first, stop))
     return float(k[0]), float(k[1])
+
+
+def _correction(share, energy, G, h) -> np.ndarray:
+    """(2,) k_xz, k_yz of a span from its plies' ``_span_shear_distribution``:
+    (int g)^2 / (int G * int g^2 / G)."""
+    return share.sum(axis=1) ** 2 / ((G * h).sum(axis=1) * energy.sum(axis=1))
 
 
 def _span_shear_distribution(
@@ -306,8 +314,7 @@ def _span_shear_distribution(
     and int g^2 / G dz over the ply (mm, mm / MPa; g of ``shear_correction_factors``), the
     shear modulus G (MPa) and the thickness (mm): four (2, stop - first) arrays."""
     stop = laminate.n_plies if stop is None else stop
-    if not 0 <= first < stop <= laminate.n_plies:
-        raise ValueError(f"no ply span [{first}, {stop}) in a laminate of {laminate.n_plies} plies")
+    _check_span(laminate, first, stop)
     z, moduli, (neutral, bending) = bending_about_neutral_plane(laminate)
     h = np.diff(z)
     stiffness = [ply.stiffness() for ply in laminate.plies]
@@ -344,24 +351,22 @@ def ply_shear_factors(
     ``shear_correction_factors``) while the element keeps the shear stiffness that
     ``element_shear_factors`` gives it.
 
-    The element's transverse shear strain gamma is constant through its thickness; ply k
-    carries G_k m_k gamma with m_k = c (g_k / G_k)^2, g_k the ply's mean of the laminate's
-    shear distribution g (``shear_correction_factors``), so that each ply's stress is
-    proportional to g_k: near zero in the outer plies of a bent laminate, largest near its
-    neutral plane (with k G_k, every ply would carry the same stress times its modulus: an
+    The element's transverse shear strain gamma is constant through its thickness; ply k's
+    is sqrt(m_k) gamma (its energy 1/2 G_k m_k gamma^2), m_k = c (g_k / G_k)^2, g_k the ply's
+    mean of the laminate's shear distribution g (``shear_correction_factors``), so that each
+    ply's stress G_k sqrt(m_k) gamma is proportional to g_k: smallest in the outer plies of a
+    bent laminate, largest near its neutral plane (with k G_k, every ply would carry the same
+    stress times its modulus: an
     outer 90-degree ply of a cross-ply beam in the shear span would see the mean shear stress
     of the section, and crack in shear where the layerwise model's does not). c is set by
     sum_k t_k G_k m_k = k sum_k t_k G_k: the element's shear stiffness is unchanged. A single
     ply, or no ``shear_correction``: 1.
     """
     if not shear_correction or stop - first == 1:
-        if not 0 <= first < stop <= laminate.n_plies:
-            raise ValueError(
-                f"no ply span [{first}, {stop}) in a laminate of {laminate.n_plies} plies"
-            )
+        _check_span(laminate, first, stop)
         return np.ones((stop - first, 2))
     share, energy, G, h = _span_shear_distribution(laminate, first, stop)
-    k = share.sum(axis=1) ** 2 / ((G * h).sum(axis=1) * energy.sum(axis=1))
+    k = _correction(share, energy, G, h)
     mean = share / h
     shape = (mean / G) ** 2
     c = k * (G * h).sum(axis=1) / (G * h * shape).sum(axis=1)
