@@ -109,20 +109,16 @@ def _prism_inverse(parts, J, Jinv):
 
 
 @njit(cache=True)
-def _element_geometry(X_base, X_extra, nodes, frames, todo, geometry):
-    """geometry[e] for the elements ``todo``: what ``_ply_kernel`` reads of each element's
-    shape (vertices ``nodes[e]``, in its frame ``frames[e]`` on a curved shell): J^-1 on its
-    axis and |det J| if it is a prism (``_prism_inverse``), whether it is one, whether
+def _element_geometry(X, geometry):
+    """geometry[e] (n, ``GEOMETRY_WIDTH``): what ``_ply_kernel`` reads of the shape of each
+    element with vertices X[e] (n, 8, 3; on a curved shell in the element's frame): J^-1 on
+    its axis and |det J| if it is a prism (``_prism_inverse``), whether it is one, whether
     its directors bend (``assumed_strain.directors_bend``)."""
-    n_base = X_base.shape[0]
-    X, b = np.empty((8, 3)), np.empty((8, 3))
+    b = np.empty((8, 3))
     parts = np.empty((3, 5))
     J, Jinv = np.empty((3, 3)), np.empty((3, 3))
-    for e in todo:
-        gather_nodes(nodes[e], n_base, X_base, X_extra, X)
-        if frames.shape[0] > 0:
-            turn_rows(frames[e], X, False)
-        _axis_parts(X, parts)
+    for e in range(X.shape[0]):
+        _axis_parts(X[e], parts)
         det = _prism_inverse(parts, J, Jinv)
         geometry[e, :] = 0.0
         if det != 0.0:
@@ -131,7 +127,7 @@ def _element_geometry(X_base, X_extra, nodes, frames, todo, geometry):
                     geometry[e, 3 * i + r] = Jinv[i, r]
             geometry[e, G_DET] = abs(det)
             geometry[e, G_PRISM] = 1.0
-        _monomials(X, b)
+        _monomials(X[e], b)
         geometry[e, G_BENDS] = 1.0 if directors_bend(b) else 0.0
 
 
@@ -431,17 +427,12 @@ class ElementData:
             centre_maps[~todo] = previous.centre_maps[order[at[~todo]]]
             geometry[~todo] = previous.geometry[order[at[~todo]]]
         frames = structure.base.element_frames(cells)
-        _element_geometry(
-            structure.X_base,
-            structure.extra.vectors["X"].array.reshape(-1, 3),
-            nodes,
-            frames,
-            np.flatnonzero(todo),
-            geometry,
-        )
         X = structure.gather(nodes[todo], "X")
-        if len(frames):  # the maps of the displacement in each element's frame
+        if len(frames):  # the maps and shapes in each element's frame
             X = np.einsum("eij,eaj->eai", frames[todo], X)
+        kept = np.empty((len(X), GEOMETRY_WIDTH))
+        _element_geometry(np.ascontiguousarray(X), kept)
+        geometry[todo] = kept
         maps = table.enhanced_parameter_maps(X, plies[todo])
         centre_maps[todo] = maps.mean(axis=1)
         stiffness = np.array(structure.laminate.ply_stiffnesses()).reshape(n_plies, 6, 6)
