@@ -227,13 +227,14 @@ def _ply_kernel(
                 alpha += centre_maps[e, a, i] * u[a, i]
         sampled = 0.0  # the edge-sampled thickness strain on the axis, where the directors bend
         if coordinates:
-            _monomials(X, monomials[0])
-            if bends or (not known and directors_bend(monomials[0])):
-                _monomials(u, monomials[1])
-                s55, s57, s77, s66, s67 = cell_strain_coefficients(
-                    monomials[0], monomials[1], False
-                )
-                sampled = edge_sampled_strain(s55, s57, s77, s66, s67, 0.5, 0.5)
+            if bends or not known:  # (``geometry`` says whether they bend)
+                _monomials(X, monomials[0])
+                if bends or directors_bend(monomials[0]):
+                    _monomials(u, monomials[1])
+                    s55, s57, s77, s66, s67 = cell_strain_coefficients(
+                        monomials[0], monomials[1], False
+                    )
+                    sampled = edge_sampled_strain(s55, s57, s77, s66, s67, 0.5, 0.5)
             _axis_parts(X, parts[0])
         _axis_parts(u, parts[1])
         first, stop = plies[e, 0], plies[e, 1]
