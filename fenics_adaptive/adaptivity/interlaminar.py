@@ -340,13 +340,15 @@ def _recover(structure, rec: Recovery) -> _Profile:
         stresses = ply_stresses(structure)
         weights, components = rec.sums.weights, rec.sums.components
         sums = np.empty((len(stresses), len(components)))
-        _stress_sums(stresses, weights, components, sums)
         forces = rec.sums.force_rows
-        if forces.any():  # D C (D eps): the plies' stresses times their shear scales
-            part = np.empty((len(stresses), int(forces.sum())))
-            conjugate = stresses * ply_shear_scale(structure)
-            _stress_sums(conjugate, weights[forces], components[forces], part)
-            sums[:, forces] = part
+        # the force rows sum D C (D eps): the plies' stresses times their shear scales
+        for rows, of in ((~forces, stresses), (forces, None)):
+            if rows.any():
+                if of is None:
+                    of = stresses * ply_shear_scale(structure)
+                part = np.empty((len(stresses), int(rows.sum())))
+                _stress_sums(of, weights[rows], components[rows], part)
+                sums[:, rows] = part
         hoop = _hoop_peel(geometry.curvatures, stresses, rec)
     n_cells, n_levels = len(sums), len(rec.levels)
     # (contiguous copies: a kernel's argument types stay the same whatever the cell count)
