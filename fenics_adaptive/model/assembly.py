@@ -76,7 +76,11 @@ class SubelementSet:
     boundary_order: np.ndarray = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
-        rule = np.asarray(self.rule_of_element)
+        # one type per kernel argument whatever the caller built: an int64 node table (the
+        # analysis tools', tests') compiled the batched kernel a second time (3 s here)
+        self.nodes = np.ascontiguousarray(self.nodes, dtype=np.int32).reshape(-1, 8)
+        self.rule_of_element = np.ascontiguousarray(self.rule_of_element, dtype=np.int64)
+        rule = self.rule_of_element
         inner = np.arange(len(rule)) if self.interior is None else np.flatnonzero(self.interior)
         outer = np.flatnonzero(~self.interior) if self.interior is not None else inner[:0]
         self.order = np.concatenate(
@@ -111,6 +115,10 @@ class CohesiveSet:
     insert: np.ndarray | None = None
 
     def __post_init__(self) -> None:
+        # one type per kernel argument (see ``SubelementSet``): the layerwise model's pairs
+        # came as int64, the refined cells' as int32, and each compiled the kernel anew
+        self.nodes = np.ascontiguousarray(self.nodes, dtype=np.int32).reshape(-1, 8)
+        self.damage_row = np.ascontiguousarray(self.damage_row, dtype=np.int64)
         if self.history is None:
             self.history = np.zeros((len(self.damage), 4, HISTORY))
         if self.insert is None:
