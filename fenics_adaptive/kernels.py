@@ -39,6 +39,7 @@ KERNEL_MODULES = (
     "fenics_adaptive.element.assumed_strain",
     "fenics_adaptive.element.batched",
     "fenics_adaptive.element.subelement",
+    "fenics_adaptive.element.timestep",
     "fenics_adaptive.materials.cohesive",
     "fenics_adaptive.materials.ply_damage",
     "fenics_adaptive.model.assembly",

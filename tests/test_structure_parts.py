@@ -65,6 +65,36 @@ def test_quad_area_of_known_quadrilaterals():
     assert characteristic_lengths(box(1.0, 2.0, 3.0))[0] == pytest.approx(6.0 / 6.0)
 
 
+def test_volumes_and_lengths_of_distorted_hexahedra_by_two_paths():
+    """The stable step's volumes and lengths (numba) on hexahedra far from boxes equal (a) the
+    analytic volume of a frustum-like cell, a 2 x 1 bottom face under a 1 x 0.5 top face
+    shifted sideways (a pyramid's frustum: h/3 (A + a + sqrt(A a))), and (b) on random
+    distortions, 2x2x2 Gauss on det J built from ``reference_gradients`` and the faces'
+    ``quad_areas``, to round-off."""
+    from fenics_adaptive.element import solid_shell
+    from fenics_adaptive.element.timestep import HEX_FACES, reference_gradients
+
+    h = 0.7
+    bottom = np.array([[0, 0, 0], [2, 0, 0], [0, 1, 0], [2, 1, 0]], dtype=float)
+    top = 0.5 * bottom + np.array([0.3, 0.2, h])  # similar faces: a frustum of a pyramid
+    frustum = np.vstack([bottom, top])[None]
+    A, a = 2.0, 0.5
+    expected = h / 3 * (A + a + np.sqrt(A * a))
+    assert hexahedron_volumes(frustum)[0] == pytest.approx(expected, rel=1e-14)
+    assert characteristic_lengths(frustum)[0] == pytest.approx(expected / A, rel=1e-14)
+
+    rng = np.random.default_rng(11)
+    X = box(1.5, 1.0, 0.4) + rng.uniform(-0.15, 0.15, (50, 8, 3))
+    g = solid_shell.GAUSS_2
+    volumes = np.zeros(len(X))
+    for point in np.stack(np.meshgrid(g, g, g, indexing="ij"), axis=-1).reshape(-1, 3):
+        J = np.einsum("nki,kj->nij", X, reference_gradients(point))
+        volumes += 0.125 * np.abs(np.linalg.det(J))
+    lengths = volumes / quad_areas(X[:, HEX_FACES, :]).max(axis=1)
+    np.testing.assert_allclose(hexahedron_volumes(X), volumes, rtol=1e-13)
+    np.testing.assert_allclose(characteristic_lengths(X), lengths, rtol=1e-13)
+
+
 def test_slab_between_thickness_weights():
     fractions = LAMINATE.ply_fractions  # 0, 1/3, 5/6, 1
     assert thickness_weight(fractions, 1, 0, 3) == pytest.approx(1 / 3)
