@@ -182,6 +182,35 @@ def test_static_three_point_bending_on_rollers_matches_timoshenko(tmp_path):
     assert deflection / nose == pytest.approx(bending + shear, rel=0.03)
 
 
+def test_static_of_a_one_ply_laminate_writes_its_faces_estimate(tmp_path):
+    """A laminate of one ply has no inner interface: its interlaminar estimate is the two
+    faces' (zero where nothing loads them). It once divided by the bubble's trapezoidal mean,
+    zero over a single ply, and the check failed after solving. The small beam with its plies
+    made one 1 mm ply: its reaction as the assembled linear solve gives it."""
+    data = toml(DATA / "small_beam.toml")
+    data["laminate"] = {"material": data["laminate"]["material"], "ply_thickness": 1.0,
+                        "angles": [0.0]}  # fmt: skip
+    data.pop("interfaces", None)
+    data.pop("cohesive", None)
+    out = tmp_path / "one_ply"
+    summary = static(data, out)
+    assert summary["status"] == "completed"
+    config = parse_config(data)
+    structure = build_structure(config)
+    u = solve_static(structure.base, config.motions, structure.loads, config.solver.end_time)
+    f = fem.Function(structure.base.V).x
+    structure.base.internal_force(f)
+    reaction = f.array[face_dofs(structure.base, "x1", "z")].sum()
+    assert summary["final"]["reaction_force_N"] == pytest.approx(reaction, rel=1e-9)
+    assert np.abs(u).max() > 0.0
+    with open(out / INTERLAMINAR_FILE) as file:
+        rows = list(csv.DictReader(file))
+    assert len(rows) == config.mesh.nx * config.mesh.ny * 2  # the bottom and top faces
+    for column in ("sigma_zz_MPa", "tau_xz_MPa", "tau_yz_MPa"):
+        values = np.array([float(r[column]) for r in rows])
+        assert np.all(np.isfinite(values)) and np.abs(values).max() < 1e-9
+
+
 def test_static_refuses_what_has_no_static_equilibrium(tmp_path):
     data = toml(DATA / "three_point_bending.toml")
     free = copy.deepcopy(data)

@@ -544,6 +544,9 @@ def _fit_to_faces(on_faces, shear, peel, shear_integral, own, t, heights, at, es
         above = zr + t[k] / h
         bubble_mean += t[k] * 3.0 * (above * (1.0 - above) + zr * (1.0 - zr)) / h
         zr = above
+    # a single ply: the rule sees the bubble at the faces alone, where it vanishes, and so
+    # does it at every boundary asked for (the faces): nothing to scale
+    per_bubble = 1.0 / (h * bubble_mean) if bubble_mean > 0.0 else 0.0
     face_component = (2, 0, 1)
     for c in range(estimate.shape[0]):
         for m in range(3):
@@ -557,7 +560,7 @@ def _fit_to_faces(on_faces, shear, peel, shear_integral, own, t, heights, at, es
                 at_top, integral = shear[c, top, m - 1], shear_integral[c, m - 1]
             jump = upper - bottom - at_top
             # the linear correction's integral is h (bottom + jump / 2)
-            missing = (own[c, m] - integral - h * (bottom + 0.5 * jump)) / h / bubble_mean
+            missing = (own[c, m] - integral - h * (bottom + 0.5 * jump)) * per_bubble
             for j in range(at.shape[0]):
                 value = peel[c, at[j]] if m == 0 else shear[c, at[j], m - 1]
                 z = heights[j]
