@@ -315,6 +315,20 @@ def indicator_defaults(config: RunConfig, structure: Structure) -> IndicatorDefa
     return IndicatorDefaults(front, interval, lead)
 
 
+def film_fronts(config: RunConfig, structure: Structure) -> list[Request]:
+    """Collective: the strong refinements around the insert films ([[delamination]]) that a
+    run's [indicators] ask for at t = 0 (``front_requests`` with the front distance of
+    ``indicator_defaults``: the band a film's front keeps refined ahead of it), for a model
+    that starts from rest without running its indicators (the static check); empty without
+    indicators or films."""
+    if config.indicators is None or not config.delaminations or config.cohesive is None:
+        return []
+    front = indicator_defaults(config, structure).front
+    if not front.any():
+        return []
+    return front_requests(structure, front)[0]
+
+
 class RefinementHook:
     """The solver's refiner (``ExplicitSolver(refiner=...)``): the config's manual
     [[refinement]] entries and its [indicators]; returns the ``RefinementEvent`` of a

@@ -48,7 +48,7 @@ from fenics_adaptive.runner import model_summary, versions
 from fenics_adaptive.settings.config import RunConfig
 from fenics_adaptive.settings.kinds import Kinematics, ModelKind, RigidMotion
 from fenics_adaptive.settings.materials import P_KN, P_KS
-from fenics_adaptive.simulation import build_structure
+from fenics_adaptive.simulation import build_structure, film_fronts
 from fenics_adaptive.solver import equilibrium
 from fenics_adaptive.solver.history import HistoryRow
 
@@ -167,10 +167,13 @@ def static_config(
 
 def build_static(config: RunConfig, comm: MPI.Comm = MPI.COMM_WORLD):
     """(structure, static problem, what was linearised) of a config: the structure of
-    ``linearised(config)``, its loads and motions at the end time, the config's rigid bodies
-    there. Raises InputError as ``linearised`` does."""
+    ``linearised(config)`` as a run starts it (with the band its indicators refine ahead of
+    the insert films at t = 0, ``simulation.film_fronts``), its loads and motions at the end
+    time, the config's rigid bodies there. Raises InputError as ``linearised`` does."""
     linear, changes = linearised(config)
     structure = build_structure(linear, comm)
+    # the band a run's indicators refine ahead of its films at t = 0, as the run starts
+    structure.refine(film_fronts(linear, structure), 0.0)
     t = config.solver.end_time
     contacts = [_contact_at(body, structure, t) for body in config.rigid_bodies]
     return structure, equilibrium.StaticSystem(structure, t, contacts), changes
