@@ -1216,6 +1216,7 @@ def _condense_enhanced_strain(
                 r = 0.0
                 h = 0.0
                 open_points = 0
+                can_open = False  # a cracked ply on the line: its points may open or close
                 for pp in range(p, end):
                     row = pp - start
                     k = ply_of_point[pp]
@@ -1226,10 +1227,11 @@ def _condense_enhanced_strain(
                     szz = stiffness[k, 2, 0] * exx + stiffness[k, 2, 1] * eyy
                     szz += stiffness[k, 2, 2] * ezz + stiffness[k, 2, 5] * gxy
                     dszz = stiffness[k, 2, 2]
-                    if opening_scale is not None:
+                    if opening_scale is not None and opening_scale[k] > 0.0:
+                        can_open = True
                         s22 = opening[k, 0] * exx + opening[k, 1] * eyy
                         s22 += opening[k, 2] * ezz + opening[k, 5] * gxy
-                        if opening_scale[k] > 0.0 and s22 > 0.0:
+                        if s22 > 0.0:
                             szz -= opening_scale[k] * s22 * opening[k, 2]
                             dszz -= opening_scale[k] * opening[k, 2] * opening[k, 2]
                             open_points += (pp - p + 1) * (pp - p + 1)
@@ -1243,6 +1245,8 @@ def _condense_enhanced_strain(
                 for pp in range(p, end):
                     row = pp - start
                     maps[12, row] += alpha * weights[pp] * enhanced_mode[pp] / maps[0, row]
+                if not can_open:  # linear: that step was exact, a second would only check it
+                    break
         p = end
 
 
@@ -1556,27 +1560,27 @@ def _element_force_damaged(
     # strain energy drops by more than the damage law's increments (the condensed energy is
     # concave in the damage). That drop is dissipation too; book it on the plies that grew,
     # in proportion to their growth, so that the energy balances from the states and from the
-    # work agree.
-    relaxed = _condense_with_damage(
-        start,
-        stop,
-        weights,
-        terms,
-        ply_of_point,
-        position_of_point,
-        stiffness,
-        enhanced_mode,
-        strain_to_stress,
-        degradation,
-        ply_params,
-        state,
-        degraded,
-        dirty,
-        opening_scale,
-        maps,
-        grown > 0.0,
-    )
+    # work agree. Where nothing grew, the strain was condensed with the stiffness it keeps.
     if grown > 0.0:
+        relaxed = _condense_with_damage(
+            start,
+            stop,
+            weights,
+            terms,
+            ply_of_point,
+            position_of_point,
+            stiffness,
+            enhanced_mode,
+            strain_to_stress,
+            degradation,
+            ply_params,
+            state,
+            degraded,
+            dirty,
+            opening_scale,
+            maps,
+            True,
+        )
         for j in range(n_local):
             share = relaxed * (strains[j, 0] / grown) / volumes[j, 0]
             state[j, S_DISSIPATED] += share
