@@ -510,13 +510,16 @@ def _same_folder(a: Path, b: Path) -> bool:
 
 
 def _kept_history(restart, manifest: dict, history_csv: str | None, resume: dict, config):
-    """The history rows before the checkpoint's time: those kept in the checkpoint (or, for
-    the earlier format, those of its run folder). Raises InputError if they stop short of it
-    (the continued history would have a gap)."""
+    """The history rows before the checkpoint's time (and at it, for a state taken after its
+    evaluation: a stop that arrived while a history row waited for it on several ranks): those
+    kept in the checkpoint (or, for the earlier format, those of its run folder). Raises
+    InputError if they stop short of it (the continued history would have a gap)."""
     t = float(manifest["time_s"])
     if history_csv is None:
         rows = output.history_until(checkpoint.locate(restart).parent, t)
-    else:
+    elif bool(resume.get("evaluated", False)):  # its row at t was written: the restart
+        rows = [r for r in output.parse_history(history_csv, str(restart)) if r.time <= t]
+    else:  # a state the restart evaluates (and writes its row at t, if one is due)
         rows = [r for r in output.parse_history(history_csv, str(restart)) if r.time < t]
     interval = config.solver.output_interval
     due = float(resume["next_output"]) - interval * (1.0 + 1e-9) - float(resume["dt"])

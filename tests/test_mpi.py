@@ -568,3 +568,57 @@ def test_a_perforated_plate_on_two_ranks_reproduces_the_serial_run(tmp_path):
     for name, rtol in (("ply_dissipation", 0.1), ("impactor_displacement", 0.05)):
         assert parallel[name][-1] == pytest.approx(serial[name][-1], rel=rtol)
     assert np.ptp(parallel["energy_balance"]) < 1e-3 * max(parallel["impact_work"])
+
+
+STOP_AT_A_ROW = textwrap.dedent(
+    """
+    # the command line, asked to stop (as SIGINT or SIGTERM asks) at the first poll step that
+    # also writes a history row: on several ranks the row waits for the poll's flags
+    import sys
+    import fenics_adaptive.solver.explicit as explicit
+
+    poll = explicit.ExplicitSolver.poll
+
+    def stopping_poll(self):
+        s = self.now
+        if s.step >= 64 and s.t >= s.next_output - 1e-9 * s.dt and not self._stop:
+            self.request_stop()
+        return poll(self)
+
+    explicit.ExplicitSolver.poll = stopping_poll
+    from fenics_adaptive.cli import main
+    sys.exit(main(sys.argv[1:]))
+    """
+)
+
+
+@pytest.mark.mpi
+def test_a_stop_at_a_history_row_on_two_ranks_restarts_to_the_uninterrupted_history(tmp_path):
+    """On several ranks a history row waits for the poll's combined flags; a stop found there
+    is acted on once the state is evaluated. Taken halfway (as it was), the checkpoint held the
+    step's work and the restart counted it again: internal energy and external work one step's
+    work high from the checkpoint on (found by a helper on an adaptive DCB). The restarted
+    history equals the uninterrupted one."""
+    script = tmp_path / "stop_at_a_row.py"
+    script.write_text(STOP_AT_A_ROW)
+    config = DATA / "small_beam.toml"
+
+    def cli(*arguments, run=(sys.executable,)):
+        command = launch([*run, *map(str, arguments), "--quiet"], 2)
+        return subprocess.run(command, capture_output=True, text=True, timeout=TIMEOUT, env=ENV)
+
+    whole = cli("run", config, "--out", tmp_path / "whole", run=(sys.executable, "-m",
+                "fenics_adaptive"))  # fmt: skip
+    assert whole.returncode == 0, whole.stderr
+    stopped = cli(script, "run", config, "--out", tmp_path / "stopped")
+    assert stopped.returncode == 130, stopped.stderr
+    manifest = json.loads((tmp_path / "stopped" / "checkpoint" / "checkpoint.json").read_text())
+    assert manifest["step"] >= 64
+    out = tmp_path / "stopped"
+    resumed = cli("run", config, "--out", out, "--restart", out, run=(sys.executable, "-m",
+                  "fenics_adaptive"))  # fmt: skip
+    assert resumed.returncode == 0, resumed.stderr
+    a, b = read_history(tmp_path / "whole" / "history.csv"), read_history(out / "history.csv")
+    assert a.keys() == b.keys() and len(a["time"]) == len(b["time"])
+    for name in a:
+        np.testing.assert_array_equal(a[name], b[name], err_msg=name)

@@ -281,6 +281,11 @@ class ExplicitSolver:
         self._poll_request = MPI.REQUEST_NULL
         self._poll_open = False
         self._polled_inversion: str | None = None
+        # a stop that a poll settled inside ``_evaluate`` (a history row waits for it on
+        # several ranks) is acted on once t_n is evaluated: a checkpoint taken halfway would
+        # hold the step's work and count it again when a restart evaluates t_n
+        self._evaluating = False
+        self._stop_due = False
         # compute the interior elements while the displacements' halo exchange is under way
         # (False: wait for it first, as on one rank; to measure what the overlap hides)
         self.overlap = True
@@ -571,7 +576,18 @@ class ExplicitSolver:
 
     def _evaluate(self) -> None:
         """Everything at t_n: forces and accelerations, the work of the step just made, a
-        refinement, the outputs due."""
+        refinement, the outputs due; then a stop that a poll settled meanwhile."""
+        self._evaluating = True
+        try:
+            self._evaluate_state()
+        finally:
+            self._evaluating = False
+        if self._stop_due:
+            self._stop_due = False
+            self.checkpoint()
+            raise Interrupted(self.now.t, self.now.step)
+
+    def _evaluate_state(self) -> None:
         s = self.now
         self.forces_and_accelerations()
         if s.step > 0:
@@ -835,7 +851,9 @@ class ExplicitSolver:
         if not_finite:
             self.guards.not_finite()
         self.guards.inverted(inverted, inverted_anywhere)
-        if stop:
+        if stop and self._evaluating:  # at the end of the evaluation (``_evaluate``)
+            self._stop_due = True
+        elif stop:
             self.checkpoint()
             raise Interrupted(self.now.t, self.now.step)
 
