@@ -113,6 +113,11 @@ class ShellMesh(BeamMesh):
         return cell_frames(X, self.direction(X.mean(axis=1), cell_normals(X)))
 
 
+# the least mean cosine between the normals of a connected piece of surface and the side
+# ``orient`` is asked to turn them to: below it the direction says no side
+SIDE_TOLERANCE = 1.0e-3
+
+
 def orient(surface: SurfaceMesh, outward: Callable[[np.ndarray], np.ndarray] | None = None):
     """``surface`` with its quadrilaterals turned to one side (module docstring); ``outward``:
     a direction at points (n, 3) -> (n, 3) that each connected piece's normals follow on
@@ -166,8 +171,22 @@ def orient(surface: SurfaceMesh, outward: Callable[[np.ndarray], np.ndarray] | N
     oriented = SurfaceMesh(surface.nodes, quads, surface.edges, surface.axis, surface.normals)
     if outward is not None:
         normals = oriented.quad_normals()
-        along = np.einsum("qi,qi->q", normals, outward(surface.nodes[quads].mean(axis=1)))
-        turn = np.bincount(piece, weights=along, minlength=n_pieces) < 0.0
+        toward_side = outward(surface.nodes[quads].mean(axis=1))
+        toward_side = toward_side / np.linalg.norm(toward_side, axis=1, keepdims=True)
+        along = np.einsum("qi,qi->q", normals, toward_side)
+        mean = np.bincount(piece, weights=along, minlength=n_pieces) / np.bincount(
+            piece, minlength=n_pieces
+        )
+        if np.any(np.abs(mean) < SIDE_TOLERANCE):  # it says no side: refuse, not guess
+            at = int(np.flatnonzero(np.abs(mean) < SIDE_TOLERANCE)[0])
+            first = int(np.flatnonzero(piece == at)[0])
+            raise ValueError(
+                f"mesh.normal: the direction given is perpendicular to the surface (its "
+                f"cosine with the normals averages {mean[at]:.1e} over the piece of "
+                f"quadrilateral {first}): it does not say which side the normals point to; "
+                "give a vector along the normals you want"
+            )
+        turn = mean < 0.0
         quads[turn[piece]] = quads[turn[piece]][:, ::-1]
     return SurfaceMesh(surface.nodes, quads, surface.edges, surface.axis, surface.normals)
 

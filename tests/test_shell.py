@@ -86,6 +86,10 @@ def test_orientation_follows_neighbours_and_refuses_what_it_cannot_orient():
     strip.quads[1] = strip.quads[1][::-1]  # one quadrilateral turned over
     oriented = shell.orient(strip, lambda p: np.broadcast_to([0.0, 0.0, -1.0], p.shape))
     np.testing.assert_allclose(oriented.quad_normals(), [[0, 0, -1]] * 3, atol=1e-14)
+    # a side perpendicular to the surface says no side: refused, not guessed (it was taken
+    # from the sign of a sum of round-off)
+    with pytest.raises(ValueError, match=r"mesh\.normal: the direction given is perpendicular"):
+        shell.orient(strip, lambda p: np.broadcast_to([1.0, 0.0, 0.0], p.shape))
     # a Moebius band: a strip of four quadrilaterals whose ends join with a half twist
     nodes = [[x, 0.0, z] for x in range(5) for z in (0.0, 1.0)]
     quads = [[2 * i, 2 * i + 2, 2 * i + 3, 2 * i + 1] for i in range(4)]

@@ -491,7 +491,7 @@ SECTIONS: tuple[Section, ...] = (
                 "normal",
                 "floats",
                 "file: the side the shell's normals point to (on average over each connected "
-                "piece; default: the first quadrilateral's)",
+                "piece, refused where perpendicular to it; default: the first quadrilateral's)",
                 default=OPTIONAL,
                 length=3,
             ),
