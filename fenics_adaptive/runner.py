@@ -296,7 +296,13 @@ def _refinement_log(
     if restart is not None:
         rows = []  # rank 0 reads the log, the others only need to know whether it was there
         if comm.rank == 0:
-            rows = read_log(checkpoint.locate(restart).parent / LOG_FILE, float(resume["t"]))
+            # a state taken before its evaluation refines at t again when the restart
+            # evaluates it: the rows at t (a killed run wrote them after it) are not kept
+            rows = read_log(
+                checkpoint.locate(restart).parent / LOG_FILE,
+                float(resume["t"]),
+                inclusive=bool(resume.get("evaluated", False)),
+            )
         # without it, the replayed refinements are logged without their reasons
         kept = rows if comm.bcast(rows is not None, root=0) else None
     with shared_errors(structure.comm):  # rank 0 opens the file

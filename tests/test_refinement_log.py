@@ -75,3 +75,21 @@ def test_the_initial_refinement_is_logged_at_time_zero(tmp_path):
         assert sorted(r["cell"] for r in rows if r["interface"] == interface) == sorted(
             [str(c) for c in range(n_cells)] * len(states)
         )
+
+
+def test_a_restart_keeps_the_log_rows_its_state_holds(tmp_path):
+    """A checkpoint taken before its step's evaluation (periodic, or a stop acted on at a
+    poll) refines at its time t again when the restart evaluates it: the log rows at t, which
+    a run killed after the checkpoint wrote, are not kept (they were, and the refinement at t
+    was logged twice); a state taken after its evaluation keeps them."""
+    from fenics_adaptive.io.refinement_log import COLUMNS
+    from fenics_adaptive.io.refinement_log import read_log as kept_rows
+
+    path = tmp_path / "refinement_log.csv"
+    with open(path, "w", newline="") as file:
+        writer = csv.writer(file)
+        writer.writerow(COLUMNS)
+        for t in (1e-6, 2e-6, 3e-6):
+            writer.writerow([t, 0, 0.5, 0.5, 2, "strong", "manual", "nan"])
+    assert [r[0] for r in kept_rows(path, 2e-6)] == [1e-6, 2e-6]
+    assert [r[0] for r in kept_rows(path, 2e-6, inclusive=False)] == [1e-6]

@@ -76,7 +76,7 @@ def _hexahedron_volumes(X, out):
         out[e] = _volume(X, e)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")  # a collapsed cell: NaN (the guards' to report)
 def _characteristic_lengths(X, out):
     """out[e] = volume / largest face area of hexahedron e (faces ``HEX_FACES``, each area
     half the norm of its diagonals' cross product, as ``geometry.quad_areas``)."""

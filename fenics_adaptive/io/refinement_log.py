@@ -65,9 +65,9 @@ def state_rows(structure, indicator: str, until: float = math.inf) -> list[tuple
     return rows
 
 
-def read_log(path: Path, until: float) -> list[tuple] | None:
-    """The rows of the log at ``path`` with time <= ``until`` (s), or None when it does not
-    exist."""
+def read_log(path: Path, until: float, inclusive: bool = True) -> list[tuple] | None:
+    """The rows of the log at ``path`` with time <= ``until`` (s; < without ``inclusive``),
+    or None when it does not exist."""
     if not path.is_file():
         return None
     with open(path, newline="") as file:
@@ -77,7 +77,7 @@ def read_log(path: Path, until: float) -> list[tuple] | None:
             return None
         rows = []
         for t, c, x, y, i, state, indicator, value in reader:
-            if float(t) <= until:
+            if float(t) < until or (inclusive and float(t) == until):
                 rows.append((float(t), int(c), float(x), float(y), int(i), state, indicator,
                              float(value)))  # fmt: skip
     return rows

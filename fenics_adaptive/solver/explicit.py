@@ -580,12 +580,16 @@ class ExplicitSolver:
         self._evaluating = True
         try:
             self._evaluate_state()
+        except BaseException:
+            self._stop_due = False  # what failed is reported, not a stop
+            raise
         finally:
             self._evaluating = False
         if self._stop_due:
             self._stop_due = False
-            self.checkpoint()
-            raise Interrupted(self.now.t, self.now.step)
+            if not self.finished:  # at the end time the run is complete: nothing to stop
+                self.checkpoint()
+                raise Interrupted(self.now.t, self.now.step)
 
     def _evaluate_state(self) -> None:
         s = self.now
