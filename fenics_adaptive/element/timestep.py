@@ -13,6 +13,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from fenics_adaptive.element.subelement import _fill_line, _inverse3, _line_matrix, _monomials
+
 # Local vertex lists of the six faces of a reference hexahedron (DOLFINx numbering), each face
 # in tensor order (``geometry.quad_areas``).
 HEX_FACES = np.array(
@@ -35,51 +37,36 @@ def hexahedron_volumes(X: np.ndarray) -> np.ndarray:
 
 
 # (a stable-step check runs over every cell and subelement at each refinement, and over the
-# deformed cells at every history row under finite kinematics: numpy took 2.8 us a cell)
+# deformed cells at every history row under finite kinematics: numpy took 2.8 us a cell).
+# The Jacobian is the element kernels' own (``subelement``: monomials, vertical lines).
 @njit(cache=True, inline="always")
-def _volume(X, e):
+def _volume(X, e, bx, line):
     """|det J| summed over the 2x2x2 Gauss points on [0, 1]^3 of hexahedron e (each weight
-    1/8); vertex k at (k & 1, (k >> 1) & 1, (k >> 2) & 1)."""
+    1/8); scratch ``bx`` (8, 3), ``line`` (4, 3, 3)."""
     g = (0.5 - 0.5 / np.sqrt(3.0), 0.5 + 0.5 / np.sqrt(3.0))
+    _monomials(X[e], bx)
     volume = 0.0
-    for p in range(8):
-        s, t, r = g[p & 1], g[(p >> 1) & 1], g[(p >> 2) & 1]
-        j00 = j01 = j02 = j10 = j11 = j12 = j20 = j21 = j22 = 0.0  # dx_i / dX_j
-        for k in range(8):
-            # trilinear factors: a corner coordinate 1 takes the point's, 0 its complement
-            fs, ds = (s, 1.0) if k & 1 else (1.0 - s, -1.0)
-            ft, dt = (t, 1.0) if (k >> 1) & 1 else (1.0 - t, -1.0)
-            fr, dr = (r, 1.0) if (k >> 2) & 1 else (1.0 - r, -1.0)
-            d0, d1, d2 = ds * ft * fr, fs * dt * fr, fs * ft * dr
-            x, y, z = X[e, k, 0], X[e, k, 1], X[e, k, 2]
-            j00 += x * d0
-            j01 += x * d1
-            j02 += x * d2
-            j10 += y * d0
-            j11 += y * d1
-            j12 += y * d2
-            j20 += z * d0
-            j21 += z * d1
-            j22 += z * d2
-        det = (
-            j00 * (j11 * j22 - j12 * j21)
-            - j01 * (j10 * j22 - j12 * j20)
-            + j02 * (j10 * j21 - j11 * j20)
-        )
-        volume += 0.125 * abs(det)
+    for xi in g:
+        for eta in g:
+            _fill_line(bx, bx, xi, eta, line)  # (the displacement rows unread)
+            for z in g:
+                det, _ = _inverse3(_line_matrix(line, 0, z))
+                volume += 0.125 * abs(det)
     return volume
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _hexahedron_volumes(X, out):
+    bx, line = np.empty((8, 3)), np.empty((4, 3, 3))
     for e in range(X.shape[0]):
-        out[e] = _volume(X, e)
+        out[e] = _volume(X, e, bx, line)
 
 
 @njit(cache=True, error_model="numpy")  # a collapsed cell: NaN (the guards' to report)
 def _characteristic_lengths(X, out):
     """out[e] = volume / largest face area of hexahedron e (faces ``HEX_FACES``, each area
     half the norm of its diagonals' cross product, as ``geometry.quad_areas``)."""
+    bx, line = np.empty((8, 3)), np.empty((4, 3, 3))
     for e in range(X.shape[0]):
         largest = 0.0
         for f in range(6):
@@ -90,7 +77,7 @@ def _characteristic_lengths(X, out):
             cy = d1[2] * d2[0] - d1[0] * d2[2]
             cz = d1[0] * d2[1] - d1[1] * d2[0]
             largest = max(largest, 0.5 * np.sqrt(cx * cx + cy * cy + cz * cz))
-        out[e] = _volume(X, e) / largest
+        out[e] = _volume(X, e, bx, line) / largest
 
 
 def reference_gradients(point: np.ndarray) -> np.ndarray:
