@@ -521,12 +521,13 @@ def _kept_history(restart, manifest: dict, history_csv: str | None, resume: dict
     kept in the checkpoint (or, for the earlier format, those of its run folder). Raises
     InputError if they stop short of it (the continued history would have a gap)."""
     t = float(manifest["time_s"])
+    # an evaluated state's row at t was written; one the restart evaluates writes it again
+    evaluated = bool(resume.get("evaluated", False))
     if history_csv is None:
         rows = output.history_until(checkpoint.locate(restart).parent, t)
-    elif bool(resume.get("evaluated", False)):  # its row at t was written: the restart
-        rows = [r for r in output.parse_history(history_csv, str(restart)) if r.time <= t]
-    else:  # a state the restart evaluates (and writes its row at t, if one is due)
-        rows = [r for r in output.parse_history(history_csv, str(restart)) if r.time < t]
+    else:
+        rows = output.parse_history(history_csv, str(restart))
+        rows = [r for r in rows if r.time < t or (evaluated and r.time == t)]
     interval = config.solver.output_interval
     due = float(resume["next_output"]) - interval * (1.0 + 1e-9) - float(resume["dt"])
     if t > 0.0 and (not rows or rows[-1].time < due):

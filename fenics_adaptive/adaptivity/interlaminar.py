@@ -341,14 +341,15 @@ def _recover(structure, rec: Recovery) -> _Profile:
         weights, components = rec.sums.weights, rec.sums.components
         sums = np.empty((len(stresses), len(components)))
         forces = rec.sums.force_rows
-        # the force rows sum D C (D eps): the plies' stresses times their shear scales
-        for rows, of in ((~forces, stresses), (forces, None)):
-            if rows.any():
-                if of is None:
-                    of = stresses * ply_shear_scale(structure)
-                part = np.empty((len(stresses), int(rows.sum())))
-                _stress_sums(of, weights[rows], components[rows], part)
-                sums[:, rows] = part
+
+        def sum_rows(rows: np.ndarray, of: np.ndarray) -> None:
+            part = np.empty((len(of), int(rows.sum())))
+            _stress_sums(of, weights[rows], components[rows], part)
+            sums[:, rows] = part
+
+        sum_rows(~forces, stresses)
+        if forces.any():  # D C (D eps): the plies' stresses times their shear scales
+            sum_rows(forces, stresses * ply_shear_scale(structure))
         hoop = _hoop_peel(geometry.curvatures, stresses, rec)
     n_cells, n_levels = len(sums), len(rec.levels)
     # (contiguous copies: a kernel's argument types stay the same whatever the cell count)
