@@ -18,6 +18,7 @@ from mpi4py import MPI
 
 import fenics_adaptive
 from fenics_adaptive import kernels, watchdog
+from fenics_adaptive.adaptivity.equilibration import Equilibrated
 from fenics_adaptive.adaptivity.events import RefinementEvent
 from fenics_adaptive.element.rules import integration_warnings
 from fenics_adaptive.errors import InputError, shared_errors
@@ -361,8 +362,18 @@ class RefinementReport(Observer):
         self.say(
             f"t = {event.time:.4e} s: refined; now {comm.allreduce(structure.extra.n_owned)} "
             f"extra nodes, {comm.allreduce(len(structure.cohesive))} cohesive elements; time "
-            f"step {dt:.4e} s (limited by {where})"
+            f"step {dt:.4e} s (limited by {where}){_balanced(event.equilibrated)}"
         )
+
+
+def _balanced(equilibrated: Equilibrated | None) -> str:
+    """What a refinement's equilibration did, for its line in the log ("" if nothing)."""
+    if equilibrated is None:
+        return ""
+    return (
+        f"; {equilibrated.dofs} DOFs balanced in {equilibrated.steps} step(s), largest "
+        f"out-of-balance force {equilibrated.imbalance:.3g} -> {equilibrated.remaining:.2g} N"
+    )
 
 
 class BalanceReport(Observer):

@@ -21,11 +21,12 @@ DATA = Path(__file__).parent / "data"
 DEMOS = Path(__file__).parent.parent / "demos"
 
 
-def mixed_structure(enhanced_strain: bool = True):
+def mixed_structure(enhanced_strain: bool = True, equilibrate: bool = True):
     """An 8 x 2 cell cross-ply strip refined in a pattern with every kind of border: weak at 4
     in the left half, strong at 2 in the left quarter, weak at 2 in the next two cells, an
-    isolated cell weak at 6."""
+    isolated cell weak at 6. ``equilibrate``: later refinements balance the DOFs they free."""
     data = tomllib.loads((DATA / "tcb_adaptive.toml").read_text())
+    data["stabilisation"] = {"equilibrate": equilibrate}
     data["mesh"].update(nx=8, ny=2, length=4.0, width=1.0)
     data["laminate"]["angles"] = [0, 90, 45, -45, -45, 45, 90, 0]
     data["interfaces"] = {"refine": [4], "delaminate": [2, 6]}
@@ -132,11 +133,12 @@ def test_transferred_forces_are_the_gradient_of_the_constrained_energy():
 @pytest.mark.parametrize("enhanced_strain", [False, True])
 def test_freeing_a_border_node_changes_no_energy(enhanced_strain):
     """The neighbours of a refined region refine: their border nodes become free where they
-    already were; at rest nothing is booked as refinement energy and the strain energy stays.
-    With the enhanced thickness strain the refined cells' subelements condense their own
-    parameters (one set per subelement where the cell had one), so the energy changes a
-    little at the same nodal displacements, and the change is booked."""
-    structure = mixed_structure(enhanced_strain)
+    already were; at rest nothing is booked as refinement energy and the strain energy stays
+    (placed, not equilibrated). With the enhanced thickness strain the refined cells'
+    subelements condense their own parameters (one set per subelement where the cell had one),
+    so the energy changes a little at the same nodal displacements, and the change is
+    booked."""
+    structure = mixed_structure(enhanced_strain, equilibrate=False)
     deform(structure, seed=4)
     structure.internal_force()
     before = sum(structure.internal_forces.energies())
@@ -154,6 +156,26 @@ def test_freeing_a_border_node_changes_no_energy(enhanced_strain):
     else:
         assert 0.0 < abs(after - before) < 2e-3 * before
         assert booked == pytest.approx(after - before, rel=1e-9, abs=1e-15 * before)
+
+
+def test_balancing_freed_border_nodes_lowers_the_energy_by_what_is_booked():
+    """The same freeing with the equilibration on: the three freed nodes move to balance (the
+    rest held), which lowers the strain energy (it is least there), and the refinement books
+    exactly that change."""
+    structure = mixed_structure(False)
+    deform(structure, seed=4)
+    structure.internal_force()
+    before = sum(structure.internal_forces.energies())
+    x = structure.X_base[structure.bottom_local].mean(axis=1)[:, 0]
+    ring = np.flatnonzero((x > 2.0) & (x < 2.5))
+    structure.refine([(int(c), 4, InterfaceState.WEAK) for c in ring])
+    report = structure.last_equilibrated
+    assert report.dofs == 9 and report.steps == 1
+    assert report.remaining < 1e-9 * report.imbalance
+    structure.internal_force()
+    after = sum(structure.internal_forces.energies())
+    assert after < before
+    assert structure.refinement_energy == pytest.approx(after - before, rel=1e-9)
 
 
 def test_strong_front_keeps_the_crack_closed():

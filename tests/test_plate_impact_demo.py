@@ -55,8 +55,11 @@ def test_adaptive_follows_the_layerwise_contact_force(runs):
     # measured +1.7 % (+0.2 % with ties that never let go, +2.4 % with ties as stiff as their
     # cohesive elements where they let go); +2.3 % once the kernels' sums were reordered (the
     # edge-sampled thickness strain of curved cells; this plate is flat: its layerwise peak
-    # moved by 3e-15), the refinement's on-off decisions turning round-off into 0.6 %
-    assert peak["adaptive"] == pytest.approx(peak["layerwise"], rel=0.025)
+    # moved by 3e-15), the refinement's on-off decisions turning round-off into 0.6 %; +3.0 %
+    # with the refinements' equilibration (12.5 % of the cells refined against 16 %, 0.45 mJ
+    # dissipated against 0.67, the layerwise 0.18: less ringing, fewer fronts started; +1.9 %
+    # with a static target instead of the kept accelerations)
+    assert peak["adaptive"] == pytest.approx(peak["layerwise"], rel=0.035)
     # measured +2.7 % (+7 % without the shear correction, whose ESL was also too stiff in shear)
     assert peak["esl"] > 1.015 * peak["layerwise"]
     for summary, _ in runs.values():

@@ -161,8 +161,13 @@ def test_refinement_mid_run_conserves_mass_and_momentum():
     # (4e-3 of the kinetic energy, 1e-4 from the enhanced strain alone; whose force
     # change shifts the solver's full-step measure of the kinetic energy a little: the
     # solver books that too, and the balance stays closed, ``energy_drift`` below)
+    # (the solver books the kinetic part as its full-step measure sees it, which the force
+    # change of the refinement and of the equilibration of the freed DOFs shifts: measured
+    # 1.4e-8 mJ, 6e-7 of the kinetic energy, from the half-step estimate k1 - k0)
     potential = structure.last_refinement_potential
-    assert history[-1].refinement_energy == pytest.approx(k1 - k0 + potential, rel=1e-2)
+    assert history[-1].refinement_energy == pytest.approx(
+        k1 - k0 + potential, abs=1e-5 * history[0].kinetic_energy
+    )
     assert energy_drift(history) < 1e-12
     assert abs(k1 - k0) < 1e-3 * history[0].kinetic_energy
     assert 0.0 < potential < 1e-2 * history[0].kinetic_energy  # refining stiffens the shear

@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from fenics_adaptive.adaptivity.equilibration import Equilibrated
 from fenics_adaptive.settings.kinds import InterfaceState
 
 
@@ -36,6 +37,8 @@ class RefinementEvent:
         as internal work, so that the dissipated energy does not jump).
     weak_reasons, strong_reasons: why each row of ``new_weak`` / ``new_strong`` refined: a
         ``Reason`` (the indicator that asked and its value).
+    equilibrated: what the equilibration of the DOFs it freed did (``Equilibrated``: the same
+        on every rank), None if it freed none or the stabilisation settings turn it off.
     """
 
     time: float
@@ -47,6 +50,7 @@ class RefinementEvent:
     potential_change: float = 0.0
     weak_reasons: tuple[Reason, ...] = ()
     strong_reasons: tuple[Reason, ...] = ()
+    equilibrated: Equilibrated | None = None
 
 
 @dataclass(frozen=True)
@@ -123,4 +127,5 @@ def refine(structure, requests, t: float = 0.0, reasons: Reasons | None = None):
         # a strong request on an unrefined interface makes it weak on the way
         weak_reasons=_reasons_of(weak, (InterfaceState.WEAK, InterfaceState.STRONG), reasons or {}),
         strong_reasons=_reasons_of(strong, (InterfaceState.STRONG,), reasons or {}),
+        equilibrated=structure.last_equilibrated,
     )

@@ -41,12 +41,14 @@ history-dependent arrays for a checkpoint. The stable step is computed in
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+import contextlib
+from collections.abc import Callable, Iterable, Iterator
 
 import numpy as np
 from dolfinx import fem
 
 from fenics_adaptive.adaptivity import enrichment as enr
+from fenics_adaptive.adaptivity.equilibration import Equilibrated, equilibrate, free_extra_dofs
 from fenics_adaptive.adaptivity.refinement import RefinementState
 from fenics_adaptive.adaptivity.stabilisation import (
     DampingWindow,
@@ -189,6 +191,13 @@ class Structure:
         # the selectively scaled mass of the base nodes, if a run asks for it (set by the
         # solver: ``model.mass_scaling.selective_mass``); None: the lumped masses alone
         self.scaled_mass: SelectiveMass | None = None
+        # what the last refinement's equilibration did (``adaptivity.equilibration``), None:
+        # nothing
+        self.last_equilibrated: Equilibrated | None = None
+        # the base and extra blocks' accelerations (owned DOFs, mm/s^2) of the state being
+        # refined, from the solver that runs the structure (``ExplicitSolver`` sets it); None:
+        # at rest
+        self.accelerations: Callable[[], tuple[np.ndarray, np.ndarray] | None] = lambda: None
         # (node arrays' generation, cohesive pairs' stable step and where): ``cohesive_step``
         self._cohesive_step: tuple[int, tuple[float, str]] | None = None
         # (node arrays' generation, the lower nodes' interface areas): ``interface_areas``
@@ -247,6 +256,20 @@ class Structure:
         """Collective: f_int at time t (s) of the structure's internal-force contributors
         (``internal_forces``) into both blocks' ``f`` (owned entries complete)."""
         self.lumped.add_internal_forces(t, self.internal_forces.contributors)
+
+    @contextlib.contextmanager
+    def probing(self) -> Iterator[None]:
+        """Inside the block ``internal_force`` probes: the internal-force contributors' states
+        (ply and cohesive damage) are put back as they were when it ends, so that a trial
+        state damages nothing."""
+        contributors = self.internal_forces.contributors
+        saved = [{k: np.copy(v) for k, v in c.state().items()} for c in contributors]
+        try:
+            yield
+        finally:
+            for contributor, state in zip(contributors, saved, strict=True):
+                if state:
+                    contributor.restore(state)
 
     def follow_border(self, velocity: bool = False) -> None:
         """Put the constrained extra DOFs (owned and ghosts) where their masters are (after
@@ -383,7 +406,7 @@ class Structure:
             return {k.removeprefix(prefix): v for k, v in state.items() if k.startswith(prefix)}
 
         def replay(requests: list[tuple[int, int, int]], t: float) -> None:
-            self.refine(requests, t)
+            self.refine(requests, t, replaying=True)
             self.stabilisation_state.discard_requests()
 
         self.refinement.restore(part("refinement_"), replay)
@@ -466,11 +489,15 @@ class Structure:
         doc="Potential-energy part (mJ) of the last refinement's change.",
     )
 
-    def refine(self, requests: Iterable[tuple[int, int, int]], t: float = 0.0) -> bool:
+    def refine(
+        self, requests: Iterable[tuple[int, int, int]], t: float = 0.0, replaying: bool = False
+    ) -> bool:
         """Collective: refine owned cells at time t. ``requests``: (local cell, interface, WEAK
-        or STRONG); a strong request on an unrefined interface makes it weak first. Returns
-        whether anything changed on any rank. Raises InputError for interfaces not allowed to
-        refine."""
+        or STRONG); a strong request on an unrefined interface makes it weak first. The DOFs
+        it frees are put in equilibrium (``adaptivity.equilibration``) if the stabilisation
+        settings ask for it, unless ``replaying`` (a restart's replay: the stored state is put
+        back instead); ``last_equilibrated`` says what that did. Returns whether anything
+        changed on any rank. Raises InputError for interfaces not allowed to refine."""
         requests = list(requests)
         target = self.refinement.plan(requests, self.comm)
         old_state = self.interface_state.copy()
@@ -480,6 +507,7 @@ class Structure:
         if self.scaled_mass is not None:
             raise adaptive_refused()
         self.refinement.record(t, requests)
+        free_before = free_extra_dofs(self)[0]
         self.stabilisation_state.request(
             changed[
                 (
@@ -541,6 +569,10 @@ class Structure:
             self.extra.index_map,
         )
         self._request_ties(self.border.free_b - free_b)
+        balances = self.stabilisation.equilibrate and not replaying
+        self.last_equilibrated = (
+            equilibrate(self, free_before, changed, t, self.accelerations()) if balances else None
+        )
         # New and freed nodes sit where the cells' fields put them, so the strain energy hardly
         # changes; the lumped masses move, which changes the kinetic energy: book both
         kinetic, potential = self._mechanical_energy()
@@ -638,6 +670,7 @@ class Structure:
         prescribed = extra_node_prescriptions(
             self.motions, self.base, self.extra, self.columns.top_of, self.refinement.n_interfaces
         )
+        self.extra_prescribed = prescribed
         border = self.border
         if self.extra.index_map.size_global:  # the same on every rank: column_counts is collective
             counts = column_counts(

@@ -62,6 +62,9 @@ class Stabilisation:
     damping: float = 0.0
     damping_window: float = 0.0
     release_window: float = 0.0
+    # the DOFs a refinement frees start in equilibrium with what held them
+    # (``adaptivity.equilibration``); off: where the split element's field puts them
+    equilibrate: bool = True
 
     @property
     def damps(self) -> bool:

@@ -1515,7 +1515,7 @@ def _stabilisation(root: _Root, kind: ModelKind) -> Stabilisation:
             "stabilisation.damping_window",
             "damping after weak refinement needs both damping (1/s) and damping_window (s)",
         )
-    return Stabilisation(damping, window, release)
+    return Stabilisation(damping, window, release, table.boolean("equilibrate"))
 
 
 def _interface_stress(given: float | None, interfaces: Interfaces) -> float | None:

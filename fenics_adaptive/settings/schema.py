@@ -1281,6 +1281,13 @@ SECTIONS: tuple[Section, ...] = (
                 0.0,
                 MAX_TIME,
             ),
+            Key(
+                "equilibrate",
+                "bool",
+                "the DOFs a refinement frees start in equilibrium with the nodes around them held "
+                "(a linear solve per refinement; false: where the split element's field puts them)",
+                default=True,
+            ),
         ),
     ),
 )

@@ -258,6 +258,10 @@ class ExplicitSolver:
         self.structure = structure
         self.settings = settings
         self.comm = structure.comm
+        # a refinement's equilibration keeps the accelerations of the DOFs it moves
+        structure.accelerations = lambda: (
+            (self.blocks[0].acc, self.blocks[1].acc) if self.blocks else None
+        )
         # the structure's contributors and the run's own (checkpointed with the solver)
         self.forces = RunForces(structure, contributors)
         self.observers: list[Observer] = list(observers)

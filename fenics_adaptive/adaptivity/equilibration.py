@@ -1,0 +1,399 @@
+"""Equilibration: a refinement's new degrees of freedom put where the refined cells are in
+equilibrium with what held them before.
+
+Units: N, mm, s, tonne.
+
+Why. A refinement places its new extra nodes on the straight line of the element they split
+(``Structure._activate_weak``): the ESL field, linear through the sublaminate. That field is
+not in equilibrium ply by ply. The ESL element spreads its transverse shear evenly through the
+thickness (with the laminate's shear correction); the subelements of plies of different
+stiffness need a zig-zag to carry one shear flow, and a strong interface's new cohesive
+element carries nothing until its faces have moved apart by traction / penalty. Left where
+they are placed, the new nodes carry out-of-balance forces up to 2.5 x the load on a bent
+cantilever (``[0/90/90/0]``, tip pushed 2.5 mm), which the explicit solver turns into kinetic
+energy within a few steps; the ringing reaches the interfaces' strengths, and the beam that the
+layerwise model bends intact delaminated end to end.
+
+What. The moving DOFs F are the free extra DOFs (neither on the border of a refined region nor
+prescribed) of the refined cells and every DOF the refinement freed elsewhere (a border node
+the region has grown over, a set-B node whose interface is now strong all around). With every
+other DOF held, base nodes included (they carry the structure's own motion, and contacts), F
+solves the linearised dynamic balance
+
+    K_FF du_F = f_load,F - f_int,F(u) - m_F a_F
+
+once or a few times (``ITERATIONS``): a the acceleration each DOF had before the refinement
+(one that was free keeps its own; a new one takes its column's, the base nodes below and
+above interpolated at its interface, as its motion is placed), so that the refinement changes
+no acceleration, m the mass the solver divides by. K_FF is the tangent of the elements around
+F: the solid (sub)elements' (the small-strain kernel probed with unit displacements, or
+central differences of the finite-strain one about u) and the cohesive elements' (central
+differences of the law about the current opening, ``cohesive.cohesive_tangents``), with the
+border DOFs that follow a moving master carried along (T^T K T). Velocities stay as placed
+(they keep the momentum). The strain energy this releases is the refinement's potential
+change, booked with it (``RefinementState.book``).
+
+The system is gathered to rank 0 and solved there by LU (a refinement moves a few thousand
+DOFs at a time): the same matrix, summed in one order, whatever the partition, so that runs
+on any number of ranks agree. The probing evaluations of the internal force leave the
+damage as it was (``Structure.probing``): the damage belongs to the balanced state the solver
+evaluates next.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+from dolfinx import la
+from mpi4py import MPI
+from petsc4py import PETSc
+
+from fenics_adaptive.adaptivity import enrichment as enr
+from fenics_adaptive.element.subelement import solid_shell_forces
+from fenics_adaptive.materials.cohesive import cohesive_tangents
+from fenics_adaptive.model.mass_scaling import element_stiffness
+from fenics_adaptive.settings.materials import P_KN, P_KS, P_N, P_S
+
+if TYPE_CHECKING:
+    from fenics_adaptive.model.structure import Structure
+
+# Newton steps at most (the tangent of the first kept: small strain, undamaged plies, is
+# exact for most refinements, and a second step mops up the finite-strain or damaged rest)
+ITERATIONS = 3
+# stop once the largest out-of-balance force is this share of the first one
+TOLERANCE = 1e-6
+# central-difference step of the cohesive tangent, a share of the law's smaller onset opening
+COHESIVE_PROBE = 1e-4
+# central-difference step of the finite-strain solid tangent, a share of the element's size
+SOLID_PROBE = 1e-7
+# elements whose tangents are formed at once (24 x 24 each)
+CHUNK = 2048
+
+
+@dataclass(frozen=True)
+class Equilibrated:
+    """What one equilibration did: ``dofs`` the DOFs it moved (all ranks), ``imbalance`` and
+    ``remaining`` the largest out-of-balance force on them (N) before and after, ``steps`` the
+    Newton steps taken, ``moved`` the largest correction of a displacement (mm)."""
+
+    dofs: int
+    imbalance: float
+    remaining: float
+    steps: int
+    moved: float
+
+
+def free_extra_dofs(structure: Structure) -> tuple[np.ndarray, np.ndarray]:
+    """This rank's free extra DOFs, owned and ghosts (neither on the border of a refined region
+    nor prescribed): (codes 3 key + component, the same on every rank and before and after a
+    refinement; flat local DOF indices of the extra block)."""
+    extra = structure.extra
+    keys = np.array(extra.owned_keys + extra.ghost_keys, dtype=np.int64)
+    free = np.ones(3 * len(keys), dtype=bool)
+    free[structure.border.dofs - 3 * structure.n_base] = False
+    free[structure.extra_prescribed >= 0] = False
+    codes = (3 * keys[:, None] + np.arange(3)).ravel()
+    dofs = np.flatnonzero(free)
+    return codes[dofs], dofs
+
+
+def equilibrate(
+    structure: Structure,
+    free_before: np.ndarray,
+    cells: np.ndarray,
+    t: float,
+    accelerations: tuple[np.ndarray, np.ndarray] | None = None,
+) -> Equilibrated | None:
+    """Collective: put in dynamic equilibrium at time t (s) the free extra DOFs of the
+    refined ``cells`` (owned, local) and every DOF freed since ``free_before`` (codes, as
+    ``free_extra_dofs`` gave them before the refinement), every other DOF held (module
+    docstring). ``accelerations``: the base and extra blocks' (owned DOFs, mm/s^2) as the
+    solver had them at t before the refinement (None: at rest); a DOF that was free keeps
+    its own, a freed one gets its column's. Returns what it did, None where no rank moves
+    any DOF."""
+    comm = structure.comm
+    codes, free = free_extra_dofs(structure)
+    freed = ~np.isin(codes, free_before)
+    moving = np.zeros(3 * structure.extra.n_local, dtype=bool)
+    moving[free[freed]] = True
+    moving[free[_in_cells(structure, cells, free)]] = True
+    moving = _shared(structure, moving)
+    dofs = np.flatnonzero(moving)
+    n_owned = 3 * structure.extra.n_owned
+    owned = dofs[dofs < n_owned]
+    if not comm.allreduce(len(owned), op=MPI.SUM):
+        return None
+    total = comm.allreduce(len(owned), op=MPI.SUM)
+    was_free = np.zeros(3 * structure.extra.n_local, dtype=bool)
+    was_free[free[~freed]] = True
+    inertia = _inertia(structure, owned, was_free[owned], accelerations)
+    first = remaining = _imbalance(structure, owned, t) - inertia
+    size = comm.allreduce(float(np.abs(first).max(initial=0.0)), op=MPI.MAX)
+    if size == 0.0:  # a structure at rest (a refinement at t = 0): nothing to solve
+        return Equilibrated(total, 0.0, 0.0, 0, 0.0)
+    nodes = structure.extra.index_map.local_to_global((dofs // 3).astype(np.int32))
+    ids = 3 * nodes.astype(np.int64) + dofs % 3
+    # the global id of each moving DOF at its combined flat index (base DOFs first), -1 else
+    slot = np.full(3 * (structure.n_base + structure.extra.n_local), -1, dtype=np.int64)
+    slot[3 * structure.n_base + dofs] = ids
+    rows, columns, values = _tangent(structure, _dof_map(structure, slot))
+    factor = _Factor(comm, rows, columns, values, ids[dofs < n_owned])
+    u = structure.extra.vectors["u"].array
+    largest, moved, steps = size, 0.0, 0
+    while steps < ITERATIONS and largest > TOLERANCE * size:
+        correction = factor.solve(remaining, ids)
+        u[dofs] += correction
+        structure.follow_border()  # border DOFs whose masters moved go with them
+        moved = max(moved, comm.allreduce(float(np.abs(correction).max(initial=0.0)), op=MPI.MAX))
+        steps += 1
+        remaining = _imbalance(structure, owned, t) - inertia
+        largest = comm.allreduce(float(np.abs(remaining).max(initial=0.0)), op=MPI.MAX)
+    factor.free()
+    return Equilibrated(total, size, largest, steps, moved)
+
+
+def _in_cells(structure: Structure, cells: np.ndarray, dofs: np.ndarray) -> np.ndarray:
+    """(len(dofs),) bool: which local extra DOFs ``dofs`` (flat) belong to a node of the
+    subelements of the owned ``cells`` (the only elements with extra nodes)."""
+    nodes = structure.subelements.nodes[np.isin(structure.subelement_cells, cells)]
+    touched = nodes.ravel().astype(np.int64) - structure.n_base
+    inside = np.zeros(structure.extra.n_local, dtype=bool)
+    inside[touched[touched >= 0]] = True
+    return inside[dofs // 3]
+
+
+def _shared(structure: Structure, flags: np.ndarray) -> np.ndarray:
+    """Collective: per-DOF ``flags`` (local extra DOFs, flat) set wherever any rank set them."""
+    vector = la.vector(structure.extra.index_map, bs=3)
+    vector.array[:] = flags
+    vector.scatter_reverse(la.InsertMode.add)
+    vector.scatter_forward()
+    return vector.array > 0.5
+
+
+def _inertia(
+    structure: Structure,
+    owned: np.ndarray,
+    was_free: np.ndarray,
+    accelerations: tuple[np.ndarray, np.ndarray] | None,
+) -> np.ndarray:
+    """Collective: m a (N) at the owned extra DOFs ``owned`` (flat): a DOF that ``was_free``
+    keeps its acceleration from ``accelerations`` (base, extra blocks' owned DOFs, mm/s^2), a
+    freed one takes its column's (the base nodes below and above interpolated at its
+    interface's thickness fraction, as a new node's motion is placed); times the mass the
+    solver divides by."""
+    comm = structure.comm
+    if not comm.allreduce(accelerations is not None, op=MPI.LOR):
+        return np.zeros(len(owned))
+    base = la.vector(structure.base.V.dofmap.index_map, bs=3)
+    if accelerations is not None:
+        n_owned_base = len(structure.base_block.mass)
+        base.array[:n_owned_base] = accelerations[0][:n_owned_base]
+    base.scatter_forward()  # (the top node of a column may be a ghost)
+    on_base = base.array.reshape(-1, 3)
+    keys = np.array(structure.extra.owned_keys, dtype=np.int64)[owned // 3]
+    global_bottom, interface, _ = enr.key_arrays(keys, structure.refinement.n_interfaces)
+    bottom = structure.extra.local_base_nodes(global_bottom)
+    top = structure.columns.top_of[bottom]
+    share = structure.laminate.ply_fractions[interface]
+    component = owned % 3
+    a = (1.0 - share) * on_base[bottom, component] + share * on_base[top, component]
+    if accelerations is not None:
+        own = accelerations[1]
+        kept = was_free & (owned < len(own))
+        a[kept] = own[owned[kept]]
+    return structure.extra_block.mass[owned] * a
+
+
+def _imbalance(structure: Structure, owned: np.ndarray, t: float) -> np.ndarray:
+    """Collective: f_load - f_int (N) at the owned extra DOFs ``owned`` (flat), at time t (s),
+    the damage left as it was."""
+    with structure.probing():
+        structure.internal_force(t)
+    n_owned = 3 * structure.extra.n_owned
+    load = structure.loads.extra_force(t, n_owned).ravel()
+    return load[owned] - structure.f_extra.array[owned]
+
+
+def _dof_map(structure: Structure, slot: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """How each combined flat DOF moves with the newly free ones (``slot``: the global id of
+    each, -1 else): (ids (n, 2), weights (n, 2)). A newly free DOF is itself; a border DOF
+    follows its two masters (T in K_FF = T^T K T), those of them newly free; the rest are
+    held (id -1)."""
+    ids = np.full((len(slot), 2), -1, dtype=np.int64)
+    weights = np.zeros((len(slot), 2))
+    ids[:, 0] = slot
+    weights[:, 0] = slot >= 0
+    border = structure.border
+    masters = slot[border.masters]
+    ids[border.dofs] = masters
+    weights[border.dofs] = np.where(masters >= 0, border.weights, 0.0)
+    return ids, weights
+
+
+def _tangent(
+    structure: Structure, dof_map: tuple[np.ndarray, np.ndarray]
+) -> tuple[np.ndarray, ...]:
+    """This rank's share of K_FF as triplets (row id, column id, N/mm), summed by entry: its
+    solid and cohesive elements that move with a newly free DOF (``dof_map``, ``_dof_map``)."""
+    moves = (dof_map[0].reshape(-1, 6) >= 0).any(axis=1)  # per combined node
+    parts = []
+    # (extra nodes, and the border DOFs that follow them, are the subelements' alone)
+    nodes = structure.subelements.nodes
+    cells, plies = structure.subelement_cells, structure.subelement_plies
+    solid = np.flatnonzero(moves[nodes].any(axis=1))
+    rules = structure.element_rules(plies[solid])
+    for start in range(0, len(solid), CHUNK):
+        chosen = solid[start : start + CHUNK]
+        element_nodes = nodes[chosen].astype(np.int64)
+        K = _solid_tangents(structure, element_nodes, cells[chosen], rules[start : start + CHUNK])
+        parts.append(_triplets(dof_map, element_nodes, K))
+    cohesive = structure.cohesive
+    params = cohesive.params
+    joined = []  # (a law without penalties, a bare structure's, carries nothing)
+    if len(cohesive) and params[P_KN] > 0.0 and params[P_KS] > 0.0:
+        joined = np.flatnonzero(moves[cohesive.nodes].any(axis=1))
+        onset = min(params[P_N] / params[P_KN], params[P_S] / params[P_KS])
+    for start in range(0, len(joined), CHUNK):
+        chosen = joined[start : start + CHUNK]
+        element_nodes = cohesive.nodes[chosen].astype(np.int64)
+        X = np.ascontiguousarray(structure.gather(element_nodes, "X"))
+        u = np.ascontiguousarray(structure.gather(element_nodes, "u"))
+        damage = np.ascontiguousarray(cohesive.damage[cohesive.damage_row[chosen]])
+        K = np.empty((len(chosen), 24, 24))
+        cohesive_tangents(X, u, params, damage, COHESIVE_PROBE * onset, K)
+        parts.append(_triplets(dof_map, element_nodes, K))
+    if not parts:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0)
+    return _summed(*(np.concatenate(p) for p in zip(*parts, strict=True)))
+
+
+def _solid_tangents(
+    structure: Structure, nodes: np.ndarray, cells: np.ndarray, rules: np.ndarray
+) -> np.ndarray:
+    """(n, 24, 24) N/mm tangents of solid (sub)elements ``nodes`` (n, 8) of owned ``cells`` in
+    the global frame: small strain, the kernel's stiffness; finite strain, central differences
+    about the current displacements (both with undamaged plies)."""
+    X = structure.gather(nodes, "X")
+    u = structure.gather(nodes, "u")
+    frames = structure.base.element_frames(cells)
+    if len(frames):  # the kernels take each element in its frame: x_local = F x
+        X = np.einsum("eij,eaj->eai", frames, X)
+        u = np.einsum("eij,eaj->eai", frames, u)
+    X = np.ascontiguousarray(X)
+    packed = structure.rule_table.packed
+    if not structure.base.finite:
+        K = element_stiffness(X, rules, packed)
+    else:
+        K = _finite_tangents(X, np.ascontiguousarray(u), rules, packed)
+    if len(frames):  # K_global = T^T K_local T, T = blockdiag(F, ..., F)
+        n = len(K)
+        K = K.reshape(n, 8, 3, 8, 3)
+        K = np.einsum("eki,eakbl,elj->eaibj", frames, K, frames).reshape(n, 24, 24)
+    return K
+
+
+def _finite_tangents(X: np.ndarray, u: np.ndarray, rules: np.ndarray, packed) -> np.ndarray:
+    """(n, 24, 24) central differences of the finite-strain kernel's forces about ``u``."""
+    n = len(X)
+    size = np.abs(X - X[:, :1, :]).max(axis=(1, 2))
+    step = (SOLID_PROBE * size)[:, None]
+    K = np.empty((n, 24, 24))
+    trial = np.empty((n, 8, 3))
+    plus, minus = np.empty((n, 8, 3)), np.empty((n, 8, 3))
+    for j in range(24):
+        for sign, out in ((1.0, plus), (-1.0, minus)):
+            trial[:] = u
+            trial.reshape(n, 24)[:, j : j + 1] += sign * step
+            solid_shell_forces(X, trial, rules, *packed, out, True)
+        K[:, :, j] = (plus - minus).reshape(n, 24) / (2.0 * step)
+    return 0.5 * (K + K.transpose(0, 2, 1))
+
+
+def _triplets(
+    dof_map: tuple[np.ndarray, np.ndarray], nodes: np.ndarray, K: np.ndarray
+) -> tuple[np.ndarray, ...]:
+    """T^T K T of element matrices ``K`` (n, 24, 24) of elements ``nodes`` (n, 8) between the
+    newly free DOFs (``_dof_map``), as (row id, column id, value), summed by entry."""
+    flat = (3 * nodes[:, :, None] + np.arange(3)).reshape(-1, 24)
+    ids, weights = dof_map[0][flat], dof_map[1][flat]  # (n, 24, 2)
+    rows, columns, values = [], [], []
+    for p in range(2):
+        for q in range(2):
+            row = np.broadcast_to(ids[:, :, p, None], K.shape)
+            column = np.broadcast_to(ids[:, None, :, q], K.shape)
+            keep = (row >= 0) & (column >= 0)
+            scaled = K * weights[:, :, p, None] * weights[:, None, :, q]
+            rows.append(row[keep])
+            columns.append(column[keep])
+            values.append(scaled[keep])
+    return _summed(np.concatenate(rows), np.concatenate(columns), np.concatenate(values))
+
+
+def _summed(rows: np.ndarray, columns: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, ...]:
+    """Triplets with repeated (row, column) summed, ordered by row then column."""
+    pairs = np.column_stack([rows, columns])
+    unique, which = np.unique(pairs, axis=0, return_inverse=True)
+    summed = np.bincount(which.ravel(), weights=values, minlength=len(unique))
+    return unique[:, 0].copy(), unique[:, 1].copy(), summed
+
+
+class _Factor:
+    """K_FF gathered from every rank and factorised on rank 0 (LU); ``solve`` sends each
+    rank the corrections of its DOFs."""
+
+    def __init__(self, comm: MPI.Comm, rows, columns, values, owned_ids: np.ndarray):
+        """``rows``, ``columns``, ``values``: this rank's share of K_FF (global DOF ids, N/mm);
+        ``owned_ids``: the ids of its owned newly free DOFs, in the order of the residuals
+        ``solve`` will be given."""
+        self.comm = comm
+        gathered = comm.gather((rows, columns, values, owned_ids), root=0)
+        self.ksp = self.A = None
+        ids = None
+        if comm.rank == 0:
+            rows, columns, values, self.residual_ids = (
+                np.concatenate(part) for part in zip(*gathered, strict=True)
+            )
+            rows, columns, values = _summed(rows, columns, values)
+            ids = np.sort(self.residual_ids)
+            n = len(ids)
+            r, c = np.searchsorted(ids, rows), np.searchsorted(ids, columns)
+            indptr = np.concatenate([[0], np.cumsum(np.bincount(r, minlength=n))])
+            self.A = PETSc.Mat().createAIJ(
+                (n, n),
+                csr=(indptr.astype(PETSc.IntType), c.astype(PETSc.IntType), values),
+                comm=PETSc.COMM_SELF,
+            )
+            self.A.assemble()
+            self.ksp = PETSc.KSP().create(PETSc.COMM_SELF)
+            self.ksp.setOperators(self.A)
+            self.ksp.setType("preonly")
+            self.ksp.getPC().setType("lu")
+            self.ksp.setUp()
+        self.ids = comm.bcast(ids, root=0)
+
+    def solve(self, residual: np.ndarray, ids: np.ndarray) -> np.ndarray:
+        """Collective: the corrections (mm) at this rank's newly free DOFs ``ids`` (owned and
+        ghosts) for the out-of-balance forces ``residual`` (N) at its owned ones (in the order
+        of the ``owned_ids`` it gave)."""
+        gathered = self.comm.gather(residual, root=0)
+        solution = None
+        if self.comm.rank == 0:
+            b = np.zeros(len(self.ids))
+            b[np.searchsorted(self.ids, self.residual_ids)] = np.concatenate(gathered)
+            rhs = PETSc.Vec().createWithArray(b, comm=PETSc.COMM_SELF)
+            x = rhs.duplicate()
+            self.ksp.solve(rhs, x)
+            solution = x.getArray().copy()
+            rhs.destroy()
+            x.destroy()
+        solution = self.comm.bcast(solution, root=0)
+        return solution[np.searchsorted(self.ids, ids)]
+
+    def free(self) -> None:
+        """Release the factorisation (rank 0's)."""
+        if self.ksp is not None:
+            self.ksp.destroy()
+            self.A.destroy()
