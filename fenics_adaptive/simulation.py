@@ -168,7 +168,7 @@ def build_structure(
         if config.kind == ModelKind.ADAPTIVE and (
             config.interfaces.initial != Refinement.NONE or config.delaminations
         ):
-            structure.refine(initial_refinement(structure, config))
+            structure.refine(initial_refinement(structure, config), balance=False)
         insert_films(structure, config.delaminations)
     return structure
 

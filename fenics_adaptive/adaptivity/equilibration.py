@@ -18,14 +18,16 @@ What. The moving DOFs F are the free extra DOFs (neither on the border of a refi
 prescribed) of the refined cells and every DOF the refinement freed elsewhere (a border node
 the region has grown over, a set-B node whose interface is now strong all around). With every
 other DOF held, base nodes included (they carry the structure's own motion, and contacts), F
-solves the linearised dynamic balance
+solves the linearised balance
 
-    K_FF du_F = f_load,F - f_int,F(u) - m_F a_F
+    K_FF du_F = f_target,F - f_int,F(u)
 
-once or a few times (``ITERATIONS``): a the acceleration each DOF had before the refinement
-(one that was free keeps its own; a new one takes its column's, the base nodes below and
-above interpolated at its interface, as its motion is placed), so that the refinement changes
-no acceleration, m the mass the solver divides by. K_FF is the tangent of the elements around
+once or a few times (``ITERATIONS``), with targets that leave every acceleration as it was: a
+DOF that was free keeps the internal force it had (whatever else acts on it, contact or a tie,
+stays as it was); a freed one carries its load less m a, a the acceleration of the material
+point it stands for (a set-B node's set-A partner's, else its column's: the base nodes below
+and above interpolated at its interface, as its motion is placed), m the mass
+the solver divides by. K_FF is the tangent of the elements around
 F: the solid (sub)elements' (the small-strain kernel probed with unit displacements, or
 central differences of the finite-strain one about u) and the cohesive elements' (central
 differences of the law about the current opening, ``cohesive.cohesive_tangents``), with the
@@ -34,10 +36,13 @@ border DOFs that follow a moving master carried along (T^T K T). Velocities stay
 change, booked with it (``RefinementState.book``).
 
 The system is gathered to rank 0 and solved there by LU (a refinement moves a few thousand
-DOFs at a time): the same matrix, summed in one order, whatever the partition, so that runs
-on any number of ranks agree. The probing evaluations of the internal force leave the
-damage as it was (``Structure.probing``): the damage belongs to the balanced state the solver
-evaluates next.
+DOFs at a time): the same matrix whatever the partition, up to the order of its sums, so that
+runs on any number of ranks agree to round-off. A singular tangent (a sublaminate held by
+nothing) leaves the DOFs where they are (``Equilibrated.steps`` 0). The probing evaluations
+of the internal force leave the damage as it was (``Structure.probing``): the damage belongs
+to the balanced state the solver evaluates next. The tangent is that of undamaged plies, kept
+through the steps (a modified Newton iteration): where plies are damaged or the kinematics
+finite the remainder shrinks by a factor per step rather than vanishing at once.
 """
 
 from __future__ import annotations
@@ -59,7 +64,7 @@ from fenics_adaptive.settings.materials import P_KN, P_KS, P_N, P_S
 if TYPE_CHECKING:
     from fenics_adaptive.model.structure import Structure
 
-# Newton steps at most (the tangent of the first kept: small strain, undamaged plies, is
+# modified-Newton steps at most (the tangent of the first kept: small strain, undamaged plies, is
 # exact for most refinements, and a second step mops up the finite-strain or damaged rest)
 ITERATIONS = 3
 # stop once the largest out-of-balance force is this share of the first one
@@ -102,17 +107,17 @@ def free_extra_dofs(structure: Structure) -> tuple[np.ndarray, np.ndarray]:
 def equilibrate(
     structure: Structure,
     free_before: np.ndarray,
+    f_int_before: np.ndarray,
     cells: np.ndarray,
     t: float,
     accelerations: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> Equilibrated | None:
-    """Collective: put in dynamic equilibrium at time t (s) the free extra DOFs of the
-    refined ``cells`` (owned, local) and every DOF freed since ``free_before`` (codes, as
-    ``free_extra_dofs`` gave them before the refinement), every other DOF held (module
-    docstring). ``accelerations``: the base and extra blocks' (owned DOFs, mm/s^2) as the
-    solver had them at t before the refinement (None: at rest); a DOF that was free keeps
-    its own, a freed one gets its column's. Returns what it did, None where no rank moves
-    any DOF."""
+    """Collective: put in balance at time t (s) the free extra DOFs of the refined ``cells``
+    (owned, local) and every DOF freed since ``free_before`` (codes, as ``free_extra_dofs``
+    gave them before the refinement), every other DOF held (module docstring).
+    ``f_int_before``: the internal force (N) of the owned extra DOFs before the refinement;
+    ``accelerations``: the base and extra blocks' (owned DOFs, mm/s^2) as the solver had them
+    at t (None: at rest). Returns what it did, None where no rank moves any DOF."""
     comm = structure.comm
     codes, free = free_extra_dofs(structure)
     freed = ~np.isin(codes, free_before)
@@ -123,15 +128,17 @@ def equilibrate(
     dofs = np.flatnonzero(moving)
     n_owned = 3 * structure.extra.n_owned
     owned = dofs[dofs < n_owned]
-    if not comm.allreduce(len(owned), op=MPI.SUM):
-        return None
     total = comm.allreduce(len(owned), op=MPI.SUM)
+    if not total:
+        return None
     was_free = np.zeros(3 * structure.extra.n_local, dtype=bool)
     was_free[free[~freed]] = True
-    inertia = _inertia(structure, owned, was_free[owned], accelerations)
-    first = remaining = _imbalance(structure, owned, t) - inertia
+    target = _targets(
+        structure, owned, was_free[owned], free_before, f_int_before, accelerations, t
+    )
+    first = remaining = target - _internal_force(structure, owned, t)
     size = comm.allreduce(float(np.abs(first).max(initial=0.0)), op=MPI.MAX)
-    if size == 0.0:  # a structure at rest (a refinement at t = 0): nothing to solve
+    if size == 0.0:  # nothing out of balance (a structure at rest): nothing to solve
         return Equilibrated(total, 0.0, 0.0, 0, 0.0)
     nodes = structure.extra.index_map.local_to_global((dofs // 3).astype(np.int32))
     ids = 3 * nodes.astype(np.int64) + dofs % 3
@@ -142,15 +149,20 @@ def equilibrate(
     factor = _Factor(comm, rows, columns, values, ids[dofs < n_owned])
     u = structure.extra.vectors["u"].array
     largest, moved, steps = size, 0.0, 0
-    while steps < ITERATIONS and largest > TOLERANCE * size:
-        correction = factor.solve(remaining, ids)
-        u[dofs] += correction
-        structure.follow_border()  # border DOFs whose masters moved go with them
-        moved = max(moved, comm.allreduce(float(np.abs(correction).max(initial=0.0)), op=MPI.MAX))
-        steps += 1
-        remaining = _imbalance(structure, owned, t) - inertia
-        largest = comm.allreduce(float(np.abs(remaining).max(initial=0.0)), op=MPI.MAX)
-    factor.free()
+    try:
+        while steps < ITERATIONS and largest > TOLERANCE * size:
+            correction = factor.solve(remaining, ids)
+            if correction is None:  # (a singular tangent: the DOFs stay where they are)
+                break
+            u[dofs] += correction
+            structure.follow_border()  # border DOFs whose masters moved go with them
+            change = float(np.abs(correction).max(initial=0.0))
+            moved = max(moved, comm.allreduce(change, op=MPI.MAX))
+            steps += 1
+            remaining = target - _internal_force(structure, owned, t)
+            largest = comm.allreduce(float(np.abs(remaining).max(initial=0.0)), op=MPI.MAX)
+    finally:
+        factor.free()
     return Equilibrated(total, size, largest, steps, moved)
 
 
@@ -173,48 +185,61 @@ def _shared(structure: Structure, flags: np.ndarray) -> np.ndarray:
     return vector.array > 0.5
 
 
-def _inertia(
+def _targets(
     structure: Structure,
     owned: np.ndarray,
     was_free: np.ndarray,
+    free_before: np.ndarray,
+    f_int_before: np.ndarray,
     accelerations: tuple[np.ndarray, np.ndarray] | None,
+    t: float,
 ) -> np.ndarray:
-    """Collective: m a (N) at the owned extra DOFs ``owned`` (flat): a DOF that ``was_free``
-    keeps its acceleration from ``accelerations`` (base, extra blocks' owned DOFs, mm/s^2), a
-    freed one takes its column's (the base nodes below and above interpolated at its
-    interface's thickness fraction, as a new node's motion is placed); times the mass the
-    solver divides by."""
+    """Collective: the internal force (N) each owned moving DOF ``owned`` (flat) is to carry,
+    so that the refinement changes no acceleration. One that ``was_free`` keeps the one it had,
+    ``f_int_before`` (whatever else acts on it, contact or a tie, stays as it was). A freed one
+    carries its load less m a, a the acceleration of the material point it stands for: for a
+    set-B node whose set-A partner was free, the partner's (``accelerations``, the blocks'
+    owned DOFs, mm/s^2, before the refinement); else its column's, the base nodes below and
+    above interpolated at its interface's thickness fraction (as a new node's motion is
+    placed); none at rest (``accelerations`` None). m: the mass the solver divides by."""
     comm = structure.comm
-    if not comm.allreduce(accelerations is not None, op=MPI.LOR):
-        return np.zeros(len(owned))
-    base = la.vector(structure.base.V.dofmap.index_map, bs=3)
-    if accelerations is not None:
-        n_owned_base = len(structure.base_block.mass)
-        base.array[:n_owned_base] = accelerations[0][:n_owned_base]
-    base.scatter_forward()  # (the top node of a column may be a ghost)
-    on_base = base.array.reshape(-1, 3)
-    keys = np.array(structure.extra.owned_keys, dtype=np.int64)[owned // 3]
-    global_bottom, interface, _ = enr.key_arrays(keys, structure.refinement.n_interfaces)
-    bottom = structure.extra.local_base_nodes(global_bottom)
-    top = structure.columns.top_of[bottom]
-    share = structure.laminate.ply_fractions[interface]
-    component = owned % 3
-    a = (1.0 - share) * on_base[bottom, component] + share * on_base[top, component]
-    if accelerations is not None:
-        own = accelerations[1]
-        kept = was_free & (owned < len(own))
-        a[kept] = own[owned[kept]]
-    return structure.extra_block.mass[owned] * a
+    n_owned = 3 * structure.extra.n_owned
+    target = structure.loads.extra_force(t, n_owned).ravel()[owned]
+    if comm.allreduce(accelerations is not None, op=MPI.LOR):
+        base = la.vector(structure.base.V.dofmap.index_map, bs=3)
+        if accelerations is not None:
+            n_owned_base = len(structure.base_block.mass)
+            base.array[:n_owned_base] = accelerations[0][:n_owned_base]
+        base.scatter_forward()  # (the top node of a column may be a ghost)
+        on_base = base.array.reshape(-1, 3)
+        n_interfaces = structure.refinement.n_interfaces
+        keys = np.array(structure.extra.owned_keys, dtype=np.int64)[owned // 3]
+        global_bottom, interface, node_set = enr.key_arrays(keys, n_interfaces)
+        bottom = structure.extra.local_base_nodes(global_bottom)
+        top = structure.columns.top_of[bottom]
+        share = structure.laminate.ply_fractions[interface]
+        component = owned % 3
+        a = (1.0 - share) * on_base[bottom, component] + share * on_base[top, component]
+        if accelerations is not None:
+            # a new set-B node moves with its partner (set A: the key below it)
+            partner = 3 * (keys - 1) + component
+            with_partner = (node_set == enr.SET_B) & np.isin(partner, free_before)
+            if with_partner.any():
+                local = 3 * structure.extra.locate(keys[with_partner] - 1) + component[with_partner]
+                old = accelerations[1]
+                known = local < len(old)
+                a[np.flatnonzero(with_partner)[known]] = old[local[known]]
+        target -= structure.extra_block.mass[owned] * a
+    target[was_free] = f_int_before[owned[was_free]]
+    return target
 
 
-def _imbalance(structure: Structure, owned: np.ndarray, t: float) -> np.ndarray:
-    """Collective: f_load - f_int (N) at the owned extra DOFs ``owned`` (flat), at time t (s),
-    the damage left as it was."""
+def _internal_force(structure: Structure, owned: np.ndarray, t: float) -> np.ndarray:
+    """Collective: f_int (N) at the owned extra DOFs ``owned`` (flat) at time t (s), the
+    damage left as it was."""
     with structure.probing():
         structure.internal_force(t)
-    n_owned = 3 * structure.extra.n_owned
-    load = structure.loads.extra_force(t, n_owned).ravel()
-    return load[owned] - structure.f_extra.array[owned]
+    return structure.f_extra.array[owned]
 
 
 def _dof_map(structure: Structure, slot: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -252,10 +277,14 @@ def _tangent(
         parts.append(_triplets(dof_map, element_nodes, K))
     cohesive = structure.cohesive
     params = cohesive.params
-    joined = []  # (a law without penalties, a bare structure's, carries nothing)
+    joined = np.zeros(0, dtype=np.int64)  # (a law without penalties carries nothing)
     if len(cohesive) and params[P_KN] > 0.0 and params[P_KS] > 0.0:
         joined = np.flatnonzero(moves[cohesive.nodes].any(axis=1))
         onset = min(params[P_N] / params[P_KN], params[P_S] / params[P_KS])
+        # a small share of the onset opening (the law is linear below it), and never more than
+        # a millionth of the laminate's thickness (a law without onset: the static check's)
+        step = min(COHESIVE_PROBE * onset, 1e-6 * structure.laminate.thickness)
+        step = step if step > 0.0 else 1e-6 * structure.laminate.thickness
     for start in range(0, len(joined), CHUNK):
         chosen = joined[start : start + CHUNK]
         element_nodes = cohesive.nodes[chosen].astype(np.int64)
@@ -263,7 +292,7 @@ def _tangent(
         u = np.ascontiguousarray(structure.gather(element_nodes, "u"))
         damage = np.ascontiguousarray(cohesive.damage[cohesive.damage_row[chosen]])
         K = np.empty((len(chosen), 24, 24))
-        cohesive_tangents(X, u, params, damage, COHESIVE_PROBE * onset, K)
+        cohesive_tangents(X, u, params, damage, step, K)
         parts.append(_triplets(dof_map, element_nodes, K))
     if not parts:
         return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0)
@@ -342,11 +371,12 @@ def _summed(rows: np.ndarray, columns: np.ndarray, values: np.ndarray) -> tuple[
 
 class _Factor:
     """K_FF gathered from every rank and factorised on rank 0 (LU); ``solve`` sends each
-    rank the corrections of its DOFs."""
+    rank the corrections of its DOFs, or None to all where rank 0 found the tangent
+    singular."""
 
     def __init__(self, comm: MPI.Comm, rows, columns, values, owned_ids: np.ndarray):
         """``rows``, ``columns``, ``values``: this rank's share of K_FF (global DOF ids, N/mm);
-        ``owned_ids``: the ids of its owned newly free DOFs, in the order of the residuals
+        ``owned_ids``: the ids of its owned moving DOFs, in the order of the residuals
         ``solve`` will be given."""
         self.comm = comm
         gathered = comm.gather((rows, columns, values, owned_ids), root=0)
@@ -371,13 +401,13 @@ class _Factor:
             self.ksp.setOperators(self.A)
             self.ksp.setType("preonly")
             self.ksp.getPC().setType("lu")
-            self.ksp.setUp()
         self.ids = comm.bcast(ids, root=0)
 
-    def solve(self, residual: np.ndarray, ids: np.ndarray) -> np.ndarray:
-        """Collective: the corrections (mm) at this rank's newly free DOFs ``ids`` (owned and
+    def solve(self, residual: np.ndarray, ids: np.ndarray) -> np.ndarray | None:
+        """Collective: the corrections (mm) at this rank's moving DOFs ``ids`` (owned and
         ghosts) for the out-of-balance forces ``residual`` (N) at its owned ones (in the order
-        of the ``owned_ids`` it gave)."""
+        of the ``owned_ids`` it gave); None on every rank if the solve failed (a zero pivot:
+        a sublaminate held by nothing) or gave a value that is not finite."""
         gathered = self.comm.gather(residual, root=0)
         solution = None
         if self.comm.rank == 0:
@@ -385,11 +415,18 @@ class _Factor:
             b[np.searchsorted(self.ids, self.residual_ids)] = np.concatenate(gathered)
             rhs = PETSc.Vec().createWithArray(b, comm=PETSc.COMM_SELF)
             x = rhs.duplicate()
-            self.ksp.solve(rhs, x)
-            solution = x.getArray().copy()
-            rhs.destroy()
-            x.destroy()
+            try:
+                self.ksp.solve(rhs, x)
+                if self.ksp.getConvergedReason() > 0 and np.isfinite(x.getArray()).all():
+                    solution = x.getArray().copy()
+            except PETSc.Error:
+                solution = None
+            finally:
+                rhs.destroy()
+                x.destroy()
         solution = self.comm.bcast(solution, root=0)
+        if solution is None:
+            return None
         return solution[np.searchsorted(self.ids, ids)]
 
     def free(self) -> None:

@@ -406,7 +406,7 @@ class Structure:
             return {k.removeprefix(prefix): v for k, v in state.items() if k.startswith(prefix)}
 
         def replay(requests: list[tuple[int, int, int]], t: float) -> None:
-            self.refine(requests, t, replaying=True)
+            self.refine(requests, t, balance=False)
             self.stabilisation_state.discard_requests()
 
         self.refinement.restore(part("refinement_"), replay)
@@ -490,14 +490,16 @@ class Structure:
     )
 
     def refine(
-        self, requests: Iterable[tuple[int, int, int]], t: float = 0.0, replaying: bool = False
+        self, requests: Iterable[tuple[int, int, int]], t: float = 0.0, balance: bool = True
     ) -> bool:
         """Collective: refine owned cells at time t. ``requests``: (local cell, interface, WEAK
-        or STRONG); a strong request on an unrefined interface makes it weak first. The DOFs
-        it frees are put in equilibrium (``adaptivity.equilibration``) if the stabilisation
-        settings ask for it, unless ``replaying`` (a restart's replay: the stored state is put
-        back instead); ``last_equilibrated`` says what that did. Returns whether anything
-        changed on any rank. Raises InputError for interfaces not allowed to refine."""
+        or STRONG); a strong request on an unrefined interface makes it weak first. The extra
+        DOFs of the refined cells and those it frees are put in balance
+        (``adaptivity.equilibration``) if the stabilisation settings ask for it and
+        ``balance`` (False: a restart's replay, whose stored state is put back; the initial
+        refinement, before there is any motion to balance); ``last_equilibrated`` says what
+        that did. Returns whether anything changed on any rank. Raises InputError for
+        interfaces not allowed to refine."""
         requests = list(requests)
         target = self.refinement.plan(requests, self.comm)
         old_state = self.interface_state.copy()
@@ -524,6 +526,7 @@ class Structure:
         ):
             vector.scatter_forward()
         kinetic_before, potential_before = self._mechanical_energy()
+        f_int_before = self.f_extra.array[: 3 * self.extra.n_owned].copy()  # (of that call)
 
         # weak, bottom to top, then strong; an interface no rank changes is skipped by all
         # (each activation is collective). Each interface's cells read only its own column of
@@ -569,9 +572,11 @@ class Structure:
             self.extra.index_map,
         )
         self._request_ties(self.border.free_b - free_b)
-        balances = self.stabilisation.equilibrate and not replaying
+        balances = self.stabilisation.equilibrate and balance
         self.last_equilibrated = (
-            equilibrate(self, free_before, changed, t, self.accelerations()) if balances else None
+            equilibrate(self, free_before, f_int_before, changed, t, self.accelerations())
+            if balances
+            else None
         )
         # New and freed nodes sit where the cells' fields put them, so the strain energy hardly
         # changes; the lumped masses move, which changes the kinetic energy: book both
