@@ -56,7 +56,7 @@ from mpi4py import MPI
 from petsc4py import PETSc
 
 from fenics_adaptive.adaptivity import enrichment as enr
-from fenics_adaptive.element.subelement import solid_shell_forces
+from fenics_adaptive.element.subelement import PackedRules, solid_shell_forces
 from fenics_adaptive.materials.cohesive import cohesive_tangents
 from fenics_adaptive.model.mass_scaling import element_stiffness
 from fenics_adaptive.settings.materials import P_KN, P_KS, P_N, P_S
@@ -305,18 +305,18 @@ def _solid_tangents(
     """(n, 24, 24) N/mm tangents of solid (sub)elements ``nodes`` (n, 8) of owned ``cells`` in
     the global frame: small strain, the kernel's stiffness; finite strain, central differences
     about the current displacements (both with undamaged plies)."""
-    X = structure.gather(nodes, "X")
-    u = structure.gather(nodes, "u")
     frames = structure.base.element_frames(cells)
-    if len(frames):  # the kernels take each element in its frame: x_local = F x
-        X = np.einsum("eij,eaj->eai", frames, X)
-        u = np.einsum("eij,eaj->eai", frames, u)
-    X = np.ascontiguousarray(X)
+
+    def in_frames(name: str) -> np.ndarray:  # the kernels take each element in its frame
+        x = structure.gather(nodes, name)
+        return np.ascontiguousarray(np.einsum("eij,eaj->eai", frames, x) if len(frames) else x)
+
+    X = in_frames("X")
     packed = structure.rule_table.packed
     if not structure.base.finite:
         K = element_stiffness(X, rules, packed)
     else:
-        K = _finite_tangents(X, np.ascontiguousarray(u), rules, packed)
+        K = _finite_tangents(X, in_frames("u"), rules, packed)
     if len(frames):  # K_global = T^T K_local T, T = blockdiag(F, ..., F)
         n = len(K)
         K = K.reshape(n, 8, 3, 8, 3)
@@ -324,7 +324,9 @@ def _solid_tangents(
     return K
 
 
-def _finite_tangents(X: np.ndarray, u: np.ndarray, rules: np.ndarray, packed) -> np.ndarray:
+def _finite_tangents(
+    X: np.ndarray, u: np.ndarray, rules: np.ndarray, packed: PackedRules
+) -> np.ndarray:
     """(n, 24, 24) central differences of the finite-strain kernel's forces about ``u``."""
     n = len(X)
     size = np.abs(X - X[:, :1, :]).max(axis=(1, 2))
@@ -363,10 +365,12 @@ def _triplets(
 
 def _summed(rows: np.ndarray, columns: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, ...]:
     """Triplets with repeated (row, column) summed, ordered by row then column."""
-    pairs = np.column_stack([rows, columns])
-    unique, which = np.unique(pairs, axis=0, return_inverse=True)
+    if len(rows) == 0:
+        return rows, columns, values
+    width = int(columns.max()) + 1
+    unique, which = np.unique(rows * width + columns, return_inverse=True)
     summed = np.bincount(which.ravel(), weights=values, minlength=len(unique))
-    return unique[:, 0].copy(), unique[:, 1].copy(), summed
+    return unique // width, unique % width, summed
 
 
 class _Factor:

@@ -236,7 +236,7 @@ class DamagedSolid(Contributor):
         self.nodes = nodes
         self.elements = elements
         self._energy = self._interior_energy = 0.0
-        # False while the structure measures a state's energy (``Structure.frozen_damage``)
+        # False while the structure probes a state (``Structure.probing``)
         self.update_damage = True
         self.refined()
 

@@ -259,15 +259,24 @@ class Structure:
 
     @contextlib.contextmanager
     def probing(self) -> Iterator[None]:
-        """Inside the block ``internal_force`` probes: the internal-force contributors' states
-        (ply and cohesive damage) are put back as they were when it ends, so that a trial
-        state damages nothing."""
+        """Inside the block ``internal_force`` probes: it changes no damage. The ply damage
+        is not updated (its contributor's switch), the other internal-force contributors'
+        states (the cohesive damage) are put back as they were when the block ends."""
         contributors = self.internal_forces.contributors
-        saved = [{k: np.copy(v) for k, v in c.state().items()} for c in contributors]
+        frozen = [c for c in contributors if getattr(c, "update_damage", False)]
+        saved = [
+            (c, {k: np.copy(v) for k, v in c.state().items()})
+            for c in contributors
+            if c not in frozen
+        ]
+        for contributor in frozen:
+            contributor.update_damage = False
         try:
             yield
         finally:
-            for contributor, state in zip(contributors, saved, strict=True):
+            for contributor in frozen:
+                contributor.update_damage = True
+            for contributor, state in saved:
                 if state:
                     contributor.restore(state)
 
@@ -288,20 +297,12 @@ class Structure:
 
     def _mechanical_energy(self) -> tuple[float, float]:
         """(kinetic, solid strain + recoverable cohesive) energy (mJ) of the current state, at
-        the ply damage as it is. A refinement changes the strains of the cells it refines a
+        the damage as it is. A refinement changes the strains of the cells it refines a
         little (their subelements condense their own enhanced thickness strain): damage that
         grows from that belongs to the next step, whose damage law books its dissipation, not
         to the refinement's energy change."""
-        frozen = [
-            c for c in self.internal_forces.contributors if getattr(c, "update_damage", False)
-        ]
-        for contributor in frozen:
-            contributor.update_damage = False
-        try:
+        with self.probing():
             self.internal_force()
-        finally:
-            for contributor in frozen:
-                contributor.update_damage = True
         return self.kinetic_energy(), sum(self.internal_forces.energies())
 
     def kinetic_energy(self) -> float:
