@@ -295,14 +295,16 @@ class Structure:
         """Reference vertex coordinates (n_cells, 8, 3) mm of the owned cells."""
         return self.X_base[self.base.V.dofmap.list[: self.base.n_owned_cells]]
 
-    def _mechanical_energy(self) -> tuple[float, float]:
+    def _mechanical_energy(self, evaluated: bool = False) -> tuple[float, float]:
         """(kinetic, solid strain + recoverable cohesive) energy (mJ) of the current state, at
-        the damage as it is. A refinement changes the strains of the cells it refines a
-        little (their subelements condense their own enhanced thickness strain): damage that
-        grows from that belongs to the next step, whose damage law books its dissipation, not
-        to the refinement's energy change."""
-        with self.probing():
-            self.internal_force()
+        the damage as it is (``evaluated``: the internal forces already are, so probed). A
+        refinement changes the strains of the cells it refines a little (their subelements
+        condense their own enhanced thickness strain): damage that grows from that belongs to
+        the next step, whose damage law books its dissipation, not to the refinement's energy
+        change."""
+        if not evaluated:
+            with self.probing():
+                self.internal_force()
         return self.kinetic_energy(), sum(self.internal_forces.energies())
 
     def kinetic_energy(self) -> float:
@@ -579,9 +581,10 @@ class Structure:
             if balances
             else None
         )
-        # New and freed nodes sit where the cells' fields put them, so the strain energy hardly
-        # changes; the lumped masses move, which changes the kinetic energy: book both
-        kinetic, potential = self._mechanical_energy()
+        # The lumped masses move, which changes the kinetic energy; the subelements' own
+        # shear factors and enhanced strains and the equilibration change the strain energy:
+        # book both (an equilibration leaves the forces evaluated at the final state)
+        kinetic, potential = self._mechanical_energy(evaluated=self.last_equilibrated is not None)
         self.refinement.book(kinetic - kinetic_before, potential - potential_before)
         return True
 
