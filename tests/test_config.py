@@ -512,7 +512,7 @@ def test_schema_defaults_are_the_dataclass_defaults():
     indicators = IndicatorSettings(interval=1.0)
     for name in ("spread", "front_distance", "matrix_damage"):
         assert section("indicators").key(name).default == getattr(indicators, name), name
-    for name in ("damping", "damping_window", "release_window"):
+    for name in ("damping", "damping_window", "release_window", "equilibrate"):
         assert section("stabilisation").key(name).default == getattr(Stabilisation(), name)
 
 

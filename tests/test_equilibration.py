@@ -9,6 +9,7 @@ import numpy as np
 from mpi4py import MPI
 
 from fenics_adaptive.materials.cohesive import cohesive_tangents
+from fenics_adaptive.settings.adaptivity import Stabilisation
 from fenics_adaptive.settings.config import parse_config
 from fenics_adaptive.settings.kinds import InterfaceState
 from fenics_adaptive.settings.materials import CohesiveLaw
@@ -104,3 +105,13 @@ def test_a_beam_refined_near_its_peak_carries_its_load_as_the_layerwise_one_does
     force, area = results[True]
     assert area == 0.0
     assert abs(force / -141.8 - 1.0) < 0.05
+
+
+def test_the_default_balances_models_without_ply_damage_only():
+    """Left out, ``equilibrate`` is on without ply damage and off with it (the balance is
+    found with the undamaged plies' tangent); given, it is what it says."""
+    assert Stabilisation().equilibrates(ply_damage=False)
+    assert not Stabilisation().equilibrates(ply_damage=True)
+    assert Stabilisation(equilibrate=True).equilibrates(ply_damage=True)
+    assert not Stabilisation(equilibrate=False).equilibrates(ply_damage=False)
+    assert parse_config(cantilever()).stabilisation.equilibrate is None

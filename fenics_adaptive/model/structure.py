@@ -575,7 +575,7 @@ class Structure:
             self.extra.index_map,
         )
         self._request_ties(self.border.free_b - free_b)
-        balances = self.stabilisation.equilibrate and balance
+        balances = balance and self.stabilisation.equilibrates(self.ply_damage)
         self.last_equilibrated = (
             equilibrate(self, free_before, f_int_before, changed, t, self.accelerations())
             if balances

@@ -62,9 +62,18 @@ class Stabilisation:
     damping: float = 0.0
     damping_window: float = 0.0
     release_window: float = 0.0
-    # the DOFs a refinement frees start in equilibrium with what held them
-    # (``adaptivity.equilibration``); off: where the split element's field puts them
-    equilibrate: bool = True
+    # the DOFs a refinement frees start in balance with what holds them
+    # (``adaptivity.equilibration``); False: where the split element's field puts them; None
+    # (the default): on for a model without ply damage, off with it (``equilibrates``)
+    equilibrate: bool | None = None
+
+    def equilibrates(self, ply_damage: bool) -> bool:
+        """Whether refinements put the DOFs they free in balance, for a model with or without
+        ``ply_damage``. Left to the default, not with ply damage: the balance is found with
+        the undamaged plies' tangent, which a damaged ply's is not, and on the crash demo
+        (a plate broken by a sphere, ply damage, erosion, finite strain) the balanced run
+        absorbed 0.58 x the layerwise energy where the placed one absorbs 0.999 x."""
+        return (not ply_damage) if self.equilibrate is None else self.equilibrate
 
     @property
     def damps(self) -> bool:

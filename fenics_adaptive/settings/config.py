@@ -386,8 +386,11 @@ class _Table:
             return value
         return self._check_integer(name, value, self.key(name), high)
 
-    def boolean(self, name: str) -> bool:
+    def boolean(self, name: str) -> bool | None:
+        """true or false, or the default (None for an optional key left out)."""
         value = self._value(name, "bool")
+        if value is None and name not in self.data:
+            return None
         return _expect(value, bool, self.key(name), "true or false")
 
     def choice(self, name: str) -> str:

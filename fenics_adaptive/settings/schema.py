@@ -1284,9 +1284,11 @@ SECTIONS: tuple[Section, ...] = (
             Key(
                 "equilibrate",
                 "bool",
-                "the DOFs a refinement frees start in equilibrium with the nodes around them held "
-                "(a linear solve per refinement; false: where the split element's field puts them)",
-                default=True,
+                "the DOFs a refinement frees start in balance with the nodes around them held (a "
+                "linear solve per refinement; false: where the split element's field puts them); "
+                "left out: on without ply damage, off with it (the elastic tangent is not a "
+                "damaged ply's)",
+                default=OPTIONAL,
             ),
         ),
     ),
