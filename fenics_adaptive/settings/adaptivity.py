@@ -57,7 +57,8 @@ class Stabilisation:
     its reach, the opening at which the pair's cohesive element carries the tie's force
     (released by the law's final opening), or moved the way it pushes (then it pushes with at
     most what the element carries at its onset and lets go before it), so that it never pushes
-    an interface open."""
+    an interface open. Before either acts, ``equilibrate`` puts the DOFs a refinement frees in
+    balance (``equilibrates``, ``adaptivity.equilibration``)."""
 
     damping: float = 0.0
     damping_window: float = 0.0
