@@ -322,7 +322,8 @@ assert rms_damped < 0.1 * rms_abrupt
 #
 # Both jumps come from where the new DOFs start: on the split element's field (weak) or with
 # a closed cohesive element (strong), neither in equilibrium with the column. A run's default
-# (`[stabilisation] equilibrate = true`, `adaptivity/equilibration.py`) solves for them right
+# on a model without ply damage, like this one (`[stabilisation] equilibrate`,
+# `adaptivity/equilibration.py`), solves for them right
 # after the refinement, every other DOF held: K_FF du_F = f_load - f_int - m a, with the
 # refined elements' tangent and a the acceleration each DOF had (a new one: its column's).
 # The strong pair opens by traction / K_n, and the column joins the reference as it does with
