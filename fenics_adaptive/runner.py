@@ -370,10 +370,17 @@ def _balanced(equilibrated: Equilibrated | None) -> str:
     """What a refinement's equilibration did, for its line in the log ("" if nothing)."""
     if equilibrated is None:
         return ""
-    return (
+    said = (
         f"; {equilibrated.dofs} DOFs balanced in {equilibrated.steps} step(s), largest "
         f"out-of-balance force {equilibrated.imbalance:.3g} -> {equilibrated.remaining:.2g} N"
     )
+    if not equilibrated.settled:
+        share = equilibrated.remaining / equilibrated.imbalance
+        said += (
+            f" (not settled: {share:.0%} left, the balance past an interface's onset or the "
+            "plies damaged; the rest rings)"
+        )
+    return said
 
 
 class BalanceReport(Observer):

@@ -115,3 +115,17 @@ def test_the_default_balances_models_without_ply_damage_only():
     assert Stabilisation(equilibrate=True).equilibrates(ply_damage=True)
     assert not Stabilisation(equilibrate=False).equilibrates(ply_damage=False)
     assert parse_config(cantilever()).stabilisation.equilibrate is None
+
+
+def test_a_balance_that_stops_short_says_so_in_the_log():
+    """Where the modified-Newton steps stop above the tolerance (the balanced state past an
+    interface's onset: its softening is not in the tangent), the refinement's log line says
+    how much is left."""
+    from fenics_adaptive.adaptivity.equilibration import Equilibrated
+    from fenics_adaptive.runner import _balanced
+
+    done = Equilibrated(dofs=12, imbalance=74.3, remaining=3.1e-9, steps=1, moved=2e-3)
+    short = Equilibrated(dofs=1062, imbalance=86.8, remaining=8.7, steps=3, moved=4e-3)
+    assert done.settled and "not settled" not in _balanced(done)
+    assert not short.settled
+    assert "86.8 -> 8.7 N (not settled: 10% left" in _balanced(short)

@@ -90,6 +90,13 @@ class Equilibrated:
     steps: int
     moved: float
 
+    @property
+    def settled(self) -> bool:
+        """Whether it got down to ``TOLERANCE`` of the first imbalance (not: the balanced
+        state lies past an interface's onset, whose softening the tangent does not know, or
+        the plies are damaged or strained far: what is left rings)."""
+        return self.remaining <= TOLERANCE * self.imbalance
+
 
 def free_extra_dofs(structure: Structure) -> tuple[np.ndarray, np.ndarray]:
     """This rank's free extra DOFs, owned and ghosts (neither on the border of a refined region
