@@ -56,7 +56,6 @@ from mpi4py import MPI
 from petsc4py import PETSc
 
 from fenics_adaptive.adaptivity import enrichment as enr
-from fenics_adaptive.element.subelement import PackedRules, solid_shell_forces
 from fenics_adaptive.materials.cohesive import cohesive_tangents
 from fenics_adaptive.model.mass_scaling import element_stiffness
 from fenics_adaptive.settings.materials import P_KN, P_KS, P_N, P_S
@@ -72,8 +71,6 @@ ITERATIONS = 3
 TOLERANCE = 1e-3
 # central-difference step of the cohesive tangent, a share of the law's smaller onset opening
 COHESIVE_PROBE = 1e-4
-# central-difference step of the finite-strain solid tangent, a share of the element's size
-SOLID_PROBE = 1e-7
 # elements whose tangents are formed at once (24 x 24 each)
 CHUNK = 2048
 
@@ -293,8 +290,8 @@ def _tangent(
         onset = min(params[P_N] / params[P_KN], params[P_S] / params[P_KS])
         # a small share of the onset opening (the law is linear below it), and never more than
         # a millionth of the laminate's thickness (a law without onset: the static check's)
-        step = min(COHESIVE_PROBE * onset, 1e-6 * structure.laminate.thickness)
-        step = step if step > 0.0 else 1e-6 * structure.laminate.thickness
+        cap = 1e-6 * structure.laminate.thickness
+        step = min(COHESIVE_PROBE * onset, cap) if onset > 0.0 else cap
     for start in range(0, len(joined), CHUNK):
         chosen = joined[start : start + CHUNK]
         element_nodes = cohesive.nodes[chosen].astype(np.int64)
@@ -321,36 +318,13 @@ def _solid_tangents(
         x = structure.gather(nodes, name)
         return np.ascontiguousarray(np.einsum("eij,eaj->eai", frames, x) if len(frames) else x)
 
-    X = in_frames("X")
-    packed = structure.rule_table.packed
-    if not structure.base.finite:
-        K = element_stiffness(X, rules, packed)
-    else:
-        K = _finite_tangents(X, in_frames("u"), rules, packed)
+    about = in_frames("u") if structure.base.finite else None
+    K = element_stiffness(in_frames("X"), rules, structure.rule_table.packed, about)
     if len(frames):  # K_global = T^T K_local T, T = blockdiag(F, ..., F)
         n = len(K)
         K = K.reshape(n, 8, 3, 8, 3)
         K = np.einsum("eki,eakbl,elj->eaibj", frames, K, frames).reshape(n, 24, 24)
     return K
-
-
-def _finite_tangents(
-    X: np.ndarray, u: np.ndarray, rules: np.ndarray, packed: PackedRules
-) -> np.ndarray:
-    """(n, 24, 24) central differences of the finite-strain kernel's forces about ``u``."""
-    n = len(X)
-    size = np.abs(X - X[:, :1, :]).max(axis=(1, 2))
-    step = (SOLID_PROBE * size)[:, None]
-    K = np.empty((n, 24, 24))
-    trial = np.empty((n, 8, 3))
-    plus, minus = np.empty((n, 8, 3)), np.empty((n, 8, 3))
-    for j in range(24):
-        for sign, out in ((1.0, plus), (-1.0, minus)):
-            trial[:] = u
-            trial.reshape(n, 24)[:, j : j + 1] += sign * step
-            solid_shell_forces(X, trial, rules, *packed, out, True)
-        K[:, :, j] = (plus - minus).reshape(n, 24) / (2.0 * step)
-    return 0.5 * (K + K.transpose(0, 2, 1))
 
 
 def _triplets(

@@ -102,21 +102,41 @@ SYMMETRIC = ((0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2))
 
 
 # ------------------------------------------------------------------ element level (pure)
-def element_stiffness(X: np.ndarray, rule_of_element: np.ndarray, packed) -> np.ndarray:
-    """Small-strain stiffness matrices (n, 24, 24) N/mm of solid-shell (sub)elements with
-    reference vertices ``X`` (n, 8, 3) mm, DOF 3 vertex + component; ``rule_of_element``,
-    ``packed``: as ``subelement.solid_shell_forces`` takes them. Column j is the force of a unit
-    displacement of DOF j (the small-strain kernel is linear in u), symmetrised."""
+# central-difference step of a finite-strain tangent (``element_stiffness(..., about=u)``), a
+# share of the element's size
+FINITE_PROBE = 1e-7
+
+
+def element_stiffness(
+    X: np.ndarray, rule_of_element: np.ndarray, packed, about: np.ndarray | None = None
+) -> np.ndarray:
+    """Stiffness matrices (n, 24, 24) N/mm of solid-shell (sub)elements with reference
+    vertices ``X`` (n, 8, 3) mm, DOF 3 vertex + component; ``rule_of_element``, ``packed``: as
+    ``subelement.solid_shell_forces`` takes them; symmetrised. ``about`` None: the small-strain
+    kernel's, column j the force of a unit displacement of DOF j (the kernel is linear in u);
+    given ((n, 8, 3) mm): the finite-strain kernel's tangent there, by central differences of
+    ``FINITE_PROBE`` times the element's size."""
     n = len(X)
     X = np.ascontiguousarray(X, dtype=np.float64)
+    finite = about is not None
+    origin = np.zeros((n, 8, 3)) if about is None else np.asarray(about, dtype=np.float64)
+    step = np.ones((n, 1))
+    if finite:
+        step = (FINITE_PROBE * np.abs(X - X[:, :1, :]).max(axis=(1, 2)))[:, None]
     K = np.empty((n, 24, 24))
-    u = np.zeros((n, 8, 3))
-    f = np.empty((n, 8, 3))
+    trial = np.empty((n, 8, 3))
+    plus, minus = np.empty((n, 8, 3)), np.empty((n, 8, 3))
     for j in range(24):
-        u.reshape(n, 24)[:, j - 1] = 0.0
-        u.reshape(n, 24)[:, j] = 1.0
-        solid_shell_forces(X, u, rule_of_element, *packed, f, False)
-        K[:, :, j] = f.reshape(n, 24)
+        trial[:] = origin
+        trial.reshape(n, 24)[:, j : j + 1] += step
+        solid_shell_forces(X, trial, rule_of_element, *packed, plus, finite)
+        if not finite:
+            K[:, :, j] = plus.reshape(n, 24)
+            continue
+        trial[:] = origin
+        trial.reshape(n, 24)[:, j : j + 1] -= step
+        solid_shell_forces(X, trial, rule_of_element, *packed, minus, True)
+        K[:, :, j] = (plus - minus).reshape(n, 24) / (2.0 * step)
     return 0.5 * (K + K.transpose(0, 2, 1))
 
 

@@ -512,7 +512,8 @@ class Structure:
         if self.scaled_mass is not None:
             raise adaptive_refused()
         self.refinement.record(t, requests)
-        free_before = free_extra_dofs(self)[0]
+        balances = balance and self.stabilisation.equilibrates(self.ply_damage)
+        free_before = free_extra_dofs(self)[0] if balances else None
         self.stabilisation_state.request(
             changed[
                 (
@@ -529,7 +530,8 @@ class Structure:
         ):
             vector.scatter_forward()
         kinetic_before, potential_before = self._mechanical_energy()
-        f_int_before = self.f_extra.array[: 3 * self.extra.n_owned].copy()  # (of that call)
+        # (the forces of that call, which the equilibration keeps on the DOFs that were free)
+        f_int_before = self.f_extra.array[: 3 * self.extra.n_owned].copy() if balances else None
 
         # weak, bottom to top, then strong; an interface no rank changes is skipped by all
         # (each activation is collective). Each interface's cells read only its own column of
@@ -575,7 +577,6 @@ class Structure:
             self.extra.index_map,
         )
         self._request_ties(self.border.free_b - free_b)
-        balances = balance and self.stabilisation.equilibrates(self.ply_damage)
         self.last_equilibrated = (
             equilibrate(self, free_before, f_int_before, changed, t, self.accelerations())
             if balances
