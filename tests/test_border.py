@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from fenics_adaptive.adaptivity import enrichment as enr
+from fenics_adaptive.adaptivity.equilibration import free_extra_dofs
 from fenics_adaptive.runner import run_config
 from fenics_adaptive.settings.config import parse_config
 from fenics_adaptive.settings.kinds import InterfaceState
@@ -158,23 +159,34 @@ def test_freeing_a_border_node_changes_no_energy(enhanced_strain):
         assert booked == pytest.approx(after - before, rel=1e-9, abs=1e-15 * before)
 
 
-def test_balancing_freed_border_nodes_lowers_the_energy_by_what_is_booked():
-    """The same freeing with the equilibration on: the three freed nodes move to balance (the
-    rest held), which lowers the strain energy (it is least there), and the refinement books
-    exactly that change."""
+def test_balancing_keeps_every_force_and_books_the_energy_it_changes():
+    """The same freeing with the equilibration on, at rest: the three freed nodes and the base
+    nodes of the refined cells move (the rest held) until each carries the internal force it
+    had (none for the freed ones, whose former masters carried theirs), so that no
+    acceleration changes; the refinement books the strain energy that changes."""
     structure = mixed_structure(False)
     deform(structure, seed=4)
     structure.internal_force()
     before = sum(structure.internal_forces.energies())
+    n_owned = 3 * structure.base.V.dofmap.index_map.size_local
+    f_before = structure.f_base.array[:n_owned].copy()
     x = structure.X_base[structure.bottom_local].mean(axis=1)[:, 0]
     ring = np.flatnonzero((x > 2.0) & (x < 2.5))
+    corners = np.unique(np.hstack([structure.bottom_local[ring], structure.top_local[ring]]))
+    free_before = set(free_extra_dofs(structure)[0].tolist())
     structure.refine([(int(c), 4, InterfaceState.WEAK) for c in ring])
     report = structure.last_equilibrated
-    assert report.dofs == 9 and report.steps == 1
+    assert report.dofs == 9 + 3 * len(corners) and report.steps == 1
     assert report.remaining < 1e-9 * report.imbalance
     structure.internal_force()
+    scale = np.abs(f_before).max()
+    moved = (3 * corners[:, None] + np.arange(3)).ravel()
+    assert np.abs(structure.f_base.array[moved] - f_before[moved]).max() < 1e-9 * scale
+    codes, dofs = free_extra_dofs(structure)
+    freed = dofs[[c not in free_before for c in codes.tolist()]]
+    assert len(freed) == 9
+    assert np.abs(structure.f_extra.array[freed]).max() < 1e-9 * scale
     after = sum(structure.internal_forces.energies())
-    assert after < before
     assert structure.refinement_energy == pytest.approx(after - before, rel=1e-9)
 
 

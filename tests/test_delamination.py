@@ -51,9 +51,19 @@ def tcb(kind: str, film: float = 3.0, **solver) -> dict:
         ),
         (lambda d: d["delamination"][0].update(x_max=6.0), "delamination[0].x_max", "> x_min"),
         (
-            lambda d: d["delamination"][0].update(x_min=10.2, x_max=11.0),
+            lambda d: d["delamination"][0].update(x_min=9.8, x_max=10.0),
             "delamination[0].x_max",
             "no cell centroid",
+        ),
+        (
+            lambda d: d["delamination"][0].update(x_min=-10.0),
+            "delamination[0].x_min",
+            "beyond the mesh (x from 0 to 10 mm)",
+        ),
+        (
+            lambda d: d["delamination"][0].update(y_min=0.0, y_max=0.7),
+            "delamination[0].y_max",
+            "beyond the mesh (y from 0 to 0.5 mm)",
         ),
         (
             lambda d: d["delamination"][0].update(y_min=0.3, y_max=0.4),

@@ -157,20 +157,21 @@ def test_refinement_mid_run_conserves_mass_and_momentum():
     assert np.abs(p1 - p0).max() < 1e-12 * np.abs(p0).max()
     assert np.abs(structure.momentum() - p0).max() < 1e-10 * np.abs(p0).max()
     # the kinetic energy the lumped masses' redistribution changed, booked as such, with the
-    # strain energy the subelements' own shear factors and enhanced thickness strains changed
-    # (4e-3 of the kinetic energy, 1e-4 from the enhanced strain alone; whose force
-    # change shifts the solver's full-step measure of the kinetic energy a little: the
-    # solver books that too, and the balance stays closed, ``energy_drift`` below)
+    # strain energy the refinement changed: the subelements' own shear factors and enhanced
+    # thickness strains (4e-3 of the kinetic energy) and the equilibration, which moves the
+    # refined cells' nodes, base nodes included, until each has the acceleration it had (the
+    # refined half is stiffer in shear: 3.4e-2 of the kinetic energy in all)
     # (the solver books the kinetic part as its full-step measure sees it, which the force
-    # change of the refinement and of the equilibration of the freed DOFs shifts: measured
-    # 1.4e-8 mJ, 6e-7 of the kinetic energy, from the half-step estimate k1 - k0)
+    # change of the refinement and of the equilibration shifts: measured 7.9e-7 mJ, 3.3e-5 of
+    # the kinetic energy, from the half-step estimate k1 - k0; the balance stays closed,
+    # ``energy_drift`` below)
     potential = structure.last_refinement_potential
     assert history[-1].refinement_energy == pytest.approx(
-        k1 - k0 + potential, abs=1e-5 * history[0].kinetic_energy
+        k1 - k0 + potential, abs=1e-4 * history[0].kinetic_energy
     )
     assert energy_drift(history) < 1e-12
     assert abs(k1 - k0) < 1e-3 * history[0].kinetic_energy
-    assert 0.0 < potential < 1e-2 * history[0].kinetic_energy  # refining stiffens the shear
+    assert 0.0 < potential < 5e-2 * history[0].kinetic_energy  # refining stiffens the shear
 
 
 @pytest.mark.slow

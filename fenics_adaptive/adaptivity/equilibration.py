@@ -15,25 +15,31 @@ energy within a few steps; the ringing reaches the interfaces' strengths, and th
 layerwise model bends intact delaminated end to end.
 
 What. The moving DOFs F are the free extra DOFs (neither on the border of a refined region nor
-prescribed) of the refined cells and every DOF the refinement freed elsewhere (a border node
-the region has grown over, a set-B node whose interface is now strong all around). With every
-other DOF held, base nodes included (they carry the structure's own motion, and contacts), F
-solves the linearised balance
+prescribed) of the refined cells, every DOF the refinement freed elsewhere (a border node the
+region has grown over, a set-B node whose interface is now strong all around), and the base
+DOFs of the refined cells that no motion prescribes and no contact presses (a contact's
+stiffness is not in the tangent). With every other DOF held, F solves the linearised balance
 
     K_FF du_F = f_target,F - f_int,F(u)
 
-once or a few times (``ITERATIONS``), with targets that leave every acceleration as it was: a
-DOF that was free keeps the internal force it had (whatever else acts on it, contact or a tie,
-stays as it was); a freed one carries its load less m a, a the acceleration of the material
-point it stands for (a set-B node's set-A partner's, else its column's: the base nodes below
-and above interpolated at its interface, as its motion is placed), m the mass
-the solver divides by. K_FF is the tangent of the elements around
-F: the solid (sub)elements' (the small-strain kernel probed with unit displacements, or
-central differences of the finite-strain one about u) and the cohesive elements' (central
-differences of the law about the current opening, ``cohesive.cohesive_tangents``), with the
-border DOFs that follow a moving master carried along (T^T K T). Velocities stay as placed
-(they keep the momentum). The strain energy this releases is the refinement's potential
-change, booked with it (``RefinementState.book``).
+once or a few times (``ITERATIONS``), with targets that leave every acceleration as it was: an
+extra DOF that was free keeps the internal force it had (whatever else acts on it, contact or
+a tie, stays as it was); a freed one carries its load less m a, a the acceleration of the
+material point it stands for (a set-B node's set-A partner's, else its column's: the base
+nodes below and above interpolated at its interface, as its motion is placed), m the mass the
+solver divides by; a base DOF the force it had less the inertia of the mass the refinement
+moved from it onto the new nodes, f + (m_before - m_now) a. The base DOFs move because the
+refined cells are not the ESL cell: held at the ESL's positions, a cantilever's refined cells
+carried 156 N at its tip where the ESL carried 140 N, and under finite kinematics, next to a
+pushed end whose layerwise interfaces were already softening, the held base forced the new
+interfaces open and the beam delaminated end to end (``tests/test_equilibration.py``).
+K_FF is the tangent of the elements around F: the solid elements' (unrefined cells and
+subelements: the small-strain kernel probed with unit displacements, or central differences
+of the finite-strain one about u) and the cohesive elements' (central differences of the law
+about the current opening, ``cohesive.cohesive_tangents``), with the border DOFs that follow a
+moving master carried along (T^T K T). Velocities stay as placed (they keep the momentum).
+The strain energy this changes is the refinement's potential change, booked with it
+(``RefinementState.book``).
 
 The system is gathered to rank 0 and solved there by LU (a refinement moves a few thousand
 DOFs at a time): the same matrix whatever the partition, up to the order of its sums, so that
@@ -109,68 +115,157 @@ def free_extra_dofs(structure: Structure) -> tuple[np.ndarray, np.ndarray]:
     return codes[dofs], dofs
 
 
+@dataclass(frozen=True)
+class BeforeRefinement:
+    """What the equilibration keeps of the state a refinement starts from (``of``, with the
+    internal forces evaluated there): the free extra DOFs (codes, ``free_extra_dofs``), the
+    internal force (N) of the owned extra and base DOFs, and the base DOFs' lumped masses
+    (tonne, owned: a refinement moves some of them onto the new extra nodes)."""
+
+    free_extra: np.ndarray
+    extra_force: np.ndarray
+    base_force: np.ndarray
+    base_mass: np.ndarray
+
+    @classmethod
+    def of(cls, structure: Structure) -> BeforeRefinement:
+        n_base = len(structure.base_block.mass)
+        return cls(
+            free_extra_dofs(structure)[0],
+            structure.f_extra.array[: 3 * structure.extra.n_owned].copy(),
+            structure.f_base.array[:n_base].copy(),
+            structure.base_block.mass.copy(),
+        )
+
+
+@dataclass(frozen=True)
+class _Moving:
+    """The DOFs one equilibration moves on this rank (local flat indices, owned and ghosts,
+    owned first in each block): ``extra`` and ``base``, their global ids in one numbering
+    (extra DOFs first), and how many of each are owned."""
+
+    extra: np.ndarray
+    base: np.ndarray
+    ids: np.ndarray
+    owned_extra: int
+    owned_base: int
+
+    @property
+    def owned_ids(self) -> np.ndarray:
+        n_extra = len(self.extra)
+        return np.concatenate(
+            [self.ids[: self.owned_extra], self.ids[n_extra : n_extra + self.owned_base]]
+        )
+
+
 def equilibrate(
     structure: Structure,
-    free_before: np.ndarray,
-    f_int_before: np.ndarray,
+    before: BeforeRefinement,
     cells: np.ndarray,
     t: float,
     accelerations: tuple[np.ndarray, np.ndarray] | None = None,
+    contact: list[np.ndarray] | None = None,
 ) -> Equilibrated | None:
-    """Collective: put in balance at time t (s) the free extra DOFs of the refined ``cells``
-    (owned, local) and every DOF freed since ``free_before`` (codes, as ``free_extra_dofs``
-    gave them before the refinement), every other DOF held (module docstring).
-    ``f_int_before``: the internal force (N) of the owned extra DOFs before the refinement;
-    ``accelerations``: the base and extra blocks' (owned DOFs, mm/s^2) as the solver had them
-    at t (None: at rest). Returns what it did, None where no rank moves any DOF; otherwise the
-    internal forces (and ``internal_forces.energies()``) are left evaluated at the final
-    state, the damage as it was."""
+    """Collective: put in balance at time t (s) the nodes of the refined ``cells`` (owned,
+    local): their free extra DOFs, every DOF freed since ``before`` (``BeforeRefinement``)
+    and their base DOFs that no motion prescribes and no contact presses (``contact``: the
+    contact contributors' forces per block, owned DOFs, N, or None); every other DOF held
+    (module docstring). ``accelerations``: the base and extra blocks' (owned DOFs, mm/s^2)
+    as the solver had them at t (None: at rest). Returns what it did, None where no rank moves
+    any DOF; otherwise the internal forces (and ``internal_forces.energies()``) are left
+    evaluated at the final state, the damage as it was."""
     comm = structure.comm
     codes, free = free_extra_dofs(structure)
-    freed = ~np.isin(codes, free_before)
+    freed = ~np.isin(codes, before.free_extra)
     moving = np.zeros(3 * structure.extra.n_local, dtype=bool)
     moving[free[freed]] = True
     moving[free[_in_cells(structure, cells, free)]] = True
-    moving = _shared(structure, moving)
-    dofs = np.flatnonzero(moving)
-    n_owned = 3 * structure.extra.n_owned
-    owned = dofs[dofs < n_owned]
-    total = comm.allreduce(len(owned), op=MPI.SUM)
+    moving = _shared(structure.extra.index_map, moving)
+    base = _moving_base(structure, cells, contact)
+    extra = np.flatnonzero(moving)
+    dofs = _Moving(
+        extra,
+        base,
+        _global_ids(structure, extra, base),
+        int(np.count_nonzero(extra < 3 * structure.extra.n_owned)),
+        int(np.count_nonzero(base < len(structure.base_block.mass))),
+    )
+    total = comm.allreduce(dofs.owned_extra + dofs.owned_base, op=MPI.SUM)
     if not total:
         return None
     was_free = np.zeros(3 * structure.extra.n_local, dtype=bool)
     was_free[free[~freed]] = True
-    target = _targets(
-        structure, owned, was_free[owned], free_before, f_int_before, accelerations, t
+    owned_extra = extra[: dofs.owned_extra]
+    target = np.concatenate(
+        [
+            _targets(structure, owned_extra, was_free[owned_extra], before, accelerations, t),
+            _base_targets(structure, base[: dofs.owned_base], before, accelerations),
+        ]
     )
-    first = remaining = target - _internal_force(structure, owned, t)
+    first = remaining = target - _internal_force(structure, dofs, t)
     size = comm.allreduce(float(np.abs(first).max(initial=0.0)), op=MPI.MAX)
     if size == 0.0:  # nothing out of balance (a structure at rest): nothing to solve
         return Equilibrated(total, 0.0, 0.0, 0, 0.0)
-    nodes = structure.extra.index_map.local_to_global((dofs // 3).astype(np.int32))
-    ids = 3 * nodes.astype(np.int64) + dofs % 3
     # the global id of each moving DOF at its combined flat index (base DOFs first), -1 else
     slot = np.full(3 * (structure.n_base + structure.extra.n_local), -1, dtype=np.int64)
-    slot[3 * structure.n_base + dofs] = ids
+    slot[3 * structure.n_base + extra] = dofs.ids[: len(extra)]
+    slot[base] = dofs.ids[len(extra) :]
     rows, columns, values = _tangent(structure, _dof_map(structure, slot))
-    factor = _Factor(comm, rows, columns, values, ids[dofs < n_owned])
-    u = structure.extra.vectors["u"].array
+    factor = _Factor(comm, rows, columns, values, dofs.owned_ids)
+    u_extra, u_base = structure.extra.vectors["u"].array, structure.base.u.x.array
     largest, moved, steps = size, 0.0, 0
     try:
         while steps < ITERATIONS and largest > TOLERANCE * size:
-            correction = factor.solve(remaining, ids)
+            correction = factor.solve(remaining, dofs.ids)
             if correction is None:  # (a singular tangent: the DOFs stay where they are)
                 break
-            u[dofs] += correction
+            u_extra[extra] += correction[: len(extra)]
+            u_base[base] += correction[len(extra) :]
             structure.follow_border()  # border DOFs whose masters moved go with them
             change = float(np.abs(correction).max(initial=0.0))
             moved = max(moved, comm.allreduce(change, op=MPI.MAX))
             steps += 1
-            remaining = target - _internal_force(structure, owned, t)
+            remaining = target - _internal_force(structure, dofs, t)
             largest = comm.allreduce(float(np.abs(remaining).max(initial=0.0)), op=MPI.MAX)
     finally:
         factor.free()
     return Equilibrated(total, size, largest, steps, moved)
+
+
+def _moving_base(
+    structure: Structure, cells: np.ndarray, contact: list[np.ndarray] | None
+) -> np.ndarray:
+    """Collective: the local base DOFs (flat, owned first) of the refined ``cells`` (owned)
+    that move: neither prescribed nor pressed by a contact (``contact``, as ``equilibrate``
+    takes it), the same on every rank that holds them."""
+    index_map = structure.base.V.dofmap.index_map
+    nodes = np.concatenate([structure.bottom_local[cells], structure.top_local[cells]], axis=1)
+    flags = np.zeros(3 * structure.n_base, dtype=bool)
+    flags[(3 * nodes.ravel()[:, None] + np.arange(3)).ravel()] = True
+    flags = _shared(index_map, flags)
+    held = np.zeros(len(structure.base_block.mass), dtype=bool)
+    held[structure.base_block.fixed] = True
+    if contact is not None:
+        held |= contact[0] != 0.0
+    vector = la.vector(index_map, bs=3)
+    vector.array[: len(held)] = held
+    vector.scatter_forward()
+    return np.flatnonzero(flags & (vector.array < 0.5))
+
+
+def _global_ids(structure: Structure, extra: np.ndarray, base: np.ndarray) -> np.ndarray:
+    """One global numbering of the moving DOFs ``extra`` and ``base`` (local flat indices of
+    their blocks): 3 node + component, the base nodes after every extra node."""
+    extra_nodes = structure.extra.index_map.local_to_global((extra // 3).astype(np.int32))
+    base_map = structure.base.V.dofmap.index_map
+    base_nodes = base_map.local_to_global((base // 3).astype(np.int32))
+    n_extra = structure.extra.index_map.size_global
+    return np.concatenate(
+        [
+            3 * extra_nodes.astype(np.int64) + extra % 3,
+            3 * (n_extra + base_nodes.astype(np.int64)) + base % 3,
+        ]
+    )
 
 
 def _in_cells(structure: Structure, cells: np.ndarray, dofs: np.ndarray) -> np.ndarray:
@@ -183,9 +278,10 @@ def _in_cells(structure: Structure, cells: np.ndarray, dofs: np.ndarray) -> np.n
     return inside[dofs // 3]
 
 
-def _shared(structure: Structure, flags: np.ndarray) -> np.ndarray:
-    """Collective: per-DOF ``flags`` (local extra DOFs, flat) set wherever any rank set them."""
-    vector = la.vector(structure.extra.index_map, bs=3)
+def _shared(index_map, flags: np.ndarray) -> np.ndarray:
+    """Collective: per-DOF ``flags`` (local DOFs of ``index_map``'s nodes, flat) set wherever
+    any rank set them."""
+    vector = la.vector(index_map, bs=3)
     vector.array[:] = flags
     vector.scatter_reverse(la.InsertMode.add)
     vector.scatter_forward()
@@ -196,14 +292,13 @@ def _targets(
     structure: Structure,
     owned: np.ndarray,
     was_free: np.ndarray,
-    free_before: np.ndarray,
-    f_int_before: np.ndarray,
+    before: BeforeRefinement,
     accelerations: tuple[np.ndarray, np.ndarray] | None,
     t: float,
 ) -> np.ndarray:
     """Collective: the internal force (N) each owned moving DOF ``owned`` (flat) is to carry,
-    so that the refinement changes no acceleration. One that ``was_free`` keeps the one it had,
-    ``f_int_before`` (whatever else acts on it, contact or a tie, stays as it was). A freed one
+    so that the refinement changes no acceleration. One that ``was_free`` keeps the one it had
+    (``before``; whatever else acts on it, contact or a tie, stays as it was). A freed one
     carries its load less m a, a the acceleration of the material point it stands for: for a
     set-B node whose set-A partner was free, the partner's (``accelerations``, the blocks'
     owned DOFs, mm/s^2, before the refinement); else its column's, the base nodes below and
@@ -230,23 +325,44 @@ def _targets(
         if accelerations is not None:
             # a new set-B node moves with its partner (set A: the key below it)
             partner = 3 * (keys - 1) + component
-            with_partner = (node_set == enr.SET_B) & np.isin(partner, free_before)
+            with_partner = (node_set == enr.SET_B) & np.isin(partner, before.free_extra)
             if with_partner.any():
                 local = 3 * structure.extra.locate(keys[with_partner] - 1) + component[with_partner]
                 old = accelerations[1]
                 known = local < len(old)
                 a[np.flatnonzero(with_partner)[known]] = old[local[known]]
         target -= structure.extra_block.mass[owned] * a
-    target[was_free] = f_int_before[owned[was_free]]
+    target[was_free] = before.extra_force[owned[was_free]]
     return target
 
 
-def _internal_force(structure: Structure, owned: np.ndarray, t: float) -> np.ndarray:
-    """Collective: f_int (N) at the owned extra DOFs ``owned`` (flat) at time t (s), the
-    damage left as it was."""
+def _base_targets(
+    structure: Structure,
+    owned: np.ndarray,
+    before: BeforeRefinement,
+    accelerations: tuple[np.ndarray, np.ndarray] | None,
+) -> np.ndarray:
+    """The internal force (N) each owned moving base DOF ``owned`` (flat) is to carry so that
+    its acceleration a stays as it was: the one it had, less the inertia of the mass the
+    refinement moved onto the new nodes, f + (m_before - m_now) a (``before``)."""
+    target = before.base_force[owned].copy()
+    if accelerations is not None:
+        lost = before.base_mass[owned] - structure.base_block.mass[owned]
+        target += lost * accelerations[0][owned]
+    return target
+
+
+def _internal_force(structure: Structure, dofs: _Moving, t: float) -> np.ndarray:
+    """Collective: f_int (N) at the owned moving DOFs ``dofs`` (extra, then base) at time t
+    (s), the damage left as it was."""
     with structure.probing():
         structure.internal_force(t)
-    return structure.f_extra.array[owned]
+    return np.concatenate(
+        [
+            structure.f_extra.array[dofs.extra[: dofs.owned_extra]],
+            structure.f_base.array[dofs.base[: dofs.owned_base]],
+        ]
+    )
 
 
 def _dof_map(structure: Structure, slot: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -269,12 +385,11 @@ def _tangent(
     structure: Structure, dof_map: tuple[np.ndarray, np.ndarray]
 ) -> tuple[np.ndarray, ...]:
     """This rank's share of K_FF as triplets (row id, column id, N/mm), summed by entry: its
-    solid and cohesive elements that move with a newly free DOF (``dof_map``, ``_dof_map``)."""
+    solid (unrefined cells and subelements) and cohesive elements that move with a moving DOF
+    (``dof_map``, ``_dof_map``)."""
     moves = (dof_map[0].reshape(-1, 6) >= 0).any(axis=1)  # per combined node
     parts = []
-    # (extra nodes, and the border DOFs that follow them, are the subelements' alone)
-    nodes = structure.subelements.nodes
-    cells, plies = structure.subelement_cells, structure.subelement_plies
+    nodes, cells, plies = structure.elements()
     solid = np.flatnonzero(moves[nodes].any(axis=1))
     rules = structure.element_rules(plies[solid])
     for start in range(0, len(solid), CHUNK):

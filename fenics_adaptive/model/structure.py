@@ -48,7 +48,7 @@ import numpy as np
 from dolfinx import fem
 
 from fenics_adaptive.adaptivity import enrichment as enr
-from fenics_adaptive.adaptivity.equilibration import Equilibrated, equilibrate, free_extra_dofs
+from fenics_adaptive.adaptivity.equilibration import BeforeRefinement, Equilibrated, equilibrate
 from fenics_adaptive.adaptivity.refinement import RefinementState
 from fenics_adaptive.adaptivity.stabilisation import (
     DampingWindow,
@@ -198,6 +198,9 @@ class Structure:
         # refined, from the solver that runs the structure (``ExplicitSolver`` sets it); None:
         # at rest
         self.accelerations: Callable[[], tuple[np.ndarray, np.ndarray] | None] = lambda: None
+        # the contact contributors' forces per block (owned DOFs, N) at that state, None
+        # without contact (set by the solver): the equilibration holds the base nodes they press
+        self.contact_forces: Callable[[], list[np.ndarray] | None] = lambda: None
         # (node arrays' generation, cohesive pairs' stable step and where): ``cohesive_step``
         self._cohesive_step: tuple[int, tuple[float, str]] | None = None
         # (node arrays' generation, the lower nodes' interface areas): ``interface_areas``
@@ -513,7 +516,6 @@ class Structure:
             raise adaptive_refused()
         self.refinement.record(t, requests)
         balances = balance and self.stabilisation.equilibrates(self.ply_damage)
-        free_before = free_extra_dofs(self)[0] if balances else None
         self.stabilisation_state.request(
             changed[
                 (
@@ -531,7 +533,7 @@ class Structure:
             vector.scatter_forward()
         kinetic_before, potential_before = self._mechanical_energy()
         # (the forces of that call, which the equilibration keeps on the DOFs that were free)
-        f_int_before = self.f_extra.array[: 3 * self.extra.n_owned].copy() if balances else None
+        before = BeforeRefinement.of(self) if balances else None
 
         # weak, bottom to top, then strong; an interface no rank changes is skipped by all
         # (each activation is collective). Each interface's cells read only its own column of
@@ -578,8 +580,8 @@ class Structure:
         )
         self._request_ties(self.border.free_b - free_b)
         self.last_equilibrated = (
-            equilibrate(self, free_before, f_int_before, changed, t, self.accelerations())
-            if balances
+            equilibrate(self, before, changed, t, self.accelerations(), self.contact_forces())
+            if before is not None
             else None
         )
         # The lumped masses move, which changes the kinetic energy; the subelements' own

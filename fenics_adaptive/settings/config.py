@@ -1125,11 +1125,19 @@ def _check_holds_centroids(
     table: _Table, mesh: MeshConfig, low: float, high: float, axis: str = "x"
 ) -> None:
     """A range of cell centroids along ``axis`` ("x" or "y") must hold at least one (else it
-    would do nothing)."""
+    would do nothing), and a bound given must lie on the mesh (one beyond its edge was cut off
+    without a word: left out, a bound reaches the edge)."""
     if not mesh.structured:  # a shell's cells are known when its mesh is built
         return
     size, count = (mesh.length, mesh.nx) if axis == "x" else (mesh.width, mesh.ny)
     h = size / count
+    for end, value in ((f"{axis}_min", low), (f"{axis}_max", high)):
+        if table.has(end) and not -1e-9 * size <= value <= size * (1.0 + 1e-9):
+            raise InputError(
+                table.key(end),
+                f"{value:g} mm lies beyond the mesh ({axis} from 0 to {size:g} mm); leave it "
+                "out for a region that reaches the edge",
+            )
     first = math.ceil(max(low, 0.0) / h - 0.5 - 1e-9)  # first centroid (i + 1/2) h >= low
     if first >= count or (first + 0.5) * h > high + 1e-9 * h:
         upper = f"{axis}_max"

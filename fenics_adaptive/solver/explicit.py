@@ -262,6 +262,7 @@ class ExplicitSolver:
         structure.accelerations = lambda: (
             (self.blocks[0].acc, self.blocks[1].acc) if self.blocks else None
         )
+        structure.contact_forces = lambda: self.forces.contact_force if self.blocks else None
         # the structure's contributors and the run's own (checkpointed with the solver)
         self.forces = RunForces(structure, contributors)
         self.observers: list[Observer] = list(observers)
