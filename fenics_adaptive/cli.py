@@ -342,7 +342,8 @@ def _check(config_path: str, config, simulation, comm) -> int:
     size = ModelSize(cells, nodes, config.laminate.n_plies, cell_layers)  # as built
     rows, frames = output_counts(solver, simulation.time_step)
     memory = estimated_memory(size, comm.size)
-    wall = steps * estimated_step_seconds(size, comm.size)
+    cohesive = comm.allreduce(len(simulation.structure.cohesive), op=MPI.SUM)
+    wall = steps * estimated_step_seconds(size, comm.size, config.ply_damage, cohesive)
     films = insert_film_area(simulation.structure)  # collective
     if comm.rank == 0:
         refined = (
@@ -375,6 +376,8 @@ def _check(config_path: str, config, simulation, comm) -> int:
         for line in integration_warnings(
             config.layer_laminates(), config.points_per_ply, config.preintegrate
         ):
+            print(f"  {line}")
+        for line in simulation.warnings:
             print(f"  {line}")
     return 0
 

@@ -255,6 +255,8 @@ def _announce(
         config.layer_laminates(), config.points_per_ply, config.preintegrate
     ):
         say(line)
+    for line in simulation.warnings:
+        say(line)
     indicators = summary.get("indicators")
     if indicators is not None:
         front = indicators["front_distance_mm"]

@@ -528,6 +528,8 @@ class Simulation:
         self.time_step, self.stable_time_step, self.critical = choose_time_step(
             self.structure, config.solver
         )
+        # lines for the run's log and ``check``: what the config allows but likely did not mean
+        self.warnings: list[str] = []
         run_contributors: list[ForceContributor] = []
         bodies = [config.impactor.body()] if config.impactor is not None else []
         for body in [*bodies, *config.rigid_bodies]:
@@ -567,7 +569,28 @@ class Simulation:
                 f"{contact.key}.position",
                 f"the {what} starts {-gap:.4g} mm inside the {body.face} face; place it {side}",
             )
+        self._check_reach(body, contact)
         return contact
+
+    def _check_reach(self, body: RigidBody, contact: Contact) -> None:
+        """Collective: a warning for a body that cannot touch its face: moved along its path
+        (its velocity, or its prescribed motion's direction; a held one or one at rest: across
+        the flat laminate, as the laminate bends towards it) it passes beside every node of
+        the face."""
+        direction = np.zeros(3)
+        if body.motion in (RigidMotion.FREE, RigidMotion.PRESCRIBED):
+            direction = np.asarray(body.velocity if body.motion == RigidMotion.FREE else body.path)
+        if not np.any(direction):  # held (or at rest)
+            if self.structure.base.curved:
+                return
+            direction = np.array([0.0, 0.0, 1.0])
+        clearance = contact.path_clearance(direction)
+        if clearance > 0.0:
+            self.warnings.append(
+                f"warning: {contact.key} cannot touch the structure's {body.face} face: along "
+                f"its path it passes {clearance:.4g} mm beside the nearest node of it (check "
+                "position)"
+            )
 
     # ------------------------------------------------------------------ set up
     def add_observer(self, observer: Observer) -> None:

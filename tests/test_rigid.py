@@ -153,6 +153,27 @@ def test_a_body_that_starts_inside_its_face_is_refused(body, z, side):
     assert error.value.key == f"rigid.{data['rigid'][body]['name']}.position"
 
 
+@pytest.mark.parametrize(
+    ("body", "position", "words"),
+    [
+        (0, [-10.0, 2.5, -2.001], "rigid.left cannot touch the structure's bottom face"),
+        (2, [70.0, 2.5, 4.001], "rigid.nose cannot touch the structure's top face"),
+    ],
+)
+def test_a_body_that_cannot_reach_its_face_is_warned_of(body, position, words):
+    """A held roller beyond the beam's end (the beam bends across, never along, towards it)
+    and a nose driven down beyond the other (the beam ends at x = 60 mm; a 2 mm radius at
+    x = 70 mm: 8 mm clear) are accepted, with a warning line that names them; the bodies
+    where they belong give none."""
+    data = three_point_bending()
+    assert Simulation(parse_config(data)).warnings == []
+    data["rigid"][body]["position"] = position
+    warnings = Simulation(parse_config(data)).warnings
+    assert len(warnings) == 1 and words in warnings[0], warnings
+    if body == 2:
+        assert "passes 8 mm beside" in warnings[0]
+
+
 def test_a_run_with_rigid_bodies_restarts_to_the_uninterrupted_history(tmp_path):
     """The driven nose's path time, drive work and last force go into the checkpoint."""
     whole = three_point_bending()

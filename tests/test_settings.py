@@ -142,3 +142,22 @@ def test_the_schema_choices_are_the_enums():
     assert section("model").key("kind").choices == tuple(ModelKind)
     assert section("interfaces").key("initial").choices == tuple(Refinement)
     assert section("cohesive").key("law").choices == tuple(MixedModeLaw)
+
+
+def test_the_step_time_estimate_is_the_measured_one_within_a_factor_of_two():
+    """``check``'s wall-time estimate against step times measured on this machine (recorded
+    with the constants in ``settings.config``): the impact plate's ESL and layerwise runs and a
+    90-cell adaptive DCB; ply damage costs per ply, and ranks share the cells."""
+    from fenics_adaptive.settings.config import ModelSize, estimated_step_seconds
+
+    measured = [  # (size, cohesive elements, s per step)
+        (ModelSize(2500, 5202, 16, 1), 0, 1.11e-3),
+        (ModelSize(10000, 13005, 16, 4), 7500, 9.9e-3),
+        (ModelSize(90, 364, 16, 1), 50, 2.47e-4),
+    ]
+    for size, cohesive, seconds in measured:
+        estimate = estimated_step_seconds(size, 1, False, cohesive)
+        assert 0.5 < estimate / seconds < 2.0, size
+    size = measured[0][0]
+    assert estimated_step_seconds(size, 1, True) > 10 * estimated_step_seconds(size)
+    assert estimated_step_seconds(size, 2) < 0.6 * estimated_step_seconds(size)

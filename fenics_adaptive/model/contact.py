@@ -454,6 +454,27 @@ class Contact(Contributor):
         local = float(np.min(distance)) if len(self.X) else np.inf
         return self.comm.allreduce(local, op=MPI.MIN) - self.body.radius
 
+    def path_clearance(self, direction: np.ndarray) -> float:
+        """Collective: how far (mm) the body stays from the nearest node of its face if it
+        moved along the whole line through its centre in ``direction`` (3,) with the
+        structure undeformed: the smallest distance from a node to that line (a cylinder's:
+        across its axis) less the radius. Above zero the body cannot touch the face (unless the
+        structure moves across its path); -inf for a plane, which reaches every node along its
+        normal."""
+        if self.axis == PLANE_AXIS:
+            return -np.inf
+        d = np.array(direction, dtype=float)
+        dx = self.X - self.centre
+        if self.axis >= 0:  # a cylinder: in the plane across its axis
+            dx[:, self.axis] = 0.0
+            d[self.axis] = 0.0
+        length = float(np.linalg.norm(d))
+        if length > 0.0:
+            d /= length
+            dx -= np.outer(dx @ d, d)
+        local = float(np.linalg.norm(dx, axis=1).min()) if len(dx) else np.inf
+        return self.comm.allreduce(local, op=MPI.MIN) - self.body.radius
+
     def largest_stable_penalty(self, dt: float, element_step: float) -> float:
         """The largest penalty (N/mm) stable with the time step dt (s), for the lightest face
         node of mass m and the body of mass M (infinite unless free): the spring adds

@@ -1623,17 +1623,24 @@ def model_size(mesh: MeshConfig, laminate: Laminate, split: int = 0) -> ModelSiz
     return ModelSize(cells, nodes, laminate.n_plies, layers)
 
 
-# Peak memory (resident set, one rank) and step time of an unrefined run, measured here on ESL
-# plates (the plate-impact material, 4 and 16 plies) of 20 x 20 and 200 x 200 cells:
-# 286 MB at 400 cells (16 plies), 365 MB at 40 000 cells with 4 plies and 372 MB with 16 plies,
-# i.e. 2.0 kB per cell and 16 B per (cell x ply) above the base. Step times on this shared
-# 2-vCPU machine (under load) ranged 5 .. 25 us per cell; the per-ply share from 4 to 16 plies
-# of 6400 cells: 0.3 us per (cell x ply). The wall-time estimate is good to a factor of ~3.
+# Peak memory (resident set, one rank) of an unrefined run, measured here on ESL plates (the
+# plate-impact material, 4 and 16 plies) of 20 x 20 and 200 x 200 cells: 286 MB at 400 cells
+# (16 plies), 365 MB at 40 000 cells with 4 plies and 372 MB with 16 plies, i.e. 2.0 kB per
+# cell and 16 B per (cell x ply) above the base.
 MEMORY_BASE_BYTES = 2.9e8  # the interpreter, DOLFINx, numba and the compiled forms
 MEMORY_PER_CELL_BYTES = 2.0e3
 MEMORY_PER_CELL_PLY_BYTES = 16.0
-STEP_SECONDS_PER_CELL = 1.0e-5
-STEP_SECONDS_PER_CELL_PLY = 3.0e-7
+# Step time, measured on this 2-vCPU machine: a fixed part (the solver's own work and the
+# vectors' exchanges: 70 us on a 90-cell DCB), then 0.44 us per elastic cell (the impact
+# plate's ESL run, 2500 cells of 16 plies: 1.11 ms a step), 0.6 us per cohesive element (its
+# layerwise run, 10 000 cells and 7500 cohesive elements: 9.9 ms), and with ply damage about
+# 1.1 us per (cell x ply) on top (the numba kernel: 8.6 us a cell of 8 plies). The estimate
+# once took 10 us per cell (+0.3 per ply), ten times a run's: a layerwise ENF of 2.5 min was
+# announced at 21 min. Good to a factor of ~2 on an idle machine.
+STEP_SECONDS_FIXED = 7.0e-5
+STEP_SECONDS_PER_CELL = 5.0e-7
+STEP_SECONDS_PER_COHESIVE = 6.0e-7
+STEP_SECONDS_PER_DAMAGED_PLY = 1.1e-6
 
 
 def estimated_memory(size: ModelSize, ranks: int = 1) -> float:
@@ -1651,10 +1658,18 @@ def estimated_memory(size: ModelSize, ranks: int = 1) -> float:
     )
 
 
-def estimated_step_seconds(size: ModelSize, ranks: int = 1) -> float:
+def estimated_step_seconds(
+    size: ModelSize, ranks: int = 1, ply_damage: bool = False, cohesive_elements: int = 0
+) -> float:
     """Estimated wall time (s) of one time step of the unrefined model on ``ranks`` ranks
-    (refined cells cost 3 .. 7 x an unrefined one)."""
-    return size.cells * (STEP_SECONDS_PER_CELL + STEP_SECONDS_PER_CELL_PLY * size.plies) / ranks
+    (refined cells cost 3 .. 7 x an unrefined one); ``ply_damage``: every ply of every cell
+    runs the damage law; ``cohesive_elements``: those of the model as built (a layerwise
+    model's, an insert film's)."""
+    per_cell = STEP_SECONDS_PER_CELL
+    if ply_damage:
+        per_cell += STEP_SECONDS_PER_DAMAGED_PLY * size.plies / max(size.cell_layers, 1)
+    work = size.cells * per_cell + cohesive_elements * STEP_SECONDS_PER_COHESIVE
+    return STEP_SECONDS_FIXED + work / ranks
 
 
 def step_count(end_time: float, time_step: float) -> int | float:
