@@ -1,6 +1,7 @@
-"""Equilibration of the DOFs a refinement frees (``adaptivity.equilibration``): the cohesive
+"""Equilibration of the nodes of the refined cells (``adaptivity.equilibration``): the cohesive
 tangent against the bilinear element's closed form, one Newton step to equilibrium on a bent
-cantilever (the tangent is exact), the strain energy it releases, and the run it changes."""
+cantilever (the tangent is exact), the strain energy it releases, the loads a refinement moves
+onto its new nodes, and the runs it changes (small and finite kinematics)."""
 
 import tomllib
 from pathlib import Path
@@ -8,6 +9,7 @@ from pathlib import Path
 import numpy as np
 from mpi4py import MPI
 
+from fenics_adaptive.adaptivity.equilibration import face_loads
 from fenics_adaptive.materials.cohesive import cohesive_tangents
 from fenics_adaptive.settings.adaptivity import Stabilisation
 from fenics_adaptive.settings.config import parse_config
@@ -87,6 +89,40 @@ def test_one_newton_step_balances_the_freed_dofs_and_lowers_the_strain_energy():
     assert free_force(balanced) < 1e-9 * report.imbalance
     energy = [sum(s.internal_forces.energies()) for s in (placed, balanced)]
     assert energy[1] < energy[0] - 0.01  # mJ, of about 174
+
+
+def test_a_loaded_end_refined_keeps_every_dof_in_balance():
+    """A cantilever in static equilibrium under a tip load on its end face, its end cell
+    refined weakly: the refinement moves three quarters of the load from the cell's base nodes
+    onto its new extra nodes, and the balance gives each DOF of the cell the load it now has
+    (the end's base nodes a quarter; counted at the old share, they were left 20 N out of
+    balance and their neighbours took it). Every free DOF stays in balance, to 1e-5 of the load
+    (the held neighbours' share of the cell's small motion)."""
+    data = tomllib.loads((DATA / "finite_cantilever.toml").read_text())
+    data["model"]["kinematics"] = "small"
+    data["mesh"]["nx"] = 10
+    data["stabilisation"] = {"equilibrate": True}
+    structure, _, _ = solve_config(parse_config(data), MPI.COMM_SELF)
+    t = data["solver"]["end_time"]
+
+    def out_of_balance() -> tuple[float, float]:
+        structure.internal_force(t)
+        base_load, extra_load = face_loads(structure, t)
+        n_base, n_extra = len(base_load), len(extra_load)
+        base = base_load - structure.f_base.array[:n_base]
+        base[structure.base_block.fixed] = 0.0
+        extra = extra_load - structure.f_extra.array[:n_extra]
+        return np.abs(base).max(), np.abs(extra).max(initial=0.0)
+
+    assert max(out_of_balance()) < 1e-8 * 26.7
+    x = structure.X_base[structure.bottom_local].mean(axis=1)[:, 0]
+    end = np.flatnonzero(x > 90.0)
+    structure.refine([(int(c), i, InterfaceState.WEAK) for c in end for i in (2, 4, 6)], t)
+    report = structure.last_equilibrated
+    assert report.imbalance > 10.0 and report.remaining < 1e-9 * report.imbalance
+    base, extra = out_of_balance()
+    assert extra < 1e-8 * 26.7
+    assert base < 1e-5 * 26.7
 
 
 def test_a_beam_refined_near_its_peak_carries_its_load_as_the_layerwise_one_does():

@@ -17,22 +17,28 @@ layerwise model bends intact delaminated end to end.
 What. The moving DOFs F are the free extra DOFs (neither on the border of a refined region nor
 prescribed) of the refined cells, every DOF the refinement freed elsewhere (a border node the
 region has grown over, a set-B node whose interface is now strong all around), and the base
-DOFs of the refined cells that no motion prescribes and no contact presses (a contact's
-stiffness is not in the tangent). With every other DOF held, F solves the linearised balance
+DOFs of the refined cells; of these, those that no motion prescribes and no contact presses
+(a contact's stiffness is not in the tangent). With every other DOF held, F solves the
+linearised balance
 
     K_FF du_F = f_target,F - f_int,F(u)
 
-once or a few times (``ITERATIONS``), with targets that leave every acceleration as it was: an
-extra DOF that was free keeps the internal force it had (whatever else acts on it, contact or
-a tie, stays as it was); a freed one carries its load less m a, a the acceleration of the
-material point it stands for (a set-B node's set-A partner's, else its column's: the base
-nodes below and above interpolated at its interface, as its motion is placed), m the mass the
-solver divides by; a base DOF the force it had less the inertia of the mass the refinement
-moved from it onto the new nodes, f + (m_before - m_now) a. The base DOFs move because the
-refined cells are not the ESL cell: held at the ESL's positions, a cantilever's refined cells
-carried 156 N at its tip where the ESL carried 140 N, and under finite kinematics, next to a
-pushed end whose layerwise interfaces were already softening, the held base forced the new
-interfaces open and the beam delaminated end to end (``tests/test_equilibration.py``).
+once or a few times (``ITERATIONS``), with targets that leave the acceleration of every DOF
+of F as it was (``_kept_force``; the held DOFs around take the change of the forces their
+moved neighbours put on them): a DOF that was free (extra or base) keeps the internal force it
+had, changed by the face loads a refined side face moves onto the new nodes and by the
+inertia of the mass the new nodes take off it, f + (f_ext,now - f_ext,before) + (m_before -
+m_now) a (whatever else acts on it, contact or a tie, stays as it was); a freed one carries
+its load less m a, a the acceleration of the material point it stands for (a set-B node's
+set-A partner's, else its column's: the base nodes below and above interpolated at its
+interface, as its motion is placed), m the mass the solver divides by. The base DOFs move
+because the refined cells are not the ESL cell: held at the ESL's positions, a cantilever's
+refined cells carried 156 N at its tip where the ESL carried 140 N, and under finite
+kinematics, next to a pushed end whose layerwise interfaces were already softening, the held
+base forced the new interfaces open and the beam delaminated end to end
+(``tests/test_equilibration.py``). Not in the targets or the tangent: forces that depend on
+the positions from outside (a user's springs), and the work the loads do over the jump
+(the energy booked is the change of kinetic and strain energy).
 K_FF is the tangent of the elements around F: the solid elements' (unrefined cells and
 subelements: the small-strain kernel probed with unit displacements, or central differences
 of the finite-strain one about u) and the cohesive elements' (central differences of the law
@@ -118,24 +124,41 @@ def free_extra_dofs(structure: Structure) -> tuple[np.ndarray, np.ndarray]:
 @dataclass(frozen=True)
 class BeforeRefinement:
     """What the equilibration keeps of the state a refinement starts from (``of``, with the
-    internal forces evaluated there): the free extra DOFs (codes, ``free_extra_dofs``), the
-    internal force (N) of the owned extra and base DOFs, and the base DOFs' lumped masses
-    (tonne, owned: a refinement moves some of them onto the new extra nodes)."""
+    internal forces evaluated there): the free extra DOFs (codes, ``free_extra_dofs``), and of
+    the owned extra and base DOFs the internal force and the face loads (N) and the lumped
+    masses (tonne: a refinement moves some onto its new nodes). A refinement appends its new
+    extra nodes after the owned ones a rank had: an owned extra DOF keeps its index."""
 
     free_extra: np.ndarray
     extra_force: np.ndarray
     base_force: np.ndarray
+    extra_load: np.ndarray
+    base_load: np.ndarray
+    extra_mass: np.ndarray
     base_mass: np.ndarray
 
     @classmethod
-    def of(cls, structure: Structure) -> BeforeRefinement:
-        n_base = len(structure.base_block.mass)
+    def of(cls, structure: Structure, t: float) -> BeforeRefinement:
+        """At time t (s), the internal forces evaluated."""
+        n_base, n_extra = len(structure.base_block.mass), 3 * structure.extra.n_owned
+        base_load, extra_load = face_loads(structure, t)
         return cls(
             free_extra_dofs(structure)[0],
-            structure.f_extra.array[: 3 * structure.extra.n_owned].copy(),
+            structure.f_extra.array[:n_extra].copy(),
             structure.f_base.array[:n_base].copy(),
+            extra_load,
+            base_load,
+            structure.extra_block.mass.copy(),
             structure.base_block.mass.copy(),
         )
+
+
+def face_loads(structure: Structure, t: float) -> tuple[np.ndarray, np.ndarray]:
+    """The face loads (N) at time t (s) on the owned base and extra DOFs."""
+    base = np.zeros(len(structure.base.u.x.array))
+    extra = np.zeros(3 * structure.extra.n_owned)
+    structure.loads.external_force(t, base, extra)
+    return base[: len(structure.base_block.mass)], extra
 
 
 @dataclass(frozen=True)
@@ -181,6 +204,8 @@ def equilibrate(
     moving[free[freed]] = True
     moving[free[_in_cells(structure, cells, free)]] = True
     moving = _shared(structure.extra.index_map, moving)
+    if contact is not None:  # (the forces of the extra nodes before the refinement)
+        moving &= ~_owners_flags(structure.extra.index_map, contact[1] != 0.0)
     base = _moving_base(structure, cells, contact)
     extra = np.flatnonzero(moving)
     dofs = _Moving(
@@ -199,7 +224,7 @@ def equilibrate(
     target = np.concatenate(
         [
             _targets(structure, owned_extra, was_free[owned_extra], before, accelerations, t),
-            _base_targets(structure, base[: dofs.owned_base], before, accelerations),
+            _base_targets(structure, base[: dofs.owned_base], before, accelerations, t),
         ]
     )
     first = remaining = target - _internal_force(structure, dofs, t)
@@ -247,10 +272,16 @@ def _moving_base(
     held[structure.base_block.fixed] = True
     if contact is not None:
         held |= contact[0] != 0.0
+    return np.flatnonzero(flags & ~_owners_flags(index_map, held))
+
+
+def _owners_flags(index_map, owned: np.ndarray) -> np.ndarray:
+    """Collective: per local DOF (flat, owned and ghosts, of ``index_map``'s nodes) the flag
+    its owner set in ``owned`` (the first owned DOFs; those beyond its length unset)."""
     vector = la.vector(index_map, bs=3)
-    vector.array[: len(held)] = held
+    vector.array[: len(owned)] = owned
     vector.scatter_forward()
-    return np.flatnonzero(flags & (vector.array < 0.5))
+    return vector.array > 0.5
 
 
 def _global_ids(structure: Structure, extra: np.ndarray, base: np.ndarray) -> np.ndarray:
@@ -332,7 +363,28 @@ def _targets(
                 known = local < len(old)
                 a[np.flatnonzero(with_partner)[known]] = old[local[known]]
         target -= structure.extra_block.mass[owned] * a
-    target[was_free] = before.extra_force[owned[was_free]]
+    kept = owned[was_free]  # (indices the refinement did not change: ``BeforeRefinement``)
+    target[was_free] = _kept_force(
+        before.extra_force[kept],
+        structure.loads.extra_force(t, 3 * structure.extra.n_owned).ravel()[kept]
+        - before.extra_load[kept],
+        before.extra_mass[kept] - structure.extra_block.mass[kept],
+        accelerations[1][kept] if accelerations is not None else None,
+    )
+    return target
+
+
+def _kept_force(
+    force: np.ndarray, load_change: np.ndarray, mass_lost: np.ndarray, a: np.ndarray | None
+) -> np.ndarray:
+    """The internal force (N) that leaves a DOF the acceleration ``a`` (mm/s^2; None: at rest)
+    it had with internal force ``force``: m a = f_ext + f_other - f_int before and after, so
+    f_int changes by the change of its load (``load_change``, N) and by the inertia of the
+    mass it lost (``mass_lost``, tonne). What else acts on it (contact, a tie, a spring) is
+    taken as it was."""
+    target = force + load_change
+    if a is not None:
+        target += mass_lost * a
     return target
 
 
@@ -341,15 +393,18 @@ def _base_targets(
     owned: np.ndarray,
     before: BeforeRefinement,
     accelerations: tuple[np.ndarray, np.ndarray] | None,
+    t: float,
 ) -> np.ndarray:
     """The internal force (N) each owned moving base DOF ``owned`` (flat) is to carry so that
-    its acceleration a stays as it was: the one it had, less the inertia of the mass the
-    refinement moved onto the new nodes, f + (m_before - m_now) a (``before``)."""
-    target = before.base_force[owned].copy()
-    if accelerations is not None:
-        lost = before.base_mass[owned] - structure.base_block.mass[owned]
-        target += lost * accelerations[0][owned]
-    return target
+    its acceleration stays as it was (``_kept_force``: the loads a refined side face moves onto
+    the new nodes, the mass the new nodes take off it; ``before``)."""
+    base_load = face_loads(structure, t)[0]
+    return _kept_force(
+        before.base_force[owned],
+        base_load[owned] - before.base_load[owned],
+        before.base_mass[owned] - structure.base_block.mass[owned],
+        accelerations[0][owned] if accelerations is not None else None,
+    )
 
 
 def _internal_force(structure: Structure, dofs: _Moving, t: float) -> np.ndarray:
@@ -366,9 +421,9 @@ def _internal_force(structure: Structure, dofs: _Moving, t: float) -> np.ndarray
 
 
 def _dof_map(structure: Structure, slot: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """How each combined flat DOF moves with the newly free ones (``slot``: the global id of
-    each, -1 else): (ids (n, 2), weights (n, 2)). A newly free DOF is itself; a border DOF
-    follows its two masters (T in K_FF = T^T K T), those of them newly free; the rest are
+    """How each combined flat DOF moves with the moving ones (``slot``: the global id of
+    each, -1 else): (ids (n, 2), weights (n, 2)). A moving DOF is itself; a border DOF
+    follows its two masters (T in K_FF = T^T K T), those of them moving; the rest are
     held (id -1)."""
     ids = np.full((len(slot), 2), -1, dtype=np.int64)
     weights = np.zeros((len(slot), 2))
@@ -446,7 +501,7 @@ def _triplets(
     dof_map: tuple[np.ndarray, np.ndarray], nodes: np.ndarray, K: np.ndarray
 ) -> tuple[np.ndarray, ...]:
     """T^T K T of element matrices ``K`` (n, 24, 24) of elements ``nodes`` (n, 8) between the
-    newly free DOFs (``_dof_map``), as (row id, column id, value), summed by entry."""
+    moving DOFs (``_dof_map``), as (row id, column id, value), summed by entry."""
     flat = (3 * nodes[:, :, None] + np.arange(3)).reshape(-1, 24)
     ids, weights = dof_map[0][flat], dof_map[1][flat]  # (n, 24, 2)
     rows, columns, values = [], [], []

@@ -533,7 +533,7 @@ class Structure:
             vector.scatter_forward()
         kinetic_before, potential_before = self._mechanical_energy()
         # (the forces of that call, which the equilibration keeps on the DOFs that were free)
-        before = BeforeRefinement.of(self) if balances else None
+        before = BeforeRefinement.of(self, t) if balances else None
 
         # weak, bottom to top, then strong; an interface no rank changes is skipped by all
         # (each activation is collective). Each interface's cells read only its own column of

@@ -57,13 +57,13 @@ class Stabilisation:
     its reach, the opening at which the pair's cohesive element carries the tie's force
     (released by the law's final opening), or moved the way it pushes (then it pushes with at
     most what the element carries at its onset and lets go before it), so that it never pushes
-    an interface open. Before either acts, ``equilibrate`` puts the DOFs a refinement frees in
-    balance (``equilibrates``, ``adaptivity.equilibration``)."""
+    an interface open. Before either acts, ``equilibrate`` puts the nodes of the refined cells
+    in balance (``equilibrates``, ``adaptivity.equilibration``)."""
 
     damping: float = 0.0
     damping_window: float = 0.0
     release_window: float = 0.0
-    # the DOFs a refinement frees start in balance with what holds them
+    # the refined cells' nodes start in balance, each with the acceleration it had
     # (``adaptivity.equilibration``); False: where the split element's field puts them; None
     # (the default): on for a model without ply damage, off with it (``equilibrates``)
     equilibrate: bool | None = None

@@ -1631,12 +1631,12 @@ MEMORY_BASE_BYTES = 2.9e8  # the interpreter, DOLFINx, numba and the compiled fo
 MEMORY_PER_CELL_BYTES = 2.0e3
 MEMORY_PER_CELL_PLY_BYTES = 16.0
 # Step time, measured on this 2-vCPU machine: a fixed part (the solver's own work and the
-# vectors' exchanges: 70 us on a 90-cell DCB), then 0.44 us per elastic cell (the impact
-# plate's ESL run, 2500 cells of 16 plies: 1.11 ms a step), 0.6 us per cohesive element (its
-# layerwise run, 10 000 cells and 7500 cohesive elements: 9.9 ms), and with ply damage about
-# 1.1 us per (cell x ply) on top (the numba kernel: 8.6 us a cell of 8 plies). The estimate
-# once took 10 us per cell (+0.3 per ply), ten times a run's: a layerwise ENF of 2.5 min was
-# announced at 21 min. Good to a factor of ~2 on an idle machine.
+# vectors' exchanges: 70 us on a 90-cell DCB), then 0.44 us per elastic cell, rounded up to
+# 0.5 (the impact plate's ESL run, 2500 cells of 16 plies: 1.11 ms a step), 0.6 us per
+# cohesive element (its layerwise run, 10 000 cells and 7500 cohesive elements: 9.9 ms), and
+# with ply damage about 1.1 us per (cell x ply) on top (the numba kernel: 8.6 us a cell of 8
+# plies). The estimate once took 10 us per cell (+0.3 per ply), ten times a run's: a layerwise
+# ENF of 2.5 min was announced at 21 min. Good to a factor of ~2 on an idle machine.
 STEP_SECONDS_FIXED = 7.0e-5
 STEP_SECONDS_PER_CELL = 5.0e-7
 STEP_SECONDS_PER_COHESIVE = 6.0e-7

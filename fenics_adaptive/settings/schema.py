@@ -1284,8 +1284,9 @@ SECTIONS: tuple[Section, ...] = (
             Key(
                 "equilibrate",
                 "bool",
-                "the DOFs a refinement frees start in balance with the nodes around them held (a "
-                "linear solve per refinement; false: where the split element's field puts them); "
+                "the refined cells' nodes start in balance, each with the acceleration it had, "
+                "the other nodes held (a linear solve per refinement; false: where the split "
+                "element's field puts them); "
                 "left out: on without ply damage, off with it (the elastic tangent is not a "
                 "damaged ply's)",
                 default=OPTIONAL,
