@@ -45,7 +45,7 @@ from fenics_adaptive.simulation import build_structure
 # %%
 data = tomllib.loads((TUTORIAL_DIR / "seven_plies.toml").read_text())  # Figure 2
 # the new nodes stay where the refinement places them, whose forces this page sums (a run's
-# default then puts the DOFs a refinement frees in equilibrium: adaptivity/equilibration.py)
+# default then puts the refined cells' nodes in equilibrium: adaptivity/equilibration.py)
 data["stabilisation"] = {"equilibrate": False}
 
 assert MPI.COMM_WORLD.size == 1, "run this script in serial"

@@ -128,7 +128,7 @@ def build(initial="none", stabilisation=None):
     data = copy.deepcopy(BASE)
     data["interfaces"]["initial"] = initial
     # the paper's remedies act on the jump of the placed nodes; a run's default first puts
-    # the DOFs a refinement frees in equilibrium (adaptivity/equilibration.py), which takes
+    # the refined cells' nodes in equilibrium (adaptivity/equilibration.py), which takes
     # most of that jump away (the end of this page)
     data["stabilisation"] = {"equilibrate": False, **(stabilisation or {})}
     config = parse_config(data, source="05_stabilisation")
@@ -318,7 +318,7 @@ print(f"  abrupt {rms_abrupt:.4f} N, damped {rms_damped:.4f} N")
 assert rms_damped < 0.1 * rms_abrupt
 
 # %% [markdown]
-# ### This package's default: equilibrate what the refinement frees
+# ### This package's default: equilibrate the refined cells' nodes
 #
 # Both jumps come from where the new DOFs start: on the split element's field (weak) or with
 # a closed cohesive element (strong), neither in equilibrium with the column. A run's default

@@ -115,7 +115,7 @@ reaction_face = "x0"
 component = "z"
 [stabilisation]
 # the new nodes stay where the refinement places them, which this page follows (a run's
-# default then puts the DOFs a refinement frees in equilibrium: adaptivity/equilibration.py)
+# default then puts the refined cells' nodes in equilibrium: adaptivity/equilibration.py)
 equilibrate = false
 """
 

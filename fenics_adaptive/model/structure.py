@@ -499,8 +499,8 @@ class Structure:
         self, requests: Iterable[tuple[int, int, int]], t: float = 0.0, balance: bool = True
     ) -> bool:
         """Collective: refine owned cells at time t. ``requests``: (local cell, interface, WEAK
-        or STRONG); a strong request on an unrefined interface makes it weak first. The extra
-        DOFs of the refined cells and those it frees are put in balance
+        or STRONG); a strong request on an unrefined interface makes it weak first. The nodes
+        of the refined cells (base nodes included) and the DOFs it frees are put in balance
         (``adaptivity.equilibration``) if the stabilisation settings ask for it and
         ``balance`` (False: a restart's replay, whose stored state is put back; the initial
         refinement, before there is any motion to balance); ``last_equilibrated`` says what
