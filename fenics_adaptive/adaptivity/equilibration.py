@@ -69,7 +69,7 @@ from petsc4py import PETSc
 
 from fenics_adaptive.adaptivity import enrichment as enr
 from fenics_adaptive.materials.cohesive import cohesive_tangents
-from fenics_adaptive.model.mass_scaling import element_stiffness
+from fenics_adaptive.model.mass_scaling import distinct_elements, element_stiffness
 from fenics_adaptive.settings.materials import P_KN, P_KS, P_N, P_S
 
 if TYPE_CHECKING:
@@ -439,7 +439,7 @@ def _dof_map(structure: Structure, slot: np.ndarray) -> tuple[np.ndarray, np.nda
 def _tangent(
     structure: Structure, dof_map: tuple[np.ndarray, np.ndarray]
 ) -> tuple[np.ndarray, ...]:
-    """This rank's share of K_FF as triplets (row id, column id, N/mm), summed by entry: its
+    """This rank's share of K_FF as triplets (row id, column id, N/mm), not summed by entry: its
     solid (unrefined cells and subelements) and cohesive elements that move with a moving DOF
     (``dof_map``, ``_dof_map``)."""
     moves = (dof_map[0].reshape(-1, 6) >= 0).any(axis=1)  # per combined node
@@ -473,7 +473,7 @@ def _tangent(
         parts.append(_triplets(dof_map, element_nodes, K))
     if not parts:
         return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0)
-    return _summed(*(np.concatenate(p) for p in zip(*parts, strict=True)))
+    return tuple(np.concatenate(p) for p in zip(*parts, strict=True))
 
 
 def _solid_tangents(
@@ -488,8 +488,13 @@ def _solid_tangents(
         x = structure.gather(nodes, name)
         return np.ascontiguousarray(np.einsum("eij,eaj->eai", frames, x) if len(frames) else x)
 
-    about = in_frames("u") if structure.base.finite else None
-    K = element_stiffness(in_frames("X"), rules, structure.rule_table.packed, about)
+    packed = structure.rule_table.packed
+    X = in_frames("X")
+    if structure.base.finite:
+        K = element_stiffness(X, rules, packed, in_frames("u"))
+    else:  # each distinct shape once (a structured mesh has a few), the same on every rank
+        shapes, first, same = distinct_elements(X, rules, structure.laminate.thickness)
+        K = element_stiffness(shapes, rules[first], packed)[same]
     if len(frames):  # K_global = T^T K_local T, T = blockdiag(F, ..., F)
         n = len(K)
         K = K.reshape(n, 8, 3, 8, 3)
@@ -501,12 +506,15 @@ def _triplets(
     dof_map: tuple[np.ndarray, np.ndarray], nodes: np.ndarray, K: np.ndarray
 ) -> tuple[np.ndarray, ...]:
     """T^T K T of element matrices ``K`` (n, 24, 24) of elements ``nodes`` (n, 8) between the
-    moving DOFs (``_dof_map``), as (row id, column id, value), summed by entry."""
+    moving DOFs (``_dof_map``), as (row id, column id, value), not yet summed by entry (one
+    sort for all, in ``_tangent``)."""
     flat = (3 * nodes[:, :, None] + np.arange(3)).reshape(-1, 24)
     ids, weights = dof_map[0][flat], dof_map[1][flat]  # (n, 24, 2)
+    # a second master only where a border DOF follows two (most elements have none)
+    masters = range(2) if (ids[:, :, 1] >= 0).any() else range(1)
     rows, columns, values = [], [], []
-    for p in range(2):
-        for q in range(2):
+    for p in masters:
+        for q in masters:
             row = np.broadcast_to(ids[:, :, p, None], K.shape)
             column = np.broadcast_to(ids[:, None, :, q], K.shape)
             keep = (row >= 0) & (column >= 0)
@@ -514,7 +522,7 @@ def _triplets(
             rows.append(row[keep])
             columns.append(column[keep])
             values.append(scaled[keep])
-    return _summed(np.concatenate(rows), np.concatenate(columns), np.concatenate(values))
+    return np.concatenate(rows), np.concatenate(columns), np.concatenate(values)
 
 
 def _summed(rows: np.ndarray, columns: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, ...]:
@@ -537,6 +545,8 @@ class _Factor:
         ``owned_ids``: the ids of its owned moving DOFs, in the order of the residuals
         ``solve`` will be given."""
         self.comm = comm
+        if comm.size > 1:  # each rank's share summed before it travels (smaller messages)
+            rows, columns, values = _summed(rows, columns, values)
         gathered = comm.gather((rows, columns, values, owned_ids), root=0)
         self.ksp = self.A = None
         ids = None
@@ -544,16 +554,15 @@ class _Factor:
             rows, columns, values, self.residual_ids = (
                 np.concatenate(part) for part in zip(*gathered, strict=True)
             )
-            rows, columns, values = _summed(rows, columns, values)
             ids = np.sort(self.residual_ids)
             n = len(ids)
             r, c = np.searchsorted(ids, rows), np.searchsorted(ids, columns)
-            indptr = np.concatenate([[0], np.cumsum(np.bincount(r, minlength=n))])
-            self.A = PETSc.Mat().createAIJ(
-                (n, n),
-                csr=(indptr.astype(PETSc.IntType), c.astype(PETSc.IntType), values),
-                comm=PETSc.COMM_SELF,
-            )
+            # PETSc sums the repeated entries (the elements' shares) as it assembles
+            self.A = PETSc.Mat().create(comm=PETSc.COMM_SELF)
+            self.A.setSizes((n, n))
+            self.A.setType(PETSc.Mat.Type.SEQAIJ)
+            self.A.setPreallocationCOO(r.astype(PETSc.IntType), c.astype(PETSc.IntType))
+            self.A.setValuesCOO(np.ascontiguousarray(values, dtype=PETSc.ScalarType))
             self.A.assemble()
             self.ksp = PETSc.KSP().create(PETSc.COMM_SELF)
             self.ksp.setOperators(self.A)

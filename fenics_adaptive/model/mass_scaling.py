@@ -727,7 +727,7 @@ def selective_mass(structure: Structure, target_step: float | None = None) -> Se
     # the element problems of each distinct (shape, rule) once (a structured mesh has a few),
     # on the shape as its key gives it, so that the factors do not depend on the partition
     scale = comm.allreduce(float(np.abs(X - X[:, :1, :]).max(initial=0.0)), op=MPI.MAX)
-    Xd, first, same = _distinct_elements(X, rules, scale or 1.0)
+    Xd, first, same = distinct_elements(X, rules, scale or 1.0)
     rules_d = rules[first]
     normals = edge_normals(Xd)
     m = structure.rule_table.lumped_masses(Xd, plies[first, 0], plies[first, 1])
@@ -776,7 +776,7 @@ def selective_mass(structure: Structure, target_step: float | None = None) -> Se
     )
 
 
-def _distinct_elements(
+def distinct_elements(
     X: np.ndarray, rules: np.ndarray, scale: float
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The distinct element shapes (vertices relative to the first one, rounded to 1e-10 of
