@@ -556,12 +556,14 @@ class _Factor:
             )
             ids = np.sort(self.residual_ids)
             n = len(ids)
-            r, c = np.searchsorted(ids, rows), np.searchsorted(ids, columns)
+            place = np.zeros(int(ids[-1]) + 1 if n else 0, dtype=PETSc.IntType)
+            place[ids] = np.arange(n)  # each id's row (ids are global DOF numbers: few)
+            r, c = place[rows], place[columns]
             # PETSc sums the repeated entries (the elements' shares) as it assembles
             self.A = PETSc.Mat().create(comm=PETSc.COMM_SELF)
             self.A.setSizes((n, n))
             self.A.setType(PETSc.Mat.Type.SEQAIJ)
-            self.A.setPreallocationCOO(r.astype(PETSc.IntType), c.astype(PETSc.IntType))
+            self.A.setPreallocationCOO(r, c)
             self.A.setValuesCOO(np.ascontiguousarray(values, dtype=PETSc.ScalarType))
             self.A.assemble()
             self.ksp = PETSc.KSP().create(PETSc.COMM_SELF)
