@@ -221,10 +221,13 @@ def equilibrate(
     was_free = np.zeros(3 * structure.extra.n_local, dtype=bool)
     was_free[free[~freed]] = True
     owned_extra = extra[: dofs.owned_extra]
+    base_load, extra_load = face_loads(structure, t)  # (of the refined structure)
     target = np.concatenate(
         [
-            _targets(structure, owned_extra, was_free[owned_extra], before, accelerations, t),
-            _base_targets(structure, base[: dofs.owned_base], before, accelerations, t),
+            _targets(
+                structure, owned_extra, was_free[owned_extra], before, accelerations, extra_load
+            ),
+            _base_targets(structure, base[: dofs.owned_base], before, accelerations, base_load),
         ]
     )
     first = remaining = target - _internal_force(structure, dofs, t)
@@ -325,7 +328,7 @@ def _targets(
     was_free: np.ndarray,
     before: BeforeRefinement,
     accelerations: tuple[np.ndarray, np.ndarray] | None,
-    t: float,
+    extra_load: np.ndarray,
 ) -> np.ndarray:
     """Collective: the internal force (N) each owned moving DOF ``owned`` (flat) is to carry,
     so that the refinement changes no acceleration. One that ``was_free`` keeps the one it had
@@ -334,10 +337,10 @@ def _targets(
     set-B node whose set-A partner was free, the partner's (``accelerations``, the blocks'
     owned DOFs, mm/s^2, before the refinement); else its column's, the base nodes below and
     above interpolated at its interface's thickness fraction (as a new node's motion is
-    placed); none at rest (``accelerations`` None). m: the mass the solver divides by."""
+    placed); none at rest (``accelerations`` None). m: the mass the solver divides by.
+    ``extra_load``: the face loads (N) on the owned extra DOFs now (``face_loads``)."""
     comm = structure.comm
-    n_owned = 3 * structure.extra.n_owned
-    target = structure.loads.extra_force(t, n_owned).ravel()[owned]
+    target = extra_load[owned]
     if comm.allreduce(accelerations is not None, op=MPI.LOR):
         base = la.vector(structure.base.V.dofmap.index_map, bs=3)
         if accelerations is not None:
@@ -366,8 +369,7 @@ def _targets(
     kept = owned[was_free]  # (indices the refinement did not change: ``BeforeRefinement``)
     target[was_free] = _kept_force(
         before.extra_force[kept],
-        structure.loads.extra_force(t, 3 * structure.extra.n_owned).ravel()[kept]
-        - before.extra_load[kept],
+        extra_load[kept] - before.extra_load[kept],
         before.extra_mass[kept] - structure.extra_block.mass[kept],
         accelerations[1][kept] if accelerations is not None else None,
     )
@@ -393,12 +395,12 @@ def _base_targets(
     owned: np.ndarray,
     before: BeforeRefinement,
     accelerations: tuple[np.ndarray, np.ndarray] | None,
-    t: float,
+    base_load: np.ndarray,
 ) -> np.ndarray:
     """The internal force (N) each owned moving base DOF ``owned`` (flat) is to carry so that
     its acceleration stays as it was (``_kept_force``: the loads a refined side face moves onto
-    the new nodes, the mass the new nodes take off it; ``before``)."""
-    base_load = face_loads(structure, t)[0]
+    the new nodes, ``base_load`` now against ``before``, and the mass the new nodes take off
+    it)."""
     return _kept_force(
         before.base_force[owned],
         base_load[owned] - before.base_load[owned],
