@@ -310,20 +310,25 @@ def panel(
     n_around, n_along = _count("n_around", n_around), _count("n_along", n_along)
     start = -0.5 * angle if start is None else float(start)
     tol = 1e-6 * max(radius, length)
-    ends = [math.radians(start), math.radians(start + angle)]
+    # a circle arc is the shorter one between its ends: from 180 degrees on, two arcs
+    pieces = 2 if angle >= 180.0 else 1
+    if n_around < pieces:
+        raise ValueError(f"mesh.n_around: a panel of {angle} degrees needs at least 2 cells")
+    ends = [math.radians(start + angle * k / pieces) for k in range(pieces + 1)]
     points = [(radius * math.sin(a), radius * math.cos(a)) for a in ends]
+    cells = [n_around // pieces + (k < n_around % pieces) for k in range(pieces)]
 
     def profile():
         occ = gmsh.model.occ
         p = [occ.addPoint(0, y, z) for y, z in points]
         centre = occ.addPoint(0, 0, 0)
-        return [(occ.addCircleArc(p[0], centre, p[1]), n_around)]
+        return [(occ.addCircleArc(p[k], centre, p[k + 1]), cells[k]) for k in range(pieces)]
 
     names = {
         "x0": lambda starts, tops: _curves_at(0.0, tol),
         "x1": lambda starts, tops: _curves_at(length, tol),
         "theta0": lambda starts, tops: _lines_along_x(*points[0], tol),
-        "theta1": lambda starts, tops: _lines_along_x(*points[1], tol),
+        "theta1": lambda starts, tops: _lines_along_x(*points[-1], tol),
     }
     return _sweep(profile, length, n_along, names, np.array([1.0, 0.0, 0.0]))
 

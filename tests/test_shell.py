@@ -70,6 +70,13 @@ def test_generated_surfaces_have_their_cells_edges_and_exact_normals():
         "theta0": 5,
         "theta1": 5,
     }
+    # a panel of 180 degrees or more: the arc it asks for, not the shorter one between its ends
+    for angle in (180.0, 300.0):
+        wide = surface.panel(20.0, 30.0, angle, 12, 4)
+        theta = np.degrees(np.arctan2(wide.nodes[:, 1], wide.nodes[:, 2]))
+        assert len(wide.nodes) == 13 * 5 and len(wide.quads) == 48
+        np.testing.assert_allclose([theta.min(), theta.max()], [-angle / 2, angle / 2])
+        assert {k: len(v) for k, v in wide.edges.items()}["theta1"] == 4
     hat = surface.hat(100.0, 40.0, 30.0, 15.0, 5.0, 10)
     # the hat's folds: nodes on two faces have no single normal
     assert np.isnan(hat.normals).any(axis=1).sum() == 4 * 11
