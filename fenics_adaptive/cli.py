@@ -164,6 +164,8 @@ def _command(argv: list[str] | None, interrupt: _StartupInterrupt) -> int:
     except Interrupted as error:
         if comm.rank == 0:
             again = ["fenics-adaptive", "run", args.config, "--out", args.out]
+            if comm.size > 1:  # (other counts too, unless a refinement's ties were acting)
+                again = ["mpiexec", "-n", str(comm.size), *again]
             print(
                 f"fenics-adaptive: {error}; continue with: "
                 f"{shlex.join([*again, '--restart', args.out])}",
@@ -399,9 +401,10 @@ def _duration(seconds: float) -> str:
 
 
 class _StartupInterrupt:
-    """SIGINT before the time loop: remember it (a Ctrl-C may kill a compiler or Gmsh under
-    the program, which then fails with some other error) and raise KeyboardInterrupt. The run
-    puts its own handler in place for the time loop (checkpoint, then stop).
+    """SIGINT or SIGTERM before the time loop: remember it (a Ctrl-C may kill a compiler or
+    Gmsh under the program, which then fails with some other error) and raise
+    KeyboardInterrupt. The run puts its own handler in place for the time loop (checkpoint,
+    then stop).
 
     A KeyboardInterrupt raised while Python runs inside a ctypes callback (numba's compiler
     calls back into Python for its cache) is printed and dropped, and start-up went on
@@ -410,12 +413,15 @@ class _StartupInterrupt:
 
     AGAIN = 0.25  # s
 
+    SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
     def __init__(self):
         self.fired = False
-        self.previous = None
+        self.previous: dict = {}
         self.previous_alarm = None
         if threading.current_thread() is threading.main_thread():
-            self.previous = signal.signal(signal.SIGINT, self._handle)
+            self.previous = {n: signal.signal(n, self._handle) for n in self.SIGNALS}
+            _no_petsc_signal_handlers()
 
     def _handle(self, number, frame) -> None:
         self.fired = True
@@ -433,9 +439,19 @@ class _StartupInterrupt:
             signal.setitimer(signal.ITIMER_REAL, 0.0)
             signal.signal(signal.SIGALRM, self.previous_alarm)
             self.previous_alarm = None
-        if self.previous is not None:
-            signal.signal(signal.SIGINT, self.previous)
-            self.previous = None
+        for number, handler in self.previous.items():
+            signal.signal(number, handler)
+        self.previous = {}
+
+
+def _no_petsc_signal_handlers() -> None:
+    """PETSc, once DOLFINx starts it, puts its own handler on SIGTERM (and others), which
+    prints an error block and aborts the MPI job: the program's own handlers (start-up, then
+    the time loop's checkpoint) take the signals instead. PETSc reads its options from the
+    environment when it starts (after this)."""
+    options = os.environ.get("PETSC_OPTIONS", "")
+    if "-no_signal_handler" not in options.split():
+        os.environ["PETSC_OPTIONS"] = f"{options} -no_signal_handler".strip()
 
 
 def _in_time_loop(error: BaseException) -> bool:
