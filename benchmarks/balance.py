@@ -42,11 +42,12 @@ from fenics_adaptive.meshes.beam import grid_parts  # noqa: E402
 from fenics_adaptive.analysis.studies import variant  # noqa: E402
 from fenics_adaptive.io.refinement_log import FILE_NAME, read_log  # noqa: E402
 from fenics_adaptive.parallel.balance import cell_costs  # noqa: E402
-from fenics_adaptive.runner import execute  # noqa: E402
+from fenics_adaptive.runner import BalanceReport, execute  # noqa: E402
 from fenics_adaptive.settings.config import parse_config  # noqa: E402
 from fenics_adaptive.simulation import starting_cost  # noqa: E402
 
 RANKS = (2, 4, 8)
+GAIN = BalanceReport.GAIN
 
 
 def demo_table(name: str) -> tuple[str, dict]:
@@ -60,16 +61,23 @@ def demo_table(name: str) -> tuple[str, dict]:
     return name.replace("_", " "), variant(name, base, "adaptive")
 
 
-def imbalance_history(config, rows: list[tuple], ranks: int, weighted: bool) -> np.ndarray:
-    """(n_times, 2): time (s) and imbalance after each refinement of ``rows`` (the log), the
-    columns cut into the grid of ``ranks`` patches of equal cells or (``weighted``) equal
-    cost at the start."""
+KINDS = ("cells", "cost", "rebalanced")
+
+
+def imbalance_history(config, rows: list[tuple], ranks: int, kind: str) -> np.ndarray:
+    """(n_times, 3): time (s), imbalance after each refinement of ``rows`` (the log) and the
+    re-balances so far: the columns cut into the grid of ``ranks`` patches of equal cells
+    ("cells") or of equal cost at the start ("cost"), or ("rebalanced") cut again by the cost
+    of the moment whenever a refinement makes the imbalance exceed the run's threshold
+    (``[mesh] rebalance``, and 1.1 x the imbalance the last re-balance left:
+    ``runner.BalanceReport``; here at once, where a run waits for a refinement's ties and
+    damping windows to end)."""
     mesh = config.mesh
     dx, dy = mesh.length / mesh.nx, mesh.width / mesh.ny
     ix, iy = np.meshgrid(np.arange(mesh.nx), np.arange(mesh.ny), indexing="ij")
     columns = np.stack([ix.ravel(), iy.ravel()], axis=1)
     weights = None
-    cost = starting_cost(config) if weighted else None
+    cost = starting_cost(config) if kind != "cells" else None
     if cost is not None:
         weights = cost((columns[:, 0] + 0.5) * dx, (columns[:, 1] + 0.5) * dy)
     part = grid_parts(columns, ranks, weights)
@@ -80,6 +88,7 @@ def imbalance_history(config, rows: list[tuple], ranks: int, weighted: bool) -> 
     by_time: dict[float, list[tuple]] = {}
     for row in rows:
         by_time.setdefault(row[0], []).append(row)
+    cut_at, cuts = None, 0  # the imbalance the last re-balance left, the re-balances so far
     for t in times:
         for _, _, x, y, interface, *_ in by_time.get(t, []):
             column = index[(min(int(x / dx), mesh.nx - 1), min(int(y / dy), mesh.ny - 1))]
@@ -87,16 +96,28 @@ def imbalance_history(config, rows: list[tuple], ranks: int, weighted: bool) -> 
         count = np.zeros(len(columns))
         for column, interfaces in refined.items():
             count[column] = len(interfaces)
-        per_rank = np.bincount(part, weights=cell_costs(count), minlength=ranks)
-        out.append((t, per_rank.max() / per_rank.mean()))
+        costs = cell_costs(count)
+        now = _imbalance(part, costs, ranks)
+        bar = config.mesh.rebalance if cut_at is None else max(config.mesh.rebalance, GAIN * cut_at)
+        if kind == "rebalanced" and now > bar:
+            part = grid_parts(columns, ranks, costs)
+            now = cut_at = _imbalance(part, costs, ranks)
+            cuts += 1
+        out.append((t, now, cuts))
     return np.array(out)
 
 
-def run(name: str, folder: Path) -> dict:
+def _imbalance(part: np.ndarray, costs: np.ndarray, ranks: int) -> float:
+    per_rank = np.bincount(part, weights=costs, minlength=ranks)
+    return float(per_rank.max() / per_rank.mean())
+
+
+def run(name: str, folder: Path, reuse: bool = False) -> dict:
     what, table = demo_table(name)
     config = parse_config(table, source=f"demos [{name}, adaptive]")
     out = folder / name
-    execute(config, out, MPI.COMM_WORLD, show_progress=False, log=None)
+    if not (reuse and (out / FILE_NAME).exists()):
+        execute(config, out, MPI.COMM_WORLD, show_progress=False, log=None, overwrite=True)
     rows = read_log(out / FILE_NAME, math.inf) or []
     result = {
         "case": what,
@@ -105,13 +126,13 @@ def run(name: str, folder: Path) -> dict:
         "insert_film": bool(config.delaminations),
     }
     for ranks in RANKS:
-        for weighted in (False, True):
-            history = imbalance_history(config, rows, ranks, weighted)
-            key = f"{ranks}_{'cost' if weighted else 'cells'}"
-            result[key] = {
+        for kind in KINDS:
+            history = imbalance_history(config, rows, ranks, kind)
+            result[f"{ranks}_{kind}"] = {
                 "start": float(history[0, 1]),
                 "largest": float(history[:, 1].max()),
                 "end": float(history[-1, 1]),
+                "rebalances": int(history[-1, 2]),
             }
     return result
 
@@ -119,18 +140,20 @@ def run(name: str, folder: Path) -> dict:
 def table(results: list[dict]) -> str:
     lines = [
         "imbalance (the costliest rank's cost over the mean) at the start, largest, at the end "
-        "of each demo's adaptive run; partition of equal cells | of equal cost at the start",
+        "of each demo's adaptive run; partition of equal cells | of equal cost at the start | "
+        "re-balanced by the refinement's cost past the threshold (the re-balances in brackets)",
         "| case | cells | refined at end | "
-        + " | ".join(f"{r} ranks, cells | {r} ranks, cost" for r in RANKS)
+        + " | ".join(f"{r} ranks, {kind}" for r in RANKS for kind in KINDS)
         + " |",
-        "|---|---|---|" + "---|" * (2 * len(RANKS)),
+        "|---|---|---|" + "---|" * (len(KINDS) * len(RANKS)),
     ]
     for r in results:
         cells = []
         for ranks in RANKS:
-            for kind in ("cells", "cost"):
+            for kind in KINDS:
                 v = r[f"{ranks}_{kind}"]
-                cells.append(f"{v['start']:.2f} / {v['largest']:.2f} / {v['end']:.2f}")
+                cell = f"{v['start']:.2f} / {v['largest']:.2f} / {v['end']:.2f}"
+                cells.append(cell + (f" ({v['rebalances']})" if kind == "rebalanced" else ""))
         lines.append(
             f"| {r['case']} | {r['cells']} | {r['refined_cells_at_end']} | "
             + " | ".join(cells)
@@ -143,11 +166,19 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results")
     parser.add_argument("--cases", default="plate_impact,four_point_bending,tcb,dcb,enf,mmb50")
+    parser.add_argument(
+        "--runs",
+        type=Path,
+        default=None,
+        help="keep the demos' runs in this folder and reuse those already there (default: a "
+        "temporary folder)",
+    )
     args = parser.parse_args()
     results = []
-    with tempfile.TemporaryDirectory() as folder:
+    with tempfile.TemporaryDirectory() as scratch:
+        folder = args.runs or Path(scratch)
         for name in args.cases.split(","):
-            results.append(run(name, Path(folder)))
+            results.append(run(name, folder, reuse=args.runs is not None))
             print(table(results[-1:]).splitlines()[-1], flush=True)
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "balance.json").write_text(json.dumps(results, indent=1))

@@ -10,6 +10,7 @@ import signal
 import threading
 import time
 from collections.abc import Callable
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import dolfinx
@@ -28,9 +29,10 @@ from fenics_adaptive.io.refinement_log import RefinementLog, read_log
 from fenics_adaptive.io.run_folder import RunFolder
 from fenics_adaptive.model.diagnostics import insert_film_area
 from fenics_adaptive.model.structure import Structure
-from fenics_adaptive.parallel import balance
+from fenics_adaptive.parallel import balance, redistribute
+from fenics_adaptive.parallel.balance import refined_cost
 from fenics_adaptive.settings.config import RunConfig, check_step_count
-from fenics_adaptive.settings.kinds import ModelKind
+from fenics_adaptive.settings.kinds import ModelKind, Partition
 from fenics_adaptive.simulation import Simulation, build_structure, indicator_defaults
 from fenics_adaptive.solver import explicit
 from fenics_adaptive.solver.observers import Observer
@@ -67,20 +69,72 @@ def execute(
     checked.
 
     SIGINT and SIGTERM stop the run at the next poll (every 64 steps) with a checkpoint, a
-    flushed ``history.partial.csv`` and a summary saying "interrupted"."""
+    flushed ``history.partial.csv`` and a summary saying "interrupted". On several ranks an
+    adaptive run whose refinement unbalances the ranks beyond ``[mesh] rebalance`` stops with
+    a checkpoint and continues from it on a partition cut by the refinement's cost (its
+    fields of then on in ``rebalanced_step<N>/``; ``summary.json``: "rebalanced")."""
     out_dir = Path(out_dir)
+    carried = _Carried()
+    repartition = False
+    while True:
+        try:
+            return _segment(
+                config, out_dir, comm, show_progress, log, restart, overwrite, repartition, carried
+            )
+        except explicit.Rebalance as stop:
+            carried.rebalanced.append(
+                {"time_s": stop.t, "step": stop.step, "imbalance_before": carried.imbalance}
+            )
+            carried.stopped = time.perf_counter()
+            restart, overwrite, repartition = out_dir, False, True
+
+
+@dataclass
+class _Carried:
+    """What a run's segments (between re-balances) hand on: the wall time of those done (s),
+    the re-balances so far and the imbalance the last one left."""
+
+    wall_time: float = 0.0
+    rebalanced: list = field(default_factory=list)
+    imbalance: float | None = None  # when the last segment stopped to re-balance
+    stopped: float = 0.0  # s (perf_counter) when it stopped, after its checkpoint
+    first_step: int | None = None  # the step the first segment started from
+
+
+def _segment(
+    config: RunConfig,
+    out_dir: Path,
+    comm: MPI.Comm,
+    show_progress: bool,
+    log: Callable[[str], None] | None,
+    restart: str | Path | None,
+    overwrite: bool,
+    repartition: bool,
+    carried: _Carried,
+) -> tuple[dict, Structure]:
+    """``execute`` from its start or a checkpoint up to the end time or a re-balance
+    (``explicit.Rebalance``, raised after the checkpoint and the outputs are closed)."""
     folder = RunFolder(out_dir, comm, overwrite)
     # a restart into the folder of its checkpoint continues that run folder; else it is fresh
     fresh = restart is None or not _same_folder(checkpoint.locate(restart).parent, out_dir)
     folder.check(fresh)  # before the model is built: a wrong --out is refused at once
     resume, hook_state, kept_rows = None, None, []
+    partition = {"weights": "start"}
     if restart is None:
         simulation = Simulation(config, comm=comm)
     else:
-        simulation, resume, hook_state, kept_rows = _restarted(config, restart, comm)
+        simulation, resume, hook_state, kept_rows, partition = _restarted(
+            config, restart, comm, repartition
+        )
     say = log if (log is not None and comm.rank == 0) else (lambda _: None)
+    if carried.first_step is None:
+        carried.first_step = int(resume["step"]) if resume is not None else 0
+    if repartition:  # the imbalance of the partition just cut
+        cost = balance.structure_costs(simulation.structure.interface_state).sum()
+        carried.rebalanced[-1]["imbalance_after"] = balance.imbalance(comm, cost)
     summary = _summary_at_start(config, simulation, comm)
-    _announce(config, simulation, summary, say)
+    if not repartition:
+        _announce(config, simulation, summary, say)
     # still start-up: a first run's numba compilation is announced, stops at Ctrl-C and stays
     # out of the time loop and its timings
     summary["kernel_compile_time_s"] = kernels.prepare(config, comm, say)
@@ -89,8 +143,13 @@ def execute(
     folder.open(fresh)
     fields_dir = out_dir
     if resume is not None:
-        say(f"restarted from the checkpoint at t = {float(resume['t']):.6e} s")
-        fields_dir = out_dir / f"restart_step{int(resume['step'])}"  # earlier fields stay
+        step = int(resume["step"])
+        if repartition:
+            say(f"t = {float(resume['t']):.4e} s: continued on a partition cut by the refinement")
+            fields_dir = out_dir / f"rebalanced_step{step}"
+        else:
+            say(f"restarted from the checkpoint at t = {float(resume['t']):.6e} s")
+            fields_dir = out_dir / f"restart_step{step}"  # earlier fields stay
         folder.remove_recorded(fields_dir.name)  # those of an earlier restart from here
     try:
         history, fields = _open_outputs(config, simulation, out_dir, fields_dir, kept_rows, folder)
@@ -100,8 +159,10 @@ def execute(
     progress = output.Progress(config.solver.end_time, comm) if show_progress else None
     structure = simulation.structure
     writer = CheckpointWriter(out_dir, config, structure, history, simulation.refinement, folder)
+    writer.partition = partition
     refinement_log = _refinement_log(config, structure, out_dir, restart, resume, folder)
-    balance_report = BalanceReport(structure, say)
+    cut_left = carried.rebalanced[-1]["imbalance_after"] if carried.rebalanced else None
+    balance_report = BalanceReport(structure, say, _rebalance_threshold(config, comm), cut_left)
     observers = (history, fields, progress, writer, RefinementReport(structure, say))
     observers += (balance_report,)
     for observer in (*observers, refinement_log):
@@ -110,10 +171,20 @@ def execute(
     stop = _StopOnSignal(comm)
     simulation.solver.stop_requested = stop
     start = time.perf_counter()
+    if repartition:  # the cut, the rebuild and the replay of the refinements, up to here
+        carried.rebalanced[-1]["seconds"] = start - carried.stopped
     try:
         if resume is not None:
             simulation.restore(resume, hook_state)
         stats = simulation.run()
+    except explicit.Rebalance:
+        carried.wall_time += time.perf_counter() - start
+        carried.imbalance = balance_report.now
+        history.close(completed=False)
+        if fields is not None:
+            fields.close()
+        folder.close()
+        raise
     except BaseException as error:
         history.close(completed=False)
         if fields is not None:
@@ -123,8 +194,8 @@ def execute(
         summary["error"] = f"{type(error).__name__}: {error}"
         if interrupted:
             summary["checkpoint"] = str(out_dir / checkpoint.FOLDER)
-        summary["wall_time_s"] = time.perf_counter() - start
-        summary["load_balance"] = _load_balance(balance_report)
+        summary["wall_time_s"] = carried.wall_time + time.perf_counter() - start
+        summary["load_balance"] = _load_balance(balance_report, carried)
         try:
             output.write_summary(out_dir, summary, comm, folder.record)
         finally:
@@ -136,30 +207,75 @@ def execute(
             progress.done()
         if refinement_log is not None:
             refinement_log.close()
-    summary["load_balance"] = _load_balance(balance_report)
+    summary["load_balance"] = _load_balance(balance_report, carried)
+    stats.wall_time += carried.wall_time
     try:  # the lock is held until the last file is written
-        finished = (stats, history, fields, kept_rows, resume, summary)
+        finished = (stats, history, fields, kept_rows, carried.first_step, summary)
         return _finish(config, out_dir, comm, simulation, finished, say, folder.record)
     finally:
         folder.close()
 
 
+def _rebalance_threshold(config: RunConfig, comm: MPI.Comm) -> float:
+    """The imbalance that re-cuts this run's partition (``[mesh] rebalance``), 0 where none
+    can help: one rank, a model that does not refine, patches of equal cells asked for."""
+    if comm.size == 1 or config.kind != ModelKind.ADAPTIVE:
+        return 0.0
+    if config.mesh.partition != Partition.COST or config.mesh.shell is not None:
+        return 0.0
+    return config.mesh.rebalance
+
+
 def _restarted(
-    config: RunConfig, restart: str | Path, comm: MPI.Comm
-) -> tuple[Simulation, dict, dict, list]:
+    config: RunConfig, restart: str | Path, comm: MPI.Comm, repartition: bool = False
+) -> tuple[Simulation, dict, dict, list, dict]:
     """Collective: the simulation of a checkpoint (the structure rebuilt from the config, its
     refinements replayed and its state put back), the solver and refinement states to resume
-    from and the history rows up to the checkpoint."""
-    manifest, arrays, history_csv = checkpoint.read(restart, comm, config)
-    structure = build_structure(config, comm, refine_initially=False)
-    checkpoint.restore_structure(structure, arrays)
-    resume = checkpoint.solver_state(arrays)
-    simulation = Simulation(config, comm=comm, structure=structure)
+    from, the history rows up to the checkpoint and how the partition was cut. On another
+    number of ranks, after a re-balance, or with ``repartition``, the partition is cut anew,
+    weighted by the refinement at the checkpoint (``checkpoint.read``)."""
+    manifest, arrays, history_csv = checkpoint.read(restart, comm, config, repartition)
+    partition = manifest.get("partition", {"weights": "start"})
+    if isinstance(arrays, redistribute.StoredState):
+        # cut anew, by the refinement at the checkpoint
+        until = float(arrays.files[0]["solver_t"])
+        cost = _refinement_cost(config, arrays.files, until)
+        structure = build_structure(config, comm, refine_initially=False, partition_cost=cost)
+        checkpoint.restore_moved_structure(structure, arrays)
+        simulation = Simulation(config, comm=comm, structure=structure)
+        resume = checkpoint.moved_state(arrays, "solver_", simulation.solver.layout())
+        hook_state = checkpoint.moved_state(
+            arrays, "hook_", simulation.refinement.layout(structure)
+        )
+        partition = {"weights": "refinement", "time_s": until}
+    else:
+        cost = None
+        if partition.get("weights") == "refinement":  # the same cut as the run's, again
+            logs = comm.allgather({k: v for k, v in arrays.items() if k.startswith(_LOG)})
+            cost = _refinement_cost(config, logs, float(partition["time_s"]))
+        structure = build_structure(config, comm, refine_initially=False, partition_cost=cost)
+        checkpoint.restore_structure(structure, arrays)
+        resume = checkpoint.solver_state(arrays)
+        hook_state = checkpoint.hook_state(arrays)
+        simulation = Simulation(config, comm=comm, structure=structure)
     simulation.time_step = float(resume["dt"])
     simulation.stable_time_step = float(resume["stable"])
     with shared_errors(comm):  # the earlier format reads the folder's CSV on each rank
         kept_rows = _kept_history(restart, manifest, history_csv, resume, config)
-    return simulation, resume, checkpoint.hook_state(arrays), kept_rows
+    return simulation, resume, hook_state, kept_rows, partition
+
+
+_LOG = "structure_refinement_"  # the checkpoint's refinement log (and its cells' places)
+
+
+def _refinement_cost(config: RunConfig, files: list[dict], until: float):
+    """``cost(x, y)`` of the cells as the refinement logs of ``files`` (every rank's arrays)
+    left them at time ``until`` (s), for a partition cut by it; None if nothing refined."""
+    centroids, counts = checkpoint.refined_cells(files, until)
+    if not len(counts):
+        return None
+    mesh = config.mesh
+    return refined_cost(centroids, counts, min(mesh.length / mesh.nx, mesh.width / mesh.ny))
 
 
 def model_summary(config: RunConfig, structure: Structure, comm: MPI.Comm) -> dict:
@@ -344,12 +460,17 @@ class CheckpointWriter(Observer):
                  folder: RunFolder):  # fmt: skip
         self.out_dir, self.config, self.structure = out_dir, config, structure
         self.history, self.hook, self.folder = history, hook, folder
+        # how the run's partition was cut (the manifest's "partition"): at the start, or
+        # weighted by the refinement of a moment (a re-balance)
+        self.partition: dict = {"weights": "start"}
 
     def on_checkpoint(self, solver: explicit.ExplicitSolver) -> None:
+        layouts, _ = checkpoint.state_layouts(solver, self.structure, self.hook)
         hook_now = self.hook.state()
         checkpoint.write(
             self.out_dir, self.structure.comm, solver.state(), self.structure, hook_now,
             self.config, self.history.text(), self.folder.record, self.folder.forget,
+            layouts, self.partition,
         )  # fmt: skip
 
 
@@ -389,17 +510,34 @@ class BalanceReport(Observer):
     """Collective: how unequally the ranks share the step's cost (``parallel.balance``): the
     largest rank's cost over the mean at the start (at the first history row: after the
     refinement the indicators ask for at t = 0), after each later refinement, at its
-    largest."""
+    largest. With a ``threshold`` (``[mesh] rebalance``; 0: none) a refinement that makes
+    it larger than the threshold (and, after a re-balance, than 1.1 times the imbalance that
+    re-balance left: ``cut_left``) asks the solver to re-balance
+    (``ExplicitSolver.request_rebalance``) as soon as the state can move to another
+    partition (no refinement's ties or damping windows acting: else at a later history
+    row)."""
 
     # said in the log when the run starts this unbalanced (or a refinement makes it so)
     WORTH_SAYING = 1.2
+    # after a re-balance, the next only past this factor on what it left: a partition that
+    # cannot do better (a few columns per rank) is not cut again and again
+    GAIN = 1.1
 
-    def __init__(self, structure: Structure, say: Callable[[str], None]):
-        self.structure, self.say = structure, say
+    def __init__(
+        self,
+        structure: Structure,
+        say: Callable[[str], None],
+        threshold: float = 0.0,
+        cut_left: float | None = None,
+    ):
+        self.structure, self.say, self.threshold = structure, say, threshold
+        self.bar = threshold if cut_left is None else max(threshold, self.GAIN * cut_left)
         # None until measured (a run that fails before its first step)
         self.at_start: float | None = None
         self.now: float | None = None
         self.largest: float | None = None
+        self.solver: explicit.ExplicitSolver | None = None
+        self.wanted = False  # a re-balance is due as soon as the state can move
 
     def _measure(self) -> float:
         local = balance.structure_costs(self.structure.interface_state).sum()
@@ -409,31 +547,49 @@ class BalanceReport(Observer):
 
     def on_start(self, solver) -> None:
         self.at_start = self.now = self.largest = None
+        self.solver, self.wanted = solver, False
 
     def on_history(self, row) -> None:
-        if self.at_start is not None:
-            return
-        self.at_start = self._measure()
-        if self.at_start > self.WORTH_SAYING:
-            self.say(f"load imbalance {self.at_start:.2f} (the costliest rank over the mean)")
+        if self.at_start is None:
+            self.at_start = self._measure()
+            if self.at_start > self.WORTH_SAYING:
+                self.say(f"load imbalance {self.at_start:.2f} (the costliest rank over the mean)")
+        self._rebalance_if_movable()
+
+    def _rebalance_if_movable(self) -> None:
+        state = self.structure.stabilisation_state  # (the same on every rank)
+        if self.wanted and not (state.ties or state.damping_windows):
+            self.wanted = False
+            self.solver.request_rebalance()
 
     def on_refinement(self, event: RefinementEvent, dt: float, where: str) -> None:
         if self.at_start is None:  # at t = 0: the first history row measures after it
             return
         before = self.largest or 0.0
-        if self._measure() > self.WORTH_SAYING and self.now > before:
+        self._measure()
+        if self.threshold and self.now > self.bar:
+            if not self.wanted:
+                self.say(
+                    f"t = {event.time:.4e} s: load imbalance {self.now:.2f} (the costliest rank "
+                    "over the mean): the partition is cut again"
+                )
+            self.wanted = True
+            self._rebalance_if_movable()
+        elif self.now > self.WORTH_SAYING and self.now > before:
             self.say(
                 f"t = {event.time:.4e} s: load imbalance {self.now:.2f} (the costliest rank "
                 "over the mean; the partition stays as it was cut)"
             )
 
 
-def _load_balance(report: BalanceReport) -> dict:
-    """``summary.json``'s "load_balance"."""
+def _load_balance(report: BalanceReport, carried: _Carried) -> dict:
+    """``summary.json``'s "load_balance" (of the last partition; "rebalanced": when the
+    partition was cut again, and the imbalance before and after)."""
     return {
         "imbalance_at_start": report.at_start,
         "imbalance_at_end": report.now,
         "imbalance_largest": report.largest,
+        "rebalanced": carried.rebalanced,
         "cost_model": (
             f"1 + {balance.REFINED_INTERFACE_COST} per refined interface, in unrefined cells"
         ),
@@ -451,8 +607,8 @@ def _finish(
 ) -> tuple[dict, Structure]:
     """The end of ``execute`` after a completed time loop: the history renamed complete, the
     summary and the plots. ``finished``: (stats, history writer, field writers or None, rows
-    kept by a restart, resumed solver state or None, summary so far)."""
-    stats, history, fields, kept_rows, resume, summary = finished
+    kept by a restart, the step the run started from, summary so far)."""
+    stats, history, fields, kept_rows, first_step, summary = finished
     structure = simulation.structure
     history.close(completed=True)
     if fields is not None:
@@ -469,8 +625,7 @@ def _finish(
             "steps": stats.steps,
             "wall_time_s": stats.wall_time,
             # a restart ran only the steps after its checkpoint
-            "time_per_step_s": stats.wall_time
-            / max(stats.steps - (int(resume["step"]) if resume else 0), 1),
+            "time_per_step_s": stats.wall_time / max(stats.steps - first_step, 1),
             "peak_reaction_force_N": peak.reaction_force,
             "peak_contact_force_N": max(r.contact_force for r in rows),
             "rigid_bodies": {

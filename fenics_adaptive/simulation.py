@@ -53,6 +53,7 @@ from fenics_adaptive.model.lever import LoadingLever
 from fenics_adaptive.model.loading import face_dofs, resolve
 from fenics_adaptive.model.structure import Structure, cells_in_x_range
 from fenics_adaptive.parallel.balance import film_cost
+from fenics_adaptive.parallel.redistribute import Rows
 from fenics_adaptive.settings.adaptivity import Delamination
 from fenics_adaptive.settings.config import RunConfig
 from fenics_adaptive.settings.kinds import (
@@ -101,16 +102,21 @@ class PythonIndicator:
 
 
 def build_structure(
-    config: RunConfig, comm: MPI.Comm = MPI.COMM_WORLD, refine_initially: bool = True
+    config: RunConfig,
+    comm: MPI.Comm = MPI.COMM_WORLD,
+    refine_initially: bool = True,
+    partition_cost: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None,
 ) -> Structure:
     """Mesh, model, loads and (for adaptive, unless a restart replays it) the initial
-    refinement of a config."""
+    refinement of a config. ``partition_cost``: ``cost(x, y)`` of the cells to cut the
+    ranks' patches by with ``[mesh] partition = "cost"`` (default: their cost at the start,
+    ``starting_cost``; a restart's re-balanced partition: ``balance.refined_cost``)."""
     layers = config.layer_laminates()
     boundaries = config.layer_boundaries
     # on several ranks, patches of equal cost (``parallel.balance``)
     cost = None
     if comm.size > 1 and config.mesh.partition == Partition.COST:
-        cost = starting_cost(config)
+        cost = partition_cost or starting_cost(config)
     beam = build_mesh(
         config,
         comm,
@@ -388,6 +394,11 @@ class RefinementHook:
             "next_check": self.next_check,
             "python_next_check": self.python_next.copy(),
         } | self._history_state()
+
+    def layout(self, structure: Structure) -> dict:
+        """How the rows of ``state()``'s arrays are indexed (``parallel.redistribute``): the
+        look-ahead's snapshots by owned cell (axis 1); the rest is the same on every rank."""
+        return {"index_snapshots": Rows(structure.cell_keys(), axis=1)}
 
     def _history_state(self) -> dict[str, np.ndarray]:
         """The look-ahead's past indices (this rank's cells: a checkpoint is per rank), or

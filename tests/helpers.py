@@ -565,3 +565,20 @@ def load_benchmark(name: str):
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module
+
+
+def assert_same_history(serial: dict, parallel: dict, rtol: float = 1e-10) -> None:
+    """Every column equal to ``rtol`` of its scale: the column's largest magnitude, and for the
+    energies (mJ) the largest of any energy in the run (a balance or a dissipated energy is a
+    difference of larger terms, whose round-off it carries)."""
+    from fenics_adaptive.io.output import COLUMN_UNITS, body_unit
+
+    assert serial.keys() == parallel.keys()
+    assert len(serial["time"]) == len(parallel["time"]) > 10
+    energies = [name for name in serial if COLUMN_UNITS.get(name, body_unit(name)) == "mJ"]
+    energy_scale = max(np.abs(serial[name]).max() for name in energies)
+    assert energy_scale > 0
+    for name in serial:
+        a, b = np.array(serial[name]), np.array(parallel[name])
+        scale = energy_scale if name in energies else np.abs(a).max()
+        assert np.abs(a - b).max() <= rtol * scale, name

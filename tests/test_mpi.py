@@ -19,9 +19,15 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from helpers import im7_tube, thin_pulled_beam, thin_tcb_layerwise, toml_text
+from helpers import (
+    assert_same_history,
+    im7_tube,
+    thin_pulled_beam,
+    thin_tcb_layerwise,
+    toml_text,
+)
 
-from fenics_adaptive.io.output import COLUMN_UNITS, body_unit, read_history
+from fenics_adaptive.io.output import read_history
 from fenics_adaptive.io.refinement_log import read_log as read_refinement_log
 
 ROOT = Path(__file__).parent.parent
@@ -44,21 +50,6 @@ def run_case(config: Path, out: Path, ranks: int) -> tuple[dict, list[dict]]:
     result = subprocess.run(command, capture_output=True, text=True, timeout=TIMEOUT, env=ENV)
     assert result.returncode == 0, result.stderr
     return read_history(out / "history.csv"), json.loads(result.stdout.strip().splitlines()[-1])
-
-
-def assert_same_history(serial: dict, parallel: dict, rtol: float = 1e-10) -> None:
-    """Every column equal to ``rtol`` of its scale: the column's largest magnitude, and for the
-    energies (mJ) the largest of any energy in the run (a balance or a dissipated energy is a
-    difference of larger terms, whose round-off it carries)."""
-    assert serial.keys() == parallel.keys()
-    assert len(serial["time"]) == len(parallel["time"]) > 10
-    energies = [name for name in serial if COLUMN_UNITS.get(name, body_unit(name)) == "mJ"]
-    energy_scale = max(np.abs(serial[name]).max() for name in energies)
-    assert energy_scale > 0
-    for name in serial:
-        a, b = np.array(serial[name]), np.array(parallel[name])
-        scale = energy_scale if name in energies else np.abs(a).max()
-        assert np.abs(a - b).max() <= rtol * scale, name
 
 
 ONE_RANK_CASES = {

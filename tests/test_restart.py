@@ -399,6 +399,10 @@ def damage(folder: Path, how: str) -> str:
         del manifest["step"]
         (checkpoint_dir / "checkpoint.json").write_text(json.dumps(manifest))
         return "checkpoint.json"
+    if how in ("json time NaN", "json time not the files'"):
+        manifest["time_s"] = float("nan") if how == "json time NaN" else 0.5 * manifest["time_s"]
+        (checkpoint_dir / "checkpoint.json").write_text(json.dumps(manifest))
+        return "checkpoint.json"
     if how == "truncated npz, earlier format":
         legacy = checkpoint_dir / "rank0.npz"
         legacy.write_bytes(rank_file.read_bytes()[:1000])
@@ -420,6 +424,8 @@ def damage(folder: Path, how: str) -> str:
         "missing history",
         "corrupt json",
         "json without step",
+        "json time NaN",
+        "json time not the files'",
         "truncated npz, earlier format",
     ],
 )
@@ -432,6 +438,20 @@ def test_a_damaged_checkpoint_is_refused_naming_the_file(tmp_path, finished_smal
         run_quietly(small(end_time=3.0e-4), out, restart=out)
     assert caught.value.key == "restart"
     assert name in str(caught.value), str(caught.value)
+    assert {p: p.read_bytes() for p in out.rglob("*") if p.is_file()} == before
+
+
+@pytest.mark.slow
+def test_a_restart_that_would_end_before_its_checkpoint_is_refused(tmp_path, finished_small):
+    """An end time before the checkpoint's: refused, nothing written (it would have run no
+    step and called the run completed past its end)."""
+    out = tmp_path / "out"
+    shutil.copytree(finished_small, out)
+    before = {p: p.read_bytes() for p in out.rglob("*") if p.is_file()}
+    t = json.loads((out / "checkpoint" / "checkpoint.json").read_text())["time_s"]
+    with pytest.raises(InputError) as caught:
+        run_quietly(small(end_time=0.5 * t), out, restart=out)
+    assert caught.value.key == "solver.end_time" and "before the checkpoint" in str(caught.value)
     assert {p: p.read_bytes() for p in out.rglob("*") if p.is_file()} == before
 
 

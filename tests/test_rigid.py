@@ -24,6 +24,7 @@ from fenics_adaptive.settings.config import parse_config
 from fenics_adaptive.simulation import Simulation
 
 DATA = Path(__file__).parent / "data"
+ROOT = Path(__file__).parent.parent
 
 
 def three_point_bending() -> dict:
@@ -131,6 +132,7 @@ def test_a_free_rigid_body_is_the_impactor(tmp_path):
         (lambda r: r.update(motion="free"), "rigid[2].rise_time", "does not apply to a free"),
         (lambda r: r.update(name="left"), "rigid[2].name", "names another"),
         (lambda r: r.update(name="2nd"), "rigid[2].name", "letters, digits"),
+        (lambda r: r.update(name="reaction"), "rigid[2].name", "history columns are taken"),
         (lambda r: r.update(axis="z"), "rigid[2].axis", "one of x, y"),
         (lambda r: r.update(face="y0"), "rigid[2].face", "one of top, bottom"),
         (lambda r: r.update(shape="sphere", axis="x"), "rigid[2].axis", "a sphere has no axis"),
@@ -187,3 +189,20 @@ def test_a_run_with_rigid_bodies_restarts_to_the_uninterrupted_history(tmp_path)
     assert_restarted_history(tmp_path / "split", tmp_path / "whole", atol=1e-12)
     a = read_history(tmp_path / "whole" / "history.csv")
     assert a["nose_force"][-1] > 10.0
+
+
+def test_reserved_body_names_cover_every_column_a_body_could_take():
+    """A body's columns are <name>_force, <name>_displacement and <name>_friction_energy: no
+    name outside ``RESERVED_BODY_NAMES`` gives one that the history or the MMB lever has."""
+    from fenics_adaptive.settings.config import RESERVED_BODY_NAMES
+    from fenics_adaptive.solver.history import COLUMNS
+
+    mmb = parse_config(tomllib.loads((ROOT / "demos" / "fracture_tests_mmb.toml").read_text()))
+    lever_columns = [c for c in mmb.body_columns if not c.startswith(("roller", "saddle"))]
+    assert lever_columns == ["lever_force", "lever_displacement", "hinge_force",
+                             "hinge_displacement"]  # fmt: skip
+    taken = set(COLUMNS) | set(lever_columns)
+    for column in taken:
+        for suffix in ("_force", "_displacement", "_friction_energy"):
+            if column.endswith(suffix):
+                assert column.removesuffix(suffix) in RESERVED_BODY_NAMES, column

@@ -34,6 +34,7 @@ import dataclasses
 import hashlib
 import io
 import json
+import math
 import os
 import re
 import zipfile
@@ -44,7 +45,8 @@ import numpy as np
 from mpi4py import MPI
 
 from fenics_adaptive.errors import InputError, shared_errors
-from fenics_adaptive.model.structure import Structure
+from fenics_adaptive.model.structure import NotMovable, Structure
+from fenics_adaptive.parallel import redistribute
 from fenics_adaptive.settings.config import RunConfig
 from fenics_adaptive.solver.explicit import SolverState
 
@@ -107,12 +109,18 @@ def write(
     history_csv: str = "",
     record: Callable[..., None] | None = None,
     forget: Callable[..., None] | None = None,
+    layouts: dict | None = None,
+    partition: dict | None = None,
 ) -> Path:
     """Collective: write the checkpoint of this moment into ``out_dir/checkpoint``; returns
     that folder. ``history_csv``: the run's history so far (rank 0's; CSV text), kept with the
     state so that a restart continues exactly this history. ``record(path, folder=...)`` is
     told every name before it is written (the run folder's manifest), ``forget(path, ...)``
     the names of the superseded generation once they are removed.
+
+    ``layouts``: how each array's rows are indexed (``state_layouts``; None: this checkpoint
+    continues on the same partition only); ``partition``: how the run's partition was cut
+    (the manifest's "partition").
 
     Protocol (see the module): the new generation's files, fsync'ed, then ``checkpoint.json``
     replaced atomically (the commit), then the older generation's files removed."""
@@ -128,6 +136,10 @@ def write(
     arrays = {f"solver_{k}": np.asarray(v) for k, v in solver_state.items()}
     arrays.update({f"structure_{k}": v for k, v in structure.state().items()})
     arrays.update({f"hook_{k}": np.asarray(v) for k, v in hook_state.items()})
+    movable = comm.allreduce(layouts is not None, op=MPI.LAND)
+    if movable:
+        arrays = redistribute.annotate(arrays, layouts)
+        arrays[REQUEST_CELLS], arrays[REQUEST_CENTROIDS] = structure.request_cells()
     entry = None
     with shared_errors(comm):
         buffer = io.BytesIO()
@@ -153,6 +165,10 @@ def write(
                 "config_fingerprint": fingerprint(config),
                 "config": config.source,
                 "sequence": sequence,
+                # whether each array says how its rows are indexed (another partition can
+                # read it), and how this run's partition was cut
+                "movable": movable,
+                "partition": partition or {"weights": "start"},
                 "ranks": entries,
                 "history": _entry(history_name, history),
             }
@@ -164,6 +180,24 @@ def write(
             if forget is not None:
                 forget(*removed)
     return folder
+
+
+# the original cell of each logged refinement request, for another partition's replay
+REQUEST_CELLS = "structure_refinement_requests@cells"
+REQUEST_CENTROIDS = "structure_refinement_requests@xy"  # (their in-plane centroids, mm)
+
+
+def state_layouts(solver, structure: Structure, hook) -> tuple[dict | None, str]:
+    """(layouts of every array a checkpoint of this moment holds, by their checkpoint names,
+    or None; why not, or ""): ``parallel.redistribute``. None while a refinement's ties or
+    damping windows act, or with a force contributor that has a state and no layout."""
+    try:
+        layouts = {f"solver_{k}": v for k, v in solver.layout().items()}
+        layouts.update({f"structure_{k}": v for k, v in structure.layout().items()})
+        layouts.update({f"hook_{k}": v for k, v in hook.layout(structure).items()})
+    except NotMovable as reason:
+        return None, str(reason)
+    return layouts, ""
 
 
 def commit(partial: Path, final: Path) -> None:
@@ -229,6 +263,10 @@ def _read_manifest(path: Path) -> dict:
         manifest = json.loads(path.read_text())
         for key, kind in (("time_s", float), ("step", int), ("mpi_ranks", int)):
             manifest[key] = kind(manifest[key])
+        if not (math.isfinite(manifest["time_s"]) and manifest["time_s"] >= 0.0):
+            raise TypeError(f"time_s = {manifest['time_s']} is not a time")
+        if manifest["step"] < 0 or manifest["mpi_ranks"] < 1:
+            raise TypeError("step or mpi_ranks out of range")
         if not isinstance(manifest["config_fingerprint"], str):
             raise TypeError("config_fingerprint is not a string")
     except (OSError, UnicodeDecodeError) as error:
@@ -240,9 +278,13 @@ def _read_manifest(path: Path) -> dict:
     return manifest
 
 
-def read(folder: str | Path, comm: MPI.Comm, config: RunConfig) -> tuple[dict, dict, str | None]:
+def read(
+    folder: str | Path, comm: MPI.Comm, config: RunConfig, repartition: bool = False
+) -> tuple[dict, dict | redistribute.StoredState, str | None]:
     """Collective: (manifest, this rank's arrays, the history CSV text kept with the
-    checkpoint or None for the earlier format) of the checkpoint in ``folder``. Raises
+    checkpoint or None for the earlier format) of the checkpoint in ``folder``. On another
+    number of ranks than wrote it, or with ``repartition``, every rank's arrays instead
+    (``redistribute.StoredState``: the run continues on a partition of its own). Raises
     InputError, on every rank, when it cannot continue this config on this number of ranks
     or when a file of it is damaged or missing."""
     manifest, where = None, None
@@ -250,12 +292,6 @@ def read(folder: str | Path, comm: MPI.Comm, config: RunConfig) -> tuple[dict, d
         if comm.rank == 0:
             where = locate(folder)
             manifest = _read_manifest(where / MANIFEST)
-            if manifest["mpi_ranks"] != comm.size:
-                raise InputError(
-                    "restart",
-                    f"the checkpoint was written by {manifest['mpi_ranks']} MPI rank(s); "
-                    f"restart it on as many (this run has {comm.size})",
-                )
             if manifest["config_fingerprint"] != fingerprint(config):
                 raise InputError(
                     "restart",
@@ -263,14 +299,58 @@ def read(folder: str | Path, comm: MPI.Comm, config: RunConfig) -> tuple[dict, d
                     f"({manifest['config']}) in more than solver.end_time and "
                     "output.checkpoint_interval",
                 )
-    manifest, where = comm.bcast((manifest, where), root=0)
-    arrays, history = {}, None
+            if config.solver.end_time < manifest["time_s"] * (1.0 - 1e-12):
+                raise InputError(
+                    "solver.end_time",
+                    f"{config.solver.end_time:g} s is before the checkpoint's time "
+                    f"({manifest['time_s']:.6g} s), from which a restart continues",
+                )
+            moves = repartition or int(manifest["mpi_ranks"]) != comm.size
+            repartition = moves
+            if moves and not manifest.get("movable", False):
+                raise InputError(
+                    "restart",
+                    f"the checkpoint was written by {manifest['mpi_ranks']} MPI rank(s) and "
+                    "cannot move to another partition (written while a refinement's ties or "
+                    "damping windows acted, or by an earlier version); restart it on as many "
+                    f"(this run has {comm.size})",
+                )
+    manifest, where, repartition = comm.bcast((manifest, where, repartition), root=0)
+    ranks = manifest.get("ranks")
+    if repartition:
+        with shared_errors(comm):  # (every rank reads every file)
+            files = [_rank_arrays(where, ranks, r) for r in range(int(manifest["mpi_ranks"]))]
+        arrays = redistribute.StoredState(files, comm.rank, comm.size)
+    else:
+        arrays = _rank_arrays(where, ranks, comm.rank, comm)
+    first = arrays.files[0] if isinstance(arrays, redistribute.StoredState) else arrays
     with shared_errors(comm):
-        ranks = manifest.get("ranks")
-        entry = ranks[comm.rank] if isinstance(ranks, list) else None
-        name = entry.get("name") if isinstance(entry, dict) else f"rank{comm.rank}.npz"
+        stored = (float(first["solver_t"]), int(first["solver_step"]))
+        if stored != (manifest["time_s"], manifest["step"]):
+            said = f"{manifest['time_s']:.9g} s, step {manifest['step']}"
+            raise _damaged(where / MANIFEST, f"says {said}; its files {stored[0]:.9g} s, "
+                           f"step {stored[1]}")  # fmt: skip
+    history = None
+    with shared_errors(comm):
+        if comm.rank == 0 and "history" in manifest:
+            entry = manifest["history"]
+            path = where / str(entry.get("name"))
+            try:
+                history = _read_checked(path, entry).decode()
+            except UnicodeDecodeError:
+                raise _damaged(path, "is not text") from None
+    history = comm.bcast(history, root=0)
+    return manifest, arrays, history
+
+
+def _rank_arrays(where: Path, ranks, rank: int, comm: MPI.Comm = MPI.COMM_SELF) -> dict:
+    """Collective over ``comm``: the arrays of the file of old rank ``rank``, checked."""
+    arrays = {}
+    with shared_errors(comm):
+        entry = ranks[rank] if isinstance(ranks, list) and rank < len(ranks) else None
+        name = entry.get("name") if isinstance(entry, dict) else f"rank{rank}.npz"
         if not isinstance(name, str) or Path(name).name != name:
-            raise _damaged(where / MANIFEST, "names no valid file for this rank")
+            raise _damaged(where / MANIFEST, f"names no valid file for rank {rank}")
         path = where / name
         data = _read_checked(path, entry)
         try:
@@ -281,15 +361,7 @@ def read(folder: str | Path, comm: MPI.Comm, config: RunConfig) -> tuple[dict, d
         missing = [k for k in _REQUIRED if k not in arrays]
         if missing:
             raise _damaged(path, f"lacks {', '.join(missing[:3])}")
-        if comm.rank == 0 and "history" in manifest:
-            entry = manifest["history"]
-            path = where / str(entry.get("name"))
-            try:
-                history = _read_checked(path, entry).decode()
-            except UnicodeDecodeError:
-                raise _damaged(path, "is not text") from None
-    history = comm.bcast(history, root=0)
-    return manifest, arrays, history
+    return arrays
 
 
 # what a checkpoint's arrays must hold, whatever the model
@@ -308,20 +380,90 @@ _REQUIRED = (
 def restore_structure(structure: Structure, arrays: dict) -> None:
     """Collective: replay the logged refinements on a structure built from the config without
     its initial refinement, then put the stored state back (``Structure.restore``)."""
-    prefix = "structure_"
-    structure.restore(
-        {k.removeprefix(prefix): v for k, v in arrays.items() if k.startswith(prefix)}
-    )
+    structure.restore(_named(arrays, "structure_"))
 
 
 def solver_state(arrays: dict) -> dict:
     """The solver's part of a checkpoint, as ``ExplicitSolver.restore`` takes it."""
-    out = {}
-    for name, value in arrays.items():
-        if name.startswith("solver_"):
-            out[name.removeprefix("solver_")] = value[()] if value.ndim == 0 else value
-    return out
+    return {k: v[()] if v.ndim == 0 else v for k, v in _named(arrays, "solver_").items()}
 
 
 def hook_state(arrays: dict) -> dict:
-    return {n.removeprefix("hook_"): v for n, v in arrays.items() if n.startswith("hook_")}
+    """The refinement hook's part of a checkpoint, as ``RefinementHook.restore`` takes it."""
+    return _named(arrays, "hook_")
+
+
+def _named(arrays: dict, prefix: str) -> dict:
+    """The arrays named ``prefix``* without the prefix, their layouts left out."""
+    named = (k for k in arrays if k.startswith(prefix) and "@" not in k)
+    return {k.removeprefix(prefix): arrays[k] for k in named}
+
+
+def refined_cells(files: list[dict], until: float = math.inf) -> tuple[np.ndarray, np.ndarray]:
+    """(in-plane centroids (n, 2) mm, how many interfaces each is refined at (n,)) of every
+    cell the refinement logs of ``files`` (the arrays of every rank) refined up to time
+    ``until`` (s)."""
+    cells, centroids, interfaces = [], [], []
+    for f in files:
+        times = f["structure_refinement_times"]
+        counts = f["structure_refinement_counts"]
+        keep = np.repeat(times <= until * (1.0 + 1e-12), counts)
+        cells.append(f[REQUEST_CELLS][keep])
+        centroids.append(f[REQUEST_CENTROIDS].reshape(-1, 2)[keep])
+        interfaces.append(f["structure_refinement_requests"].reshape(-1, 3)[keep, 1])
+    cells, centroids = np.concatenate(cells), np.concatenate(centroids)
+    interfaces = np.concatenate(interfaces)
+    if len(cells) == 0:
+        return np.zeros((0, 2)), np.zeros(0, np.int64)
+    _, first = np.unique(np.stack([cells, interfaces], axis=1), axis=0, return_index=True)
+    _, at, counts = np.unique(cells[first], return_index=True, return_counts=True)
+    return centroids[first][at], counts
+
+
+def _moved_refinement_log(stored: redistribute.StoredState, structure: Structure) -> dict:
+    """The stored refinement log as this rank replays it: each entry's requests of the cells
+    this rank owns (every rank has every entry, perhaps empty: the replay is collective)."""
+    order = np.argsort(structure.original_cell)
+    owned = structure.original_cell[order]
+    times = stored.files[0]["structure_refinement_times"]
+    parts = []
+    for f in stored.files:
+        offsets = np.concatenate([[0], np.cumsum(f["structure_refinement_counts"])])
+        parts.append((offsets, f["structure_refinement_requests"].reshape(-1, 3), f[REQUEST_CELLS]))
+    counts, requests = [], []
+    for k in range(len(times)):
+        entry = []
+        for offsets, rows, cells in parts:
+            rows, cells = rows[offsets[k] : offsets[k + 1]], cells[offsets[k] : offsets[k + 1]]
+            at = np.minimum(np.searchsorted(owned, cells), max(len(owned) - 1, 0))
+            mine = owned[at] == cells if len(owned) else np.zeros(len(cells), dtype=bool)
+            entry.append(np.column_stack([order[at[mine]], rows[mine, 1:]]))
+        entry = np.concatenate(entry).astype(np.int64).reshape(-1, 3)
+        counts.append(len(entry))
+        requests.append(entry)
+    return {
+        "refinement_times": times,
+        "refinement_counts": np.array(counts, dtype=np.int64),
+        "refinement_requests": np.concatenate(requests or [np.zeros((0, 3), np.int64)]),
+        "refinement_energy": stored.files[0]["structure_refinement_energy"],
+    }
+
+
+def restore_moved_structure(structure: Structure, stored: redistribute.StoredState) -> None:
+    """Collective: a checkpoint written on another partition (``read``) put on ``structure``
+    (built from the config without its initial refinement): the logged refinements replayed
+    on the cells this rank owns, then every stored array's rows found by their keys."""
+    structure.replay(_moved_refinement_log(stored, structure))
+    state = moved_state(stored, "structure_", structure.layout())
+    structure.put_back({k: v for k, v in state.items() if not k.startswith("refinement_")})
+
+
+def moved_state(stored: redistribute.StoredState, prefix: str, layouts: dict) -> dict:
+    """This rank's arrays named ``prefix``* of a checkpoint written on another partition, by
+    the ``layouts`` of this partition's objects (names without the prefix)."""
+    out = {}
+    for name in stored.names(prefix):
+        key = name.removeprefix(prefix)
+        value = stored.value(name, layouts.get(key))
+        out[key] = value[()] if np.ndim(value) == 0 else value
+    return out

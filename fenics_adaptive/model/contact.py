@@ -84,6 +84,7 @@ from fenics_adaptive.element.geometry import quad_areas
 from fenics_adaptive.errors import InputError
 from fenics_adaptive.model.forces import Contributor, ForceKind
 from fenics_adaptive.model.loading import face_facets, face_nodes
+from fenics_adaptive.parallel.redistribute import PARTIAL, REPLICATED, Rows
 from fenics_adaptive.parallel.reductions import summed
 from fenics_adaptive.settings.kinds import ImpactorShape, RigidMotion
 from fenics_adaptive.settings.loads import Impactor, RigidBody
@@ -750,6 +751,8 @@ class Contact(Contributor):
 
     def state(self) -> dict[str, np.ndarray]:
         self.finish()
+        if self.structure is not None:
+            self._grow_released(self.structure.extra.n_owned)
         return {
             "centre": self.centre.copy(),
             "velocity": self.velocity.copy(),
@@ -772,6 +775,27 @@ class Contact(Contributor):
             # the default penalty is capped for the step a run starts with; a restart after a
             # refinement starts with a shorter step, and would cap it higher
             "penalty": np.array(self.penalty),
+        }
+
+    def layout(self, structure) -> dict:
+        """How the rows of ``state()``'s arrays are indexed (``parallel.redistribute``): the
+        face's owned nodes and the owned extra nodes by their stable keys; the forces' work,
+        friction and refinement energy as each rank's share (a body summed every step holds
+        its totals on every rank)."""
+        nodes = Rows(structure.node_keys[self.nodes])
+        self._grow_released(structure.extra.n_owned)  # (as ``state`` gives it: every one)
+        n_released = len(self.extra_released)
+        share = REPLICATED if self.every_step else PARTIAL
+        return {
+            "traction": nodes,
+            "previous": nodes,
+            "active": nodes,
+            "extra_released": Rows(structure.extra_node_keys()[:n_released], fill=False),
+            "drive_work": share,
+            "previous_force": share,
+            "initial": share,
+            "friction_local": PARTIAL,
+            "refinement_energy": PARTIAL,
         }
 
     def restore(self, state: dict) -> None:

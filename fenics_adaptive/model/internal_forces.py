@@ -41,6 +41,7 @@ from fenics_adaptive.model.forces import Contributor, ForceKind
 from fenics_adaptive.model.forms import LayeredModel
 from fenics_adaptive.model.ply_damage_state import PlyDamageState
 from fenics_adaptive.model.refined_cells import RefinedCells
+from fenics_adaptive.parallel.redistribute import Rows
 from fenics_adaptive.parallel.reductions import summed
 
 
@@ -278,6 +279,10 @@ class DamagedSolid(Contributor):
     def state(self) -> dict[str, np.ndarray]:
         return self.damage.state()
 
+    def layout(self, structure) -> dict[str, Rows]:
+        """The damage's rows are the owned cells (``parallel.redistribute``)."""
+        return {"damage": Rows(structure.cell_keys())}
+
     def restore(self, state: dict[str, np.ndarray]) -> None:
         self.damage.restore(state)
 
@@ -320,6 +325,11 @@ class CohesiveElements(Contributor):
 
     def state(self) -> dict[str, np.ndarray]:
         return self.cells.cohesive.state()
+
+    def layout(self, structure) -> dict[str, Rows]:
+        """The rows are the damage rows, each of one (cell, interface)."""
+        rows = Rows(structure.cohesive_row_keys())
+        return dict.fromkeys(("damage", "history", "insert"), rows)
 
     def restore(self, state: dict[str, np.ndarray]) -> None:
         self.cells.cohesive.restore(state)

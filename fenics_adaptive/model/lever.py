@@ -194,6 +194,11 @@ class LoadingLever(Contributor):
             "started": np.array(self.started),
         }
 
+    def layout(self, structure) -> dict:
+        """The saddle's rows as a contact's (``Contact.layout``); the hinge's values are the
+        same on every rank."""
+        return {f"saddle_{key}": value for key, value in self.saddle.layout(structure).items()}
+
     def restore(self, state: dict) -> None:
         self._drop_hinge_sum()
         self.saddle.restore({key[len("saddle_"):]: value for key, value in state.items()

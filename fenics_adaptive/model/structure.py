@@ -82,6 +82,15 @@ from fenics_adaptive.model.stable_step import (
 )
 from fenics_adaptive.model.tie_forces import TieForces
 from fenics_adaptive.model.topology import CellColumnTable
+from fenics_adaptive.parallel.redistribute import (
+    PARTIAL,
+    REPLICATED,
+    Layout,
+    Rows,
+    dof_keys,
+    extra_node_keys,
+    node_keys,
+)
 from fenics_adaptive.parallel.reductions import summed
 from fenics_adaptive.parallel.threads import one_thread_per_rank
 from fenics_adaptive.settings.adaptivity import Interfaces, Stabilisation
@@ -98,6 +107,14 @@ def _forwarded(path: str, doc: str) -> property:
 
     get.__doc__ = doc
     return property(get, doc=doc)
+
+
+def _part(state: dict[str, np.ndarray], prefix: str) -> dict[str, np.ndarray]:
+    return {k.removeprefix(prefix): v for k, v in state.items() if k.startswith(prefix)}
+
+
+class NotMovable(Exception):
+    """The state cannot be moved to another partition now (the message says why)."""
 
 
 class Structure:
@@ -155,6 +172,8 @@ class Structure:
         self.bottom_local, self.top_local = self.columns.bottom_local, self.columns.top_local
         self.bottom_global = self.columns.bottom_global
         self.original_cell = self.columns.original_cell
+        # each local base node's number in the mesh as generated: the same on any partition
+        self.node_keys = node_keys(base)
         self.extra = enr.ExtraNodes(self.comm, max(n_interfaces, 1), V.dofmap.index_map)
         # the ply-damage kernel integrates ply by ply: no pre-integrated rule for it
         self.rule_table = RuleTable(
@@ -407,22 +426,88 @@ class Structure:
     def restore(self, state: dict[str, np.ndarray]) -> None:
         """Collective: replay the logged refinements of ``state`` (as ``state`` gives it) on a
         structure built without its initial refinement, then put the stored arrays back."""
+        self.replay(state)
+        self.put_back(state)
 
-        def part(prefix: str) -> dict[str, np.ndarray]:
-            return {k.removeprefix(prefix): v for k, v in state.items() if k.startswith(prefix)}
+    def replay(self, state: dict[str, np.ndarray]) -> None:
+        """Collective: replay the logged refinements of ``state`` (``refinement_*``: times,
+        counts and requests of this rank's cells) on a structure built without its initial
+        refinement, and put back the refinement energy."""
 
         def replay(requests: list[tuple[int, int, int]], t: float) -> None:
             self.refine(requests, t, balance=False)
             self.stabilisation_state.discard_requests()
 
-        self.refinement.restore(part("refinement_"), replay)
+        self.refinement.restore(_part(state, "refinement_"), replay)
+
+    def put_back(self, state: dict[str, np.ndarray]) -> None:
+        """The stored arrays of ``state`` (as ``state`` gives them) put back on a structure
+        at the refinement they were taken at (``replay``)."""
         for contributor in self.contributors:
-            own = part(f"{contributor.name}_")
+            own = _part(state, f"{contributor.name}_")
             if own:
                 contributor.restore(own)
         self.stabilisation_state.restore(state)
         if "border_offsets" in state:  # (a checkpoint of an earlier version: none, as then)
             self.lumped.offsets[:] = state["border_offsets"]
+
+    def layout(self) -> dict[str, Layout]:
+        """How the rows of ``state()``'s arrays are indexed, by the same names
+        (``parallel.redistribute``; the refinement log's requests: ``request_cells``). Raises
+        ``NotMovable`` while a refinement's ties or damping windows act, or for a contributor
+        with a state and no layout."""
+        stabilisation = self.stabilisation_state
+        if stabilisation.ties or stabilisation.damping_windows:
+            raise NotMovable("a refinement's ties or damping windows still act")
+        out: dict[str, Layout] = {
+            "refinement_times": REPLICATED,
+            "refinement_energy": REPLICATED,
+            "tie_work": PARTIAL,
+        }
+        for contributor in self.contributors:
+            own = contributor.state()
+            if not own:
+                continue
+            layout = getattr(contributor, "layout", None)
+            if layout is None:
+                raise NotMovable(f"the force contributor {contributor.name!r} has no layout")
+            out.update({f"{contributor.name}_{k}": v for k, v in layout(self).items()})
+        dofs = self.lumped.border.dofs - 3 * self.n_base
+        extra_dofs = dof_keys(self.extra_node_keys())
+        out["border_offsets"] = Rows(extra_dofs[dofs], dofs // 3 < self.extra.n_owned)
+        return out
+
+    def extra_node_keys(self) -> np.ndarray:
+        """(owned + ghost extra nodes,) their stable keys (``redistribute.extra_node_keys``)."""
+        return extra_node_keys(self)
+
+    def cell_keys(self) -> np.ndarray:
+        """(owned cells,) their original numbers (the same on any partition)."""
+        return self.original_cell
+
+    def cohesive_row_keys(self) -> np.ndarray:
+        """(cohesive damage rows,) int64 stable keys: the original number of the row's cell
+        times the interfaces, plus the interface - 1; an adaptive row's cell is the refined
+        cell, a layerwise row's its lower cell (whose top face is the element's lower face)."""
+        n_interfaces = max(self.laminate.n_plies - 1, 1)
+        cohesive = self.cohesive
+        keys = np.full(len(cohesive.damage), -1, dtype=np.int64)
+        for (cell, interface), row in self.refinement.damage_rows.items():
+            keys[row] = self.original_cell[cell] * n_interfaces + interface - 1
+        if len(self.refinement.damage_rows) == 0 and len(cohesive.nodes):
+            by_top_face = {tuple(face): c for c, face in enumerate(self.top_local.tolist())}
+            lower = [by_top_face[tuple(face)] for face in cohesive.nodes[:, :4].tolist()]
+            keys[cohesive.damage_row] = (
+                self.original_cell[lower] * n_interfaces + cohesive.interface - 1
+            )
+        return keys
+
+    def request_cells(self) -> tuple[np.ndarray, np.ndarray]:
+        """(original number (n,), in-plane centroid (n, 2) mm) of the cell of each logged
+        refinement request (the rows of ``state()["refinement_requests"]``)."""
+        cells = self.refinement.state()["requests"][:, 0].astype(np.int64)
+        centroids = self.cell_vertices()[cells].mean(axis=1)[:, :2] if len(cells) else None
+        return self.original_cell[cells], np.zeros((0, 2)) if centroids is None else centroids
 
     # ------------------------------------------------------------------ stabilisation
     @property

@@ -9,13 +9,15 @@ refined at three interfaces costs 6.8 unrefined ones in the TCB beam (``benchmar
 ``step`` rows) and 8.7 in the impact plate (``benchmarks/scaling_model.py``), 1.9 and 2.6 per
 interface; 2.3 is their mean. A partition needs the ratios to some ten per cent, not exactly.
 
-The partition is cut once, when the mesh is made (``meshes.beam.columnar_partitioner``): with
+The partition is cut when the mesh is made (``meshes.beam.columnar_partitioner``): with
 ``[mesh] partition = "cost"`` (the default) an adaptive model's cells under an insert film,
 refined from the start, weigh what they cost (``film_cost``) and every rank gets the same cost.
 A run reports its imbalance, the most expensive rank's cost over the mean (1 when balanced),
-at the start, after each refinement and at its largest (``summary.json``: "load_balance"). The
-partition does not change during a run: a front that grows into one rank's patch makes that
-rank the slowest (``benchmarks/balance.py`` measures it on the demos).
+at the start, after each refinement and at its largest (``summary.json``: "load_balance").
+A front that grows into one rank's patch makes that rank the slowest: past ``[mesh]
+rebalance`` the run cuts its partition again, each cell weighed as refined then
+(``refined_cost``), and continues there from a checkpoint (``runner.execute``,
+``parallel.redistribute``; ``benchmarks/balance.py`` measures both on the demos).
 """
 
 from __future__ import annotations
@@ -63,6 +65,25 @@ def film_cost(
                     )
             refined += near
         return cell_costs(refined)
+
+    return cost
+
+
+def refined_cost(
+    centroids: np.ndarray, refined_interfaces: np.ndarray, cell_size: float
+) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
+    """``cost(x, y)`` (mm) of the cells with in-plane centroids ``centroids`` (n, 2) mm refined
+    at ``refined_interfaces`` (n,) interfaces each, the others unrefined: what a partition
+    re-balanced after refinement weighs. ``cell_size``: mm, the centroids are matched to a
+    thousandth of it."""
+    tol = 1e-3 * cell_size
+    keys = np.round(np.asarray(centroids, dtype=float).reshape(-1, 2) / tol).astype(np.int64)
+    table = dict(zip(map(tuple, keys.tolist()), np.asarray(refined_interfaces).tolist(),
+                     strict=True))  # fmt: skip
+
+    def cost(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        at = np.round(np.stack([x, y], axis=1) / tol).astype(np.int64).tolist()
+        return cell_costs(np.array([table.get(tuple(k), 0) for k in at], dtype=float))
 
     return cost
 

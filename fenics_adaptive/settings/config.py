@@ -23,7 +23,8 @@ Sections (see demos/*.toml for complete examples and ``config_schema`` for every
                  max_memory (GB, default 16)
   [mesh]         length, width (mm), nx, ny (cells in-plane); layers = [plies per mesh layer]
                  for a layerwise model (default: one layer per ply); partition = "cost"
-                 (default) | "cells" (how MPI ranks share the cells)
+                 (default) | "cells" (how MPI ranks share the cells); rebalance (the
+                 imbalance that re-cuts an adaptive run's partition, default 1.2; 0: never)
   [materials.NAME]  E1, E2, G12, nu12, nu23, rho, optional G23; [materials.NAME.failure]
   [laminate]     material + ply_thickness + angles (bottom to top), or plies = [{material,
                  angle, thickness}, ...]
@@ -99,6 +100,7 @@ from fenics_adaptive.settings.schema import (
     MAX_PLIES,
     MAX_TIME,
     MIN_LENGTH,
+    REBALANCE,
     REQUIRED,
     TOP_LEVEL,
     Key,
@@ -121,6 +123,8 @@ class MeshConfig:
     layers: tuple[int, ...]  # plies per mesh layer, bottom to top
     partition: Partition = Partition.COST  # on several ranks: patches of equal cost or cells
     shell: ShellShape | None = None  # a curved (or unstructured) shell's [mesh]; None: a plate
+    # on several ranks: the imbalance that re-cuts an adaptive run's partition (0: never)
+    rebalance: float = REBALANCE
 
     @property
     def kind(self) -> MeshKind:
@@ -1055,7 +1059,16 @@ def _mesh(table: _Table, kind: ModelKind, laminate: Laminate, source: str) -> Me
         if table.has("layers"):
             raise InputError(table.key("layers"), "only a layerwise model has mesh layers")
         layers = (laminate.n_plies,)
-    return MeshConfig(length, width, nx, ny, tuple(layers), table.choice("partition"), shell)
+    rebalance = table.number("rebalance")
+    if 0.0 < rebalance <= 1.0:
+        raise InputError(
+            table.key("rebalance"),
+            f"is the imbalance (the costliest rank's cost over the mean, >= 1) that re-cuts "
+            f"the partition: > 1, or 0 for never (got {rebalance})",
+        )
+    return MeshConfig(
+        length, width, nx, ny, tuple(layers), table.choice("partition"), shell, rebalance
+    )
 
 
 def _check_geometry(mesh: MeshConfig, laminate: Laminate) -> None:
@@ -1395,16 +1408,22 @@ def _impactor(root: _Root) -> Impactor | None:
     )
 
 
+# names a [[rigid]] body cannot take: its history columns <name>_force, <name>_displacement
+# would be those of the impactor, the reaction, the applied load, the contact or the MMB lever
+RESERVED_BODY_NAMES = ("impactor", "reaction", "applied", "contact", "lever", "hinge")
+
+
 def _rigid_bodies(root: _Root) -> tuple[RigidBody, ...]:
     """[[rigid]]: rigid loading bodies, each fixed, prescribed (with a time curve) or free
     (with a mass), named uniquely."""
     bodies: list[RigidBody] = []
     for table in root.tables("rigid"):
         name = table.string("name")
-        if not name.isidentifier() or name == "impactor":
+        if not name.isidentifier() or name in RESERVED_BODY_NAMES:
             raise InputError(
                 table.key("name"),
-                f"{name!r}: letters, digits and _ (not starting with a digit), not 'impactor'",
+                f"{name!r}: letters, digits and _ (not starting with a digit), none of "
+                f"{', '.join(RESERVED_BODY_NAMES)} (their history columns are taken)",
             )
         if any(body.name == name for body in bodies):
             raise InputError(table.key("name"), f"{name!r} names another [[rigid]] body too")

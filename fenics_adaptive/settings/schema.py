@@ -46,6 +46,10 @@ from fenics_adaptive.settings.kinds import (
     ThicknessIntegration,
 )
 
+# the default [mesh] rebalance: the imbalance (costliest rank over the mean) that re-cuts the
+# partition of an adaptive run on several ranks (``parallel.balance``)
+REBALANCE = 1.2
+
 # --------------------------------------------------------------------------- limits (documented)
 MAX_LENGTH = 1.0e5  # mm: largest length, width, ply thickness, radius, coordinate
 MIN_LENGTH = 1.0e-4  # mm: smallest cell size or ply thickness (Gmsh's tolerance is 1e-8 mm)
@@ -510,6 +514,16 @@ SECTIONS: tuple[Section, ...] = (
                 'ones) or of equal "cells"',
                 default=str(Partition.COST),
                 choices=tuple(Partition),
+            ),
+            Key(
+                "rebalance",
+                "float",
+                "on several MPI ranks, an adaptive run whose refinement makes the costliest "
+                "rank's cost this many times the mean cuts its partition again, weighted by "
+                "the refinement (through a checkpoint, once a refinement's ties and damping "
+                "windows are over); 0: never",
+                default=REBALANCE,
+                minimum=0.0,
             ),
         ),
         required=True,

@@ -126,7 +126,7 @@ def shell_shape(table, kind: MeshKind, source: str) -> ShellShape:
 def refuse_other_keys(table, kind: MeshKind) -> None:
     """A key of [mesh] that ``kind`` does not take is refused, naming the kinds that do."""
     required, optional = KIND_KEYS[kind]
-    mine = set(required + optional) | {"kind", "layers", "partition"}
+    mine = set(required + optional) | {"kind", "layers", "partition", "rebalance"}
     if kind != MeshKind.PLATE:
         mine |= set(SHELL_KEYS) | ({"orientation"} if kind in AXIS_KINDS else set())
     for name in table.schema.names:

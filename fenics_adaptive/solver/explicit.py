@@ -66,6 +66,7 @@ import math
 import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
+from typing import ClassVar
 
 import numpy as np
 from mpi4py import MPI
@@ -77,6 +78,7 @@ from fenics_adaptive.model.forces import ForceContributor
 from fenics_adaptive.model.loading import on_top_or_bottom
 from fenics_adaptive.model.mass_scaling import adaptive_refused, selective_mass
 from fenics_adaptive.model.structure import Structure
+from fenics_adaptive.parallel.redistribute import PARTIAL, Layout, Rows, dof_keys
 from fenics_adaptive.settings.kinds import MotionKind
 from fenics_adaptive.settings.solver import Probe, SolverSettings
 from fenics_adaptive.solver import guards
@@ -88,6 +90,15 @@ from fenics_adaptive.solver.guards import EnergyBalanceError as EnergyBalanceErr
 from fenics_adaptive.solver.history import COLUMNS as COLUMNS  # where readers find it
 from fenics_adaptive.solver.history import HistoryRecorder, HistoryRow
 from fenics_adaptive.solver.observers import Observer
+
+
+class Rebalance(RuntimeError):
+    """The run stopped, after writing a checkpoint, to continue on a partition cut again by
+    the refinement's cost (``request_rebalance``; ``runner.execute`` continues it)."""
+
+    def __init__(self, t: float, step: int):
+        super().__init__(f"stopped at t = {t:.6g} s (step {step}) to re-balance the ranks")
+        self.t, self.step = t, step
 
 
 class Interrupted(RuntimeError):
@@ -127,6 +138,14 @@ class SolverState:
     # the forces, work, refinement and outputs at t_n are done (a state taken between two
     # ``step()`` calls); False for one taken right after the motion to t_n (checkpoints)
     evaluated: bool = False
+
+    # the fields that are a rank's share of a sum (the rest are the same on every rank)
+    PARTIAL_FIELDS: ClassVar[tuple[str, ...]] = (
+        "work_int",
+        "work_ext",
+        "work_damp",
+        "kinetic_offset",
+    )
 
     def as_dict(self) -> dict[str, float | int | bool]:
         return dataclasses.asdict(self)
@@ -275,6 +294,7 @@ class ExplicitSolver:
         self.where = ""  # what limits the stable step
         self.started = False
         self._stop = False
+        self._rebalance_due = False
         self._not_finite = False  # this rank saw a non-finite internal work (told at a poll)
         self._damping_changes = math.inf  # next time a stabilisation damping window closes
         self._damped = settings.mass_damping > 0.0
@@ -387,6 +407,11 @@ class ExplicitSolver:
         s = self.now
         return s.evaluated and s.t >= self.settings.end_time - 1e-9 * s.dt
 
+    def request_rebalance(self) -> None:
+        """Collective (every rank alike): at the end of this evaluation (or of the next one),
+        write a checkpoint and raise ``Rebalance``, unless the run is complete."""
+        self._rebalance_due = True
+
     def request_stop(self) -> None:
         """Stop at the next poll (every 64 steps; on several ranks one step after it, when
         every rank knows) with a checkpoint: ``Interrupted``."""
@@ -450,6 +475,25 @@ class ExplicitSolver:
             for name in BLOCK_ARRAYS[2:]:
                 out[f"block{index}_{name}"] = getattr(block_state, name).copy()
         out.update(self.forces.state())
+        return out
+
+    def layout(self) -> dict[str, Layout]:
+        """How the rows of ``state()``'s arrays are indexed, by the same names
+        (``parallel.redistribute``): each block's DOFs by their stable keys, the work sums as
+        each rank's share, the run's own contributors' by theirs. Raises ``NotMovable`` for
+        a contributor with a state and no layout."""
+        out: dict[str, Layout] = {name: PARTIAL for name in SolverState.PARTIAL_FIELDS}
+        structure = self.structure
+        node_keys = (structure.node_keys, structure.extra_node_keys())
+        for index, (block, nodes) in enumerate(zip(structure.blocks, node_keys, strict=True)):
+            keys = dof_keys(nodes)
+            owned = np.arange(len(keys)) < block.n_owned
+            for name in ("u_all", "v_all"):
+                out[f"block{index}_{name}"] = Rows(keys, owned)
+            for name in ("du", "f_old", "f_ext_old"):
+                out[f"block{index}_{name}"] = Rows(keys[: block.n_owned])
+            out[f"block{index}_reaction_old"] = Rows(keys[block.fixed])
+        out.update(self.forces.layout(structure))
         return out
 
     def _set_up(self) -> tuple[float, float]:
@@ -595,6 +639,11 @@ class ExplicitSolver:
             if not self.finished:  # at the end time the run is complete: nothing to stop
                 self.checkpoint()
                 raise Interrupted(self.now.t, self.now.step)
+        if self._rebalance_due:
+            self._rebalance_due = False
+            if not self.finished:
+                self.checkpoint()
+                raise Rebalance(self.now.t, self.now.step)
 
     def _evaluate_state(self) -> None:
         s = self.now

@@ -25,7 +25,7 @@ from collections.abc import Callable, Iterable, Sequence
 import numpy as np
 
 from fenics_adaptive.model.forces import ForceContributor, ForceKind, hooks, overrides
-from fenics_adaptive.model.structure import Structure
+from fenics_adaptive.model.structure import NotMovable, Structure
 from fenics_adaptive.solver.blocks import BlockState
 
 
@@ -180,6 +180,20 @@ class RunForces:
         """The run's own contributors' states, as ``<name>_<key>`` (the structure's are the
         structure's: ``Structure.state``)."""
         return {f"{c.name}_{k}": v for c in self.added for k, v in c.state().items()}
+
+    def layout(self, structure) -> dict:
+        """How the rows of ``state()``'s arrays are indexed (``parallel.redistribute``), each
+        contributor's by its ``layout(structure)``. Raises ``NotMovable`` for a contributor
+        with a state and no layout."""
+        out = {}
+        for contributor in self.added:
+            if not contributor.state():
+                continue
+            layout = getattr(contributor, "layout", None)
+            if layout is None:
+                raise NotMovable(f"the force contributor {contributor.name!r} has no layout")
+            out.update({f"{contributor.name}_{k}": v for k, v in layout(structure).items()})
+        return out
 
     def restore(self, state: dict) -> None:
         """Each of the run's own contributors from its ``<name>_*`` entries of ``state``."""
