@@ -189,3 +189,22 @@ def test_an_adaptive_film_restarts_to_the_uninterrupted_history(tmp_path):
     whole = read_history(tmp_path / "whole" / "history.csv")
     assert whole["crack_growth_area"][-1] > 0.0
     assert summary["cohesive_elements_at_end"] == 2 * 10  # the cells at x > 5 mm
+
+
+@pytest.mark.parametrize(("nx", "warned"), [(22, True), (45, False)])
+def test_a_process_zone_shorter_than_the_cells_is_warned_of(nx, warned):
+    """The quick DCB's interface at strengths 100 / 130 MPa: a process zone of 1.03 mm (the
+    longer of the modes' E2 Gc / strength^2), warned of under cells of 2.05 mm, not under
+    cells of 1 mm; the beam is one cell wide, its 25.4 mm width does not count."""
+    from fenics_adaptive.simulation import process_zone_warnings
+
+    data = tomllib.loads(
+        (Path(__file__).parent / "data" / "mpi_front_across_ranks.toml").read_text()
+    )
+    data["cohesive"].update(N=100.0, S=130.0)
+    data["mesh"]["nx"] = nx
+    warnings = process_zone_warnings(parse_config(data))
+    assert bool(warnings) == warned
+    if warned:
+        (line,) = warnings
+        assert "interface(s) 4 (1.03 mm" in line and "cells (2.05 mm)" in line, line

@@ -19,6 +19,7 @@ import pytest
 from helpers import assert_on_the_propagation_branch, quick_fracture_run, theory_history
 
 from fenics_adaptive.analysis.lefm import (
+    arm_moduli,
     dcb_comparison,
     dcb_force,
     dcb_initiation_force,
@@ -56,6 +57,38 @@ def test_the_two_branches_of_corrected_beam_theory_meet_at_the_initiation_load()
     P = dcb_force(3 * opening, E1, b, h, GIc, a)
     crack = (3 * EI * 3 * opening / (2 * P)) ** (1 / 3)
     assert P**2 * crack**2 / (b * EI) == pytest.approx(GIc, rel=1e-12)
+
+
+def test_beam_theory_takes_the_arms_bending_modulus():
+    """A unidirectional arm bends with E1 (to round-off); an arm with 90-degree outer plies
+    with its narrow-beam modulus 12 / (h^3 d11), hand-computed from the plies' reduced
+    stiffnesses (CLT) about the arm's own mid-plane: the DCB's theory takes it (it took E1 of
+    the first ply, 40 % stiff for [90/0_6/90]); arms that bend differently are refused."""
+    base = tomllib.loads((Path(__file__).parent / "data" / "mpi_front_across_ranks.toml")
+                         .read_text())  # fmt: skip
+    config = parse_config(base)
+    ply = config.laminate.plies[0]
+    moduli = arm_moduli(config.laminate, 4, config.mesh.width)
+    assert moduli.E1 == pytest.approx(ply.material.E1, rel=1e-12)
+    data = copy.deepcopy(base)
+    data["laminate"]["angles"] = [90, 0, 0, 0, 0, 0, 0, 90]
+    crossed = parse_config(data)
+    # the top arm [0/0/0/90] (t = 0.39 mm each) by hand: Q of 0 and 90 degrees, ABD, d11
+    m = ply.material
+    nu21 = m.nu12 * m.E2 / m.E1
+    q11, q22, q12 = (e / (1.0 - m.nu12 * nu21) for e in (m.E1, m.E2, m.nu12 * m.E2))
+    t, h = 0.39, 4 * 0.39
+    z = np.linspace(-h / 2, h / 2, 5)
+    Q = [np.array([[q11, q12], [q12, q22]])] * 3 + [np.array([[q22, q12], [q12, q11]])]
+    A = sum(Qk * t for Qk in Q)
+    B = sum(Qk * (z[k + 1] ** 2 - z[k] ** 2) / 2 for k, Qk in enumerate(Q))
+    D = sum(Qk * (z[k + 1] ** 3 - z[k] ** 3) / 3 for k, Qk in enumerate(Q))
+    d11 = np.linalg.inv(np.block([[A, B], [B, D]]))[2, 2]
+    assert arm_moduli(crossed.laminate, 4, 25.4).E1 == pytest.approx(12.0 / (h**3 * d11), 1e-9)
+    assert arm_moduli(crossed.laminate, 4, 25.4).E1 < 0.7 * m.E1
+    data["laminate"]["angles"] = [90, 0, 0, 0, 0, 0, 0, 0]
+    with pytest.raises(ValueError, match="bend with moduli"):
+        arm_moduli(parse_config(data).laminate, 4, 25.4)
 
 
 def test_enf_propagation_force_is_where_the_compliance_gives_GIIc():

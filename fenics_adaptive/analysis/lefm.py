@@ -4,7 +4,9 @@ on each test's propagation branch, and a run's history compared with it.
 
 Units: N, mm, s, tonne (force N, opening mm, fracture energy N/mm, modulus MPa).
 
-Each arm is a cantilever of bending stiffness E I = E1 b h^3 / 12 (width b, thickness h) pulled
+Each arm is a cantilever of bending stiffness E I = E1 b h^3 / 12 (width b, thickness h; E1
+the arm's narrow-beam bending modulus, ``arm_moduli``: the fibre modulus of a unidirectional
+arm, 12 / (h^3 d11) of a multidirectional one) pulled
 open by delta at its end. Eliminating the crack length between the arm's compliance and the
 energy release rate at G = GIc gives the propagation branch P = K^1.5 / sqrt(3 E I delta),
 K = sqrt(2 b E I GIc). The same branch follows from root-rotation-corrected beam theory
@@ -30,6 +32,35 @@ def arm_thickness(laminate: Laminate, interface: int) -> float:
     """Thickness (mm) of the arm above ply interface ``interface`` (between ply ``interface``
     and ply ``interface + 1``, counted from 1 at the bottom): the plies above it."""
     return sum(p.thickness for p in laminate.plies[interface:])
+
+
+@dataclass(frozen=True)
+class ArmModuli:
+    """The moduli (MPa) beam theory takes for the two equal arms of a specimen split at an
+    interface: ``E1`` their narrow-beam bending modulus 12 / (h^3 d11) (d = inverse of the
+    arm's ABD: the fibre modulus of a unidirectional arm), ``E2`` and ``G12`` those of the
+    laminate's first ply, for the root rotation (``root_rotation_correction``) and the shear
+    compliance."""
+
+    E1: float
+    E2: float
+    G12: float
+
+
+def arm_moduli(laminate: Laminate, interface: int, width: float) -> ArmModuli:
+    """``ArmModuli`` of ``laminate`` split at ply interface ``interface`` (1-based), ``width``
+    mm wide. Raises ValueError when the arms bend differently (moduli apart by more than
+    1e-6): the equal-arm theories do not apply."""
+    arms = (Laminate(laminate.plies[:interface]), Laminate(laminate.plies[interface:]))
+    moduli = [12.0 * a.narrow_beam_bending_stiffness(width) / (width * a.thickness**3)
+              for a in arms]  # fmt: skip
+    if abs(moduli[0] - moduli[1]) > 1e-6 * max(moduli):
+        raise ValueError(
+            f"the arms below and above interface {interface} bend with moduli {moduli[0]:.6g} "
+            f"and {moduli[1]:.6g} MPa: the beam theory of equal arms does not apply"
+        )
+    first = laminate.plies[0].material
+    return ArmModuli(float(moduli[1]), first.E2, first.G12)
 
 
 def propagation_force(
@@ -67,7 +98,7 @@ def tcb_lefm_force(config: RunConfig, delta: np.ndarray, interface: int = 6) -> 
     )
 
 
-def root_rotation_correction(material: PlyMaterial) -> float:
+def root_rotation_correction(material: PlyMaterial | ArmModuli) -> float:
     """chi of corrected beam theory (Hashemi 1990), dimensionless: the arm's effective length is
     a + chi h, chi = sqrt(E1 / (11 G12) (3 - 2 (Gamma / (1 + Gamma))^2)),
     Gamma = 1.18 sqrt(E1 E2) / G12."""
@@ -247,8 +278,8 @@ def dcb_comparison(config: RunConfig, history: dict, bin_width: float = 5.0) -> 
     if abs(arm - (config.laminate.thickness - arm)) > 1e-9 * arm:
         raise ValueError(f"dcb_comparison: the arms are {arm:g} and "
                          f"{config.laminate.thickness - arm:g} mm thick, not equal")  # fmt: skip
-    material = config.laminate.plies[0].material
     width, GIc = config.mesh.width, config.cohesive.GIc
+    material = arm_moduli(config.laminate, film.interface, width)
     a0 = config.mesh.length - film.region.x_min
     chi = root_rotation_correction(material)
     effective = a0 + chi * arm
@@ -383,8 +414,8 @@ def enf_comparison(config: RunConfig, history: dict, bin_width: float = 5.0) -> 
     support, nose = bodies["right"].position[0], bodies["nose"].position[0]
     half_span = support - nose
     arm = arm_thickness(config.laminate, film.interface)
-    material = config.laminate.plies[0].material
     width, GIIc = config.mesh.width, config.cohesive.GIIc
+    material = arm_moduli(config.laminate, film.interface, width)
     a0 = support - film.region.x_min
 
     def compliance(crack):
@@ -500,7 +531,7 @@ class MMBSpecimen:
     load_arm: float  # c: saddle to load point
     arm: float  # h: one arm's thickness
     width: float
-    material: PlyMaterial  # of the first ply
+    material: ArmModuli  # the arms' (``arm_moduli``)
     chi: float  # root-rotation correction (``root_rotation_correction``)
     law: CohesiveLaw
 
@@ -509,7 +540,7 @@ class MMBSpecimen:
         film = config.delaminations[0]
         hinge = hinge_position(config)
         saddle = next(b for b in config.rigid_bodies if b.name == config.lever.saddle)
-        material = config.laminate.plies[0].material
+        material = arm_moduli(config.laminate, film.interface, config.mesh.width)
         return cls(
             a0=hinge - film.region.x_min if hinge > 0.0 else film.region.x_max,
             half_span=abs(saddle.position[0] - hinge),

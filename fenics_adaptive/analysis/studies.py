@@ -442,8 +442,9 @@ def enf_quick(data: dict) -> dict:
     left["position"][0], right["position"][0] = overhang, length - overhang
     nose["position"][0] = 0.5 * length
     config = parse_config(data)
-    material, width = config.laminate.plies[0].material, config.mesh.width
-    arm = lefm.arm_thickness(config.laminate, config.delaminations[0].interface)
+    width, interface = config.mesh.width, config.delaminations[0].interface
+    material = lefm.arm_moduli(config.laminate, interface, width)
+    arm = lefm.arm_thickness(config.laminate, interface)
 
     def travel(a: float) -> float:
         force = lefm.enf_propagation_force(a, material.E1, width, arm, config.cohesive.GIIc)

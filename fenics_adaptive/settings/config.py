@@ -1496,10 +1496,6 @@ def _lever(root: _Root, bodies: tuple[RigidBody, ...], faces: list[str]) -> Leve
                 f"rigid.{carried[0]}.motion", '"lever" needs a [lever] table that carries it'
             )
         return None
-    for name in ("lever", "hinge"):  # the lever's history columns are <name>_force, ...
-        if any(body.name == name for body in bodies):
-            raise InputError(f"rigid.{name}.name", f"{name!r} names the lever's history "
-                             "columns; give the body another name")  # fmt: skip
     saddle = table.string("saddle")
     named = [body for body in bodies if body.name == saddle]
     if not named:
