@@ -99,6 +99,11 @@ class _Carried:
     imbalance: float | None = None  # when the last segment stopped to re-balance
     stopped: float = 0.0  # s (perf_counter) when it stopped, after its checkpoint
     first_step: int | None = None  # the step the first segment started from
+    at_start: float | None = None  # the first segment's imbalance at its start
+    largest: float = 0.0  # the largest imbalance of the segments done
+    # the segments' indicator evaluations, their wall time, refining's and the solver's
+    # reactions to refinements (s, the slowest rank's)
+    cost: tuple[int, float, float, float] = (0, 0.0, 0.0, 0.0)
 
 
 def _segment(
@@ -180,6 +185,12 @@ def _segment(
     except explicit.Rebalance:
         carried.wall_time += time.perf_counter() - start
         carried.imbalance = balance_report.now
+        if carried.at_start is None:
+            carried.at_start = balance_report.at_start
+        carried.largest = max(carried.largest, balance_report.largest or 0.0)
+        reaction = comm.allreduce(simulation.solver.stats.reaction_seconds, op=MPI.MAX)
+        cost = (*simulation.refinement.cost(comm), reaction)
+        carried.cost = tuple(a + b for a, b in zip(carried.cost, cost, strict=True))
         history.close(completed=False)
         if fields is not None:
             fields.close()
@@ -210,7 +221,7 @@ def _segment(
     summary["load_balance"] = _load_balance(balance_report, carried)
     stats.wall_time += carried.wall_time
     try:  # the lock is held until the last file is written
-        finished = (stats, history, fields, kept_rows, carried.first_step, summary)
+        finished = (stats, history, fields, kept_rows, carried, summary)
         return _finish(config, out_dir, comm, simulation, finished, say, folder.record)
     finally:
         folder.close()
@@ -243,11 +254,16 @@ def _restarted(
         structure = build_structure(config, comm, refine_initially=False, partition_cost=cost)
         checkpoint.restore_moved_structure(structure, arrays)
         simulation = Simulation(config, comm=comm, structure=structure)
-        resume = checkpoint.moved_state(arrays, "solver_", simulation.solver.layout())
+        resume = checkpoint.moved_state(arrays, "solver_", simulation.solver.layout(), comm)
         hook_state = checkpoint.moved_state(
-            arrays, "hook_", simulation.refinement.layout(structure)
+            arrays, "hook_", simulation.refinement.layout(structure), comm
         )
-        partition = {"weights": "refinement", "time_s": until}
+        cut = comm.size > 1 and config.mesh.partition == Partition.COST
+        cut = cut and config.mesh.shell is None
+        if cost is not None and cut:
+            partition = {"weights": "refinement", "time_s": until}
+        else:  # (one rank, equal cells or nothing refined: the cut of a fresh start)
+            partition = {"weights": "start"}
     else:
         cost = None
         if partition.get("weights") == "refinement":  # the same cut as the run's, again
@@ -465,7 +481,8 @@ class CheckpointWriter(Observer):
         self.partition: dict = {"weights": "start"}
 
     def on_checkpoint(self, solver: explicit.ExplicitSolver) -> None:
-        layouts, _ = checkpoint.state_layouts(solver, self.structure, self.hook)
+        with shared_errors(self.structure.comm):
+            layouts, _ = checkpoint.state_layouts(solver, self.structure, self.hook)
         hook_now = self.hook.state()
         checkpoint.write(
             self.out_dir, self.structure.comm, solver.state(), self.structure, hook_now,
@@ -583,12 +600,13 @@ class BalanceReport(Observer):
 
 
 def _load_balance(report: BalanceReport, carried: _Carried) -> dict:
-    """``summary.json``'s "load_balance" (of the last partition; "rebalanced": when the
-    partition was cut again, and the imbalance before and after)."""
+    """``summary.json``'s "load_balance" over the whole run ("rebalanced": when the partition
+    was cut again, the imbalance before and after, the seconds the cut took)."""
+    at_start = carried.at_start if carried.at_start is not None else report.at_start
     return {
-        "imbalance_at_start": report.at_start,
+        "imbalance_at_start": at_start,
         "imbalance_at_end": report.now,
-        "imbalance_largest": report.largest,
+        "imbalance_largest": max(carried.largest, report.largest or 0.0) or None,
         "rebalanced": carried.rebalanced,
         "cost_model": (
             f"1 + {balance.REFINED_INTERFACE_COST} per refined interface, in unrefined cells"
@@ -607,8 +625,8 @@ def _finish(
 ) -> tuple[dict, Structure]:
     """The end of ``execute`` after a completed time loop: the history renamed complete, the
     summary and the plots. ``finished``: (stats, history writer, field writers or None, rows
-    kept by a restart, the step the run started from, summary so far)."""
-    stats, history, fields, kept_rows, first_step, summary = finished
+    kept by a restart, what the segments before a re-balance handed on, summary so far)."""
+    stats, history, fields, kept_rows, carried, summary = finished
     structure = simulation.structure
     history.close(completed=True)
     if fields is not None:
@@ -618,14 +636,16 @@ def _finish(
     peak = max(rows, key=lambda r: abs(r.reaction_force))
     # the energy put in: by loads and motions, or by an impactor
     scale = max(max(max(abs(r.external_work), abs(r.impact_work)) for r in rows), 1e-300)
-    cost = simulation.refinement.cost(comm)
+    reaction = comm.allreduce(stats.reaction_seconds, op=MPI.MAX)
+    cost = (*simulation.refinement.cost(comm), reaction)
+    cost = tuple(a + b for a, b in zip(carried.cost, cost, strict=True))  # (all segments)
     summary.update(
         {
             "status": "completed",
             "steps": stats.steps,
             "wall_time_s": stats.wall_time,
             # a restart ran only the steps after its checkpoint
-            "time_per_step_s": stats.wall_time / max(stats.steps - first_step, 1),
+            "time_per_step_s": stats.wall_time / max(stats.steps - carried.first_step, 1),
             "peak_reaction_force_N": peak.reaction_force,
             "peak_contact_force_N": max(r.contact_force for r in rows),
             "rigid_bodies": {
@@ -656,7 +676,7 @@ def _finish(
                 "indicator_evaluations": cost[0],
                 "indicator_wall_s": cost[1],
                 "refinement_wall_s": cost[2],
-                "reaction_wall_s": comm.allreduce(stats.reaction_seconds, op=MPI.MAX),
+                "reaction_wall_s": cost[3],
             },
             "extra_nodes_at_end": comm.allreduce(structure.extra.n_owned, op=MPI.SUM),
             "cohesive_elements_at_end": comm.allreduce(len(structure.cohesive), op=MPI.SUM),

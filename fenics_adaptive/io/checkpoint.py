@@ -137,8 +137,10 @@ def write(
     arrays.update({f"structure_{k}": v for k, v in structure.state().items()})
     arrays.update({f"hook_{k}": np.asarray(v) for k, v in hook_state.items()})
     movable = comm.allreduce(layouts is not None, op=MPI.LAND)
-    if movable:
-        arrays = redistribute.annotate(arrays, layouts)
+    with shared_errors(comm):
+        if movable:
+            arrays = redistribute.annotate(arrays, layouts)
+        # where the logged refinements were: a restart cuts a re-balanced partition by them
         arrays[REQUEST_CELLS], arrays[REQUEST_CENTROIDS] = structure.request_cells()
     entry = None
     with shared_errors(comm):
@@ -454,16 +456,26 @@ def restore_moved_structure(structure: Structure, stored: redistribute.StoredSta
     (built from the config without its initial refinement): the logged refinements replayed
     on the cells this rank owns, then every stored array's rows found by their keys."""
     structure.replay(_moved_refinement_log(stored, structure))
-    state = moved_state(stored, "structure_", structure.layout())
+    state = moved_state(stored, "structure_", structure.layout(), structure.comm)
     structure.put_back({k: v for k, v in state.items() if not k.startswith("refinement_")})
 
 
-def moved_state(stored: redistribute.StoredState, prefix: str, layouts: dict) -> dict:
-    """This rank's arrays named ``prefix``* of a checkpoint written on another partition, by
-    the ``layouts`` of this partition's objects (names without the prefix)."""
+def moved_state(
+    stored: redistribute.StoredState, prefix: str, layouts: dict, comm: MPI.Comm
+) -> dict:
+    """Collective: this rank's arrays named ``prefix``* of a checkpoint written on another
+    partition, by the ``layouts`` of this partition's objects (names without the prefix).
+    Raises InputError, on every rank, for a row no old rank stored (a checkpoint that does
+    not belong to this model)."""
     out = {}
-    for name in stored.names(prefix):
-        key = name.removeprefix(prefix)
-        value = stored.value(name, layouts.get(key))
-        out[key] = value[()] if np.ndim(value) == 0 else value
+    with shared_errors(comm):
+        for name in stored.names(prefix):
+            key = name.removeprefix(prefix)
+            try:
+                value = stored.value(name, layouts.get(key))
+            except (KeyError, ValueError) as error:
+                raise InputError(
+                    "restart", f"the checkpoint cannot be moved to this partition: {error}"
+                ) from None
+            out[key] = value[()] if np.ndim(value) == 0 else value
     return out

@@ -96,7 +96,7 @@ def annotate(arrays: dict[str, np.ndarray], layouts: dict[str, Layout]) -> dict:
         if isinstance(layout, Rows):
             keys = np.asarray(layout.keys, dtype=np.int64)
             shape = np.shape(arrays[name])
-            if np.size(arrays[name]) == 0 and shape[layout.axis : layout.axis + 1] != keys.shape:
+            if 0 in shape[: layout.axis]:
                 continue  # nothing stored (a look-ahead with no snapshot yet): as it is
             if keys.shape != (np.shape(arrays[name])[layout.axis],):
                 raise ValueError(f"{name}: {len(keys)} keys for {np.shape(arrays[name])}")

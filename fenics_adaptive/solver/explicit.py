@@ -295,6 +295,7 @@ class ExplicitSolver:
         self.started = False
         self._stop = False
         self._rebalance_due = False
+        self._refined_now = False  # the evaluation under way refined the structure
         self._not_finite = False  # this rank saw a non-finite internal work (told at a poll)
         self._damping_changes = math.inf  # next time a stabilisation damping window closes
         self._damped = settings.mass_damping > 0.0
@@ -625,8 +626,12 @@ class ExplicitSolver:
 
     def _evaluate(self) -> None:
         """Everything at t_n: forces and accelerations, the work of the step just made, a
-        refinement, the outputs due; then a stop that a poll settled meanwhile."""
+        refinement, the outputs due; then a stop or a re-balance asked for meanwhile, unless
+        this evaluation refined: the new extra nodes on a prescribed face take their values
+        with the next step, and a checkpoint of now would not restore to this state (they
+        wait for the next evaluation, one step later)."""
         self._evaluating = True
+        self._refined_now = False
         try:
             self._evaluate_state()
         except BaseException:
@@ -634,16 +639,19 @@ class ExplicitSolver:
             raise
         finally:
             self._evaluating = False
+        if self.finished:  # the run is complete: nothing to stop or re-balance
+            self._stop_due = self._rebalance_due = False
+            return
+        if self._refined_now:
+            return
         if self._stop_due:
             self._stop_due = False
-            if not self.finished:  # at the end time the run is complete: nothing to stop
-                self.checkpoint()
-                raise Interrupted(self.now.t, self.now.step)
+            self.checkpoint()
+            raise Interrupted(self.now.t, self.now.step)
         if self._rebalance_due:
             self._rebalance_due = False
-            if not self.finished:
-                self.checkpoint()
-                raise Rebalance(self.now.t, self.now.step)
+            self.checkpoint()
+            raise Rebalance(self.now.t, self.now.step)
 
     def _evaluate_state(self) -> None:
         s = self.now
@@ -655,6 +663,7 @@ class ExplicitSolver:
             # structure's forces above; the new one starts from its own forces at t_n
             event = self.refiner(s.t, self.structure)
             if event:
+                self._refined_now = True
                 started = time.perf_counter()
                 self.react_to_refinement(event)
                 self.stats.reaction_seconds += time.perf_counter() - started
