@@ -79,13 +79,15 @@ def _is_summary(node: ast.AST) -> bool:
 
 
 def runner_summary_keys() -> set[str]:
-    """Keys ``runner.execute`` puts into ``summary``: top level as ``key``, nested dict literals
+    """Keys ``runner.execute`` (its ``_segment`` and ``_finish``) puts into ``summary``: top
+    level as ``key``, nested dict literals
     as ``parent.key``. Any change to ``summary`` that cannot be read statically fails, so that
     the test is extended rather than silently blind."""
     tree = ast.parse(RUNNER.read_text())
     functions = [n for n in ast.walk(tree) if isinstance(n, ast.FunctionDef)]
-    execute = next((f for f in functions if f.name == "execute"), None)
-    assert execute is not None, "runner.py has no execute(): update this test"
+    # execute runs its segments (between re-balances) in _segment, and ends in _finish
+    execute = next((f for f in functions if f.name == "_segment"), None)
+    assert execute is not None, "runner.py has no _segment(): update this test"
     finish = next((f for f in functions if f.name == "_finish"), None)  # execute's last part
     keys: set[str] = set()
 
