@@ -73,6 +73,8 @@ BAD = [
         "output.fields_box: y_min 1 mm is above y_max 0 mm",
     ),
     (SMALL, "[output]", "[output]\nfields_box = [0, 10]", "output.fields_box"),
+    (SMALL, "fields_interval = 1.0e-4", "ply_fields_every = 2", "set fields_interval too"),
+    (SMALL, "[solver]", "[solver]\nmass_scaling_step = 1e-7", "solver.mass_scaling_step"),
 ]
 
 

@@ -887,6 +887,14 @@ def _solver_and_output(
     table = root.table("output")
     output_options, probe = _output(table, solver_options["end_time"], faces, mesh, split, motions)
     fields = _field_selection(table, n_plies)
+    if output_options["field_interval"] is None:
+        for key in ("fields_plies", "fields_box", "ply_fields_every"):
+            if table.has(key):  # (else silently without effect)
+                raise InputError(table.key(key), "selects field output: set fields_interval too")
+    if "mass_scaling_step" in solver_options and solver_options.get("mass_scaling") != "selective":
+        raise InputError(
+            "solver.mass_scaling_step", 'is the target step of mass_scaling = "selective"'
+        )
     return SolverSettings(**solver_options, **output_options), probe, fields
 
 
