@@ -582,3 +582,46 @@ def assert_same_history(serial: dict, parallel: dict, rtol: float = 1e-10) -> No
         a, b = np.array(serial[name]), np.array(parallel[name])
         scale = energy_scale if name in energies else np.abs(a).max()
         assert np.abs(a - b).max() <= rtol * scale, name
+
+
+def late_refinement_toml(
+    end_time: float,
+    checkpoint_interval: int | None = None,
+    history_interval: float | None = 2.0e-7,
+) -> str:
+    """The TCB beam (tests/data/tcb_adaptive.toml, 20 cells) refined weakly at three
+    interfaces at 2e-5 s and strongly at two at 4e-5 s over x >= 5 mm, with a damping window
+    and a tie-force release that are both open at 6e-5 s; to ``end_time`` (s), a checkpoint
+    every ``checkpoint_interval`` steps, a history row every ``history_interval`` s (None: the
+    file's 2e-6 s)."""
+    edits = [
+        ('initial = "strong"', 'initial = "none"'),
+        ("end_time = 2.0e-4", f"end_time = {end_time!r}"),
+        ("fields_interval = 5.0e-5", ""),
+    ]
+    if history_interval is not None:
+        edits.append(("interval = 2.0e-6", f"interval = {history_interval!r}"))
+    text = edited(DATA / "tcb_adaptive.toml", tuple(edits))
+    if checkpoint_interval is not None:
+        text = text.replace("[output]", f"[output]\ncheckpoint_interval = {checkpoint_interval}")
+    return (
+        text
+        + """
+[[refinement]]
+interfaces = [2, 4, 6]
+kind = "weak"
+time = 2.0e-5
+x_min = 5.0
+
+[[refinement]]
+interfaces = [2, 6]
+kind = "strong"
+time = 4.0e-5
+x_min = 5.0
+
+[stabilisation]
+damping = 5.0e4
+damping_window = 5.0e-5
+release_window = 3.0e-5
+"""
+    )

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from helpers import assert_same_history, edited
+from helpers import assert_same_history, edited, late_refinement_toml
 
 from fenics_adaptive.io.output import read_history
 from fenics_adaptive.parallel import redistribute
@@ -42,37 +42,9 @@ def run(config: Path, out: Path, ranks: int, restart: Path | None = None) -> dic
 
 
 def late_refinement(tmp_path: Path, end_time: float, checkpoint: bool = False) -> Path:
-    """The TCB beam (20 cells, tests/data/tcb_adaptive.toml) refined at three interfaces at
-    2e-5 s and strongly at two at 4e-5 s over its half x >= 5 mm, with damping windows and
-    ties: on two ranks (a strip each) the refinement lands on one of them."""
-    text = edited(
-        DATA / "tcb_adaptive.toml",
-        (
-            ('initial = "strong"', 'initial = "none"'),
-            ("end_time = 2.0e-4", f"end_time = {end_time!r}"),
-            ("fields_interval = 5.0e-5", ""),
-        ),
-    )
-    if checkpoint:  # (at the end only)
-        text = text.replace("[output]", "[output]\ncheckpoint_interval = 1000000")
-    text += """
-[[refinement]]
-interfaces = [2, 4, 6]
-kind = "weak"
-time = 2.0e-5
-x_min = 5.0
-
-[[refinement]]
-interfaces = [2, 6]
-kind = "strong"
-time = 4.0e-5
-x_min = 5.0
-
-[stabilisation]
-damping = 5.0e4
-damping_window = 5.0e-5
-release_window = 3.0e-5
-"""
+    """``helpers.late_refinement_toml`` (history rows every 2e-6 s; a checkpoint at the end
+    only) as a file: on two ranks (a strip each) its refinement lands on one of them."""
+    text = late_refinement_toml(end_time, 1000000 if checkpoint else None, history_interval=None)
     path = tmp_path / f"late_{end_time:.0e}{'_checkpoint' if checkpoint else ''}.toml"
     path.write_text(text)
     return path

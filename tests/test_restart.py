@@ -17,7 +17,7 @@ import tomllib
 from pathlib import Path
 
 import pytest
-from helpers import assert_restarted_history, run_quietly
+from helpers import assert_restarted_history, late_refinement_toml, run_quietly
 from mpi4py import MPI
 
 from fenics_adaptive import runner
@@ -28,43 +28,6 @@ from fenics_adaptive.settings.config import parse_config
 from fenics_adaptive.solver.explicit import Interrupted
 
 DATA = Path(__file__).parent / "data"
-
-
-def late_refinement_toml(end_time: float, checkpoint_interval: int | None = None) -> str:
-    """The TCB beam refined weakly at 2e-5 s and strongly at 4e-5 s over x >= 5 mm, with a
-    damping window and a tie-force release that are both open at 6e-5 s."""
-    text = (DATA / "tcb_adaptive.toml").read_text()
-    for old, new in (
-        ('initial = "strong"', 'initial = "none"'),
-        ("end_time = 2.0e-4", f"end_time = {end_time!r}"),
-        ("interval = 2.0e-6", "interval = 2.0e-7"),
-        ("fields_interval = 5.0e-5", ""),
-    ):
-        assert old in text
-        text = text.replace(old, new)
-    if checkpoint_interval is not None:
-        text = text.replace("[output]", f"[output]\ncheckpoint_interval = {checkpoint_interval}")
-    return (
-        text
-        + """
-[[refinement]]
-interfaces = [2, 4, 6]
-kind = "weak"
-time = 2.0e-5
-x_min = 5.0
-
-[[refinement]]
-interfaces = [2, 6]
-kind = "strong"
-time = 4.0e-5
-x_min = 5.0
-
-[stabilisation]
-damping = 5.0e4
-damping_window = 5.0e-5
-release_window = 3.0e-5
-"""
-    )
 
 
 def late_refinement(end_time: float, checkpoint_interval: int | None = None) -> dict:
