@@ -32,8 +32,13 @@ from fenics_adaptive.model.structure import Structure
 from fenics_adaptive.parallel import balance, redistribute
 from fenics_adaptive.parallel.balance import refined_cost
 from fenics_adaptive.settings.config import RunConfig, check_step_count
-from fenics_adaptive.settings.kinds import ModelKind, Partition
-from fenics_adaptive.simulation import Simulation, build_structure, indicator_defaults
+from fenics_adaptive.settings.kinds import ModelKind
+from fenics_adaptive.simulation import (
+    Simulation,
+    build_structure,
+    cuts_by_cost,
+    indicator_defaults,
+)
 from fenics_adaptive.solver import explicit
 from fenics_adaptive.solver.observers import Observer
 
@@ -188,9 +193,7 @@ def _segment(
         if carried.at_start is None:
             carried.at_start = balance_report.at_start
         carried.largest = max(carried.largest, balance_report.largest or 0.0)
-        reaction = comm.allreduce(simulation.solver.stats.reaction_seconds, op=MPI.MAX)
-        cost = (*simulation.refinement.cost(comm), reaction)
-        carried.cost = tuple(a + b for a, b in zip(carried.cost, cost, strict=True))
+        carried.cost = _summed(carried.cost, _adaptivity_cost(simulation, comm))
         history.close(completed=False)
         if fields is not None:
             fields.close()
@@ -229,12 +232,21 @@ def _segment(
 
 def _rebalance_threshold(config: RunConfig, comm: MPI.Comm) -> float:
     """The imbalance that re-cuts this run's partition (``[mesh] rebalance``), 0 where none
-    can help: one rank, a model that does not refine, patches of equal cells asked for."""
-    if comm.size == 1 or config.kind != ModelKind.ADAPTIVE:
-        return 0.0
-    if config.mesh.partition != Partition.COST or config.mesh.shell is not None:
+    can help: a model that does not refine, a partition not cut by cost."""
+    if config.kind != ModelKind.ADAPTIVE or not cuts_by_cost(config, comm):
         return 0.0
     return config.mesh.rebalance
+
+
+def _adaptivity_cost(simulation: Simulation, comm: MPI.Comm) -> tuple[int, float, float, float]:
+    """Collective: the indicator evaluations of this segment, their wall time, refining's
+    and the solver's reactions to refinements (s, the slowest rank's)."""
+    reaction = comm.allreduce(simulation.solver.stats.reaction_seconds, op=MPI.MAX)
+    return (*simulation.refinement.cost(comm), reaction)
+
+
+def _summed(a: tuple, b: tuple) -> tuple:
+    return tuple(x + y for x, y in zip(a, b, strict=True))
 
 
 def _restarted(
@@ -250,7 +262,9 @@ def _restarted(
     if isinstance(arrays, redistribute.StoredState):
         # cut anew, by the refinement at the checkpoint
         until = float(arrays.files[0]["solver_t"])
-        cost = _refinement_cost(config, arrays.files, until)
+        cost = None
+        if cuts_by_cost(config, comm):  # (else the cut takes no weights)
+            cost = _refinement_cost(config, arrays.files, until)
         structure = build_structure(config, comm, refine_initially=False, partition_cost=cost)
         checkpoint.restore_moved_structure(structure, arrays)
         simulation = Simulation(config, comm=comm, structure=structure)
@@ -258,11 +272,9 @@ def _restarted(
         hook_state = checkpoint.moved_state(
             arrays, "hook_", simulation.refinement.layout(structure), comm
         )
-        cut = comm.size > 1 and config.mesh.partition == Partition.COST
-        cut = cut and config.mesh.shell is None
-        if cost is not None and cut:
+        if cost is not None:
             partition = {"weights": "refinement", "time_s": until}
-        else:  # (one rank, equal cells or nothing refined: the cut of a fresh start)
+        else:  # (one rank, equal cells, a shell or nothing refined: a fresh start's cut)
             partition = {"weights": "start"}
     else:
         cost = None
@@ -636,9 +648,7 @@ def _finish(
     peak = max(rows, key=lambda r: abs(r.reaction_force))
     # the energy put in: by loads and motions, or by an impactor
     scale = max(max(max(abs(r.external_work), abs(r.impact_work)) for r in rows), 1e-300)
-    reaction = comm.allreduce(stats.reaction_seconds, op=MPI.MAX)
-    cost = (*simulation.refinement.cost(comm), reaction)
-    cost = tuple(a + b for a, b in zip(carried.cost, cost, strict=True))  # (all segments)
+    cost = _summed(carried.cost, _adaptivity_cost(simulation, comm))  # (all segments)
     summary.update(
         {
             "status": "completed",

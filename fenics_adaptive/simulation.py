@@ -115,9 +115,7 @@ def build_structure(
     layers = config.layer_laminates()
     boundaries = config.layer_boundaries
     # on several ranks, patches of equal cost (``parallel.balance``)
-    cost = None
-    if comm.size > 1 and config.mesh.partition == Partition.COST:
-        cost = partition_cost or starting_cost(config)
+    cost = (partition_cost or starting_cost(config)) if cuts_by_cost(config, comm) else None
     beam = build_mesh(
         config,
         comm,
@@ -245,6 +243,14 @@ def build_mesh(
     elif shape.normal is not None:
         outward = toward(shape.normal)
     return shell_mesh(comm, surface, thicknesses, split, str(shape.reference), direction, outward)
+
+
+def cuts_by_cost(config: RunConfig, comm: MPI.Comm) -> bool:
+    """Whether the partition of this config's mesh is cut by the cells' cost (``cost`` of
+    ``build_mesh``): a plate on several ranks with ``[mesh] partition = "cost"`` (a shell is
+    bisected by counts)."""
+    mesh = config.mesh
+    return comm.size > 1 and mesh.partition == Partition.COST and mesh.shell is None
 
 
 def starting_cost(config: RunConfig) -> Callable[[np.ndarray, np.ndarray], np.ndarray] | None:

@@ -45,7 +45,7 @@ import numpy as np
 from mpi4py import MPI
 
 from fenics_adaptive.errors import InputError, shared_errors
-from fenics_adaptive.model.structure import NotMovable, Structure
+from fenics_adaptive.model.structure import Structure
 from fenics_adaptive.parallel import redistribute
 from fenics_adaptive.settings.config import RunConfig
 from fenics_adaptive.solver.explicit import SolverState
@@ -197,7 +197,7 @@ def state_layouts(solver, structure: Structure, hook) -> tuple[dict | None, str]
         layouts = {f"solver_{k}": v for k, v in solver.layout().items()}
         layouts.update({f"structure_{k}": v for k, v in structure.layout().items()})
         layouts.update({f"hook_{k}": v for k, v in hook.layout(structure).items()})
-    except NotMovable as reason:
+    except redistribute.NotMovable as reason:
         return None, str(reason)
     return layouts, ""
 

@@ -86,7 +86,9 @@ from fenics_adaptive.parallel.redistribute import (
     PARTIAL,
     REPLICATED,
     Layout,
+    NotMovable,
     Rows,
+    contributor_layouts,
     dof_keys,
     extra_node_keys,
     node_keys,
@@ -111,10 +113,6 @@ def _forwarded(path: str, doc: str) -> property:
 
 def _part(state: dict[str, np.ndarray], prefix: str) -> dict[str, np.ndarray]:
     return {k.removeprefix(prefix): v for k, v in state.items() if k.startswith(prefix)}
-
-
-class NotMovable(Exception):
-    """The state cannot be moved to another partition now (the message says why)."""
 
 
 class Structure:
@@ -464,14 +462,7 @@ class Structure:
             "refinement_energy": REPLICATED,
             "tie_work": PARTIAL,
         }
-        for contributor in self.contributors:
-            own = contributor.state()
-            if not own:
-                continue
-            layout = getattr(contributor, "layout", None)
-            if layout is None:
-                raise NotMovable(f"the force contributor {contributor.name!r} has no layout")
-            out.update({f"{contributor.name}_{k}": v for k, v in layout(self).items()})
+        out.update(contributor_layouts(self.contributors, self))
         dofs = self.lumped.border.dofs - 3 * self.n_base
         extra_dofs = dof_keys(self.extra_node_keys())
         out["border_offsets"] = Rows(extra_dofs[dofs], dofs // 3 < self.extra.n_owned)
@@ -506,8 +497,8 @@ class Structure:
         """(original number (n,), in-plane centroid (n, 2) mm) of the cell of each logged
         refinement request (the rows of ``state()["refinement_requests"]``)."""
         cells = self.refinement.state()["requests"][:, 0].astype(np.int64)
-        centroids = self.cell_vertices()[cells].mean(axis=1)[:, :2] if len(cells) else None
-        return self.original_cell[cells], np.zeros((0, 2)) if centroids is None else centroids
+        vertices = self.X_base[self.base.V.dofmap.list[cells]]  # (those cells' only)
+        return self.original_cell[cells], vertices.mean(axis=1)[:, :2]
 
     # ------------------------------------------------------------------ stabilisation
     @property

@@ -49,6 +49,25 @@ class Rows:
 Layout = Rows | str
 
 
+class NotMovable(Exception):
+    """The state cannot be moved to another partition now (the message says why)."""
+
+
+def contributor_layouts(contributors, structure) -> dict[str, Layout]:
+    """The layouts of the force contributors' states (``Contributor.state``), by
+    ``<name>_<key>``: each contributor's ``layout(structure)``; one without a state has none.
+    Raises ``NotMovable`` for one with a state and no ``layout``."""
+    out: dict[str, Layout] = {}
+    for contributor in contributors:
+        if not contributor.state():
+            continue
+        layout = getattr(contributor, "layout", None)
+        if layout is None:
+            raise NotMovable(f"the force contributor {contributor.name!r} has no layout")
+        out.update({f"{contributor.name}_{k}": v for k, v in layout(structure).items()})
+    return out
+
+
 def node_keys(base) -> np.ndarray:
     """(owned + ghost base nodes,) int64: each local base node's index in the mesh as it was
     generated (``geometry.input_global_indices``), the same on any partition. ``base``: the

@@ -25,7 +25,8 @@ from collections.abc import Callable, Iterable, Sequence
 import numpy as np
 
 from fenics_adaptive.model.forces import ForceContributor, ForceKind, hooks, overrides
-from fenics_adaptive.model.structure import NotMovable, Structure
+from fenics_adaptive.model.structure import Structure
+from fenics_adaptive.parallel.redistribute import contributor_layouts
 from fenics_adaptive.solver.blocks import BlockState
 
 
@@ -185,15 +186,7 @@ class RunForces:
         """How the rows of ``state()``'s arrays are indexed (``parallel.redistribute``), each
         contributor's by its ``layout(structure)``. Raises ``NotMovable`` for a contributor
         with a state and no layout."""
-        out = {}
-        for contributor in self.added:
-            if not contributor.state():
-                continue
-            layout = getattr(contributor, "layout", None)
-            if layout is None:
-                raise NotMovable(f"the force contributor {contributor.name!r} has no layout")
-            out.update({f"{contributor.name}_{k}": v for k, v in layout(structure).items()})
-        return out
+        return contributor_layouts(self.added, structure)
 
     def restore(self, state: dict) -> None:
         """Each of the run's own contributors from its ``<name>_*`` entries of ``state``."""
