@@ -304,6 +304,26 @@ def process_zone_warnings(config: RunConfig) -> list[str]:
     ]
 
 
+def schedule_warnings(config: RunConfig) -> list[str]:
+    """A warning for each output or refinement the run's end comes before: field output whose
+    ``fields_interval`` is longer than ``solver.end_time`` (a frame at t = 0 alone: frames are
+    written every interval from t = 0, not at the end), and a [[refinement]] entry due at a
+    time after the end, with no displacement that could make it due before."""
+    solver, warnings = config.solver, []
+    if solver.field_interval and solver.field_interval > solver.end_time:
+        warnings.append(
+            f"warning: output.fields_interval = {solver.field_interval:g} s is longer than "
+            f"solver.end_time = {solver.end_time:g} s: fields are written at t = 0 alone"
+        )
+    for k, entry in enumerate(config.refinements):
+        if entry.time > solver.end_time and entry.displacement == math.inf:
+            warnings.append(
+                f"warning: [[refinement]] {k + 1} is due at t = {entry.time:g} s, after "
+                f"solver.end_time = {solver.end_time:g} s: it never refines"
+            )
+    return warnings
+
+
 def initial_refinement(structure: Structure, config: RunConfig) -> list[Request]:
     """Every owned cell refined at the listed interfaces (weak at ``refine``, and at
     ``delaminate`` weak or strong as ``initial`` says), and strongly at an insert film's
@@ -580,7 +600,7 @@ class Simulation:
             self.structure, config.solver
         )
         # lines for the run's log and ``check``: what the config allows but likely did not mean
-        self.warnings: list[str] = process_zone_warnings(config)
+        self.warnings: list[str] = process_zone_warnings(config) + schedule_warnings(config)
         run_contributors: list[ForceContributor] = []
         bodies = [config.impactor.body()] if config.impactor is not None else []
         for body in [*bodies, *config.rigid_bodies]:

@@ -93,3 +93,26 @@ def test_a_restart_keeps_the_log_rows_its_state_holds(tmp_path):
             writer.writerow([t, 0, 0.5, 0.5, 2, "strong", "manual", "nan"])
     assert [r[0] for r in kept_rows(path, 2e-6)] == [1e-6, 2e-6]
     assert [r[0] for r in kept_rows(path, 2e-6, inclusive=False)] == [1e-6]
+
+
+def test_what_the_run_ends_before_is_warned_of():
+    """The late-refinement TCB ended at 3e-5 s: its strong entry at 4e-5 s never acts, and
+    fields every 5e-5 s give the frame at t = 0 alone. Ended at 1e-4 s, nothing is warned of;
+    an entry made due by a probe displacement neither."""
+    from fenics_adaptive.settings.config import parse_config
+    from fenics_adaptive.simulation import Simulation
+
+    whole = late_refinement(1.0e-4)
+    whole["output"]["fields_interval"] = 5.0e-5
+    assert Simulation(parse_config(whole)).warnings == []
+    short = late_refinement(3.0e-5)
+    short["output"]["fields_interval"] = 5.0e-5
+    warnings = Simulation(parse_config(short)).warnings
+    assert len(warnings) == 2, warnings
+    fields, late = warnings
+    assert "fields_interval = 5e-05 s is longer than solver.end_time = 3e-05 s" in fields
+    assert "written at t = 0 alone" in fields
+    assert "[[refinement]] 2 is due at t = 4e-05 s, after solver.end_time" in late
+    short["refinement"][1] |= {"displacement": 0.01}
+    del short["refinement"][1]["time"]
+    assert Simulation(parse_config(short)).warnings == [fields]
