@@ -413,20 +413,70 @@ def spread_arrays(
     structure, cells: np.ndarray, interfaces: np.ndarray, kinds: np.ndarray, rings: int
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``spread`` on arrays: the (cells, interfaces, kinds) (int64) that share a node with the
-    given ones, ``rings`` times (the given ones included). Collective."""
+    given ones, ``rings`` times (the given ones included), by cell, then kind, then interface.
+    Collective."""
     n_interfaces = structure.interface_state.shape[1]
-    nodes = np.hstack([structure.bottom_local, structure.top_local])
+    nodes = structure.cell_nodes
+    cells = np.asarray(cells, dtype=np.int64)
+    interfaces = np.asarray(interfaces, dtype=np.int64)
+    kinds = np.asarray(kinds, dtype=np.int64)
     for _ in range(rings):
         if not summed(structure.comm, [len(cells)])[0]:
             break
         marks = face_geometry(structure).sums_vector(structure, 2 * n_interfaces)
-        table = marks.array.reshape(-1, 2, n_interfaces)
-        table[nodes[cells], (kinds - 1)[:, None], (interfaces - 1)[:, None]] = 1.0
-        marks.scatter_reverse(la.InsertMode.add)
+        table = marks.array.reshape(-1, 2 * n_interfaces)
+        _mark_nodes(nodes, cells, (kinds - 1) * n_interfaces + interfaces - 1, table)
+        marks.scatter_reverse(la.InsertMode.add)  # (a ghost's marks reach its owner, and back)
         marks.scatter_forward()
-        marked = table.reshape(len(table), -1).any(axis=1)
-        near = np.flatnonzero(marked[nodes].any(axis=1))  # cells with a marked node
-        hit = (table[nodes[near]] > 0).any(axis=1)  # (len(near), 2, n_if)
-        at, kind_index, interface_index = np.nonzero(hit)
-        cells, kinds, interfaces = near[at], kind_index + 1, interface_index + 1
-    return cells.astype(np.int64), interfaces.astype(np.int64), kinds.astype(np.int64)
+        cells, marked = _marked_cells(nodes, table)
+        kinds, interfaces = np.divmod(marked, n_interfaces)
+        kinds += 1
+        interfaces += 1
+    return cells, interfaces, kinds
+
+
+@njit(cache=True)
+def _mark_nodes(nodes, cells, columns, table):
+    """table[node, columns[k]] = 1 for every node of every cell ``cells[k]``."""
+    for k in range(cells.shape[0]):
+        for a in range(nodes.shape[1]):
+            table[nodes[cells[k], a], columns[k]] = 1.0
+
+
+@njit(cache=True)
+def _marked_cells(nodes, table):
+    """(cells, columns): every (cell, column of ``table``) for which a node of the cell is
+    marked there, by cell, then column."""
+    marked = np.zeros(table.shape[0], dtype=np.bool_)
+    for node in range(table.shape[0]):
+        for j in range(table.shape[1]):
+            if table[node, j] > 0.0:
+                marked[node] = True
+                break
+    hit = np.zeros(table.shape[1], dtype=np.bool_)
+    count = 0
+    for step in range(2):  # count, then fill
+        if step == 1:
+            cells = np.empty(count, dtype=np.int64)
+            columns = np.empty(count, dtype=np.int64)
+            count = 0
+        for c in range(nodes.shape[0]):
+            near = False
+            for a in range(nodes.shape[1]):
+                near = near or marked[nodes[c, a]]
+            if not near:
+                continue
+            hit[:] = False
+            for a in range(nodes.shape[1]):
+                node = nodes[c, a]
+                if marked[node]:
+                    for j in range(table.shape[1]):
+                        if table[node, j] > 0.0:
+                            hit[j] = True
+            for j in range(table.shape[1]):
+                if hit[j]:
+                    if step == 1:
+                        cells[count] = c
+                        columns[count] = j
+                    count += 1
+    return cells, columns

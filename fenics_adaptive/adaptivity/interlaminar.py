@@ -136,10 +136,10 @@ def face_geometry(structure) -> FaceGeometry:
 
 @njit(cache=True)
 def _corner_sums(corners, values, table):
-    """table[node, :m] += values[cell] and table[node, m] += 1 for every bottom node of every
-    cell (``corners``: (n_cells, 4) local node numbers; ``values`` (n_cells, m); ``table``
-    (n_nodes, m + 1), zero before)."""
-    m = values.shape[1]
+    """table[node, :m] += values[cell, :m] and table[node, m] += 1 for every bottom node of
+    every cell (``corners``: (n_cells, 4) local node numbers; ``values`` (n_cells, >= m);
+    ``table`` (n_nodes, m + 1), zero before)."""
+    m = table.shape[1] - 1
     for c in range(corners.shape[0]):
         for a in range(4):
             node = corners[c, a]
@@ -300,11 +300,11 @@ def _peels(corners, table, d_dx, d_dy, peel):
             peel[c, j] = -(d_x + d_y)
 
 
-def _column_averages(structure, values: np.ndarray) -> np.ndarray:
-    """Collective: (n_nodes, m + 1) the averages of per-cell ``values`` (n_cells, m) over the
-    cells around each bottom node, over all ranks (a view of a work vector, valid until the
-    next call with the same m)."""
-    width = values.shape[1] + 1
+def _column_averages(structure, values: np.ndarray, m: int | None = None) -> np.ndarray:
+    """Collective: (n_nodes, m + 1) the averages of the first ``m`` (default all) columns of
+    per-cell ``values`` (n_cells, >= m; C-contiguous) over the cells around each bottom node,
+    over all ranks (a view of a work vector, valid until the next call with the same m)."""
+    width = (values.shape[1] if m is None else m) + 1
     sums = face_geometry(structure).sums_vector(structure, width)
     table = sums.array.reshape(-1, width)
     _corner_sums(structure.bottom_local, values, table)
@@ -352,8 +352,7 @@ def _recover(structure, rec: Recovery) -> _Profile:
             sum_rows(forces, stresses * ply_shear_scale(structure))
         hoop = _hoop_peel(geometry.curvatures, stresses, rec)
     n_cells, n_levels = len(sums), len(rec.levels)
-    # (contiguous copies: a kernel's argument types stay the same whatever the cell count)
-    table = _column_averages(structure, np.ascontiguousarray(sums[:, : 3 * (2 * n_levels + 1)]))
+    table = _column_averages(structure, sums, 3 * (2 * n_levels + 1))
     shear = np.empty((n_cells, n_levels, 2))
     lumped = np.empty((n_cells, 2 * (n_levels + 1)))
     _shears(corners, table, geometry.d_dx, geometry.d_dy, rec.heights, rec.shifts, shear, lumped)

@@ -12,6 +12,7 @@ and stiffness); a refinement keeps the maps of the elements it did not change.
 
 from __future__ import annotations
 
+import itertools
 import weakref
 from dataclasses import dataclass, field
 from functools import cached_property
@@ -412,8 +413,9 @@ class ElementData:
 
     @classmethod
     def of(cls, structure, previous: ElementData | None = None) -> ElementData:
-        """The structure's element data now; the maps of elements ``previous`` holds (the
-        same cell and plies: the same nodes and rule) are taken from it."""
+        """The structure's element data now. ``previous``: the same structure's before it
+        refined, whose elements' maps (the same cell and plies: the same nodes and rule),
+        cohesive rows and ply stiffnesses are kept."""
         nodes, cells, plies = structure.elements()
         table = structure.rule_table
         n_plies = structure.laminate.n_plies
@@ -436,8 +438,18 @@ class ElementData:
         geometry[todo] = kept
         maps = table.enhanced_parameter_maps(X, plies[todo])
         centre_maps[todo] = maps.mean(axis=1)
-        stiffness = np.array(structure.laminate.ply_stiffnesses()).reshape(n_plies, 6, 6)
-        ranges, pattern = np.unique(plies[:, 0] * (n_plies + 1) + plies[:, 1], return_inverse=True)
+        if previous is None:
+            stiffness = np.array(structure.laminate.ply_stiffnesses()).reshape(n_plies, 6, 6)
+        else:
+            stiffness = previous.stiffness
+        # the distinct ply ranges, by (first, stop), through a table of every possible one
+        codes = plies[:, 0] * (n_plies + 1) + plies[:, 1]
+        present = np.zeros((n_plies + 1) ** 2, dtype=bool)
+        present[codes] = True
+        ranges = np.flatnonzero(present)
+        place = np.zeros(len(present), dtype=np.int64)
+        place[ranges] = np.arange(len(ranges))
+        pattern = place[codes]
         patterns = np.column_stack(np.divmod(ranges, n_plies + 1))
         return cls(
             structure.refined_cells.subelements,
@@ -448,9 +460,10 @@ class ElementData:
             centre_maps,
             _shear_roots(table, patterns.reshape(-1, 2), n_plies),
             stiffness,
-            np.array(
-                [(c, i, row) for (c, i), row in structure.damage_rows.items()], dtype=np.int64
-            ).reshape(-1, 3),
+            _cohesive_rows(
+                structure.damage_rows,
+                None if previous is None else previous.cohesive_rows,
+            ),
             np.asarray(structure.laminate.ply_fractions, dtype=float),
             frames,
             geometry,
@@ -458,6 +471,19 @@ class ElementData:
             pattern.reshape(-1).astype(np.int64),
             range_matrices={} if previous is None else previous.range_matrices,
         )
+
+
+def _cohesive_rows(damage_rows: dict, known: np.ndarray | None) -> np.ndarray:
+    """(m, 3) the cell, interface and damage row of every pair of ``damage_rows``
+    (``Structure.damage_rows``, whose pairs only ever come in at the end, each with its place
+    as its row: ``RefinementState.mark_strong``); ``known``: this for the same dict before,
+    whose rows are kept."""
+    if known is None or len(known) > len(damage_rows):
+        known = np.zeros((0, 3), np.int64)
+    start, stop = len(known), len(damage_rows)
+    pairs = itertools.chain.from_iterable(itertools.islice(damage_rows, start, None))
+    new = np.fromiter(pairs, np.int64, count=2 * (stop - start)).reshape(-1, 2)
+    return np.vstack([known, np.column_stack([new, np.arange(start, stop, dtype=np.int64)])])
 
 
 def _shear_roots(table, patterns: np.ndarray, n_plies: int) -> np.ndarray:

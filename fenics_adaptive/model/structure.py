@@ -168,6 +168,8 @@ class Structure:
         self.columns = CellColumnTable(base)
         # the columns' arrays as the structure's own (read by indicators, contact, output)
         self.bottom_local, self.top_local = self.columns.bottom_local, self.columns.top_local
+        # (n_owned_cells, 8) each cell's base nodes, bottom face then top (local numbers)
+        self.cell_nodes = np.hstack([self.bottom_local, self.top_local])
         self.bottom_global = self.columns.bottom_global
         self.original_cell = self.columns.original_cell
         # each local base node's number in the mesh as generated: the same on any partition
@@ -404,7 +406,7 @@ class Structure:
         cell each belongs to, and its plies [first, stop) of the laminate: unrefined cells
         (whole cells: all plies, or an LW layer's) and the subelements of refined ones."""
         unrefined = self.refinement.unrefined_cells()
-        nodes = np.hstack([self.bottom_local, self.top_local])[unrefined]
+        nodes = self.cell_nodes[unrefined]
         cells = unrefined.astype(np.int64)
         return self.refined_cells.elements(nodes, cells, self.cell_plies[unrefined])
 
@@ -646,7 +648,7 @@ class Structure:
             refined()
         # the face loads onto the subelements' faces, extra nodes included, with the new border
         self.loads.refine(
-            np.hstack([self.bottom_local, self.top_local]),
+            self.cell_nodes,
             self.subelements.nodes,
             self.subelement_cells,
             lambda nodes: self.gather(nodes, "X"),
