@@ -115,7 +115,9 @@ SPECIMENS = {
 
 # What a run must show against beam theory (fractions)
 TARGETS = {
-    "peak_over_initiation": 0.05,  # the peak force, within 5 % of the analytic initiation
+    # the peak force, within 5 % of the analytic initiation: the force averaged over 1 % of the
+    # travel (``lefm.averaged_peak``): the largest history row is wherever a ringing swing fell
+    "peak_over_initiation": 0.05,
     # the elastic slope before growth, within 7 %: the quick DCB (tests/test_fracture_tests.py)
     # starts 5.1 % below corrected beam theory with a cell per ply (four per arm), 5.8 % with a
     # cell per arm and the laminate's shear correction, 4.2 % without it (too stiff in shear):
@@ -155,7 +157,8 @@ def failures(comparison: dict) -> list[str]:
         if value is None or abs(value / expected - 1.0) > tolerance:
             missed.append(f"{what}: {value} against {expected:.6g} (tolerance {tolerance:.0%})")
 
-    off(c["peak_force_N"], c["initiation_force_N"], TARGETS["peak_over_initiation"], "peak force")
+    off(c["peak_averaged_force_N"], c["initiation_force_N"], TARGETS["peak_over_initiation"],
+        "peak force (averaged over 1 % of the travel)")  # fmt: skip
     off(c["initial_stiffness_N_per_mm"], c["theory_stiffness_N_per_mm"],
         TARGETS["initial_stiffness"], "initial stiffness")  # fmt: skip
     off(c["force_over_theory_mean"], 1.0, TARGETS["branch_mean"], "propagation force, mean")
