@@ -304,22 +304,25 @@ def process_zone_warnings(config: RunConfig) -> list[str]:
     ]
 
 
-def schedule_warnings(config: RunConfig) -> list[str]:
-    """A warning for each output or refinement the run's end comes before: field output whose
+def schedule_warnings(config: RunConfig, time_step: float = 0.0) -> list[str]:
+    """A warning for each output or refinement the run ends before: field output whose
     ``fields_interval`` is longer than ``solver.end_time`` (a frame at t = 0 alone: frames are
     written every interval from t = 0, not at the end), and a [[refinement]] entry due at a
-    time after the end, with no displacement that could make it due before."""
+    time after the end, with no displacement that could make it due before. ``time_step``
+    (s): the run's, by which its last step may pass the end (what falls within it is not
+    warned of)."""
     solver, warnings = config.solver, []
-    if solver.field_interval and solver.field_interval > solver.end_time:
+    last = solver.end_time + time_step  # s: the last step ends before this
+    if solver.field_interval and solver.field_interval >= last:
         warnings.append(
             f"warning: output.fields_interval = {solver.field_interval:g} s is longer than "
             f"solver.end_time = {solver.end_time:g} s: fields are written at t = 0 alone"
         )
     for k, entry in enumerate(config.refinements):
-        if entry.time > solver.end_time and entry.displacement == math.inf:
+        if entry.time >= last and entry.displacement == math.inf:
             warnings.append(
                 f"warning: [[refinement]] {k + 1} is due at t = {entry.time:g} s, after "
-                f"solver.end_time = {solver.end_time:g} s: it never refines"
+                f"solver.end_time = {solver.end_time:g} s: it does not refine before the end"
             )
     return warnings
 
@@ -600,7 +603,8 @@ class Simulation:
             self.structure, config.solver
         )
         # lines for the run's log and ``check``: what the config allows but likely did not mean
-        self.warnings: list[str] = process_zone_warnings(config) + schedule_warnings(config)
+        self.warnings: list[str] = process_zone_warnings(config)
+        self.warnings += schedule_warnings(config, self.time_step)
         run_contributors: list[ForceContributor] = []
         bodies = [config.impactor.body()] if config.impactor is not None else []
         for body in [*bodies, *config.rigid_bodies]:

@@ -417,9 +417,20 @@ def spread_arrays(
     Collective."""
     n_interfaces = structure.interface_state.shape[1]
     nodes = structure.cell_nodes
-    cells = np.asarray(cells, dtype=np.int64)
-    interfaces = np.asarray(interfaces, dtype=np.int64)
-    kinds = np.asarray(kinds, dtype=np.int64)
+    # (contiguous copies: the kernels' argument types stay the same, the caller's arrays
+    # are not handed back; the kernels do not check bounds, so the values are checked here)
+    cells, interfaces, kinds = (
+        np.array(a, dtype=np.int64, order="C").reshape(-1) for a in (cells, interfaces, kinds)
+    )
+    if not (len(cells) == len(interfaces) == len(kinds)):
+        raise ValueError("spread: one interface and one kind per cell")
+    for what, values, low, high in (
+        ("cell", cells, 0, len(nodes) - 1),
+        ("interface", interfaces, 1, n_interfaces),
+        ("kind", kinds, int(InterfaceState.WEAK), int(InterfaceState.STRONG)),
+    ):
+        if len(values) and (values.min() < low or values.max() > high):
+            raise ValueError(f"spread: a {what} outside {low} .. {high}")
     for _ in range(rings):
         if not summed(structure.comm, [len(cells)])[0]:
             break

@@ -305,6 +305,8 @@ def _column_averages(structure, values: np.ndarray, m: int | None = None) -> np.
     per-cell ``values`` (n_cells, >= m; C-contiguous) over the cells around each bottom node,
     over all ranks (a view of a work vector, valid until the next call with the same m)."""
     width = (values.shape[1] if m is None else m) + 1
+    if width - 1 > values.shape[1]:  # (the kernel reads the first m columns unchecked)
+        raise ValueError(f"column averages of {width - 1} of {values.shape[1]} columns")
     sums = face_geometry(structure).sums_vector(structure, width)
     table = sums.array.reshape(-1, width)
     _corner_sums(structure.bottom_local, values, table)

@@ -481,6 +481,8 @@ def _cohesive_rows(damage_rows: dict, known: np.ndarray | None) -> np.ndarray:
     if known is None or len(known) > len(damage_rows):
         known = np.zeros((0, 3), np.int64)
     start, stop = len(known), len(damage_rows)
+    if stop > start and next(reversed(damage_rows.values())) != stop - 1:
+        raise RuntimeError("Structure.damage_rows: a pair's row is no longer its place")
     pairs = itertools.chain.from_iterable(itertools.islice(damage_rows, start, None))
     new = np.fromiter(pairs, np.int64, count=2 * (stop - start)).reshape(-1, 2)
     return np.vstack([known, np.column_stack([new, np.arange(start, stop, dtype=np.int64)])])

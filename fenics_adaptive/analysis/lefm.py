@@ -177,32 +177,45 @@ def dcb_initiation_force(modulus: float, width: float, arm: float, GIc: float, c
     return float(np.sqrt(width * EI * GIc) / crack)
 
 
-# the load point's travel (a share of it at the peak) over which ``averaged_peak`` averages
+# the share of the load point's whole travel over which ``averaged_peak`` averages
 PEAK_TRAVEL_SHARE = 0.01
 
 
 def averaged_peak(displacement, force, share: float = PEAK_TRAVEL_SHARE) -> float:
     """The largest force (N) of a quasi-static test once its ringing is averaged out: the
     largest mean of the rows' forces over the rows whose load-point travel lies within
-    ``share`` of the travel at the largest row, either side of each row. History rows sample
-    the force; a run rings (the lever's load of a mixed-mode test rang at 8 kHz once its first
-    cohesive elements failed, the rows every 0.1 ms: the same run's largest row read 1.02 to
-    1.09 of the initiation load by where the rows fell), and the largest row is then where a
-    swing fell. A quasi-static force is flat at its peak, so the mean over 1 % of the travel
-    changes it by less than the travel's share; at a corner of the theory, a straight rise
-    and a falling branch, it takes off about half of it (0.5 %). ``displacement``: the load
-    point's (mm, either sign; a driven load point's, which does not go back)."""
+    ``share`` of the travel at the peak either side of each row (the peak found first with
+    ``share`` of the whole travel). History rows sample the force; a
+    run rings (the lever's load of a mixed-mode test rang at 8 kHz once its first cohesive
+    elements failed, the rows every 0.1 ms: the same run's largest row read 1.02 to 1.09 of
+    the initiation load by where the rows fell), and the largest row is then where a swing
+    fell. A quasi-static force is flat at its peak, so the mean over a small share of the
+    travel leaves it; at a corner of the theory, a straight rise and a falling branch, it
+    takes off up to half the share's worth of the slopes (0.25-0.5 % at 1 %; a sudden drop,
+    up to 1 %). Rows sparser than the share are not averaged. ``displacement``: the load
+    point's (mm, either sign; a driven load point's, which does not go back). Raises
+    ValueError for no rows, rows of unequal length or values that are not finite."""
     travel = np.abs(np.asarray(displacement, dtype=float))
     force = np.asarray(force, dtype=float)
-    if len(force) == 0:
-        raise ValueError("averaged_peak: no rows")
+    if len(force) == 0 or travel.shape != force.shape:
+        raise ValueError(
+            f"averaged_peak: {len(travel)} displacements and {len(force)} forces: one of "
+            "each per row, at least one row"
+        )
+    if not (np.isfinite(travel).all() and np.isfinite(force).all()):
+        raise ValueError("averaged_peak: a displacement or force is not finite")
     travel = np.maximum.accumulate(travel)  # (round-off going back: sorted for the search)
-    reach = share * travel[int(np.argmax(force))]
-    # rows [lo, hi) within the reach of each row; their sums from the cumulative sum
-    lo = np.searchsorted(travel, travel - reach, side="left")
-    hi = np.searchsorted(travel, travel + reach, side="right")
     total = np.concatenate([[0.0], np.cumsum(force)])
-    return float(((total[hi] - total[lo]) / (hi - lo)).max())
+
+    def means(reach: float) -> np.ndarray:  # over the rows [lo, hi) within reach of each row
+        lo = np.searchsorted(travel, travel - reach, side="left")
+        hi = np.searchsorted(travel, travel + reach, side="right")
+        return (total[hi] - total[lo]) / (hi - lo)
+
+    # where the peak is, averaged over the share of the whole travel (a lone early spike is
+    # averaged with its neighbours there), then the share of the travel at that peak
+    at = int(np.argmax(means(share * travel[-1])))
+    return float(means(share * travel[at]).max())
 
 
 def against_theory(history: dict, displacement, force, theory, initiation: float, crack,
