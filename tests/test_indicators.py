@@ -370,6 +370,11 @@ def test_ply_strains_follow_each_refinement_and_keep_the_unchanged_elements_maps
         assert np.array_equal(kept.keys, fresh.keys)
         assert np.array_equal(kept.centre_maps, fresh.centre_maps)
         assert np.array_equal(kept.shear_roots, fresh.shear_roots)
+        # the cohesive rows grown from the ones before, the ply ranges, the stiffnesses kept
+        for name in ("cohesive_rows", "patterns", "pattern", "stiffness"):
+            assert np.array_equal(getattr(kept, name), getattr(fresh, name)), name
+        rows = [[c, i, r] for (c, i), r in structure.damage_rows.items()]
+        assert kept.cohesive_rows.tolist() == rows and (len(rows) > 0) == (step > 0)
         assert ind.element_data(structure) is kept  # no refinement: nothing made again
         # the strains read the centre parameters of each element, as computed afresh
         nodes, _, plies = structure.elements()
