@@ -172,7 +172,9 @@ def _segment(
     writer.partition = partition
     refinement_log = _refinement_log(config, structure, out_dir, restart, resume, folder)
     cut_left = carried.rebalanced[-1]["imbalance_after"] if carried.rebalanced else None
-    balance_report = BalanceReport(structure, say, _rebalance_threshold(config, comm), cut_left)
+    balance_report = BalanceReport(
+        structure, say, _rebalance_threshold(config, comm), cut_left, restarted=resume is not None
+    )
     observers = (history, fields, progress, writer, RefinementReport(structure, say))
     observers += (balance_report,)
     for observer in (*observers, refinement_log):
@@ -544,7 +546,9 @@ class BalanceReport(Observer):
     re-balance left: ``cut_left``) asks the solver to re-balance
     (``ExplicitSolver.request_rebalance``) as soon as the state can move to another
     partition (no refinement's ties or damping windows acting: else at a later history
-    row)."""
+    row). A segment that continues from a checkpoint (``restarted``) measures at its first
+    history row and asks alike: a re-balance that was waiting for a window to close when the
+    checkpoint was written is not lost with the process."""
 
     # said in the log when the run starts this unbalanced (or a refinement makes it so)
     WORTH_SAYING = 1.2
@@ -558,8 +562,10 @@ class BalanceReport(Observer):
         say: Callable[[str], None],
         threshold: float = 0.0,
         cut_left: float | None = None,
+        restarted: bool = False,
     ):
         self.structure, self.say, self.threshold = structure, say, threshold
+        self.restarted = restarted
         self.bar = threshold if cut_left is None else max(threshold, self.GAIN * cut_left)
         # None until measured (a run that fails before its first step)
         self.at_start: float | None = None
@@ -583,6 +589,21 @@ class BalanceReport(Observer):
             self.at_start = self._measure()
             if self.at_start > self.WORTH_SAYING:
                 self.say(f"load imbalance {self.at_start:.2f} (the costliest rank over the mean)")
+            if self.restarted and self._above_bar():
+                self._ask_rebalance(row.time)
+        self._rebalance_if_movable()
+
+    def _above_bar(self) -> bool:
+        return bool(self.threshold) and self.now > self.bar
+
+    def _ask_rebalance(self, time: float) -> None:
+        """A re-balance as soon as the state can move; ``time``: s, for the log line."""
+        if not self.wanted:
+            self.say(
+                f"t = {time:.4e} s: load imbalance {self.now:.2f} (the costliest rank over "
+                "the mean): the partition is cut again"
+            )
+        self.wanted = True
         self._rebalance_if_movable()
 
     def _rebalance_if_movable(self) -> None:
@@ -596,14 +617,8 @@ class BalanceReport(Observer):
             return
         before = self.largest or 0.0
         self._measure()
-        if self.threshold and self.now > self.bar:
-            if not self.wanted:
-                self.say(
-                    f"t = {event.time:.4e} s: load imbalance {self.now:.2f} (the costliest rank "
-                    "over the mean): the partition is cut again"
-                )
-            self.wanted = True
-            self._rebalance_if_movable()
+        if self._above_bar():
+            self._ask_rebalance(event.time)
         elif self.now > self.WORTH_SAYING and self.now > before:
             self.say(
                 f"t = {event.time:.4e} s: load imbalance {self.now:.2f} (the costliest rank "
