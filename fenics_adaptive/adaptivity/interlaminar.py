@@ -252,12 +252,17 @@ def _boundary_indices(boundaries, n_plies: int) -> np.ndarray:
 
 def recovery(structure, boundaries=None) -> Recovery:
     """The structure's ``Recovery`` at ``boundaries`` (all ply boundaries by default)."""
-    n = structure.laminate.n_plies
-    key = tuple(range(n + 1) if boundaries is None else _boundary_indices(boundaries, n).tolist())
     known = _RECOVERIES.setdefault(structure, {})
-    if key not in known:
-        known[key] = Recovery.of([p.thickness for p in structure.laminate.plies], key)
-    return known[key]
+    # by the boundaries as asked (the indicators ask with the same tuple at every
+    # evaluation): checked and sorted once, not each time
+    asked = None if boundaries is None else tuple(np.asarray(list(boundaries)).ravel().tolist())
+    if asked not in known:
+        n = structure.laminate.n_plies
+        key = tuple(range(n + 1) if asked is None else _boundary_indices(asked, n).tolist())
+        if key not in known:
+            known[key] = Recovery.of([p.thickness for p in structure.laminate.plies], key)
+        known[asked] = known[key]
+    return known[asked]
 
 
 @njit(cache=True)
