@@ -70,6 +70,7 @@ from fenics_adaptive.element.assumed_strain import (
 )
 from fenics_adaptive.materials.ply_damage import (
     P_C22,
+    P_G12,
     RESIDUAL,
     S_D,
     S_DF,
@@ -1133,11 +1134,12 @@ def solid_shell_lumped_masses(X_all, points, weights, ply_of_point, density):
 # A subelement whose plies' fibres all broke before its cell refined leaves at the refinement:
 # its energy goes with the refinement's (``refinement_energy``).
 #
-# Consequences of one secant stiffness per ply: the dissipation is exactly G_c per crack area
-# when the strain is uniform within the ply; a strain gradient inside a damaging ply (bending)
-# releases slightly more (sum over points of eps.A.eps >= that of the mean strain), and the
-# force jumps where a damaged ply's mean transverse stress changes sign (crack closing). Cost:
-# the strain pass repeats the Jacobian work of the force pass.
+# Consequences of one secant stiffness per ply: a strain gradient inside a damaging ply
+# (bending) releases the mean over its points of eps.A.eps, more than that of its mean strain;
+# the law is given that mean (``_ply_release_rates``), so that its crack band dissipates G_c
+# per crack area as the element releases it; the force jumps where a damaged ply's mean
+# transverse stress changes sign (crack closing). Cost: the strain pass repeats the Jacobian
+# work of the force pass.
 
 
 # Rows of the per-point scratch of the damaged kernel (``maps``, (N_MAPS, >= points of a rule)):
@@ -1298,6 +1300,42 @@ def _ply_normal_energies(
         row = pp - start
         k = ply_of_point[pp]
         out[k - k0] += _normal_energy_at(maps, row, k, stiffness, opening, opening_scale)
+
+
+@njit(inline="always", **KERNEL_OPTIONS)
+def _ply_release_rates(start, stop, terms, ply_of_point, maps, strain_to_stress, ply_params, out):
+    """The matrix's energy release rates of each ply of one element as the element releases
+    them (it softens every point of the ply with the one damage): the means over the ply's
+    "normal" points, weighted by w |det J|, of <s22>^2 / (2 C22), each point's crack open where
+    its own s22 > 0 (as ``element_force_kernel`` opens it), and of s12^2 / (2 G12), into
+    out[j, 0], out[j, 1] (MPa) for rule-local ply j (``ply_damage.ply_damage_update``'s
+    ``point_rates``). Where the strain varies through the ply these exceed the rates of its
+    mean strain (by 4/3 for a strain rising linearly from zero across it)."""
+    k0 = ply_of_point[start]
+    n_local = ply_of_point[stop - 1] - k0 + 1
+    for j in range(n_local):
+        out[j, 0] = 0.0
+        out[j, 1] = 0.0
+        out[j, 2] = 0.0  # the points' weight
+    for pp in range(start, stop):
+        if terms[pp] != TERM_NORMAL:
+            continue
+        row = pp - start
+        k = ply_of_point[pp]
+        e = (maps[10, row], maps[11, row], maps[12, row], maps[15, row])
+        s22 = 0.0
+        s12 = 0.0
+        for b, i in enumerate((0, 1, 2, 5)):
+            s22 += strain_to_stress[k, 1, i] * e[b]
+            s12 += strain_to_stress[k, 5, i] * e[b]
+        w = maps[0, row]
+        j = k - k0
+        out[j, 0] += w * max(s22, 0.0) ** 2 / (2.0 * ply_params[k, P_C22])
+        out[j, 1] += w * s12 * s12 / (2.0 * ply_params[k, P_G12])
+        out[j, 2] += w
+    for j in range(n_local):
+        out[j, 0] /= out[j, 2]
+        out[j, 1] /= out[j, 2]
 
 
 @njit(inline="always", **KERNEL_OPTIONS)
@@ -1469,6 +1507,7 @@ def _element_force_damaged(
     volumes,
     sigma,
     normal_energy,
+    release,
     f_out,
     update,
 ):
@@ -1479,7 +1518,7 @@ def _element_force_damaged(
     element's rows are written) and ``dirty`` (len(stiffness),) bool says which of its rows
     differ from ``stiffness`` (elements sharing a rule share rows). Other scratch: ``maps``
     (N_MAPS, >= stop - start), ``strains`` (>= n_local, 6), ``volumes`` (>= n_local, 3),
-    ``sigma`` (6,), ``normal_energy`` (>= n_local,)."""
+    ``sigma`` (6,), ``normal_energy`` (>= n_local,), ``release`` (>= n_local, 3)."""
     _point_maps(X, u, start, stop, zeta, weights, position_of_point, positions, work, line, maps)
     k0 = ply_of_point[start]
     n_local = ply_of_point[stop - 1] - k0 + 1
@@ -1505,6 +1544,10 @@ def _element_force_damaged(
         False,
     )
     _ply_means(start, stop, terms, ply_of_point, maps, strains, volumes)
+    if update:
+        _ply_release_rates(
+            start, stop, terms, ply_of_point, maps, strain_to_stress, ply_params, release
+        )
     fibres = False  # does a ply of the element break its fibres?
     if update:
         for j in range(n_local):
@@ -1551,7 +1594,9 @@ def _element_force_damaged(
         d_old = state[j, S_D]
         d_fibre_old = state[j, S_DF]
         if update:
-            ply_damage_update(sigma, energy_density, ply_params[k], band_width[j], state[j])
+            ply_damage_update(
+                sigma, energy_density, ply_params[k], band_width[j], state[j], release[j]
+            )
         # the ply's strain is used: its growth instead (matrix, fibre)
         strains[j, 1] = state[j, S_DF] - d_fibre_old
         strains[j, 0] = state[j, S_D] - d_old + strains[j, 1]
@@ -2015,6 +2060,7 @@ def add_damaged_subelement_forces(
     strains = np.empty((n_plies, 6))
     volumes = np.empty((n_plies, 3))
     normal_energy = np.empty(n_plies)
+    release = np.empty((n_plies, 3))
     sigma = np.empty(6)
     X = np.empty((8, 3))
     u = np.empty((8, 3))
@@ -2084,6 +2130,7 @@ def add_damaged_subelement_forces(
             volumes,
             sigma,
             normal_energy,
+            release,
             f,
             update,
         )

@@ -133,10 +133,14 @@ per update, and y = 1/2 eps.(A_open + A_1).eps (the released part of the strain 
 so under the solver's trapezoidal work the energy density not stored over an update is exactly
 (1 - RESIDUAL) dd 1/2 eps_n.A.eps_{n+1}: ``ply_damage_update`` accumulates (1 - RESIDUAL) dd
 sqrt(y_n y_{n+1}), equal to it on a proportional path (consistent, second order otherwise).
-It is the law's, at the ply-mean strain; the element, which softens every point of the ply with
-the one d, releases sum_points 1/2 eps_p.A.eps_p dd >= that (see ``subelement``: strain
-gradients within a damaging ply); the energy balances built from the work and from the states
-differ by that excess. The element's transverse shear energy carries each ply's shear factor
+An element softens every point of a ply with the one d, so it releases the mean over the
+ply's points of 1/2 eps_p.A.eps_p dd: the law takes y as that mean (its normal part with each
+point's crack open where that point's s22 > 0, as the force opens it), not as y of the ply's
+mean strain, which is smaller where the strain varies through the ply (Jensen: a ply bent
+about its own mid-plane, the strain rising linearly from zero across it, releases 4/3 of it).
+With y of the mean strain the law booked 3/4 of what such a ply released, and its crack band
+dissipated 4/3 of its fracture energy; the onset stays that of the failure index of the
+ply's mean stress. The element's transverse shear energy carries each ply's shear factor
 m (``solid_shell.shear_weights``: m times that of the sampled strain; ``materials.laminate
 .ply_shear_factors``: the plies' shares of the laminate's shear flow), so the law takes the
 ply's stress of its strain with the shear strains times sqrt(m): its failure indices see the
@@ -461,10 +465,13 @@ def _softened(y, y0, G, band_width):
 
 
 @njit(cache=True, inline="always", error_model="numpy")
-def ply_damage_update(sigma, energy_density, params, band_width, state):
+def ply_damage_update(sigma, energy_density, params, band_width, state, point_rates):
     """Update one ply's damage state (N_STATE,) in place from its effective material-frame
     stress ``sigma`` (6,) = C0 eps (in an element of several plies, eps with the transverse
-    shears its energy carries: ``subelement``) and strain energy density
+    shears its energy carries: ``subelement``), its matrix's energy release rates
+    ``point_rates`` (2,): the means over an element's points of <s22>^2 / (2 C22) and
+    s12^2 / (2 G12) (MPa; ``subelement._ply_release_rates``), or a negative first entry: those
+    of ``sigma`` itself (one point), and strain energy density
     ``energy_density`` = psi_m
     (MPa; read only with fibre damage: 1/2 eps.C(d).eps at the matrix damage d of before the
     update, at a point, the mean of it over the ply's points in the element kernels);
@@ -477,10 +484,12 @@ def ply_damage_update(sigma, energy_density, params, band_width, state):
     kept = 1.0 - RESIDUAL
     s22 = sigma[1]
     crack_open = s22 > 0.0
-    y_normal = s22 * s22 / (2.0 * params[P_C22]) if crack_open else 0.0
-    y_shear = sigma[5] * sigma[5] / (2.0 * params[P_G12]) + sigma[3] * sigma[3] / (
-        2.0 * params[P_G23]
-    )
+    if point_rates[0] >= 0.0:  # an element's ply: what its points release (module docstring)
+        y_normal, y_in_plane = point_rates[0], point_rates[1]
+    else:
+        y_normal = s22 * s22 / (2.0 * params[P_C22]) if crack_open else 0.0
+        y_in_plane = sigma[5] * sigma[5] / (2.0 * params[P_G12])
+    y_shear = y_in_plane + sigma[3] * sigma[3] / (2.0 * params[P_G23])
     y = y_normal + y_shear
     y_last = state[S_Y_LAST]
     state[S_Y_LAST] = y
@@ -574,6 +583,10 @@ def new_state(*shape: int) -> np.ndarray:
     return np.zeros((*shape, N_STATE))
 
 
+# ``ply_damage_update``'s ``point_rates`` for a single point: from its stress
+_ONE_POINT = np.array([-1.0, 0.0])
+
+
 def material_point_update(
     material: PlyMaterial,
     failure: PlyFailure,
@@ -591,7 +604,7 @@ def material_point_update(
     matrix = damaged_material_stiffness(material, state[S_D], bool(effective[1] > 0.0))
     psi_m = 0.5 * float(eps @ matrix @ eps)  # the fibres' energy release rate
     crack_open = ply_damage_update(
-        effective, psi_m, ply_params_row(material, failure), bands, state
+        effective, psi_m, ply_params_row(material, failure), bands, state, _ONE_POINT
     )
     sigma = damaged_material_stiffness(material, state[S_D], bool(crack_open)) @ eps
     sigma *= 1.0 - (1.0 - RESIDUAL) * state[S_DF]
