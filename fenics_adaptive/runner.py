@@ -129,11 +129,11 @@ def _segment(
     fresh = restart is None or not _same_folder(checkpoint.locate(restart).parent, out_dir)
     folder.check(fresh)  # before the model is built: a wrong --out is refused at once
     resume, hook_state, kept_rows = None, None, []
-    partition = {"weights": "start"}
+    partition, kept_balance = {"weights": "start"}, {}
     if restart is None:
         simulation = Simulation(config, comm=comm)
     else:
-        simulation, resume, hook_state, kept_rows, partition = _restarted(
+        simulation, resume, hook_state, kept_rows, partition, kept_balance = _restarted(
             config, restart, comm, repartition
         )
     say = log if (log is not None and comm.rank == 0) else (lambda _: None)
@@ -172,9 +172,9 @@ def _segment(
     writer.partition = partition
     refinement_log = _refinement_log(config, structure, out_dir, restart, resume, folder)
     cut_left = carried.rebalanced[-1]["imbalance_after"] if carried.rebalanced else None
-    balance_report = BalanceReport(
-        structure, say, _rebalance_threshold(config, comm), cut_left, restarted=resume is not None
-    )
+    threshold = _rebalance_threshold(config, comm)
+    balance_report = BalanceReport(structure, say, threshold, cut_left, **kept_balance)
+    writer.balance = balance_report
     observers = (history, fields, progress, writer, RefinementReport(structure, say))
     observers += (balance_report,)
     for observer in (*observers, refinement_log):
@@ -253,14 +253,16 @@ def _summed(a: tuple, b: tuple) -> tuple:
 
 def _restarted(
     config: RunConfig, restart: str | Path, comm: MPI.Comm, repartition: bool = False
-) -> tuple[Simulation, dict, dict, list, dict]:
+) -> tuple[Simulation, dict, dict, list, dict, dict]:
     """Collective: the simulation of a checkpoint (the structure rebuilt from the config, its
     refinements replayed and its state put back), the solver and refinement states to resume
-    from, the history rows up to the checkpoint and how the partition was cut. On another
+    from, the history rows up to the checkpoint, how the partition was cut and, on the
+    partition that wrote it, the load balance's state (``BalanceReport`` keywords). On another
     number of ranks, after a re-balance, or with ``repartition``, the partition is cut anew,
     weighted by the refinement at the checkpoint (``checkpoint.read``)."""
     manifest, arrays, history_csv = checkpoint.read(restart, comm, config, repartition)
     partition = manifest.get("partition", {"weights": "start"})
+    kept_balance = {}
     if isinstance(arrays, redistribute.StoredState):
         # cut anew, by the refinement at the checkpoint
         until = float(arrays.files[0]["solver_t"])
@@ -285,6 +287,12 @@ def _restarted(
             cost = _refinement_cost(config, logs, float(partition["time_s"]))
         structure = build_structure(config, comm, refine_initially=False, partition_cost=cost)
         checkpoint.restore_structure(structure, arrays)
+        # (a partition cut anew, above, starts its load balance afresh)
+        balance_then = manifest.get("load_balance", {})
+        kept_balance = {
+            "pending": bool(balance_then.get("rebalance_pending", False)),
+            "bar": balance_then.get("bar"),
+        }
         resume = checkpoint.solver_state(arrays)
         hook_state = checkpoint.hook_state(arrays)
         simulation = Simulation(config, comm=comm, structure=structure)
@@ -292,7 +300,7 @@ def _restarted(
     simulation.stable_time_step = float(resume["stable"])
     with shared_errors(comm):  # the earlier format reads the folder's CSV on each rank
         kept_rows = _kept_history(restart, manifest, history_csv, resume, config)
-    return simulation, resume, hook_state, kept_rows, partition
+    return simulation, resume, hook_state, kept_rows, partition, kept_balance
 
 
 _LOG = "structure_refinement_"  # the checkpoint's refinement log (and its cells' places)
@@ -493,6 +501,8 @@ class CheckpointWriter(Observer):
         # how the run's partition was cut (the manifest's "partition"): at the start, or
         # weighted by the refinement of a moment (a re-balance)
         self.partition: dict = {"weights": "start"}
+        # whether a re-balance waits (the manifest's "load_balance")
+        self.balance: BalanceReport | None = None
 
     def on_checkpoint(self, solver: explicit.ExplicitSolver) -> None:
         with shared_errors(self.structure.comm):
@@ -502,6 +512,7 @@ class CheckpointWriter(Observer):
             self.out_dir, self.structure.comm, solver.state(), self.structure, hook_now,
             self.config, self.history.text(), self.folder.record, self.folder.forget,
             layouts, self.partition,
+            None if self.balance is None else self.balance.checkpointed(),
         )  # fmt: skip
 
 
@@ -546,9 +557,9 @@ class BalanceReport(Observer):
     re-balance left: ``cut_left``) asks the solver to re-balance
     (``ExplicitSolver.request_rebalance``) as soon as the state can move to another
     partition (no refinement's ties or damping windows acting: else at a later history
-    row). A segment that continues from a checkpoint (``restarted``) measures at its first
-    history row and asks alike: a re-balance that was waiting for a window to close when the
-    checkpoint was written is not lost with the process."""
+    row). A checkpoint keeps whether a re-balance is waiting and the bar (``checkpointed``);
+    a run that continues from it on the same partition takes them back (``pending``, ``bar``),
+    so that the re-balance comes when it would have in the run that was not stopped."""
 
     # said in the log when the run starts this unbalanced (or a refinement makes it so)
     WORTH_SAYING = 1.2
@@ -562,11 +573,14 @@ class BalanceReport(Observer):
         say: Callable[[str], None],
         threshold: float = 0.0,
         cut_left: float | None = None,
-        restarted: bool = False,
+        pending: bool = False,
+        bar: float | None = None,
     ):
         self.structure, self.say, self.threshold = structure, say, threshold
-        self.restarted = restarted
         self.bar = threshold if cut_left is None else max(threshold, self.GAIN * cut_left)
+        if bar is not None:  # (a checkpoint's, on the partition that wrote it)
+            self.bar = bar
+        self.pending = pending
         # None until measured (a run that fails before its first step)
         self.at_start: float | None = None
         self.now: float | None = None
@@ -582,29 +596,18 @@ class BalanceReport(Observer):
 
     def on_start(self, solver) -> None:
         self.at_start = self.now = self.largest = None
-        self.solver, self.wanted = solver, False
+        self.solver, self.wanted = solver, self.pending
 
     def on_history(self, row) -> None:
         if self.at_start is None:
             self.at_start = self._measure()
             if self.at_start > self.WORTH_SAYING:
                 self.say(f"load imbalance {self.at_start:.2f} (the costliest rank over the mean)")
-            if self.restarted and self._above_bar():
-                self._ask_rebalance(row.time)
         self._rebalance_if_movable()
 
-    def _above_bar(self) -> bool:
-        return bool(self.threshold) and self.now > self.bar
-
-    def _ask_rebalance(self, time: float) -> None:
-        """A re-balance as soon as the state can move; ``time``: s, for the log line."""
-        if not self.wanted:
-            self.say(
-                f"t = {time:.4e} s: load imbalance {self.now:.2f} (the costliest rank over "
-                "the mean): the partition is cut again"
-            )
-        self.wanted = True
-        self._rebalance_if_movable()
+    def checkpointed(self) -> dict:
+        """What a checkpoint keeps of this (its manifest's "load_balance")."""
+        return {"rebalance_pending": self.wanted, "bar": self.bar}
 
     def _rebalance_if_movable(self) -> None:
         state = self.structure.stabilisation_state  # (the same on every rank)
@@ -617,8 +620,14 @@ class BalanceReport(Observer):
             return
         before = self.largest or 0.0
         self._measure()
-        if self._above_bar():
-            self._ask_rebalance(event.time)
+        if self.threshold and self.now > self.bar:
+            if not self.wanted:
+                self.say(
+                    f"t = {event.time:.4e} s: load imbalance {self.now:.2f} (the costliest rank "
+                    "over the mean): the partition is cut again"
+                )
+            self.wanted = True
+            self._rebalance_if_movable()
         elif self.now > self.WORTH_SAYING and self.now > before:
             self.say(
                 f"t = {event.time:.4e} s: load imbalance {self.now:.2f} (the costliest rank "

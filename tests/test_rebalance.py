@@ -217,8 +217,10 @@ def test_a_rebalance_asked_for_at_a_refinement_waits_one_step(tmp_path):
     re-balance is due at the refinement's own evaluation, whose new extra nodes on the
     clamped face take their prescribed values only with the next step; it waits for that
     step, and the run keeps the serial history (at the refinement itself the energy balance
-    jumped by a fifth and the force by 1.5e-3): to 1.7e-10 of the contact force's scale, as
-    the same two ranks without a re-balance (the matrix cracks carry the sums' round-off)."""
+    jumped by a fifth and the force by 1.5e-3): to 1e-7 of each column's scale. The matrix
+    cracks carry the sums' round-off of the new partition on: 1.7e-10 when the damage law read
+    the plies' mean strain, 2e-9 (displacement) to 9e-8 (reaction force) since it reads what
+    each point of a ply releases (the same two ranks without a re-balance: 2e-10)."""
     config = tmp_path / "impact.toml"
     edits = (("rebalance = 0", "rebalance = 1.01"), ("end_time = 2.1e-5", "end_time = 2.4e-5"))
     config.write_text(edited(DATA / "mpi_one_rank_impact.toml", edits))
@@ -226,7 +228,7 @@ def test_a_rebalance_asked_for_at_a_refinement_waits_one_step(tmp_path):
     summary = run(config, tmp_path / "two", 2)
     assert summary["load_balance"]["rebalanced"]
     assert_same_history(read_history(tmp_path / "serial" / "history.csv"),
-                        read_history(tmp_path / "two" / "history.csv"), rtol=1e-9)  # fmt: skip
+                        read_history(tmp_path / "two" / "history.csv"), rtol=1e-7)  # fmt: skip
 
 
 @pytest.mark.mpi

@@ -111,6 +111,7 @@ def write(
     forget: Callable[..., None] | None = None,
     layouts: dict | None = None,
     partition: dict | None = None,
+    load_balance: dict | None = None,
 ) -> Path:
     """Collective: write the checkpoint of this moment into ``out_dir/checkpoint``; returns
     that folder. ``history_csv``: the run's history so far (rank 0's; CSV text), kept with the
@@ -120,7 +121,8 @@ def write(
 
     ``layouts``: how each array's rows are indexed (``state_layouts``; None: this checkpoint
     continues on the same partition only); ``partition``: how the run's partition was cut
-    (the manifest's "partition").
+    (the manifest's "partition"); ``load_balance``: whether a re-balance waits, and the
+    imbalance that asks for one (the manifest's "load_balance", ``runner.BalanceReport``).
 
     Protocol (see the module): the new generation's files, fsync'ed, then ``checkpoint.json``
     replaced atomically (the commit), then the older generation's files removed."""
@@ -171,6 +173,7 @@ def write(
                 # read it), and how this run's partition was cut
                 "movable": movable,
                 "partition": partition or {"weights": "start"},
+                "load_balance": load_balance or {},
                 "ranks": entries,
                 "history": _entry(history_name, history),
             }

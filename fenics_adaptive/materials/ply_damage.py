@@ -51,7 +51,10 @@ Initiation: when the matrix index (tension or compression, whichever applies) of
 reaches 1 with y > 0, the onset energy y0 = y / index^2 (the value of y where the index is 1 on
 the proportional path through the current state) is stored; it does not change afterwards (an
 implicit driver must therefore detect the onset on its elastic predictor, as an explicit step
-does). Pure transverse compression (y = 0) never initiates damage: matrix compression, like
+does). In an element y is the mean over the ply's points (below), so a ply whose mean s22 is
+compressive while some of its points pull (a neutral axis inside the ply) has y > 0 from
+those points, and its compression index can start the crack. Pure transverse compression
+(y = 0) never initiates damage: matrix compression, like
 fibre failure, is then an index only; but the compression branch does initiate cracking when
 the crack-face tractions are nonzero: in-plane shear under transverse compression, or s22 > 0
 with s22 + s33 < 0 (a ply of a cross-ply pulled across its fibres can be there), which the
@@ -140,7 +143,11 @@ mean strain, which is smaller where the strain varies through the ply (Jensen: a
 about its own mid-plane, the strain rising linearly from zero across it, releases 4/3 of it).
 With y of the mean strain the law booked 3/4 of what such a ply released, and its crack band
 dissipated 4/3 of its fracture energy; the onset stays that of the failure index of the
-ply's mean stress. The element's transverse shear energy carries each ply's shear factor
+ply's mean stress. The transverse shear part (sigma_23^2 / (2 G23)) is still that of the
+ply's mean strain: the rule samples its two shears at their own points. A seeded flaw
+(``ply_damage_state``: y0 preset for a share of YT) now starts where the points' mean of
+<s22>^2 reaches it, in a bent ply a little below that share of YT in mean stress. The
+element's transverse shear energy carries each ply's shear factor
 m (``solid_shell.shear_weights``: m times that of the sampled strain; ``materials.laminate
 .ply_shear_factors``: the plies' shares of the laminate's shear flow), so the law takes the
 ply's stress of its strain with the shear strains times sqrt(m): its failure indices see the
