@@ -70,7 +70,6 @@ from fenics_adaptive.element.assumed_strain import (
 )
 from fenics_adaptive.materials.ply_damage import (
     P_C22,
-    P_G12,
     RESIDUAL,
     S_D,
     S_DF,
@@ -78,6 +77,7 @@ from fenics_adaptive.materials.ply_damage import (
     S_ERODED,
     S_FIBRE_DISSIPATED,
     S_YF_LAST,
+    matrix_release_rates,
     ply_damage_update,
 )
 from fenics_adaptive.settings.materials import F_GFT
@@ -1303,20 +1303,22 @@ def _ply_normal_energies(
 
 
 @njit(inline="always", **KERNEL_OPTIONS)
-def _ply_release_rates(start, stop, terms, ply_of_point, maps, strain_to_stress, ply_params, out):
+def _ply_release_rates(
+    start, stop, terms, ply_of_point, maps, strain_to_stress, ply_params, volumes, out
+):
     """The matrix's energy release rates of each ply of one element as the element releases
     them (it softens every point of the ply with the one damage): the means over the ply's
-    "normal" points, weighted by w |det J|, of <s22>^2 / (2 C22), each point's crack open where
-    its own s22 > 0 (as ``element_force_kernel`` opens it), and of s12^2 / (2 G12), into
-    out[j, 0], out[j, 1] (MPa) for rule-local ply j (``ply_damage.ply_damage_update``'s
-    ``point_rates``). Where the strain varies through the ply these exceed the rates of its
-    mean strain (by 4/3 for a strain rising linearly from zero across it)."""
+    "normal" points, weighted by w |det J| (their sum ``volumes[j, 0]``, as ``_ply_means``
+    left it), of ``ply_damage.matrix_release_rates``, each point's crack open where its own
+    s22 > 0 (as ``element_force_kernel`` opens it), into out[j, 0], out[j, 1] (MPa) for
+    rule-local ply j (``ply_damage.ply_damage_update``'s ``point_rates``). Where the strain
+    varies through the ply these exceed the rates of its mean strain (by 4/3 for a strain
+    rising linearly from zero across it)."""
     k0 = ply_of_point[start]
     n_local = ply_of_point[stop - 1] - k0 + 1
     for j in range(n_local):
         out[j, 0] = 0.0
         out[j, 1] = 0.0
-        out[j, 2] = 0.0  # the points' weight
     for pp in range(start, stop):
         if terms[pp] != TERM_NORMAL:
             continue
@@ -1328,14 +1330,12 @@ def _ply_release_rates(start, stop, terms, ply_of_point, maps, strain_to_stress,
         for b, i in enumerate((0, 1, 2, 5)):
             s22 += strain_to_stress[k, 1, i] * e[b]
             s12 += strain_to_stress[k, 5, i] * e[b]
-        w = maps[0, row]
-        j = k - k0
-        out[j, 0] += w * max(s22, 0.0) ** 2 / (2.0 * ply_params[k, P_C22])
-        out[j, 1] += w * s12 * s12 / (2.0 * ply_params[k, P_G12])
-        out[j, 2] += w
+        y_normal, y_in_plane = matrix_release_rates(s22, s12, ply_params[k])
+        out[k - k0, 0] += maps[0, row] * y_normal
+        out[k - k0, 1] += maps[0, row] * y_in_plane
     for j in range(n_local):
-        out[j, 0] /= out[j, 2]
-        out[j, 1] /= out[j, 2]
+        out[j, 0] /= volumes[j, 0]
+        out[j, 1] /= volumes[j, 0]
 
 
 @njit(inline="always", **KERNEL_OPTIONS)
@@ -1518,7 +1518,7 @@ def _element_force_damaged(
     element's rows are written) and ``dirty`` (len(stiffness),) bool says which of its rows
     differ from ``stiffness`` (elements sharing a rule share rows). Other scratch: ``maps``
     (N_MAPS, >= stop - start), ``strains`` (>= n_local, 6), ``volumes`` (>= n_local, 3),
-    ``sigma`` (6,), ``normal_energy`` (>= n_local,), ``release`` (>= n_local, 3)."""
+    ``sigma`` (6,), ``normal_energy`` (>= n_local,), ``release`` (>= n_local, 2)."""
     _point_maps(X, u, start, stop, zeta, weights, position_of_point, positions, work, line, maps)
     k0 = ply_of_point[start]
     n_local = ply_of_point[stop - 1] - k0 + 1
@@ -1544,12 +1544,11 @@ def _element_force_damaged(
         False,
     )
     _ply_means(start, stop, terms, ply_of_point, maps, strains, volumes)
-    if update:
-        _ply_release_rates(
-            start, stop, terms, ply_of_point, maps, strain_to_stress, ply_params, release
-        )
     fibres = False  # does a ply of the element break its fibres?
     if update:
+        _ply_release_rates(
+            start, stop, terms, ply_of_point, maps, strain_to_stress, ply_params, volumes, release
+        )
         for j in range(n_local):
             fibres = fibres or ply_params[k0 + j, F_GFT] > 0.0
     if fibres:
@@ -2060,7 +2059,7 @@ def add_damaged_subelement_forces(
     strains = np.empty((n_plies, 6))
     volumes = np.empty((n_plies, 3))
     normal_energy = np.empty(n_plies)
-    release = np.empty((n_plies, 3))
+    release = np.empty((n_plies, 2))
     sigma = np.empty(6)
     X = np.empty((8, 3))
     u = np.empty((8, 3))

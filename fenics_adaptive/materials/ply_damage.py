@@ -472,13 +472,19 @@ def _softened(y, y0, G, band_width):
 
 
 @njit(cache=True, inline="always", error_model="numpy")
+def matrix_release_rates(s22, s12, params):
+    """The matrix's energy release rates (MPa) at a point of effective material-frame stresses
+    s22, s12: <s22>^2 / (2 C22) (the crack opens where s22 > 0) and s12^2 / (2 G12)."""
+    return max(s22, 0.0) ** 2 / (2.0 * params[P_C22]), s12 * s12 / (2.0 * params[P_G12])
+
+
+@njit(cache=True, inline="always", error_model="numpy")
 def ply_damage_update(sigma, energy_density, params, band_width, state, point_rates):
     """Update one ply's damage state (N_STATE,) in place from its effective material-frame
     stress ``sigma`` (6,) = C0 eps (in an element of several plies, eps with the transverse
     shears its energy carries: ``subelement``), its matrix's energy release rates
-    ``point_rates`` (2,): the means over an element's points of <s22>^2 / (2 C22) and
-    s12^2 / (2 G12) (MPa; ``subelement._ply_release_rates``), or a negative first entry: those
-    of ``sigma`` itself (one point), and strain energy density
+    ``point_rates`` (2,): ``matrix_release_rates`` of its points, their mean over an element's
+    (MPa; ``subelement._ply_release_rates``), and strain energy density
     ``energy_density`` = psi_m
     (MPa; read only with fibre damage: 1/2 eps.C(d).eps at the matrix damage d of before the
     update, at a point, the mean of it over the ply's points in the element kernels);
@@ -491,12 +497,8 @@ def ply_damage_update(sigma, energy_density, params, band_width, state, point_ra
     kept = 1.0 - RESIDUAL
     s22 = sigma[1]
     crack_open = s22 > 0.0
-    if point_rates[0] >= 0.0:  # an element's ply: what its points release (module docstring)
-        y_normal, y_in_plane = point_rates[0], point_rates[1]
-    else:
-        y_normal = s22 * s22 / (2.0 * params[P_C22]) if crack_open else 0.0
-        y_in_plane = sigma[5] * sigma[5] / (2.0 * params[P_G12])
-    y_shear = y_in_plane + sigma[3] * sigma[3] / (2.0 * params[P_G23])
+    y_normal = point_rates[0]  # what the points release (module docstring)
+    y_shear = point_rates[1] + sigma[3] * sigma[3] / (2.0 * params[P_G23])
     y = y_normal + y_shear
     y_last = state[S_Y_LAST]
     state[S_Y_LAST] = y
@@ -590,10 +592,6 @@ def new_state(*shape: int) -> np.ndarray:
     return np.zeros((*shape, N_STATE))
 
 
-# ``ply_damage_update``'s ``point_rates`` for a single point: from its stress
-_ONE_POINT = np.array([-1.0, 0.0])
-
-
 def material_point_update(
     material: PlyMaterial,
     failure: PlyFailure,
@@ -610,9 +608,9 @@ def material_point_update(
     bands = np.broadcast_to(np.asarray(band_width, dtype=np.float64), (2,)).copy()
     matrix = damaged_material_stiffness(material, state[S_D], bool(effective[1] > 0.0))
     psi_m = 0.5 * float(eps @ matrix @ eps)  # the fibres' energy release rate
-    crack_open = ply_damage_update(
-        effective, psi_m, ply_params_row(material, failure), bands, state, _ONE_POINT
-    )
+    params = ply_params_row(material, failure)
+    rates = np.array(matrix_release_rates(effective[1], effective[5], params))
+    crack_open = ply_damage_update(effective, psi_m, params, bands, state, rates)
     sigma = damaged_material_stiffness(material, state[S_D], bool(crack_open)) @ eps
     sigma *= 1.0 - (1.0 - RESIDUAL) * state[S_DF]
     return sigma, 0.5 * float(sigma @ eps)
