@@ -25,7 +25,8 @@ import json
 import os
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 from mpi4py import MPI
@@ -198,14 +199,40 @@ def warm_up_config(variant: str) -> dict:
     return data
 
 
+@contextmanager
+def compilations() -> Iterator[list[str]]:
+    """The numba functions compiled (not loaded from the disk cache) while the block runs, as
+    "module.function" names in the order numba compiled them: what a time loop inside it did
+    compile although ``prepare`` ran before it (the run's summary lists them, and a test checks
+    a first run's list is empty, which its wall time could only hint at on a loaded machine)."""
+    from numba.core import event
+
+    compiled: list[str] = []
+
+    class _Recorder(event.Listener):
+        def on_start(self, ev: event.Event) -> None:
+            function = ev.data["dispatcher"].py_func
+            compiled.append(f"{function.__module__}.{function.__qualname__}")
+
+        def on_end(self, ev: event.Event) -> None:
+            pass
+
+    with event.install_listener("numba:compile", _Recorder()):
+        yield compiled
+
+
 def compile_all(variant: str) -> None:
     """Compile (or load from the cache) every kernel a run of ``variant`` calls by running
     its warm-up model on this process alone (on ``MPI.COMM_SELF``)."""
+    from fenics_adaptive.io.output import written_ply_stresses
     from fenics_adaptive.settings.config import parse_config
     from fenics_adaptive.simulation import Simulation
 
     config = parse_config(warm_up_config(variant), source=f"<kernel warm-up, {variant}>")
-    Simulation(config, comm=MPI.COMM_SELF).run()
+    simulation = Simulation(config, comm=MPI.COMM_SELF)
+    simulation.run()
+    # what the field output computes in a run's loop and the warm-up's run (no output) does not
+    written_ply_stresses(simulation.structure)
 
 
 def compile_estimate(config) -> float:

@@ -185,10 +185,12 @@ def _segment(
     start = time.perf_counter()
     if repartition:  # the cut, the rebuild and the replay of the refinements, up to here
         carried.rebalanced[-1]["seconds"] = start - carried.stopped
+    compiled: list[str] = []  # numba functions the loop compiled: none, if prepare did its job
     try:
-        if resume is not None:
-            simulation.restore(resume, hook_state)
-        stats = simulation.run()
+        with kernels.compilations() as compiled:
+            if resume is not None:
+                simulation.restore(resume, hook_state)
+            stats = simulation.run()
     except explicit.Rebalance:
         carried.wall_time += time.perf_counter() - start
         carried.imbalance = balance_report.now
@@ -211,6 +213,7 @@ def _segment(
         if interrupted:
             summary["checkpoint"] = str(out_dir / checkpoint.FOLDER)
         summary["wall_time_s"] = carried.wall_time + time.perf_counter() - start
+        summary["kernels_compiled_in_loop"] = compiled
         summary["load_balance"] = _load_balance(balance_report, carried)
         try:
             output.write_summary(out_dir, summary, comm, folder.record)
@@ -224,6 +227,7 @@ def _segment(
         if refinement_log is not None:
             refinement_log.close()
     summary["load_balance"] = _load_balance(balance_report, carried)
+    summary["kernels_compiled_in_loop"] = compiled
     stats.wall_time += carried.wall_time
     try:  # the lock is held until the last file is written
         finished = (stats, history, fields, kept_rows, carried, summary)

@@ -80,5 +80,6 @@ def test_a_first_run_compiles_before_its_time_loop_and_stops_at_ctrl_c(tmp_path)
     # (what the interrupted run compiled is cached already: the rest)
     assert summaries[0]["kernel_compile_time_s"] > 0.5
     assert summaries[1]["kernel_compile_time_s"] == 0.0
-    # a compilation inside the loop would take seconds of a loop of about one second
-    assert summaries[0]["wall_time_s"] < 1.5 * summaries[1]["wall_time_s"] + 0.5
+    # numba's own record of what it compiled inside the loops (not its disk-cache loads): nothing
+    assert summaries[0]["kernels_compiled_in_loop"] == []
+    assert summaries[1]["kernels_compiled_in_loop"] == []

@@ -500,6 +500,20 @@ class CohesiveWriter(SeriesWriter):
 STRESS_NAMES = ("s11", "s22", "s33", "s23", "s13", "s12")
 
 
+def written_ply_stresses(structure) -> np.ndarray:
+    """(n_owned_cells, n_plies, 6) material-frame stress (MPa) of every (cell, ply) as its
+    element carries it, as ``PlyWriter`` writes it: the damaged secant stress of the strain
+    (with the ply damage model's state) with the transverse shears the ply carries in its
+    element (``ply_shear_scale``, applied in the shell frame, where they are defined), as the
+    ply damage law sees it."""
+    plies = structure.laminate.plies
+    strains = ply_shear_scale(structure) * ply_strains(structure)
+    if not structure.ply_damage:
+        return nominal_ply_stresses(strains, plies)
+    damage = structure.damage_state
+    return nominal_ply_stresses(strains, plies, damage[:, :, S_D], damage[:, :, S_DF])
+
+
 class PlyWriter(SeriesWriter):
     """Ply-by-ply results for ParaView: each ply of each cell as its own hexahedron (the slab
     between the ply's bottom and top within the element that holds it), with the ply number and
@@ -517,17 +531,6 @@ class PlyWriter(SeriesWriter):
         self.calls += 1
         if due:
             self.write(t)
-
-    @staticmethod
-    def _ply_stresses(structure, plies, damage: np.ndarray | None) -> np.ndarray:
-        """Material-frame stress (MPa) of every (cell, ply) as its element carries it: the
-        damaged secant stress of the strain (``damage``: the state, or None) with the transverse
-        shears the ply carries in its element (``ply_shear_scale``, applied in the shell frame,
-        where they are defined), as the ply damage law sees it."""
-        strains = ply_shear_scale(structure) * ply_strains(structure)
-        if damage is None:
-            return nominal_ply_stresses(strains, plies)
-        return nominal_ply_stresses(strains, plies, damage[:, :, S_D], damage[:, :, S_DF])
 
     def write(self, t: float) -> None:
         s = self.structure
@@ -552,8 +555,7 @@ class PlyWriter(SeriesWriter):
         n = len(element)
         connectivity = 8 * np.arange(n)[:, None] + _VTK_HEX[None, :]
         owner = cells[element]
-        damage = s.damage_state if s.ply_damage else None
-        stress = self._ply_stresses(s, plies, damage)[owner, ply]
+        stress = written_ply_stresses(s)[owner, ply]
         angle = np.array([p.angle for p in plies], dtype=float)[ply]
         frames = cell_frames_or_global(s, owner)
         radians = np.radians(angle)[:, None]
