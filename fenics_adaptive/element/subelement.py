@@ -639,7 +639,13 @@ def _add_line_moments(f_out, xi, eta, m, n):
         f_out[7, i] += eta * m1x + xi * m1y + xi * eta * m0z
 
 
-@njit(inline="always", **KERNEL_OPTIONS)
+# Compiled once, as a function of its own, not inlined into every kernel: numba kept both of
+# ``element_force_kernel``'s branches of the inlined body, and the damaged kernel (with
+# ``_condense_with_damage`` inlined twice besides) became one function that LLVM took 148 s to
+# compile on 2 vCPUs (the ply-damage warm-up 206 s); split, 50 s (87 s). The elastic kernel's
+# time per step did not move; the damaged one's best of 25 moved by 2-4 %, within the
+# machine's spread (2026-12-08, AMD EPYC).
+@njit(**KERNEL_OPTIONS)
 def _element_force_kinematics(
     X,
     u,
@@ -826,10 +832,8 @@ def element_force_kernel(
     maps,
     finite,
 ):
-    """``_element_force_kinematics`` with ``finite`` turned into a constant: inlined (numba IR),
-    each kinematics gets its own vectorised loops, and a constant ``finite`` at the call site
-    leaves only one of them. Compile every caller with ``KERNEL_OPTIONS``: inlined code takes
-    the caller's flags."""
+    """``_element_force_kinematics`` (a compiled function, called with ``finite`` as given).
+    Compile every caller with ``KERNEL_OPTIONS``: inlined code takes the caller's flags."""
     if finite:
         return _element_force_kinematics(
             X,
@@ -1424,7 +1428,7 @@ def _secant_stiffness(
         opening_scale[k] = kept * d / ply_params[k, P_C22]
 
 
-@njit(inline="always", **KERNEL_OPTIONS)
+@njit(**KERNEL_OPTIONS)  # (not inlined: called twice by the damaged kernel, see above)
 def _condense_with_damage(
     start,
     stop,
