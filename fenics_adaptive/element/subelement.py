@@ -362,8 +362,7 @@ def _monomials(values, out):
 
 
 # Compiler options of ``element_force_kernel`` and of every kernel that calls it. The point
-# kernels are inlined at numba's IR level, where the caller's flags are the ones that apply, and
-# inlining is what turns ``finite`` into a constant (one loop per kinematics, each vectorised).
+# kernels are inlined at numba's IR level, where the caller's flags are the ones that apply.
 # Fast-math subset without "nnan"/"ninf": a degenerate element still gives inf/nan, not garbage.
 KERNEL_OPTIONS = {"error_model": "numpy", "fastmath": {"contract", "reassoc", "nsz", "arcp"}}
 # Higham's polar iteration, scaled by |det R|^(-1/3): about eight steps from any conditioning;
@@ -639,14 +638,14 @@ def _add_line_moments(f_out, xi, eta, m, n):
         f_out[7, i] += eta * m1x + xi * m1y + xi * eta * m0z
 
 
-# Compiled once, as a function of its own, not inlined into every kernel: numba kept both of
-# ``element_force_kernel``'s branches of the inlined body, and the damaged kernel (with
-# ``_condense_with_damage`` inlined twice besides) became one function that LLVM took 148 s to
-# compile on 2 vCPUs (the ply-damage warm-up 206 s); split, 50 s (87 s). The elastic kernel's
-# time per step did not move; the damaged one's best of 25 moved by 2-4 %, within the
-# machine's spread (2026-12-08, AMD EPYC).
+# Compiled once, as a function of its own, with ``finite`` an argument: inlined into every
+# kernel (through a wrapper that passed ``finite`` as a constant), numba kept both kinematics of
+# the body, and the damaged kernel (with ``_condense_with_damage`` inlined twice besides) became
+# one function that LLVM took 148 s to compile on 2 vCPUs (the ply-damage warm-up 206 s);
+# split, 50 s (87 s). The elastic kernel's time per step did not move; the damaged one's best
+# of 25 moved by 2-4 %, within the machine's spread (2026-12-08, AMD EPYC).
 @njit(**KERNEL_OPTIONS)
-def _element_force_kinematics(
+def element_force_kernel(
     X,
     u,
     start,
@@ -671,8 +670,7 @@ def _element_force_kinematics(
     overwritten; returns the strain energy. Work arrays: ``work`` (2, 8, 3), ``line``
     (4, 3, 3). ``finite``: Green-Lagrange strain and second Piola-Kirchhoff stress instead of
     small strain (not combined with matrix cracks: the caller, the damaged kernel, is
-    small-strain, in a co-rotated frame under finite kinematics); a constant here, see
-    ``element_force_kernel``.
+    small-strain, in a co-rotated frame under finite kinematics).
 
     The points come in runs sharing a vertical line, and with it the energy term (the rule's
     order, ``pack_rule``); each run is one loop without branches on the point, which the
@@ -810,75 +808,6 @@ def _element_force_kinematics(
     return energy
 
 
-@njit(inline="always", **KERNEL_OPTIONS)
-def element_force_kernel(
-    X,
-    u,
-    start,
-    stop,
-    zeta,
-    weights,
-    terms,
-    ply_of_point,
-    position_of_point,
-    positions,
-    stiffness,
-    enhanced_mode,
-    work,
-    line,
-    f_out,
-    opening,
-    opening_scale,
-    maps,
-    finite,
-):
-    """``_element_force_kinematics`` (a compiled function, called with ``finite`` as given).
-    Compile every caller with ``KERNEL_OPTIONS``: inlined code takes the caller's flags."""
-    if finite:
-        return _element_force_kinematics(
-            X,
-            u,
-            start,
-            stop,
-            zeta,
-            weights,
-            terms,
-            ply_of_point,
-            position_of_point,
-            positions,
-            stiffness,
-            enhanced_mode,
-            work,
-            line,
-            f_out,
-            opening,
-            opening_scale,
-            maps,
-            True,
-        )
-    return _element_force_kinematics(
-        X,
-        u,
-        start,
-        stop,
-        zeta,
-        weights,
-        terms,
-        ply_of_point,
-        position_of_point,
-        positions,
-        stiffness,
-        enhanced_mode,
-        work,
-        line,
-        f_out,
-        opening,
-        opening_scale,
-        maps,
-        False,
-    )
-
-
 def solid_shell_force(
     X: np.ndarray,
     u: np.ndarray,
@@ -993,7 +922,7 @@ def enhanced_parameter_maps(
     fields follow: ``enhanced_parameter_maps(X_all, rule_of_element, *rules, out)``.
     alpha_k = -r_k / h_k with r_k = sum w g szz: its gradient is the line's force of the
     stress C[:, 2] w g per point, the same moments as the force kernel's enhanced term
-    (``_element_force_kinematics``). Geometry only: the UFL cells' maps are computed once per
+    (``element_force_kernel``). Geometry only: the UFL cells' maps are computed once per
     mesh, then a matrix-vector product per element and step."""
     work = np.empty((2, 8, 3))
     line = np.empty((4, 3, 3))
